@@ -1,0 +1,166 @@
+"""The zoo: each method is data (a tableau or multistep coefficients) plus metadata, and a
+registry by name. Adding a method is one `_register` line."""
+from dataclasses import dataclass
+
+import jax.numpy as jnp
+import numpy as np
+
+from integrators import steps
+from integrators.multistep import LinearMultistep, adams_bashforth, adams_moulton, bdf
+from integrators.tableau import ButcherTableau
+
+S3 = np.sqrt(3.0)
+
+
+@dataclass(frozen=True, eq=False)
+class Method:
+    """A fixed-step method. `scheme` is a ButcherTableau or a LinearMultistep. Multistep
+    methods take their first k-1 steps with `starter` (a one-step method of order >= theirs).
+    Hashable by identity, so a Method can be a static argument of `jax.jit`."""
+    name: str
+    family: str
+    order: int
+    scheme: object
+    reference: str
+    starter: "Method | None" = None
+
+    @property
+    def is_multistep(self) -> bool:
+        return isinstance(self.scheme, LinearMultistep)
+
+    @property
+    def implicit(self) -> bool:
+        return not self.scheme.explicit
+
+    @property
+    def stages(self) -> int:
+        return 1 if self.is_multistep else self.scheme.stages
+
+    @property
+    def steps(self) -> int:
+        """Step count k of a multistep method (1 for one-step methods)."""
+        return self.scheme.steps if self.is_multistep else 1
+
+    @property
+    def n_start(self) -> int:
+        """Steps taken by the starter before the method's own step takes over."""
+        return self.steps - 1
+
+    @property
+    def rhs_evals_per_step(self) -> int:
+        """Explicit: exact. Implicit: evaluations of one Newton iteration without the
+        Jacobian (the measured count, with Newton iterations, comes from the driver)."""
+        if self.is_multistep:
+            return 1
+        return self.scheme.evals_per_step if self.scheme.explicit else self.scheme.stages
+
+    def init_state(self, y0):
+        return {"evals": jnp.zeros((), y0.dtype)}
+
+    def step(self, fun, t, y, h, state):
+        """One step from (t, y): returns (y_next, state)."""
+        if self.is_multistep:
+            return steps.multistep_step(self.scheme, fun, t, y, h, state)
+        if self.scheme.explicit:
+            return steps.explicit_rk_step(self.scheme, fun, t, y, h, state)
+        return steps.implicit_rk_step(self.scheme, fun, t, y, h, state)
+
+    def start(self, fun, t0, y0, h):
+        """Starting values: (ys of steps 1..n_start, state ready for `step` at step n_start)."""
+        state = self.init_state(y0)
+        if not self.is_multistep:
+            return jnp.zeros((0,) + y0.shape, y0.dtype), state
+        ys, y, sub = [y0], y0, self.starter.init_state(y0)
+        for i in range(self.n_start):
+            y, sub = self.starter.step(fun, t0 + i * h, y, h, sub)
+            ys.append(y)
+        hist = jnp.stack(ys)
+        fs = jnp.stack([fun(t0 + i * h, yi) for i, yi in enumerate(ys)])
+        state = dict(state, ys=hist, fs=fs, evals=sub["evals"] + len(ys))
+        return hist[1:], state
+
+
+def _rk(a, b, c=None):
+    a = np.array(a, dtype=float)
+    return ButcherTableau(a, np.array(b, dtype=float), a.sum(axis=1) if c is None else np.array(c))
+
+
+TABLEAUS = {
+    "euler": _rk([[0]], [1]),
+    "heun": _rk([[0, 0], [1, 0]], [1 / 2, 1 / 2]),
+    "midpoint": _rk([[0, 0], [1 / 2, 0]], [0, 1]),
+    "rk3": _rk([[0, 0, 0], [1 / 2, 0, 0], [-1, 2, 0]], [1 / 6, 2 / 3, 1 / 6]),
+    "rk4": _rk([[0, 0, 0, 0], [1 / 2, 0, 0, 0], [0, 1 / 2, 0, 0], [0, 0, 1, 0]],
+               [1 / 6, 1 / 3, 1 / 3, 1 / 6]),
+    "rk6": _rk([[0, 0, 0, 0, 0, 0, 0],
+                [1 / 3, 0, 0, 0, 0, 0, 0],
+                [0, 2 / 3, 0, 0, 0, 0, 0],
+                [1 / 12, 1 / 3, -1 / 12, 0, 0, 0, 0],
+                [-1 / 16, 9 / 8, -3 / 16, -3 / 8, 0, 0, 0],
+                [0, 9 / 8, -3 / 8, -3 / 4, 1 / 2, 0, 0],
+                [9 / 44, -9 / 11, 63 / 44, 18 / 11, 0, -16 / 11, 0]],
+               [11 / 120, 0, 27 / 40, 27 / 40, -4 / 15, -4 / 15, 11 / 120]),
+    "dopri5": _rk([[0, 0, 0, 0, 0, 0, 0],
+                   [1 / 5, 0, 0, 0, 0, 0, 0],
+                   [3 / 40, 9 / 40, 0, 0, 0, 0, 0],
+                   [44 / 45, -56 / 15, 32 / 9, 0, 0, 0, 0],
+                   [19372 / 6561, -25360 / 2187, 64448 / 6561, -212 / 729, 0, 0, 0],
+                   [9017 / 3168, -355 / 33, 46732 / 5247, 49 / 176, -5103 / 18656, 0, 0],
+                   [35 / 384, 0, 500 / 1113, 125 / 192, -2187 / 6784, 11 / 84, 0]],
+                  [35 / 384, 0, 500 / 1113, 125 / 192, -2187 / 6784, 11 / 84, 0]),
+    "backward_euler": _rk([[1]], [1]),
+    "trapezoidal": _rk([[0, 0], [1 / 2, 1 / 2]], [1 / 2, 1 / 2]),
+    "gauss_legendre4": _rk([[1 / 4, 1 / 4 - S3 / 6], [1 / 4 + S3 / 6, 1 / 4]], [1 / 2, 1 / 2]),
+    "radau_iia3": _rk([[5 / 12, -1 / 12], [3 / 4, 1 / 4]], [3 / 4, 1 / 4]),
+}
+# Embedded fourth-order weights of Dormand-Prince 5(4), for the adaptive reference's error.
+DOPRI5_B4 = np.array([5179 / 57600, 0, 7571 / 16695, 393 / 640, -92097 / 339200,
+                      187 / 2100, 1 / 40])
+
+METHODS: dict[str, Method] = {}
+
+
+def _register(name, family, order, scheme, reference, starter=None):
+    METHODS[name] = Method(name, family, order, scheme, reference, starter)
+
+
+_register("euler", "explicit RK", 1, TABLEAUS["euler"], "Euler 1768; forward Euler")
+_register("heun", "explicit RK", 2, TABLEAUS["heun"], "Heun 1900; explicit trapezoidal")
+_register("midpoint", "explicit RK", 2, TABLEAUS["midpoint"], "Runge 1895; explicit midpoint")
+_register("rk3", "explicit RK", 3, TABLEAUS["rk3"], "Kutta 1901; third-order method")
+_register("rk4", "explicit RK", 4, TABLEAUS["rk4"], "Kutta 1901; classical RK4")
+_register("rk6", "explicit RK", 6, TABLEAUS["rk6"], "Butcher 1964; 7-stage sixth order")
+_register("dopri5", "explicit RK", 5, TABLEAUS["dopri5"],
+          "Dormand & Prince 1980; fifth-order weights, fixed step (FSAL stage unused)")
+_register("backward_euler", "implicit RK", 1, TABLEAUS["backward_euler"],
+          "backward Euler; A- and L-stable")
+_register("trapezoidal", "implicit RK", 2, TABLEAUS["trapezoidal"],
+          "trapezoidal rule (Crank-Nicolson); A-stable")
+_register("gauss_legendre4", "implicit RK", 4, TABLEAUS["gauss_legendre4"],
+          "Butcher 1964; 2-stage Gauss-Legendre collocation, A-stable, symplectic")
+_register("radau_iia3", "implicit RK", 3, TABLEAUS["radau_iia3"],
+          "Ehle 1969; 2-stage Radau IIA, A- and L-stable")
+_rk4 = METHODS["rk4"]
+for _k in (2, 3, 4):
+    _register(f"ab{_k}", "Adams-Bashforth", _k, adams_bashforth(_k),
+              f"Adams-Bashforth {_k}-step; started with RK4", _rk4)
+for _k in (2, 3):
+    _register(f"am{_k + 1}", "Adams-Moulton", _k + 1, adams_moulton(_k),
+              f"Adams-Moulton {_k}-step (order {_k + 1}); started with RK4", _rk4)
+_register("bdf2", "BDF", 2, bdf(2), "backward differentiation formula, 2-step; A-stable, "
+          "started with RK4", _rk4)
+
+
+def method(name: str) -> Method:
+    if name not in METHODS:
+        raise KeyError(f"unknown method {name!r}; known: {', '.join(METHODS)}")
+    return METHODS[name]
+
+
+def describe(m: Method) -> dict:
+    """Metadata row of `stepzoo methods`."""
+    return {"name": m.name, "family": m.family, "order": m.order, "stages": m.stages,
+            "steps": m.steps, "implicit": m.implicit,
+            "rhs_evals_per_step": m.rhs_evals_per_step, "reference": m.reference}
+
+
