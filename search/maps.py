@@ -1,0 +1,269 @@
+"""Occupancy maps for the planner: load ROS, MovingAI, image and array maps into one grid.
+
+World frame as in ROS (x right, y up, metres, origin at the lower-left corner); unknown cells
+and everything outside the grid are obstacles; a distance field answers clearance queries.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import yaml
+from PIL import Image, UnidentifiedImageError
+from scipy.ndimage import distance_transform_edt
+
+# The distance field is sampled on a lattice SUBDIV times finer than the cells. Obstacles are
+# unions of whole cells, so at lattice points the field is exact, and reading it at the nearest
+# lattice point costs at most sqrt(2)/SUBDIV cells of conservativeness (0.71 cell for 2).
+SUBDIV = 2
+
+_MOVINGAI_FREE = frozenset(".GS")
+_MOVINGAI_BLOCKED = frozenset("@OTW")
+_ROS_MODES = ("trinary", "scale", "raw")
+
+
+@dataclass(frozen=True, eq=False)
+class OccupancyMap:
+    """A grid of obstacle cells; row 0 is the bottom row (y from origin_y to origin_y + res)."""
+
+    occupied: np.ndarray  # bool (rows, cols), True = occupied or unknown
+    resolution: float  # [m/cell]
+    origin: tuple[float, float]  # world (x, y) [m] of the lower-left corner
+    distance: np.ndarray = field(init=False, repr=False)  # [m] at lattice points, see SUBDIV
+
+    def __post_init__(self):
+        occupied = np.array(self.occupied, dtype=bool)
+        if occupied.ndim != 2 or occupied.size == 0:
+            raise ValueError(f"occupancy grid must be a non-empty 2-D array, got shape "
+                             f"{occupied.shape}; pass a (rows, cols) array")
+        resolution = _positive(self.resolution, "resolution")
+        origin = tuple(float(v) for v in self.origin)
+        if len(origin) != 2 or not all(np.isfinite(origin)):
+            raise ValueError(f"map origin must be two finite numbers (x, y) [m], got {self.origin!r}")
+        occupied.setflags(write=False)
+        distance = _lattice_distance(occupied) * (resolution / SUBDIV)
+        distance.setflags(write=False)
+        object.__setattr__(self, "occupied", occupied)
+        object.__setattr__(self, "resolution", resolution)
+        object.__setattr__(self, "origin", origin)
+        object.__setattr__(self, "distance", distance)
+
+    def bounds(self) -> tuple[float, float, float, float]:
+        """(xmin, xmax, ymin, ymax) [m] of the grid."""
+        rows, cols = self.occupied.shape
+        x0, y0 = self.origin
+        return x0, x0 + cols * self.resolution, y0, y0 + rows * self.resolution
+
+    def clearance(self, xy) -> np.ndarray:
+        """(..., 2) [m] -> (...) [m]: a lower bound of the distance to the nearest obstacle.
+
+        Positive only in free space; <= 0 inside obstacles, off the map and at non-finite points.
+        """
+        xy = np.asarray(xy, dtype=float)
+        finite = np.all(np.isfinite(xy), axis=-1)
+        step = self.resolution / SUBDIV
+        lattice = (np.where(finite[..., None], xy, 0.0) - self.origin) / step
+        # Points off the map snap to the boundary lattice, where the field is zero, so the
+        # bound below goes negative there without a separate test.
+        hi = np.array(self.distance.shape[::-1]) - 1
+        nearest = np.clip(np.rint(lattice), 0, hi).astype(np.intp)
+        # The distance to a set is 1-Lipschitz: moving from the lattice point to xy can shrink it
+        # by at most the length of that move.
+        offset = np.linalg.norm(lattice - nearest, axis=-1) * step
+        value = self.distance[nearest[..., 1], nearest[..., 0]] - offset
+        return np.where(finite, value, -np.inf)
+
+    def is_free(self, xy) -> np.ndarray:
+        """(..., 2) [m] -> bool (...): clearance > 0."""
+        return self.clearance(xy) > 0.0
+
+
+def _positive(value, name: str) -> float:
+    """`value` as a finite float > 0, else a ValueError naming `name`."""
+    try:
+        number = float(value)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name} must be a number > 0 [m/cell], got {value!r}") from None
+    if not np.isfinite(number) or number <= 0.0:
+        raise ValueError(f"{name} must be a finite number > 0 [m/cell], got {value!r}")
+    return number
+
+
+def _lattice_distance(occupied: np.ndarray) -> np.ndarray:
+    """Exact distance [lattice steps] from every lattice point to the obstacle region.
+
+    Lattice point (i, j) sits at (j, i) / SUBDIV cells from the lower-left corner. The obstacle
+    region (closed occupied cells plus all outside the grid) has lattice-aligned corners, so its
+    nearest point to a lattice point is itself a lattice point: a plain EDT is exact here.
+    """
+    fine = np.pad(np.repeat(np.repeat(occupied, SUBDIV, 0), SUBDIV, 1), 1, constant_values=True)
+    # A lattice point is in the closed region if any of the four fine cells around it is.
+    blocked = fine[:-1, :-1] | fine[1:, :-1] | fine[:-1, 1:] | fine[1:, 1:]
+    return distance_transform_edt(~blocked)
+
+
+def from_array(occupied, resolution, origin=(0.0, 0.0)) -> OccupancyMap:
+    """Map from a 2-D array (nonzero = obstacle); occupied[0] is the bottom row."""
+    return OccupancyMap(np.asarray(occupied) != 0, resolution, tuple(origin))
+
+
+def load_map(path, cell_size=None, resolution=None) -> OccupancyMap:
+    """Load a map, choosing the format by extension.
+
+    .yaml/.yml: ROS map_server (resolution and origin from the file); .map: MovingAI;
+    .png/.pgm: image, dark = occupied; .npy: array, nonzero = occupied, row 0 at the bottom.
+    `cell_size` and `resolution` are both [m/cell]; give one for formats that lack it.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise ValueError(f"map file not found: {path}; check the path")
+    suffix = path.suffix.lower()
+    if suffix in (".yaml", ".yml"):
+        return _load_ros(path, _cell_size(path, cell_size, resolution, required=False))
+    if suffix not in (".map", ".png", ".pgm", ".npy"):
+        raise ValueError(f"unknown map format '{path.suffix}' for {path}; use .yaml/.yml (ROS), "
+                         ".map (MovingAI), .png/.pgm (image) or .npy (array)")
+    size = _cell_size(path, cell_size, resolution, required=True)
+    if suffix == ".map":
+        return from_array(_read_movingai(path)[::-1], size)
+    if suffix == ".npy":
+        return from_array(_read_npy(path), size)
+    # A bare image has no thresholds: dark (occupancy above one half) is an obstacle.
+    return from_array(_occupancy(_read_grey(path))[::-1] > 0.5, size)
+
+
+def _cell_size(path: Path, cell_size, resolution, required: bool):
+    """The one [m/cell] value given by either name, or None; ValueError if they conflict."""
+    given = [_positive(v, name) for v, name in ((cell_size, "cell_size"), (resolution, "resolution"))
+             if v is not None]
+    if len(given) == 2 and given[0] != given[1]:
+        raise ValueError(f"cell_size {given[0]} and resolution {given[1]} disagree for {path}; "
+                         "give one of them")
+    if required and not given:
+        raise ValueError(f"{path.name} does not store its cell size; give one in metres per cell "
+                         "(cell_size=... or resolution=...)")
+    return given[0] if given else None
+
+
+def _read_grey(path: Path) -> np.ndarray:
+    """Image as float grey values 0..255, colour channels averaged (alpha ignored), as ROS does."""
+    try:
+        with Image.open(path) as image:
+            image.load()
+            bands = image.getbands()
+            if bands in (("L",), ("1",), ("L", "A"), ("I",), ("F",)):
+                pixels = np.asarray(image.convert("L"), dtype=float)
+            else:
+                pixels = np.asarray(image.convert("RGB"), dtype=float).mean(axis=-1)
+    except (OSError, UnidentifiedImageError) as error:
+        raise ValueError(f"cannot read map image {path}: {error}; give a PNG or PGM file") from None
+    return pixels
+
+
+def _occupancy(grey: np.ndarray) -> np.ndarray:
+    """ROS occupancy probability p = (255 - value) / 255."""
+    return (255.0 - grey) / 255.0
+
+
+def _read_npy(path: Path) -> np.ndarray:
+    try:
+        array = np.load(path, allow_pickle=False)
+    except (OSError, ValueError) as error:
+        raise ValueError(f"cannot read {path} as a NumPy array: {error}; save it with np.save") from None
+    if array.ndim != 2:
+        raise ValueError(f"{path} holds an array of shape {array.shape}; a map needs a 2-D array")
+    return array
+
+
+def _read_movingai(path: Path) -> np.ndarray:
+    """MovingAI grid as bool (rows, cols), True = blocked, row 0 = the file's first (top) row."""
+    lines = path.read_text(encoding="ascii", errors="replace").splitlines()
+    header = {}
+    for number, line in enumerate(lines):
+        words = line.split()
+        if words == ["map"]:
+            break
+        if len(words) != 2:
+            raise ValueError(f"{path}:{number + 1}: bad MovingAI header line {line!r}; expected "
+                             "'type octile', 'height H', 'width W', then 'map'")
+        header[words[0]] = words[1]
+    else:
+        raise ValueError(f"{path}: no 'map' line; a MovingAI file has 'type', 'height', 'width' "
+                         "lines, then 'map', then the grid")
+    try:
+        rows, cols = int(header["height"]), int(header["width"])
+    except (KeyError, ValueError):
+        raise ValueError(f"{path}: the header needs integer 'height' and 'width' lines, "
+                         f"got {header}") from None
+    grid = [line.rstrip() for line in lines[number + 1:]]
+    while grid and not grid[-1]:
+        grid.pop()
+    if len(grid) != rows or any(len(line) != cols for line in grid):
+        raise ValueError(f"{path}: the grid is not {rows} rows of {cols} characters as the header "
+                         "says; fix the header or the grid")
+    cells = np.array([list(line) for line in grid])
+    unknown = set(np.unique(cells)) - _MOVINGAI_FREE - _MOVINGAI_BLOCKED
+    if unknown:
+        raise ValueError(f"{path}: unknown map characters {sorted(unknown)}; MovingAI uses "
+                         "'.', 'G', 'S' (free) and '@', 'O', 'T', 'W' (blocked)")
+    return np.isin(cells, list(_MOVINGAI_BLOCKED))
+
+
+def _load_ros(path: Path, expected_resolution) -> OccupancyMap:
+    """ROS map_server yaml + image; cells neither free nor occupied count as obstacles."""
+    try:
+        meta = yaml.safe_load(path.read_text())
+    except yaml.YAMLError as error:
+        reason = str(error).replace("\n", " ")
+        raise ValueError(f"{path} is not valid YAML ({reason}); fix the file") from None
+    if not isinstance(meta, dict):
+        raise ValueError(f"{path} must be a YAML mapping with image, resolution, origin, "
+                         "occupied_thresh, free_thresh")
+    missing = [k for k in ("image", "resolution", "origin", "occupied_thresh", "free_thresh")
+               if k not in meta]
+    if missing:
+        raise ValueError(f"{path} lacks {', '.join(missing)}; a ROS map yaml needs image, "
+                         "resolution, origin, occupied_thresh and free_thresh")
+    resolution = _positive(meta["resolution"], f"resolution in {path.name}")
+    if expected_resolution is not None and expected_resolution != resolution:
+        raise ValueError(f"{path} says resolution {resolution} but {expected_resolution} was "
+                         "given; drop the cell size argument for ROS maps")
+    origin = meta["origin"]
+    if (not isinstance(origin, list) or len(origin) not in (2, 3)
+            or not all(isinstance(v, (int, float)) for v in origin)):
+        raise ValueError(f"{path}: origin must be [x, y, yaw], got {origin!r}")
+    if len(origin) == 3 and origin[2] != 0:
+        # Our grid is axis-aligned; silently dropping the yaw would misplace every obstacle.
+        raise ValueError(f"{path}: rotated maps (origin yaw {origin[2]}) are not supported; "
+                         "rotate the image and set yaw to 0")
+    try:
+        occupied_thresh, free_thresh = float(meta["occupied_thresh"]), float(meta["free_thresh"])
+    except (TypeError, ValueError):
+        raise ValueError(f"{path}: occupied_thresh and free_thresh must be numbers") from None
+    if not 0.0 <= free_thresh <= occupied_thresh <= 1.0:
+        raise ValueError(f"{path}: need 0 <= free_thresh <= occupied_thresh <= 1, got "
+                         f"{free_thresh} and {occupied_thresh}")
+    mode = str(meta.get("mode", "trinary")).lower()
+    if mode not in _ROS_MODES:
+        raise ValueError(f"{path}: unknown mode {mode!r}; use one of {', '.join(_ROS_MODES)}")
+    negate = meta.get("negate", 0)
+    if negate not in (0, 1, True, False):
+        raise ValueError(f"{path}: negate must be 0 or 1, got {negate!r}")
+    image = path.parent / str(meta["image"])
+    if not image.is_file():
+        raise ValueError(f"{path} names image {meta['image']!r}, not found at {image}; fix 'image'")
+    grey = _read_grey(image)
+    if negate:
+        grey = 255.0 - grey
+    if mode == "raw":
+        # Raw pixels are occupancy percentages; anything above 100 is ROS's "unknown".
+        value = np.rint(grey)
+        p = np.where(value <= 100.0, value / 100.0, np.nan)
+    else:
+        p = _occupancy(grey)
+    # Trinary and scale differ only for cells between the thresholds (unknown vs. a
+    # probability); both are obstacles here, so only the free test matters.
+    free = p < free_thresh
+    return from_array(~free[::-1], resolution, (float(origin[0]), float(origin[1])))
