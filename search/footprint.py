@@ -56,7 +56,10 @@ class Footprint:
     def disc_centres(self, poses) -> np.ndarray:
         """(..., 3+) [X, Y, psi] (extra columns ignored) -> (..., n, 2) [m]."""
         poses = np.asarray(poses, dtype=float)
-        heading = np.stack([np.cos(poses[..., 2]), np.sin(poses[..., 2])], axis=-1)
+        # An infinite heading (blown-up integration) gives NaN centres, which the map treats as
+        # obstacles; the warning would only be noise.
+        with np.errstate(invalid="ignore"):
+            heading = np.stack([np.cos(poses[..., 2]), np.sin(poses[..., 2])], axis=-1)
         return poses[..., None, :2] + self.offsets[:, None] * heading[..., None, :]
 
 

@@ -1,0 +1,178 @@
+"""Footprint collision: the disc cover contains the car, and paths cannot jump walls."""
+
+import numpy as np
+import pytest
+
+from search.footprint import Footprint, first_collision, poses_collide
+from search.maps import from_array
+
+
+def grid_with(cells, shape=(200, 200), resolution=0.1):
+    """A map of `shape` cells with the given (row, col) cells occupied, origin (0, 0)."""
+    occupied = np.zeros(shape, bool)
+    for row, col in cells:
+        occupied[row, col] = True
+    return from_array(occupied, resolution)
+
+
+def rectangle_points(length, width, pose, n=41):
+    """World points [m] on a grid over the rectangle, its edges and corners included."""
+    u, v = np.meshgrid(np.linspace(-length / 2, length / 2, n), np.linspace(-width / 2, width / 2, n))
+    c, s = np.cos(pose[2]), np.sin(pose[2])
+    return np.stack([pose[0] + c * u - s * v, pose[1] + s * u + c * v], -1).reshape(-1, 2)
+
+
+@pytest.mark.parametrize("length, width, n_discs", [
+    (4.5, 1.8, None), (4.5, 1.8, 1), (4.5, 1.8, 5), (1.0, 2.0, None), (3.0, 3.0, 2)])
+def test_the_disc_cover_contains_the_rectangle(length, width, n_discs):
+    footprint = Footprint.from_vehicle(length, width, n_discs)
+    for pose in np.random.default_rng(3).uniform([-5, -5, -4], [5, 5, 4], (5, 3)):
+        points = rectangle_points(length, width, pose)
+        centres = footprint.disc_centres(pose)
+        gap = np.linalg.norm(points[:, None, :] - centres[None], axis=-1).min(axis=1)
+        assert np.all(gap <= footprint.radius + 1e-9)
+
+
+def test_default_cover_uses_near_square_slices():
+    footprint = Footprint.from_vehicle(4.5, 1.8)
+    assert footprint.offsets.tolist() == pytest.approx([-1.5, 0.0, 1.5])
+    assert footprint.radius == pytest.approx(np.hypot(0.75, 0.9))
+
+
+def test_disc_centres_follow_the_heading():
+    footprint = Footprint.from_vehicle(4.0, 2.0, 2)
+    centres = footprint.disc_centres(np.array([[1.0, 2.0, np.pi / 2], [0.0, 0.0, 0.0]]))
+    assert centres.shape == (2, 2, 2)
+    assert centres[0] == pytest.approx(np.array([[1.0, 1.0], [1.0, 3.0]]))
+    assert centres[1] == pytest.approx(np.array([[-1.0, 0.0], [1.0, 0.0]]))
+
+
+def test_a_corner_over_an_obstacle_collides_and_the_same_pose_shifted_clear_does_not():
+    # Car 4 m x 2 m at (10, 10) heading +x: front-left corner at (12, 11). The obstacle cell
+    # [11.9, 12.0] x [10.9, 11.0] sits just inside that corner.
+    omap = grid_with([(109, 119)])
+    footprint = Footprint.from_vehicle(4.0, 2.0)
+    poses = np.array([[10.0, 10.0, 0.0],   # corner on the obstacle
+                      [10.0, 8.5, 0.0],    # shifted 1.5 m to the car's right
+                      [6.0, 10.0, 0.0]])   # shifted 4 m back
+    assert poses_collide(omap, footprint, poses).tolist() == [True, False, False]
+
+
+def test_turning_the_car_onto_an_obstacle_collides():
+    # An obstacle left of a car heading +x is hit once the car heads +y.
+    omap = grid_with([(120, 100)])  # cell [10.0, 10.1] x [12.0, 12.1]
+    footprint = Footprint.from_vehicle(4.5, 1.8)
+    poses = np.array([[10.0, 10.0, 0.0], [10.0, 10.0, np.pi / 2]])
+    assert poses_collide(omap, footprint, poses).tolist() == [False, True]
+
+
+def test_poses_off_the_map_or_not_finite_collide():
+    omap = grid_with([])
+    footprint = Footprint.from_vehicle(4.5, 1.8)
+    poses = np.array([[10, 10, 0], [1.0, 10, 0], [30, 10, 0], [np.nan, 10, 0], [10, 10, np.inf]])
+    assert poses_collide(omap, footprint, poses).tolist() == [False, True, True, True, True]
+
+
+def wall_map():
+    """A 0.1 m thick wall across the whole map at x in [10, 10.1]."""
+    return grid_with([(row, 100) for row in range(200)])
+
+
+def test_a_jump_over_a_thin_wall_is_caught_by_densification():
+    omap, footprint = wall_map(), Footprint.from_vehicle(4.5, 1.8)
+    path = np.array([[[5.0, 10.0, 0.0], [15.0, 10.0, 0.0], [16.0, 10.0, 0.0]]])
+    # Both ends are clear on their own: only the segment between them crosses the wall.
+    assert not np.any(poses_collide(omap, footprint, path))
+    assert first_collision(omap, footprint, path).tolist() == [1]
+
+
+def test_a_turn_in_place_that_sweeps_over_an_obstacle_is_caught():
+    # The front disc passes the diagonal halfway through a quarter turn; an obstacle there
+    # is clear of both the start and end poses.
+    omap = grid_with([(115, 115)])  # cell centre 1.55 m along both axes from (10, 10)
+    footprint = Footprint.from_vehicle(4.5, 1.8)
+    path = np.array([[[10.0, 10.0, 0.0], [10.0, 10.0, np.pi / 2]]])
+    assert not np.any(poses_collide(omap, footprint, path))
+    assert first_collision(omap, footprint, path).tolist() == [1]
+
+
+def test_heading_wraps_the_short_way_between_poses():
+    # From psi = 3 to psi = -3 the car turns 0.28 rad through pi, not 6 rad through 0; only
+    # the long turn passes psi = pi/2, where the car would hit the obstacle.
+    omap = grid_with([(119, 100)])  # cell [10.0, 10.1] x [11.9, 12.0]
+    footprint = Footprint.from_vehicle(4.5, 1.8)
+    assert poses_collide(omap, footprint, np.array([10.0, 10.0, np.pi / 2]))
+    path = np.array([[[10.0, 10.0, 3.0], [10.0, 10.0, -3.0]]])
+    assert first_collision(omap, footprint, path).tolist() == [-1]
+
+
+def test_first_collision_reports_the_first_bad_pose_per_path():
+    omap, footprint = wall_map(), Footprint.from_vehicle(4.5, 1.8)
+    x = np.linspace(3.0, 16.0, 27)  # 0.5 m apart, below one disc radius
+    along = np.stack([x, np.full_like(x, 10.0), np.zeros_like(x)], -1)
+    away = along.copy()
+    away[:, 0] = 3.0 + (x - 3.0) * 0.2  # stays left of the wall
+    starts_inside = along[::-1].copy()
+    starts_inside[:, 0] = 10.0
+    paths = np.stack([along, away, starts_inside])
+    expected_along = np.argmax(poses_collide(omap, footprint, along))
+    assert expected_along > 0
+    assert first_collision(omap, footprint, paths).tolist() == [expected_along, -1, 0]
+
+
+def brute_first_collision(omap, footprint, paths, every=50):
+    """First colliding pose, checking `every` interpolated poses per segment (pose 0 alone)."""
+    steps = np.diff(paths, axis=1)
+    steps[..., 2] = (steps[..., 2] + np.pi) % (2 * np.pi) - np.pi
+    frac = np.arange(1, every + 1) / every
+    dense = paths[:, :-1, None] + frac[:, None] * steps[:, :, None]
+    hit = np.concatenate([poses_collide(omap, footprint, paths[:, :1]),
+                          poses_collide(omap, footprint, dense).any(axis=-1)], axis=1)
+    return np.where(hit.any(axis=1), hit.argmax(axis=1), -1)
+
+
+def test_first_collision_is_bracketed_by_dense_checks_with_shrunk_and_grown_discs():
+    # Every point of a segment lies within half a radius of a checked pose, and the clearance
+    # errs by at most 0.71 cell. So a dense check with discs shrunk by both margins can only
+    # find collisions first_collision also finds (no later), and one with discs grown by the
+    # clearance error plus half the dense spacing finds all that first_collision finds.
+    rng = np.random.default_rng(11)
+    resolution = 0.25
+    omap = from_array(rng.random((120, 120)) < 0.002, resolution)
+    footprint = Footprint.from_vehicle(2.0, 1.0)
+    start = rng.uniform([8, 8, -np.pi], [22, 22, np.pi], (40, 1, 3))
+    steps = rng.uniform([-1.5, -1.5, -0.6], [1.5, 1.5, 0.6], (40, 29, 3))
+    paths = np.concatenate([start, start + np.cumsum(steps, axis=1)], axis=1)
+    error = np.sqrt(2) / 2 * resolution
+    smaller = Footprint(2.0, 1.0, footprint.offsets, footprint.radius / 2 - error)
+    larger = Footprint(2.0, 1.0, footprint.offsets, footprint.radius + error + 0.05)
+    got = first_collision(omap, footprint, paths)
+    inner = brute_first_collision(omap, smaller, paths)
+    outer = brute_first_collision(omap, larger, paths)
+    assert np.any(inner > 0) and np.any(got == -1)
+    assert np.all((inner == -1) | ((got >= 0) & (got <= inner)))
+    assert np.all((got == -1) | ((outer >= 0) & (outer <= got)))
+    # Checking the poses alone, without densification, finds some collisions late or never.
+    plain = poses_collide(omap, footprint, paths)
+    plain_first = np.where(plain.any(axis=1), plain.argmax(axis=1), -1)
+    assert np.any((got >= 0) & ((plain_first == -1) | (plain_first > got)))
+
+
+def test_blown_up_states_and_extra_columns():
+    omap, footprint = grid_with([]), Footprint.from_vehicle(4.5, 1.8)
+    path = np.zeros((2, 5, 5))  # [X, Y, psi, vy, r]
+    path[:, :, 0] = np.linspace(8.0, 10.0, 5)
+    path[:, :, 1] = 10.0
+    path[:, :, 3:] = 1e6  # vy, r are not part of the pose
+    path[1, 3, :2] = np.nan
+    assert first_collision(omap, footprint, path).tolist() == [-1, 3]
+    assert first_collision(omap, footprint, np.zeros((3, 0, 3))).tolist() == [-1, -1, -1]
+
+
+def test_bad_input_raises_value_error():
+    with pytest.raises(ValueError, match="length and width"):
+        Footprint.from_vehicle(0.0, 1.8)
+    with pytest.raises(ValueError, match="n_discs"):
+        Footprint.from_vehicle(4.5, 1.8, 0)
+    with pytest.raises(ValueError, match="shape"):
+        first_collision(grid_with([]), Footprint.from_vehicle(4.5, 1.8), np.zeros((5, 3)))
