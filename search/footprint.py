@@ -26,7 +26,8 @@ class Footprint:
     def __post_init__(self):
         offsets = np.array(self.offsets, dtype=float).reshape(-1)
         if offsets.size == 0 or not np.all(np.isfinite(offsets)):
-            raise ValueError(f"footprint needs at least one finite disc offset [m], got {self.offsets!r}")
+            raise ValueError(f"footprint needs at least one finite disc offset [m], "
+                             f"got {self.offsets!r}")
         if not (math.isfinite(self.radius) and self.radius > 0):
             raise ValueError(f"disc radius must be finite and > 0 [m], got {self.radius!r}")
         offsets.setflags(write=False)

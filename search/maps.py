@@ -41,7 +41,8 @@ class OccupancyMap:
         resolution = _positive(self.resolution, "resolution")
         origin = tuple(float(v) for v in self.origin)
         if len(origin) != 2 or not all(np.isfinite(origin)):
-            raise ValueError(f"map origin must be two finite numbers (x, y) [m], got {self.origin!r}")
+            raise ValueError(f"map origin must be two finite numbers (x, y) [m], "
+                             f"got {self.origin!r}")
         occupied.setflags(write=False)
         distance = _lattice_distance(occupied) * (resolution / SUBDIV)
         distance.setflags(write=False)
@@ -136,8 +137,8 @@ def load_map(path, cell_size=None, resolution=None) -> OccupancyMap:
 
 def _cell_size(path: Path, cell_size, resolution, required: bool):
     """The one [m/cell] value given by either name, or None; ValueError if they conflict."""
-    given = [_positive(v, name) for v, name in ((cell_size, "cell_size"), (resolution, "resolution"))
-             if v is not None]
+    named = ((cell_size, "cell_size"), (resolution, "resolution"))
+    given = [_positive(v, name) for v, name in named if v is not None]
     if len(given) == 2 and given[0] != given[1]:
         raise ValueError(f"cell_size {given[0]} and resolution {given[1]} disagree for {path}; "
                          "give one of them")
@@ -171,7 +172,8 @@ def _read_npy(path: Path) -> np.ndarray:
     try:
         array = np.load(path, allow_pickle=False)
     except (OSError, ValueError) as error:
-        raise ValueError(f"cannot read {path} as a NumPy array: {error}; save it with np.save") from None
+        raise ValueError(f"cannot read {path} as a NumPy array: {error}; "
+                         "save it with np.save") from None
     if array.ndim != 2:
         raise ValueError(f"{path} holds an array of shape {array.shape}; a map needs a 2-D array")
     return array

@@ -17,7 +17,8 @@ def grid_with(cells, shape=(200, 200), resolution=0.1):
 
 def rectangle_points(length, width, pose, n=41):
     """World points [m] on a grid over the rectangle, its edges and corners included."""
-    u, v = np.meshgrid(np.linspace(-length / 2, length / 2, n), np.linspace(-width / 2, width / 2, n))
+    u, v = np.meshgrid(np.linspace(-length / 2, length / 2, n),
+                       np.linspace(-width / 2, width / 2, n))
     c, s = np.cos(pose[2]), np.sin(pose[2])
     return np.stack([pose[0] + c * u - s * v, pose[1] + s * u + c * v], -1).reshape(-1, 2)
 
