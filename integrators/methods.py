@@ -144,11 +144,14 @@ _rk4 = METHODS["rk4"]
 for _k in (2, 3, 4):
     _register(f"ab{_k}", "Adams-Bashforth", _k, adams_bashforth(_k),
               f"Adams-Bashforth {_k}-step; started with RK4", _rk4)
-for _k in (2, 3):
-    _register(f"am{_k + 1}", "Adams-Moulton", _k + 1, adams_moulton(_k),
-              f"Adams-Moulton {_k}-step (order {_k + 1}); started with RK4", _rk4)
+# Implicit multistep methods are started by an implicit one-step method of at least their
+# order, so that a stiff problem does not blow up in the starting steps.
+_register("am3", "Adams-Moulton", 3, adams_moulton(2),
+          "Adams-Moulton 2-step (order 3); started with Radau IIA", METHODS["radau_iia3"])
+_register("am4", "Adams-Moulton", 4, adams_moulton(3),
+          "Adams-Moulton 3-step (order 4); started with Gauss-Legendre", METHODS["gauss_legendre4"])
 _register("bdf2", "BDF", 2, bdf(2), "backward differentiation formula, 2-step; A-stable, "
-          "started with RK4", _rk4)
+          "started with Radau IIA", METHODS["radau_iia3"])
 
 
 def method(name: str) -> Method:

@@ -3,6 +3,7 @@ linear multistep (explicit or implicit). `fun(t, y)` is the right-hand side with
 parameters already bound; every step returns (y_next, state) and counts its evaluations
 in state["evals"] (implicit: residual and Jacobian evaluations of Newton included)."""
 import jax.numpy as jnp
+import numpy as np
 
 from integrators.newton import newton_solve
 
@@ -35,8 +36,16 @@ def implicit_rk_step(tab, fun, t, y, h, state):
         return z - h * (a @ stage_f(z)).reshape(-1)
 
     z, iters = newton_solve(residual, jnp.zeros(s * d, y.dtype), jnp.max(jnp.abs(y)))
-    y_next = y + h * (jnp.asarray(tab.b) @ stage_f(z))
-    evals = state["evals"] + iters * (s + s * d) + s
+    zz = z.reshape(s, d)
+    if np.linalg.matrix_rank(tab.a) == s:
+        # y + h b^T F = y + b^T A^-1 Z: no evaluation of f, whose h*lambda-sized values
+        # would cancel badly on stiff problems.
+        y_next = y + jnp.asarray(np.linalg.solve(tab.a.T, tab.b)) @ zz
+        extra = 0
+    else:
+        y_next = y + h * (jnp.asarray(tab.b) @ stage_f(z))
+        extra = s
+    evals = state["evals"] + iters * (s + s * d) + extra
     return y_next, dict(state, evals=evals)
 
 
