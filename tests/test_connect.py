@@ -1,0 +1,168 @@
+"""The connection OCP: analytic minimum times on straight lines, the Dubins optimum on random
+problems, every bound held, a faithful discretisation, both shootings agreeing, and failure
+reported as a result."""
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from dynamics.kinematic import kinematic_bicycle
+from dynamics.vehicles import vehicle
+from integrators import integrate, method
+from search.connect import (A_MAX, _fastest_profile, connect, dubins_paths, resimulate,
+                            step_function)
+
+CAR = vehicle("bmw320i")
+L, M = CAR["Lf"] + CAR["Lr"], CAR["m"]
+pi_ = np.pi
+
+
+def random_problems(n, seed):
+    """Start [X, Y, theta, v] and goal [X, Y, theta] 3-30 m apart, arbitrary headings."""
+    rng = np.random.default_rng(seed)
+    out = []
+    for _ in range(n):
+        start = np.r_[rng.uniform(-10, 10, 2), rng.uniform(-pi_, pi_), rng.uniform(0, 10)]
+        d, bearing = rng.uniform(3, 30), rng.uniform(-pi_, pi_)
+        goal = np.r_[start[:2] + d * np.array([np.cos(bearing), np.sin(bearing)]),
+                     rng.uniform(-pi_, pi_)]
+        out.append((start, goal))
+    return out
+
+
+def test_straight_ahead_from_rest_takes_full_acceleration_time():
+    # 30 m from rest at 4 m/s^2 never reaches 25 m/s: t = sqrt(2 D / a).
+    c = connect([0, 0, 0, 0], [30, 0, 0], L=L, m=M)
+    assert c.success
+    assert c.tf == pytest.approx(np.sqrt(2 * 30 / A_MAX), rel=1e-6)
+    np.testing.assert_allclose(c.inputs[:, 1], M * A_MAX, rtol=1e-5)
+
+
+def test_straight_ahead_to_a_stop_is_bang_bang():
+    # Accelerate half the way, brake the other half: t = 2 sqrt(D / a); with N even the
+    # switch falls on the grid, so the discrete optimum is the continuous one.
+    c = connect([0, 0, 0, 0], [30, 0, 0], L=L, m=M, goal_speed=0.0)
+    assert c.success
+    assert c.tf == pytest.approx(2 * np.sqrt(30 / A_MAX), rel=1e-6)
+
+
+def test_straight_ahead_at_the_speed_limit_accelerates_cruises_and_brakes():
+    # v_max = 5 m/s: 1.25 s up, 23.75 m at 5 m/s, 1.25 s down = 7.25 s. The switches fall
+    # inside intervals, so piecewise-constant force may only lose a little time, never gain.
+    c = connect([0, 0, 0, 0], [30, 0, 0], L=L, m=M, goal_speed=0.0, v_max=5.0)
+    assert c.success
+    assert 7.25 * (1 - 1e-7) <= c.tf <= 7.25 * (1 + 2e-3)
+    assert c.states[:, 3].max() == pytest.approx(5.0, rel=1e-6)
+
+
+def test_minimum_time_is_the_fastest_drive_along_the_dubins_path():
+    # With free end speed the speed profile only depends on arc length and turning costs no
+    # speed, so the continuous optimum drives the shortest path of curvature <= tan(d)/L at
+    # full acceleration. The discrete OCP may lose a little (switches off the grid), not gain.
+    radius = L / np.tan(pi_ / 4)
+    for start, goal in random_problems(10, seed=1):
+        c = connect(start, goal, L=L, m=M)
+        assert c.success, c.status
+        length = sum(q for _, q in dubins_paths(start[:3], goal, radius)[0])
+        tf = _fastest_profile(length, start[3], A_MAX, 25.0, None)[2]
+        assert tf * (1 - 1e-6) <= c.tf <= tf * (1 + 5e-3)
+
+
+def test_solution_holds_every_bound_and_the_end_constraint():
+    box = (-12.0, 22.0, -8.0, 10.0)
+    start, goal = np.array([0.0, 0.0, 2.5, 3.0]), np.array([15.0, 4.0, -2.0])
+    c = connect(start, goal, L=L, m=M, bounds=box, goal_speed=2.0, v_max=6.0,
+                delta_max=0.6, a_max=3.0, tf_bounds=(0.5, 20.0))
+    assert c.success, c.status
+    tol = 1e-7
+    assert 0.5 <= c.tf <= 20.0
+    assert np.all(np.abs(c.inputs[:, 0]) <= 0.6 + tol)
+    assert np.all(np.abs(c.inputs[:, 1]) <= M * 3.0 * (1 + tol))
+    assert np.all((c.states[:, 3] >= -tol) & (c.states[:, 3] <= 6.0 + tol))
+    assert c.states[:, 3].max() > 6.0 - 1e-6  # the speed limit is reached, and held
+    assert np.all((box[0] - tol <= c.states[:, 0]) & (c.states[:, 0] <= box[1] + tol))
+    assert np.all((box[2] - tol <= c.states[:, 1]) & (c.states[:, 1] <= box[3] + tol))
+    np.testing.assert_array_equal(c.states[0], start)
+    np.testing.assert_allclose(c.states[-1, :2], goal[:2], atol=1e-6)
+    assert np.sin((c.states[-1, 2] - goal[2]) / 2) == pytest.approx(0, abs=1e-6)
+    assert c.states[-1, 3] == pytest.approx(2.0, abs=1e-6)
+    np.testing.assert_allclose(c.t, np.linspace(0, c.tf, 51))
+
+
+def test_a_map_bound_across_the_shortest_path_gives_the_other_winding():
+    # Unbounded, the fastest path arrives turning right and rises to Y = 7.65 m; below
+    # Y = 7 m it must arrive turning left, one turn of the heading further (-2 + 2 pi).
+    start, goal = np.array([0.0, 0.0, 2.5, 3.0]), np.array([15.0, 4.0, -2.0])
+    free = connect(start, goal, L=L, m=M, bounds=(-12, 22, -2, 12))
+    capped = connect(start, goal, L=L, m=M, bounds=(-12, 22, -2, 7))
+    assert free.success and capped.success
+    assert free.states[:, 1].max() > 7.5
+    assert capped.states[:, 1].max() <= 7 + 1e-7
+    assert free.states[-1, 2] == pytest.approx(-2.0, abs=1e-6)
+    assert capped.states[-1, 2] == pytest.approx(-2.0 + 2 * pi_, abs=1e-6)
+    assert capped.tf > free.tf
+
+
+def test_heading_crosses_the_wrap_with_the_short_turn():
+    # Start at +3.0 rad, goal ahead at -3.1 rad = 3.18 rad: a 0.18 rad turn, not a loop,
+    # which the paper's -pi <= theta <= pi would forbid.
+    goal = np.array([20 * np.cos(3.05), 20 * np.sin(3.05), -3.1])
+    c = connect([0, 0, 3.0, 5.0], goal, L=L, m=M)
+    assert c.success, c.status
+    assert c.states[-1, 2] == pytest.approx(2 * pi_ - 3.1, abs=1e-6)
+    assert np.all(np.abs(c.states[:, 2] - 3.1) < 0.5)
+
+
+def test_resimulation_on_a_finer_step_ends_at_the_goal():
+    for start, goal in random_problems(5, seed=2):
+        c = connect(start, goal, L=L, m=M)
+        assert c.success, c.status
+        xs = resimulate(c, L=L, m=M, refine=10)
+        assert xs.shape == (50 * 10 + 1, 4)
+        np.testing.assert_allclose(xs[::10], c.states, atol=1e-3)
+        assert np.hypot(*(xs[-1, :2] - goal[:2])) < 1e-3
+
+
+def test_both_shootings_solve_random_problems_and_agree():
+    for start, goal in random_problems(6, seed=3):
+        multiple = connect(start, goal, L=L, m=M, shooting="multiple")
+        single = connect(start, goal, L=L, m=M, shooting="single")
+        assert multiple.success and single.success
+        assert (multiple.shooting, single.shooting) == ("multiple", "single")
+        assert single.tf == pytest.approx(multiple.tf, rel=1e-6)
+
+
+def test_goal_outside_the_map_is_a_failure_not_an_exception(capfd):
+    c = connect([0, 0, 0, 0], [30, 0, 0], L=L, m=M, bounds=(-5, 20, -5, 5))
+    assert not c.success
+    assert c.status != "Solve_Succeeded"
+    assert c.states.shape == (51, 4) and c.inputs.shape == (50, 2)
+    assert capfd.readouterr().out == ""
+
+
+def test_solving_prints_nothing(capfd):
+    connect([0, 0, 1.0, 2.0], [-4, 6, -2.0], L=L, m=M, bounds=(-20, 20, -20, 20))
+    assert capfd.readouterr().out == ""
+
+
+def test_same_inputs_give_the_same_connection():
+    a, b = random_problems(2, seed=4)
+    first = connect(*a, L=L, m=M)
+    connect(*b, L=L, m=M)  # the cached problem is reused in between
+    again = connect(*a, L=L, m=M)
+    assert (first.success, first.status, first.tf) == (again.success, again.status, again.tf)
+    np.testing.assert_array_equal(first.states, again.states)
+    np.testing.assert_array_equal(first.inputs, again.inputs)
+
+
+@pytest.mark.parametrize("name", ["euler", "heun", "midpoint", "rk3", "rk4", "dopri5"])
+def test_casadi_step_is_the_zoo_step(name):
+    x, u, h = np.array([1.0, -2.0, 0.7, 8.0]), np.array([0.3, 2500.0]), 0.05
+    ours = np.asarray(step_function(name)(x, u, h, L, M)).ravel()
+    zoo = integrate(method(name), kinematic_bicycle, jnp.asarray(x), jnp.asarray(u),
+                    {"L": L, "m": M}, h, 1).x[1]
+    np.testing.assert_allclose(ours, np.asarray(zoo), rtol=1e-13, atol=1e-13)
+
+
+def test_implicit_methods_are_refused():
+    with pytest.raises(ValueError, match="implicit"):
+        step_function("radau_iia3")
