@@ -1,0 +1,32 @@
+"""`stepzoo methods`: the zoo as a table, with each method's stability intervals."""
+import sys
+
+from bench.output import text_table, to_json
+from integrators import METHODS, describe
+
+
+def add_arguments(p):
+    p.add_argument("--format", choices=["text", "json"], default="text")
+
+
+def rows() -> list[dict]:
+    from integrators.stability import stability_intervals
+    out = []
+    for m in METHODS.values():
+        row = describe(m)
+        real, imag = stability_intervals(m)
+        row["real_interval"] = None if real == float("inf") else real
+        row["imag_interval"] = None if imag == float("inf") else imag
+        out.append(row)
+    return out
+
+
+def main(args) -> int:
+    table = rows()
+    if args.format == "json":
+        print(to_json(table))
+    else:
+        cols = ["name", "family", "order", "stages", "steps", "implicit", "rhs_evals_per_step",
+                "real_interval", "imag_interval"]
+        sys.stdout.write(text_table(table, cols) + "\n")
+    return 0

@@ -1,0 +1,77 @@
+"""`stepzoo simulate`: one trajectory from rest with a constant steer, by one method of the
+zoo or by the adaptive reference, as CSV or JSON on stdout."""
+import csv
+import io
+import json
+import math
+import sys
+
+import numpy as np
+
+from bench.errors import UsageError
+from bench.validate import lookup, positive
+
+
+def add_arguments(p):
+    p.add_argument("--method", required=True, help="a name from `stepzoo methods`, or reference")
+    p.add_argument("--h", type=float, required=True, help="step size [s]")
+    p.add_argument("--T", type=float, required=True, help="horizon [s]")
+    p.add_argument("--vx", type=float, required=True, help="longitudinal speed [m/s]")
+    p.add_argument("--delta", type=float, required=True, help="steer angle [rad]")
+    p.add_argument("--vehicle", default=None, help="vehicle set (default: the documented one)")
+    p.add_argument("--model", default="dynamic5", help="dynamic5 | dynamic6 | kinematic")
+    p.add_argument("--rtol", type=float, default=1e-10, help="reference relative tolerance")
+    p.add_argument("--atol", type=float, default=1e-12, help="reference absolute tolerance")
+    p.add_argument("--format", choices=["csv", "json"], default="csv")
+
+
+def simulate(method_name, h, T, vx, delta, vehicle=None, model_name="dynamic5",
+             rtol=1e-10, atol=1e-12):
+    """(columns, t, x, vehicle dict) of one run; raises UsageError on bad input."""
+    import dynamics
+    from integrators import integrate, method
+    from integrators.reference import reference
+    h, T, vx = positive("--h", h), positive("--T", T), positive("--vx", vx)
+    if h > T:
+        raise UsageError(f"--h {h} is larger than the horizon --T {T}; use h <= T")
+    if not math.isfinite(delta):
+        raise UsageError(f"--delta must be a finite angle in radians, got {delta!r}")
+    model = lookup("model", dynamics.model, model_name)
+    veh = lookup("vehicle", dynamics.vehicle, vehicle)
+    p = model.params(vehicle, vx)
+    x0, u = model.from_rest(vx, delta)
+    n = int(round(T / h))
+    if abs(n * h - T) > 1e-9 * T:
+        n = int(math.floor(T / h))
+    if method_name == "reference":
+        positive("--rtol", rtol), positive("--atol", atol)
+        ts = h * np.arange(n + 1)
+        ref = reference(model.rhs, x0, u, p, ts, rtol=rtol, atol=atol)
+        t, x = np.asarray(ts), np.asarray(ref.x)
+    else:
+        meth = lookup("method", method, method_name)
+        tr = integrate(meth, model.rhs, x0, u, p, h, n)
+        t, x = np.asarray(tr.t), np.asarray(tr.x)
+    return ["t", *model.states], t, x, veh
+
+
+def main(args) -> int:
+    cols, t, x, veh = simulate(args.method, args.h, args.T, args.vx, args.delta, args.vehicle,
+                               args.model, args.rtol, args.atol)
+    if args.format == "json":
+        vehicle = {k: veh[k] for k in ("name", "m", "Iz", "Lf", "Lr", "Caf", "Car",
+                                       "length", "width", "source")}
+        # Blow-up is a result: non-finite values are written as null, not dropped.
+        xs = [[float(v) if np.isfinite(v) else None for v in row] for row in x]
+        sys.stdout.write(json.dumps({"columns": cols, "t": t.tolist(), "x": xs,
+                                     "method": args.method, "h": args.h, "vx": args.vx,
+                                     "delta": args.delta, "model": args.model,
+                                     "vehicle": vehicle}) + "\n")
+    else:
+        buf = io.StringIO()
+        w = csv.writer(buf, lineterminator="\n")
+        w.writerow(cols)
+        for ti, row in zip(t, x):
+            w.writerow([repr(float(ti))] + [repr(float(v)) for v in row])
+        sys.stdout.write(buf.getvalue())
+    return 0

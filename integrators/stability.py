@@ -1,0 +1,148 @@
+"""Linear stability of the zoo on y' = lambda y, z = h*lambda, by two independent routes:
+theory (R(z) by the determinant formula; the root condition of rho(zeta) - z sigma(zeta))
+and experiment (the method's own JAX step applied to y' = z y, vmapped over a grid of z).
+
+Along a ray z = r e^{i theta} the interval is the first exit from the region, found by a
+dense scan and refined by bisection; A-stable methods never exit and give inf. A ray that
+is tangent to the region's boundary at z = 0 (|R| = 1 + C r^q, C > 0, e.g. Heun or RK6 on
+the imaginary axis) looks stable to round-off for small r; its interval is 0, recognised
+by the ray never being measurably inside (|R| < 1 - MEASURABLE) before its exit."""
+from functools import cache
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from integrators.methods import Method
+
+TOL = 1e-12            # |amplification| <= 1 + TOL counts as stable (round-off of |R| = 1)
+MEASURABLE = 1e-10     # |amplification| below 1 - MEASURABLE is inside beyond doubt
+R_FINE = 40.0          # dense linear scan of the ray up to this |z|...
+N_FINE = 8000
+R_FAR = 1e8            # ...then a log scan out to here; no exit at all means unbounded
+N_FAR = 2000
+BISECT = 60
+
+
+def stability_function(tab, z):
+    """R(z) = det(I - zA + z 1 b^T) / det(I - zA) of a tableau, for an array of complex z."""
+    z = np.asarray(z, dtype=complex)[..., None, None]
+    s = tab.stages
+    eye, a = np.eye(s), tab.a
+    num = np.linalg.det(eye - z * a + z * np.outer(np.ones(s), tab.b))
+    with np.errstate(divide="ignore", invalid="ignore"):       # poles of implicit methods
+        return num / np.linalg.det(eye - z * a)
+
+
+def multistep_roots_max(lmm, z):
+    """Largest |zeta| over the roots of rho(zeta) - z sigma(zeta), for an array of z."""
+    z = np.asarray(z, dtype=complex).ravel()
+    coeffs = lmm.alpha[None, :] - z[:, None] * lmm.beta[None, :]     # low to high degree
+    lead = coeffs[:, -1:]
+    # Companion matrices of the monic polynomials, eigenvalues all at once.
+    k = lmm.steps
+    comp = np.zeros((len(z), k, k), dtype=complex)
+    comp[:, 1:, :-1] = np.eye(k - 1)
+    comp[:, :, -1] = -coeffs[:, :-1] / lead
+    return np.abs(np.linalg.eigvals(comp)).max(axis=-1)
+
+
+def amplification_theory(m: Method, z):
+    """|R(z)|, or the largest root modulus for a multistep method."""
+    if m.is_multistep:
+        return multistep_roots_max(m.scheme, z).reshape(np.shape(z))
+    return np.abs(stability_function(m.scheme, z))
+
+
+@cache
+def _empirical(m: Method):
+    """A jitted map z (complex array) -> amplification measured with the method's own step."""
+    def fun_for(zr, zi):
+        mat = jnp.array([[zr, -zi], [zi, zr]])
+        return lambda t, y: mat @ y
+
+    def one_step(zr, zi, y0):
+        fun = fun_for(zr, zi)
+        return m.step(fun, 0.0, y0, 1.0, m.init_state(y0))[0]
+
+    def rk(zr, zi):
+        y = one_step(zr, zi, jnp.array([1.0, 0.0]))
+        return jnp.hypot(y[0], y[1])
+
+    def lmm(zr, zi):
+        # The step maps a history (y_0..y_{k-1}) to y_k linearly: stepping the k unit
+        # histories gives the last row of the companion matrix; its spectral radius rules.
+        k = m.steps
+        fun = fun_for(zr, zi)
+        rows = []
+        for j in range(k):
+            ys = jnp.zeros((k, 2)).at[j, 0].set(1.0)
+            fs = jax.vmap(lambda y: fun(0.0, y))(ys)
+            state = dict(m.init_state(ys[0]), ys=ys, fs=fs)
+            y = m.step(fun, float(k - 1), ys[-1], 1.0, state)[0]
+            rows.append(y[0] + 1j * y[1])
+        comp = jnp.zeros((k, k), complex).at[:-1, 1:].set(jnp.eye(k - 1))
+        comp = comp.at[-1].set(jnp.stack(rows))
+        return jnp.max(jnp.abs(jnp.linalg.eigvals(comp)))
+
+    return jax.jit(jax.vmap(lmm if m.is_multistep else rk))
+
+
+def amplification_empirical(m: Method, z):
+    z = np.asarray(z, dtype=complex)
+    out = _empirical(m)(jnp.asarray(z.real.ravel()), jnp.asarray(z.imag.ravel()))
+    return np.asarray(out).reshape(z.shape)
+
+
+def _ray_exit(amp, theta: float) -> float:
+    """Smallest r > 0 at which r e^{i theta} leaves the region; inf if it never does."""
+    d = np.exp(1j * theta)
+    rs = np.concatenate([np.linspace(0.0, R_FINE, N_FINE + 1)[1:],
+                         np.geomspace(R_FINE, R_FAR, N_FAR)[1:]])
+    outside = ~(np.nan_to_num(amp(rs * d), nan=np.inf) <= 1.0 + TOL)
+    if not outside.any():
+        return float("inf")
+    i = int(np.argmax(outside))
+    if not np.any(amp(rs[:i] * d) < 1.0 - MEASURABLE):
+        return 0.0                                  # tangent at the origin
+    lo, hi = rs[i - 1], rs[i]
+    for _ in range(BISECT):
+        mid = 0.5 * (lo + hi)
+        if np.nan_to_num(amp(np.array([mid * d])), nan=np.inf)[0] <= 1.0 + TOL:
+            lo = mid
+        else:
+            hi = mid
+    return lo
+
+
+@cache
+def ray_exit(m: Method, theta: float, route: str = "theory") -> float:
+    """First exit |z| along the ray of angle theta [rad] by `route` ('theory' or 'empirical')."""
+    amp = {"theory": amplification_theory, "empirical": amplification_empirical}[route]
+    return _ray_exit(lambda z: amp(m, z), theta)
+
+
+def stability_intervals(m: Method, route: str = "theory") -> tuple[float, float]:
+    """(real, imaginary) stability intervals: [-real, 0] and [0, i*imag] lie in the region."""
+    return ray_exit(m, np.pi, route), ray_exit(m, np.pi / 2, route)
+
+
+def max_stable_step(m: Method, eigenvalues) -> float:
+    """Largest h [s] with every h*lambda in the stability region (first exit along each
+    eigenvalue's ray); inf when no ray ever leaves (A-stable methods on stable modes).
+    Zero eigenvalues constrain nothing."""
+    h = float("inf")
+    for lam in np.atleast_1d(np.asarray(eigenvalues, dtype=complex)):
+        if abs(lam) == 0.0:
+            continue
+        theta = float(np.round(abs(np.angle(lam)), 12))     # regions are symmetric in Im z
+        h = min(h, ray_exit(m, theta) / abs(lam))
+    return h
+
+
+def region_grid(m: Method, re=(-6.0, 2.0), im=(-4.0, 4.0), n=401, route="theory"):
+    """(re axis, im axis, amplification on the grid) for plots; stable where <= 1."""
+    x, y = np.linspace(*re, n), np.linspace(*im, n)
+    z = x[None, :] + 1j * y[:, None]
+    amp = amplification_theory(m, z) if route == "theory" else amplification_empirical(m, z)
+    return x, y, amp

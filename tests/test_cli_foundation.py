@@ -1,0 +1,78 @@
+"""`stepzoo methods` and `stepzoo simulate`: output contracts and one-line errors (exit 2)."""
+import csv
+import io
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from bench.cli import main as stepzoo
+
+
+def run(args):
+    return subprocess.run([sys.executable, "-m", "bench.cli", *args], capture_output=True,
+                          text=True)
+
+
+def test_methods_json_lists_the_zoo(capsys):
+    assert stepzoo(["methods", "--format", "json"]) == 0
+    rows = json.loads(capsys.readouterr().out)
+    assert {"rk4", "ab4", "bdf2", "gauss_legendre4"} <= {r["name"] for r in rows}
+    for r in rows:
+        assert {"name", "family", "order", "stages", "implicit"} <= set(r)
+
+
+def test_simulate_csv_matches_the_driver(capsys):
+    assert stepzoo(["simulate", "--method", "rk4", "--h", "0.01", "--T", "1", "--vx", "15",
+                    "--delta", "0.785398"]) == 0
+    rows = list(csv.reader(io.StringIO(capsys.readouterr().out)))
+    assert rows[0] == ["t", "X", "Y", "psi", "vy", "r"]
+    assert len(rows) == 102
+    assert float(rows[-1][0]) == pytest.approx(1.0)
+    assert float(rows[2][4]) != 0.0        # the steer excites the lateral motion
+
+
+def test_simulate_reference_json_carries_the_vehicle(capsys):
+    assert stepzoo(["simulate", "--method", "reference", "--h", "0.1", "--T", "1", "--vx", "15",
+                    "--delta", "0.3", "--vehicle", "notes_example", "--format", "json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["columns"] == ["t", "X", "Y", "psi", "vy", "r"]
+    assert len(out["t"]) == 11 and np.array(out["x"]).shape == (11, 5)
+    assert out["vehicle"]["m"] == 1500.0 and out["vehicle"]["Caf"] == 80000.0
+
+
+def test_simulate_full_model_has_six_columns(capsys):
+    assert stepzoo(["simulate", "--method", "rk4", "--h", "0.1", "--T", "1", "--vx", "10",
+                    "--delta", "0.1", "--model", "dynamic6"]) == 0
+    header = capsys.readouterr().out.splitlines()[0]
+    assert header == "t,X,Y,psi,vx,vy,r"
+
+
+def test_blow_up_is_written_not_raised(capsys):
+    assert stepzoo(["simulate", "--method", "euler", "--h", "0.5", "--T", "20", "--vx", "2",
+                    "--delta", "0.5", "--format", "json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert any(v is None or abs(v) > 1e6 for row in out["x"] for v in row)
+
+
+@pytest.mark.parametrize("args,needle", [
+    (["--method", "nope"], "unknown method"),
+    (["--model", "nope"], "unknown model"),
+    (["--vehicle", "nope"], "unknown vehicle"),
+    (["--h", "0"], "--h must be a positive"),
+    (["--h", "-0.1"], "--h must be a positive"),
+    (["--h", "5"], "larger than the horizon"),
+    (["--h", "abc"], "invalid float value"),
+])
+def test_bad_input_gets_one_line_and_exit_2(args, needle):
+    base = {"--method": "rk4", "--h": "0.01", "--T": "1", "--vx": "15", "--delta": "0.3"}
+    for flag, value in zip(args[::2], args[1::2]):
+        base[flag] = value
+    argv = ["simulate"] + [x for kv in base.items() for x in kv]
+    proc = run(argv)
+    assert proc.returncode == 2
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1 and needle in lines[0], proc.stderr
+    assert proc.stdout == ""

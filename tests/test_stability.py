@@ -1,0 +1,90 @@
+"""Stability intervals by two routes, against published values; the predicted largest stable
+step against a measured blow-up."""
+import json
+import math
+
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from bench.cli import main as stepzoo
+from integrators import METHODS, integrate, method
+from integrators.stability import max_stable_step, region_grid, stability_intervals
+
+# Published (real, imaginary) intervals: Hairer & Wanner II; Butcher 2016; nodepy; the exact
+# polynomial |R(iy)|^2 - 1 for Heun, RK6 (leading term +y^8/786: tangent, interval 0) and
+# DOPRI5 (first positive root 0.99719). None = unbounded (A-stable).
+PUBLISHED = {
+    "euler": (2.0, 0.0), "heun": (2.0, 0.0), "midpoint": (2.0, 0.0),
+    "rk3": (2.5127, 1.7321), "rk4": (2.7853, 2.8284), "rk6": (2.8561, 0.0),
+    "dopri5": (3.3066, 0.9972), "ab2": (1.0, 0.0), "ab3": (0.5455, 0.7236),
+    "ab4": (0.3, 0.4300), "am3": (6.0, 0.0), "am4": (3.0, 0.0),
+    "backward_euler": (None, None), "trapezoidal": (None, None),
+    "gauss_legendre4": (None, None), "radau_iia3": (None, None), "bdf2": (None, None),
+}
+
+
+def test_every_method_has_a_published_interval():
+    assert set(PUBLISHED) == set(METHODS)
+
+
+@pytest.fixture(scope="module")
+def methods_json():
+    import contextlib
+    import io
+    buf = io.StringIO()
+    with contextlib.redirect_stdout(buf):
+        assert stepzoo(["methods", "--format", "json"]) == 0
+    return {row["name"]: row for row in json.loads(buf.getvalue())}
+
+
+@pytest.mark.parametrize("name", list(PUBLISHED))
+def test_methods_json_gives_published_intervals_by_both_routes(methods_json, name):
+    real, imag = PUBLISHED[name]
+    row = methods_json[name]
+    for got, want in ((row["real_interval"], real), (row["imag_interval"], imag)):
+        if want is None:
+            assert got is None
+        else:
+            assert round(got, 3) == round(want, 3), (name, got, want)
+    emp = stability_intervals(METHODS[name], "empirical")
+    theory = stability_intervals(METHODS[name], "theory")
+    for e, t in zip(emp, theory):
+        assert (math.isinf(e) and math.isinf(t)) or round(e, 3) == round(t, 3)
+
+
+def test_a_stable_methods_have_no_step_limit():
+    for name in ("backward_euler", "trapezoidal", "gauss_legendre4", "radau_iia3", "bdf2"):
+        assert max_stable_step(method(name), [-1e6 + 1e5j, -3.0]) == math.inf
+
+
+def test_max_stable_step_on_the_real_axis_is_interval_over_lambda():
+    assert max_stable_step(method("rk4"), [-10.0]) == pytest.approx(0.27853, abs=1e-5)
+    assert max_stable_step(method("euler"), [-4.0, -1.0, 0.0]) == pytest.approx(0.5)
+
+
+@pytest.mark.parametrize("name", ["euler", "rk4", "ab4"])
+def test_measured_blow_up_step_matches_prediction_on_a_linear_system(name):
+    """y' = M y with eigenvalues -5 +- 8i: stable at 0.98 h_max, growing at 1.02 h_max."""
+    mat = jnp.array([[-5.0, -8.0], [8.0, -5.0]])
+    f = lambda t, y, u, p: mat @ y
+    h_max = max_stable_step(method(name), [-5 + 8j, -5 - 8j])
+    y0 = jnp.array([1.0, 0.0])
+    for factor, grows in ((0.98, False), (1.02, True)):
+        tr = integrate(method(name), f, y0, jnp.zeros(1), {}, factor * h_max, 3000)
+        final = float(jnp.linalg.norm(tr.x[-1]))
+        assert (final > 1.0) == grows, (name, factor, final)
+
+
+def test_region_grid_marks_the_origin_side_stable():
+    x, y, amp = region_grid(method("rk4"), n=81)
+    assert amp[40, np.argmin(np.abs(x + 1.0))] < 1.0       # z = -1 is inside
+    assert amp[40, -1] > 1.0                                  # z = +2 is outside
+
+
+def test_stability_command_json(capsys):
+    assert stepzoo(["stability", "--vx", "15", "--delta", "0.785", "--format", "json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert len(out["eigenvalues"]) == 2 and out["methods"]["trapezoidal"]["max_stable_step"] is None
+    re = out["eigenvalues"][0][0]
+    assert re < 0 and out["methods"]["euler"]["max_stable_step"] > 0
