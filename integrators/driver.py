@@ -72,8 +72,8 @@ def _blocked(body, method, x0, ys0, y_m, state, n_steps, max_steps):
 
 
 def _batch(method, f, x0, u, p, h, n_steps, t0, max_steps):
-    one = lambda x, uu, pp: _integrate(method, f, x, uu, pp, h, n_steps, t0, max_steps)
-    return jax.vmap(one)(x0, u, p)
+    one = lambda x, uu, pp, hh: _integrate(method, f, x, uu, pp, hh, n_steps, t0, max_steps)
+    return jax.vmap(one, in_axes=(0, 0, 0, 0 if jnp.ndim(h) else None))(x0, u, p, h)
 
 
 _STATIC = ("method", "f", "n_steps", "max_steps")
@@ -92,7 +92,7 @@ def integrate(method, f, x0, u, p, h, n_steps, t0=0.0, max_steps=None) -> Trajec
 
 
 def integrate_batch(method, f, x0, u, p, h, n_steps, t0=0.0, max_steps=None) -> Trajectory:
-    """`integrate` vmapped over the leading axis of x0, u and every leaf of p; h, t0 and
-    the step count are shared by the batch."""
+    """`integrate` vmapped over the leading axis of x0, u and every leaf of p, and of h when
+    h is an array (one step size per trajectory); t0 and the step count are shared."""
     fn = _jitted[(_batch, max_steps is not None)]
     return fn(method, f, x0, u, p, h, n_steps, t0, max_steps)

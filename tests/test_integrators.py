@@ -86,3 +86,15 @@ def test_explicit_evaluation_count_is_stages_times_steps(paper_point):
     m, p, x0, u = paper_point
     tr = integrate(method("rk6"), m.rhs, x0, u, p, 0.01, 100)
     assert float(tr.evals) == 700
+
+
+def test_batch_with_one_step_size_per_trajectory(paper_point):
+    m, p, x0, u = paper_point
+    hs = jnp.array([0.01, 0.02, 0.05])
+    pb = {k: jnp.full(3, v) for k, v in p.items()}
+    batch = integrate_batch(method("rk4"), m.rhs, jnp.stack([x0] * 3), jnp.stack([u] * 3), pb,
+                            hs, 40)
+    for i, h in enumerate([0.01, 0.02, 0.05]):
+        one = integrate(method("rk4"), m.rhs, x0, u, p, h, 40)
+        np.testing.assert_allclose(batch.x[i], one.x, rtol=1e-13, atol=1e-13)
+        np.testing.assert_allclose(batch.t[i], one.t, rtol=1e-15)
