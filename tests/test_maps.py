@@ -8,7 +8,8 @@ from PIL import Image
 
 from search.maps import OccupancyMap, from_array, load_map
 
-SHARED_MAPS = Path("/work/shared/maps")
+# shared/ lies beside the repository (the checkout and CI clone alike).
+SHARED_MAPS = Path(__file__).resolve().parents[2] / "shared" / "maps"
 
 
 def true_clearance(occupied, resolution, origin, xy):
