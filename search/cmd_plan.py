@@ -1,0 +1,131 @@
+"""`stepzoo plan`: plan a built-in scenario, a scenario file, or a query on a map file with the
+tree planner, and write plan.json, plan.png and map.npy; `--all` plans every built-in scenario
+and writes a summary table. Outputs are written only after planning, each atomically."""
+import csv
+import io
+import json
+import sys
+from dataclasses import replace
+from pathlib import Path
+
+from bench.errors import UsageError
+from bench.output import atomic_write, text_table, to_json
+
+SUMMARY_COLUMNS = ["scenario", "status", "expansions", "nodes", "search_s", "connect_s",
+                   "path_length_m", "connect_tf_s"]
+
+
+def add_arguments(p):
+    p.add_argument("scenario", nargs="?", metavar="SCENARIO",
+                   help="a built-in scenario name or a scenario .toml file")
+    p.add_argument("--all", action="store_true", help="plan every built-in scenario")
+    p.add_argument("--map", metavar="FILE", help="map file (.yaml ROS, .map MovingAI, .png/.pgm, "
+                   ".npy) to plan on instead of a scenario")
+    p.add_argument("--cell-size", type=float, metavar="M",
+                   help="[m/cell] for map files that do not store it")
+    p.add_argument("--start", metavar="X,Y,PSI", help="start pose [m, m, rad] (with --map)")
+    p.add_argument("--goal", metavar="X,Y,PSI[,V]",
+                   help="goal pose [m, m, rad], optionally the goal speed [m/s] (with --map)")
+    p.add_argument("--speed", type=float, metavar="VX", help="constant speed of the tree [m/s]")
+    p.add_argument("--config", metavar="FILE", help="planner config TOML from `stepzoo tune` "
+                   "(default: the shipped search/tuned_default.toml)")
+    p.add_argument("--seed", type=int, default=0, help="seed of the random points (default 0)")
+    p.add_argument("--out", required=True, metavar="DIR", help="output folder")
+    p.add_argument("--format", choices=["text", "json"], default="text",
+                   help="what is printed: a line/table, or JSON")
+
+
+def _numbers(text, flag):
+    try:
+        return [float(v) for v in text.split(",")]
+    except ValueError:
+        raise UsageError(f"{flag} must be comma-separated numbers like 5,20,0, got {text!r}") \
+            from None
+
+
+def _scenarios(args):
+    """The scenarios the arguments ask for; every inconsistency is a UsageError."""
+    from search.scenarios import builtin_names, custom_scenario, load_scenario, pose
+    query = [f for f, v in (("--start", args.start), ("--goal", args.goal),
+                            ("--cell-size", args.cell_size)) if v is not None]
+    chosen = [f for f, v in (("SCENARIO", args.scenario), ("--all", args.all or None),
+                             ("--map", args.map)) if v is not None]
+    if len(chosen) != 1:
+        raise UsageError("give exactly one of SCENARIO, --all or --map FILE "
+                         f"(got {', '.join(chosen) or 'none'})")
+    if args.map is None and query:
+        raise UsageError(f"{', '.join(query)} only go with --map FILE; a scenario has its own")
+    if args.map is not None:
+        if args.start is None or args.goal is None:
+            raise UsageError("--map needs --start X,Y,PSI and --goal X,Y,PSI[,V]")
+        start = pose(_numbers(args.start, "--start"), "--start")
+        goal = pose(_numbers(args.goal, "--goal"), "--goal", allow_speed=True)
+        return [custom_scenario(args.map, args.cell_size, start, goal, args.speed)]
+    names = builtin_names() if args.all else [args.scenario]
+    scenarios = [load_scenario(n) for n in names]
+    if args.speed is not None:
+        from search.scenarios import speed
+        vx = speed(args.speed, "--speed")
+        scenarios = [replace(s, speed=vx) for s in scenarios]
+    return scenarios
+
+
+def plan_scenario(scenario, config, seed):
+    """(record, finder): plan one scenario after a warm-up, so times measure planning."""
+    from search.pathfinder import PathFinder
+    from search.plan_output import plan_record
+    finder = PathFinder(scenario.omap, config, scenario.vehicle, scenario.speed)
+    warmup_s = finder.warm_up(scenario.goal_speed is not None)
+    result = finder.plan(scenario.start, scenario.goal, scenario.goal_speed, seed)
+    return plan_record(result, scenario, config, finder.vehicle, seed, warmup_s)
+
+
+def _summary_row(record):
+    stats = record["stats"]
+    return {"scenario": record["scenario"], "status": record["status"],
+            **{k: stats[k] for k in SUMMARY_COLUMNS[2:]}}
+
+
+def main(args) -> int:
+    from search.planner_config import load_config
+    from search.plan_output import write_plan
+    if args.seed < 0:
+        raise UsageError(f"--seed must be >= 0, got {args.seed}")
+    out = Path(args.out)
+    if out.exists() and not out.is_dir():
+        raise UsageError(f"--out {out} exists and is not a folder; give a folder")
+    config = load_config(args.config)
+    scenarios = _scenarios(args)
+    records = []
+    for scenario in scenarios:
+        record = plan_scenario(scenario, config, args.seed)
+        if record["cause"] in ("start_off_map", "start_in_collision", "goal_off_map",
+                               "goal_in_collision"):
+            # The poses are the user's input: no plan is written for a pose that cannot be.
+            raise UsageError(f"{record['reason']}; choose a pose in free space on the map")
+        records.append(record)
+    if not args.all:
+        path = write_plan(out, records[0], scenarios[0])
+        if args.format == "json":
+            sys.stdout.write(json.dumps(_summary_row(records[0])) + "\n")
+        else:
+            r = records[0]
+            sys.stdout.write(f"{r['scenario']}: {r['status']} ({r['reason']}); "
+                             f"{r['stats']['expansions']} expansions, search "
+                             f"{r['stats']['search_s']:.3f} s, connection "
+                             f"{r['stats']['connect_s']:.3f} s -> {path}\n")
+        return 0
+    for record, scenario in zip(records, scenarios):
+        write_plan(out / scenario.name, record, scenario)
+    rows = [_summary_row(r) for r in records]
+    buf = io.StringIO()
+    writer = csv.DictWriter(buf, SUMMARY_COLUMNS, lineterminator="\n")
+    writer.writeheader()
+    writer.writerows(rows)
+    atomic_write(out / "summary.csv", buf.getvalue())
+    atomic_write(out / "summary.json", to_json(rows) + "\n")
+    if args.format == "json":
+        sys.stdout.write(json.dumps(rows) + "\n")
+    else:
+        sys.stdout.write(text_table(rows, SUMMARY_COLUMNS) + f"\nwritten to {out}\n")
+    return 0

@@ -1,0 +1,131 @@
+"""A plan as files: plan.json (status, path, tree, stats, params), plan.png in the paper's
+colours (black obstacles, blue tree, red path) and map.npy, each written atomically."""
+from __future__ import annotations
+
+import io
+from pathlib import Path
+
+import numpy as np
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.collections import LineCollection
+from matplotlib.figure import Figure
+
+from bench.output import atomic_write, to_json
+from search.pathfinder import PlanResult
+from search.scenarios import Scenario
+
+MAX_GAP_M = 0.1       # no two consecutive path rows farther apart [m] (the report's contract)
+ROW_SPACING_M = 0.05  # spacing the path is filled to, half the contract for rounding room
+TREE_POINTS = 6       # points kept per tree edge: the picture needs shape, not every step
+
+
+def path_rows(result: PlanResult) -> np.ndarray:
+    """(K, 4) [t s, X m, Y m, psi rad] along the tree edges and the connection, filled by
+    linear interpolation so that rows are at most ROW_SPACING_M apart. The chord of a gap of
+    s on a turn of radius R strays s^2 / (8 R) from it: below 1 mm for R >= 1 m."""
+    pieces, t0 = [], 0.0
+    for edge in result.path_edges:
+        t = t0 + result.h * np.arange(len(edge))
+        pieces.append(np.column_stack([t, edge[:, :3]]))
+        t0 = t[-1]
+    if result.connection is not None:
+        conn = result.connection
+        pieces.append(np.column_stack([t0 + conn.t, conn.states[:, :3]]))
+    if not pieces:
+        return np.zeros((0, 4))
+    # Each piece starts where the previous ended: drop the repeated joint row.
+    rows = np.vstack([pieces[0]] + [p[1:] for p in pieces[1:]])
+    gap = np.hypot(*np.diff(rows[:, 1:3], axis=0).T)
+    parts = np.maximum(np.ceil(gap / ROW_SPACING_M), 1).astype(int)
+    owner = np.repeat(np.arange(len(gap)), parts)
+    frac = np.arange(owner.size) - np.repeat(np.cumsum(parts) - parts, parts)
+    frac = frac / parts[owner]
+    filled = rows[owner] + frac[:, None] * (rows[owner + 1] - rows[owner])
+    return np.vstack([filled, rows[-1:]])
+
+
+def tree_polylines(result: PlanResult) -> list:
+    """Every tree edge as a few [X, Y] points [m], rounded to centimetres."""
+    out = []
+    for edge in result.tree:
+        keep = np.unique(np.linspace(0, len(edge) - 1, TREE_POINTS).round().astype(int))
+        out.append(np.round(edge[keep, :2], 2).tolist())
+    return out
+
+
+def plan_record(result: PlanResult, scenario: Scenario, config, vehicle: dict, seed: int,
+                warmup_s: float) -> dict:
+    """The plan.json content."""
+    rows = path_rows(result)
+    conn = result.connection
+    return {
+        "scenario": scenario.name,
+        "description": scenario.description,
+        "status": result.status,
+        "reason": result.reason,
+        "cause": result.cause,
+        "start": [float(v) for v in scenario.start],
+        "goal": [float(v) for v in scenario.goal],
+        "goal_speed": scenario.goal_speed,
+        "speed": scenario.speed,
+        "path": rows.tolist(),
+        "vehicle": {"name": vehicle["name"], "length": vehicle["length"],
+                    "width": vehicle["width"], "wheelbase": vehicle["Lf"] + vehicle["Lr"]},
+        "stats": {
+            "expansions": result.expansions,
+            "nodes": result.nodes,
+            "search_s": result.search_s,
+            "connect_s": result.connect_s,
+            "connect_attempts": result.connect_attempts,
+            "warmup_s": warmup_s,
+            "path_length_m": result.path_length() if len(rows) else None,
+            "connect_tf_s": conn.tf if conn is not None else None,
+            "seed": seed,
+            "method": config.method,
+            "h": config.h,
+            "n_steps": config.n_steps,
+        },
+        "params": dict(config.params),
+        "config": {"method": config.method, "h": config.h, "provenance": config.provenance,
+                   "file": config.source},
+        "tree": tree_polylines(result),
+        "map": {"file": "map.npy", "resolution": scenario.omap.resolution,
+                "origin": list(scenario.omap.origin), "source": scenario.map_source},
+    }
+
+
+def render_png(record: dict, scenario: Scenario) -> bytes:
+    """The plan drawn as the paper drew its results."""
+    omap = scenario.omap
+    xmin, xmax, ymin, ymax = omap.bounds()
+    aspect = (ymax - ymin) / (xmax - xmin)
+    fig = Figure(figsize=(8.0, min(max(8.0 * aspect, 3.0), 12.0)))
+    FigureCanvasAgg(fig)
+    ax = fig.add_subplot()
+    ax.imshow(omap.occupied, cmap="gray_r", vmin=0, vmax=1, origin="lower",
+              extent=(xmin, xmax, ymin, ymax), interpolation="nearest")
+    ax.add_collection(LineCollection(record["tree"], colors="blue", linewidths=0.5))
+    if record["path"]:
+        path = np.asarray(record["path"])
+        ax.plot(path[:, 1], path[:, 2], color="red", linewidth=1.8)
+    for pose, name in ((record["start"], "start"), (record["goal"], "goal")):
+        ax.annotate(name, xy=pose[:2], xytext=(pose[0] - 3 * np.cos(pose[2]),
+                                               pose[1] - 3 * np.sin(pose[2])),
+                    arrowprops={"arrowstyle": "->", "color": "green"}, color="green")
+    ax.set(xlim=(xmin, xmax), ylim=(ymin, ymax), xlabel="X [m]", ylabel="Y [m]",
+           title=f"{record['scenario']}: {record['status']}")
+    ax.set_aspect("equal")
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=110, bbox_inches="tight")
+    return buf.getvalue()
+
+
+def write_plan(out_dir, record: dict, scenario: Scenario) -> Path:
+    """Write plan.json, plan.png and map.npy into out_dir; returns the plan.json path."""
+    out_dir = Path(out_dir)
+    png = render_png(record, scenario)
+    buf = io.BytesIO()
+    np.save(buf, np.asarray(scenario.omap.occupied, dtype=bool))
+    atomic_write(out_dir / "map.npy", buf.getvalue())
+    atomic_write(out_dir / "plan.png", png)
+    return atomic_write(out_dir / "plan.json", to_json(record) + "\n")

@@ -1,0 +1,113 @@
+"""The planner's configuration: the integrator (method, step h) that `stepzoo tune` writes, and
+every planner parameter declared once by name, default, range and unit, so runs can log them.
+
+A config TOML has top-level `method` and `h`; an optional `[planner]` table overrides params."""
+from __future__ import annotations
+
+import math
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from bench.errors import UsageError
+
+DEFAULT_CONFIG = Path(__file__).with_name("tuned_default.toml")
+
+
+@dataclass(frozen=True)
+class Param:
+    """One planner parameter: default, closed range [lo, hi], unit and meaning."""
+    name: str
+    default: float | int
+    lo: float
+    hi: float
+    unit: str
+    doc: str
+
+    @property
+    def integer(self) -> bool:
+        return isinstance(self.default, int)
+
+
+PARAMS = {p.name: p for p in (
+    Param("delta_max", math.pi / 4, 0.05, 1.5, "rad",
+          "steer limit; the point-selector arc spans psi +- delta_max"),
+    Param("arc_radius", 4.0, 0.5, 50.0, "m", "radius of the point-selector arc ahead of a node"),
+    Param("n_arc", 7, 1, 64, "1", "equally spaced points on the arc"),
+    Param("n_random", 3, 0, 64, "1", "seeded random points around the destination, per expansion"),
+    Param("random_spread", 3.0, 0.0, 100.0, "m", "radius of the disc the random points fill"),
+    Param("horizon", 0.8, 0.01, 10.0, "s", "duration of one shooting (rounded to whole steps)"),
+    Param("mindist", 6.0, 0.5, 100.0, "m", "a node this close to the goal triggers a connection"),
+    Param("cell_xy", 2.0, 0.05, 20.0, "m", "position cell of duplicate pruning"),
+    Param("cell_heading", math.pi / 4, 0.01, math.pi, "rad", "heading cell of duplicate pruning"),
+    Param("margin", 0.1, 0.0, 5.0, "m",
+          "footprint inflation on every side: covers integration error and cell rounding"),
+    Param("max_expansions", 5000, 1, 10_000_000, "1", "budget of expansions"),
+    Param("max_seconds", 20.0, 0.001, 3600.0, "s", "budget of wall time, search and connections"),
+    Param("connect_tries", 8, 1, 1000, "1", "connection attempts before giving up"),
+    Param("connect_N", 50, 5, 1000, "1", "input intervals of the connection OCP"),
+)}
+
+
+@dataclass(frozen=True)
+class PlannerConfig:
+    """Integrator (method, h [s]) plus planner params; `provenance` says where they came from."""
+    method: str = "rk4"
+    h: float = 0.02
+    params: dict = field(default_factory=lambda: {k: p.default for k, p in PARAMS.items()})
+    provenance: str = "built-in defaults"
+    source: str = ""
+
+    @property
+    def n_steps(self) -> int:
+        """Integration steps per shooting: the horizon rounded to whole steps, at least one."""
+        return max(1, round(self.params["horizon"] / self.h))
+
+
+def check_param(name: str, value):
+    """`value` of planner param `name`, validated against its declared range; else UsageError."""
+    if name not in PARAMS:
+        raise UsageError(f"unknown planner parameter {name!r}; known: {', '.join(PARAMS)}")
+    spec = PARAMS[name]
+    ok_type = isinstance(value, int) if spec.integer else isinstance(value, (int, float))
+    if isinstance(value, bool) or not ok_type or not (spec.lo <= value <= spec.hi):
+        kind = "a whole number" if spec.integer else "a number"
+        raise UsageError(f"planner parameter {name} must be {kind} in [{spec.lo}, {spec.hi}] "
+                         f"[{spec.unit}], got {value!r}")
+    return int(value) if spec.integer else float(value)
+
+
+def make_config(method="rk4", h=0.02, provenance="built-in defaults", source="",
+                **overrides) -> PlannerConfig:
+    """A validated config: method a zoo name, h > 0 [s], overrides by param name."""
+    from integrators import METHODS
+    if not isinstance(method, str) or method not in METHODS:
+        raise UsageError(f"unknown integration method {method!r} in the planner config; "
+                         f"use one of {', '.join(METHODS)}")
+    if isinstance(h, bool) or not isinstance(h, (int, float)) or not (math.isfinite(h) and h > 0):
+        raise UsageError(f"planner step h must be a number > 0 [s], got {h!r}")
+    params = {k: p.default for k, p in PARAMS.items()}
+    params.update({k: check_param(k, v) for k, v in overrides.items()})
+    return PlannerConfig(method, float(h), params, str(provenance), str(source))
+
+
+def load_config(path=None) -> PlannerConfig:
+    """Read a planner config TOML (default: the shipped tuned_default.toml); unknown top-level
+    keys (what `stepzoo tune` adds: why, pos_tol_m, runners_up, ...) are ignored."""
+    path = Path(path) if path is not None else DEFAULT_CONFIG
+    if not path.is_file():
+        raise UsageError(f"planner config not found: {path}; give a TOML file written by "
+                         "`stepzoo tune`")
+    try:
+        data = tomllib.loads(path.read_text())
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as err:
+        raise UsageError(f"{path} is not valid TOML ({err}); fix the file") from None
+    missing = [k for k in ("method", "h") if k not in data]
+    if missing:
+        raise UsageError(f"{path} lacks {' and '.join(missing)}; a planner config needs "
+                         "top-level method (a zoo name) and h (step [s])")
+    planner = data.get("planner", {})
+    if not isinstance(planner, dict):
+        raise UsageError(f"{path}: [planner] must be a table of parameter overrides")
+    provenance = data.get("provenance", data.get("why", "not stated"))
+    return make_config(data["method"], data["h"], provenance, str(path), **planner)

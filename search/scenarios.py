@@ -1,0 +1,139 @@
+"""Planning scenarios: the paper's five built-in ones (Section 3, files in `scenarios/`) and
+scenario TOML files naming a map (a map file, or rectangles on an empty grid), a start, a goal,
+a vehicle and a speed. Every mistake in a scenario is one UsageError line."""
+from __future__ import annotations
+
+import math
+import tomllib
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+import dynamics
+from bench.errors import UsageError
+from search.maps import OccupancyMap, from_array, load_map
+
+SCENARIO_DIR = Path(__file__).with_name("scenarios")
+DEFAULT_SPEED = 5.0  # [m/s] when a query names none
+
+
+@dataclass(frozen=True)
+class Scenario:
+    name: str
+    description: str
+    omap: OccupancyMap
+    map_source: str               # the map file, or "generated" for rectangles
+    start: tuple                  # (X, Y, psi) [m, m, rad]
+    goal: tuple                   # (X, Y, psi)
+    goal_speed: float | None      # [m/s] the connection ends at, None = free
+    vehicle: str                  # a set of dynamics/vehicles.toml
+    speed: float                  # [m/s] constant longitudinal speed of the tree
+
+
+def builtin_names() -> list[str]:
+    return sorted(p.stem for p in SCENARIO_DIR.glob("*.toml"))
+
+
+def load_scenario(name_or_path) -> Scenario:
+    """A built-in scenario by name, or a scenario TOML file by path."""
+    text = str(name_or_path)
+    if text in builtin_names():
+        return scenario_from_toml(SCENARIO_DIR / f"{text}.toml")
+    path = Path(text)
+    if path.suffix.lower() == ".toml" and path.is_file():
+        return scenario_from_toml(path)
+    raise UsageError(f"unknown scenario {text!r}; give a built-in one "
+                     f"({', '.join(builtin_names())}) or a scenario .toml file")
+
+
+def scenario_from_toml(path) -> Scenario:
+    path = Path(path)
+    try:
+        data = tomllib.loads(path.read_text())
+    except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as err:
+        raise UsageError(f"cannot read scenario {path}: {err}") from None
+    missing = [k for k in ("start", "goal", "speed", "map") if k not in data]
+    if missing:
+        raise UsageError(f"scenario {path} lacks {', '.join(missing)}; it needs map, start, "
+                         "goal and speed (vehicle optional)")
+    spec = data["map"]
+    if isinstance(spec, dict):
+        omap, source = rectangles_map(spec, path), "generated"
+    elif isinstance(spec, str):
+        map_path = path.parent / spec
+        omap, source = open_map(map_path, data.get("cell_size")), str(map_path)
+    else:
+        raise UsageError(f"scenario {path}: map must be a file name or a [map] table")
+    goal = pose(data["goal"], f"goal in {path}", allow_speed=True)
+    return Scenario(path.stem, str(data.get("description", "")), omap, source,
+                    pose(data["start"], f"start in {path}"), goal[:3],
+                    goal[3] if len(goal) == 4 else None,
+                    vehicle_name(data.get("vehicle")), speed(data["speed"], f"speed in {path}"))
+
+
+def custom_scenario(map_path, cell_size, start, goal, vx, vehicle=None) -> Scenario:
+    """A query on a map file: start (X, Y, psi), goal (X, Y, psi[, v])."""
+    omap = open_map(Path(map_path), cell_size)
+    goal = tuple(goal)
+    return Scenario("custom", f"query on {map_path}", omap, str(map_path), tuple(start),
+                    goal[:3], goal[3] if len(goal) == 4 else None, vehicle_name(vehicle),
+                    speed(DEFAULT_SPEED if vx is None else vx, "--speed"))
+
+
+def open_map(path: Path, cell_size=None) -> OccupancyMap:
+    try:
+        return load_map(path, cell_size=cell_size)
+    except ValueError as err:
+        raise UsageError(str(err)) from None
+
+
+def rectangles_map(spec: dict, path: Path) -> OccupancyMap:
+    """An empty grid of `size` [m] at `resolution` [m/cell] with rectangles [x0, y0, x1, y1]
+    [m] as obstacles: a cell is occupied if its centre lies in a rectangle."""
+    try:
+        width, height = (float(v) for v in spec["size"])
+        res = float(spec["resolution"])
+        boxes = np.array(spec.get("obstacles", []), dtype=float).reshape(-1, 4)
+    except (KeyError, TypeError, ValueError):
+        raise UsageError(f"scenario {path}: [map] needs size = [width, height] [m], resolution "
+                         "[m/cell] and obstacles = [[x0, y0, x1, y1], ...]") from None
+    if not (res > 0 and width >= res and height >= res):
+        raise UsageError(f"scenario {path}: map size {width} x {height} m must hold at least one "
+                         f"cell of {res} m")
+    xs = (np.arange(round(width / res)) + 0.5) * res
+    ys = (np.arange(round(height / res)) + 0.5) * res
+    occupied = np.zeros((ys.size, xs.size), bool)
+    for x0, y0, x1, y1 in boxes:
+        occupied |= ((ys[:, None] >= y0) & (ys[:, None] <= y1)
+                     & (xs[None, :] >= x0) & (xs[None, :] <= x1))
+    return from_array(occupied, res)
+
+
+def pose(values, what: str, allow_speed=False) -> tuple:
+    """(X, Y, psi) or, if allowed, (X, Y, psi, v) as finite floats; else UsageError."""
+    sizes = (3, 4) if allow_speed else (3,)
+    try:
+        numbers = tuple(float(v) for v in values)
+    except (TypeError, ValueError):
+        numbers = ()
+    if len(numbers) not in sizes or not all(math.isfinite(v) for v in numbers):
+        shape = "X,Y,PSI[,V]" if allow_speed else "X,Y,PSI"
+        raise UsageError(f"{what} must be {shape} (metres, radians, m/s), got {values!r}")
+    if len(numbers) == 4 and numbers[3] < 0:
+        raise UsageError(f"{what}: the goal speed V must be >= 0 [m/s], got {numbers[3]}")
+    return numbers
+
+
+def speed(value, what: str) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or \
+            not (math.isfinite(value) and value > 0):
+        raise UsageError(f"{what} must be a number > 0 [m/s], got {value!r}")
+    return float(value)
+
+
+def vehicle_name(name) -> str:
+    try:
+        return dynamics.vehicle(name)["name"]
+    except KeyError as err:
+        raise UsageError(f"{err.args[0]}; choose one of those") from None

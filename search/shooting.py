@@ -1,0 +1,67 @@
+"""Shooting (paper Algorithm 3): the pure-pursuit steer angle towards each selected point, all
+shootings of one expansion integrated in one vectorised call of the zoo's driver, and for each
+its travelled distance g, its distance H to the destination and its collision verdict."""
+from typing import NamedTuple
+
+import jax.numpy as jnp
+import numpy as np
+
+import dynamics
+from integrators import integrate_batch, method
+from search.footprint import Footprint, first_collision
+from search.maps import OccupancyMap
+
+
+class Shots(NamedTuple):
+    states: np.ndarray  # (B, N+1, 5) [X, Y, psi, vy, r] at steps of h
+    steer: np.ndarray   # (B,) [rad] the constant steer of each shooting
+    g: np.ndarray       # (B,) [m] distance travelled along each shooting
+    H: np.ndarray       # (B,) [m] distance from each end to the destination
+    valid: np.ndarray   # (B,) bool: finite and collision-free; invalid ones cost infinity
+
+
+def pure_pursuit(state, points, wheelbase, delta_max) -> np.ndarray:
+    """(B,) [rad]: the steer of the circle from `state` [X, Y, psi, ...] through each point
+    (B, 2) [m], delta = atan(2 L sin(alpha) / l_d), clipped to +-delta_max."""
+    rel = np.asarray(points, float) - state[:2]
+    alpha = np.arctan2(rel[:, 1], rel[:, 0]) - state[2]
+    lookahead = np.maximum(np.hypot(rel[:, 0], rel[:, 1]), 1e-9)
+    steer = np.arctan(2 * wheelbase * np.sin(alpha) / lookahead)
+    return np.clip(steer, -delta_max, delta_max)
+
+
+class Shooter:
+    """Integrates B shootings of n_steps steps of h [s] from one node with `method_name`, on
+    the reduced dynamic bicycle (paper eq. 4) at constant speed vx [m/s]."""
+
+    def __init__(self, omap: OccupancyMap, footprint: Footprint, vehicle: str, vx: float,
+                 method_name: str, h: float, n_steps: int, batch: int, delta_max: float):
+        self.model = dynamics.model("dynamic5")
+        self.omap, self.footprint = omap, footprint
+        self.method = method(method_name)
+        self.h, self.n_steps, self.batch, self.delta_max = h, n_steps, batch, delta_max
+        p = self.model.params(vehicle, vx)
+        self.wheelbase = p["Lf"] + p["Lr"]
+        # Every leaf batched once: the driver then sees the same shapes at every expansion and
+        # compiles once per (method, batch, n_steps).
+        self.p = {k: jnp.full((batch,), float(v)) for k, v in p.items()}
+
+    def integrate(self, x0, steer) -> np.ndarray:
+        """(B, 5) states and (B,) steers -> (B, N+1, 5) trajectories."""
+        # NumPy arguments go straight into the jitted driver; jnp conversions here would each
+        # be a separate dispatch, costing more than the integration itself.
+        traj = integrate_batch(self.method, self.model.rhs, np.asarray(x0, float),
+                               np.asarray(steer, float)[:, None], self.p, self.h, self.n_steps)
+        return np.asarray(traj.x)
+
+    def shoot(self, state, points, destination) -> Shots:
+        """Shoot from `state` (5,) towards each of `points` (B, 2) [m]."""
+        steer = pure_pursuit(state, points, self.wheelbase, self.delta_max)
+        states = self.integrate(np.broadcast_to(state, (self.batch, state.size)), steer)
+        with np.errstate(invalid="ignore", over="ignore"):
+            g = np.hypot(*np.diff(states[:, :, :2], axis=1).transpose(2, 0, 1)).sum(axis=1)
+            H = np.hypot(*(states[:, -1, :2] - destination[:2]).T)
+        finite = np.isfinite(states).all(axis=(1, 2))
+        # first_collision treats non-finite poses as collisions, so blow-up needs no branch.
+        valid = finite & (first_collision(self.omap, self.footprint, states) < 0)
+        return Shots(states, steer, g, H, valid)
