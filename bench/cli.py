@@ -4,6 +4,7 @@ Each subcommand module has `add_arguments(parser)` and `main(args) -> int`. A us
 (UsageError, or a bad flag) prints one line and exits with status 2, never a traceback."""
 import argparse
 import importlib
+import signal
 import sys
 
 from bench.errors import UsageError
@@ -33,12 +34,13 @@ def build_parser(only: str | None = None) -> argparse.ArgumentParser:
                                 metavar="COMMAND")
     for name, (module, helptext) in COMMANDS.items():
         p = sub.add_parser(name, help=helptext, description=helptext)
-        if only is None or name == only:
+        if name == only:      # the other commands' modules (and JAX) stay unimported
             importlib.import_module(module).add_arguments(p)
     return parser
 
 
 def main(argv=None) -> int:
+    signal.signal(signal.SIGPIPE, signal.SIG_DFL)       # `stepzoo ... | head` ends quietly
     argv = sys.argv[1:] if argv is None else argv
     chosen = next((a for a in argv if not a.startswith("-")), None)
     if chosen not in COMMANDS:
