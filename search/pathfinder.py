@@ -196,10 +196,6 @@ class _Search:
                 pushed += 1
             near = [i for i in new if self.H[i] <= prm["mindist"]]
             done = bool(near) and self._try_connect(near)
-        if not done:
-            # Before giving up, the next nearest nodes get their chance (paper: nearest node).
-            order = np.argsort(self.H, kind="stable")
-            done = self._try_connect([int(i) for i in order if i not in self.tried])
         res.nodes = len(self.states)
         res.tree = self.edges[1:]
         res.connect_s = self.connect_s

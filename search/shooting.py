@@ -58,10 +58,11 @@ class Shooter:
         """Shoot from `state` (5,) towards each of `points` (B, 2) [m]."""
         steer = pure_pursuit(state, points, self.wheelbase, self.delta_max)
         states = self.integrate(np.broadcast_to(state, (self.batch, state.size)), steer)
+        # A blown-up shooting is a result (an invalid one), so its overflow warnings are noise;
+        # first_collision treats non-finite poses as collisions, so it needs no branch either.
         with np.errstate(invalid="ignore", over="ignore"):
             g = np.hypot(*np.diff(states[:, :, :2], axis=1).transpose(2, 0, 1)).sum(axis=1)
             H = np.hypot(*(states[:, -1, :2] - destination[:2]).T)
-        finite = np.isfinite(states).all(axis=(1, 2))
-        # first_collision treats non-finite poses as collisions, so blow-up needs no branch.
-        valid = finite & (first_collision(self.omap, self.footprint, states) < 0)
+            hit = first_collision(self.omap, self.footprint, states) >= 0
+        valid = np.isfinite(states).all(axis=(1, 2)) & ~hit
         return Shots(states, steer, g, H, valid)

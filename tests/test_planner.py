@@ -1,0 +1,290 @@
+"""The tree planner: the five scenarios plan to exact paths that an independent dense check
+(reference integrator, sampled footprint, raw occupancy cells) finds collision-free; the same
+inputs give the same path; bad endpoints, walled-off goals, budgets and blow-up end cleanly."""
+from pathlib import Path
+
+import numpy as np
+import pytest
+from scipy.ndimage import label
+
+import dynamics
+from integrators import integrate
+from integrators.reference import reference
+from search.connect import resimulate
+from search.maps import SUBDIV, from_array, load_map
+from search.pathfinder import PathFinder
+from search.planner_config import make_config
+from search.point_selector import point_selector, random_points
+from search.scenarios import builtin_names, load_scenario
+from search.shooting import Shooter, pure_pursuit
+
+SHARED_MAPS = Path(__file__).resolve().parents[2] / "shared" / "maps"
+CONFIG = make_config()
+
+
+def finder_for(scenario, config=CONFIG):
+    return PathFinder(scenario.omap, config, scenario.vehicle, scenario.speed)
+
+
+@pytest.fixture(scope="module")
+def plans():
+    """Every built-in scenario planned once with the default config and seed 0."""
+    out = {}
+    for name in builtin_names():
+        scenario = load_scenario(name)
+        out[name] = scenario, finder_for(scenario).plan(scenario.start, scenario.goal,
+                                                         scenario.goal_speed, seed=0)
+    return out
+
+
+# --- the independent dense check -------------------------------------------------------------
+
+def footprint_hits(omap, vehicle, poses, spacing):
+    """bool (K,): the length x width rectangle at each pose [X, Y, psi], sampled on a grid of
+    `spacing` [m] (edges included), touches an occupied cell or leaves the grid."""
+    along = np.linspace(-vehicle["length"] / 2, vehicle["length"] / 2,
+                        int(np.ceil(vehicle["length"] / spacing)) + 1)
+    across = np.linspace(-vehicle["width"] / 2, vehicle["width"] / 2,
+                         int(np.ceil(vehicle["width"] / spacing)) + 1)
+    a, c = (v.ravel() for v in np.meshgrid(along, across))
+    cos, sin = np.cos(poses[:, 2:3]), np.sin(poses[:, 2:3])
+    x = poses[:, 0:1] + a * cos - c * sin
+    y = poses[:, 1:2] + a * sin + c * cos
+    col = np.floor((x - omap.origin[0]) / omap.resolution).astype(int)
+    row = np.floor((y - omap.origin[1]) / omap.resolution).astype(int)
+    rows, cols = omap.occupied.shape
+    inside = (row >= 0) & (row < rows) & (col >= 0) & (col < cols)
+    hit = ~inside | omap.occupied[np.clip(row, 0, rows - 1), np.clip(col, 0, cols - 1)]
+    return hit.any(axis=1)
+
+
+def dense_check(scenario, result):
+    """Re-simulate every path edge with the adaptive reference and the connection on a ten
+    times finer step; return (collisions, largest joint gap [m], connection miss [m])."""
+    vehicle = dynamics.vehicle(scenario.vehicle)
+    model = dynamics.model("dynamic5")
+    p = model.params(scenario.vehicle, scenario.speed)
+    # Sample the footprint at a quarter cell and the motion so finely that no point of the car
+    # moves more than a quarter cell between poses (speed plus rotation of the far corner).
+    spacing = scenario.omap.resolution / 4
+    n_steps = len(result.path_edges[0]) - 1
+    duration = n_steps * result.h
+    ts = np.linspace(0.0, duration, int(np.ceil(duration * scenario.speed * 4 / spacing)) + 1)
+    collisions, joint_gap, previous_end = 0, 0.0, result.path_edges[0][0]
+    for edge, steer in zip(result.path_edges, result.path_steers):
+        ref = reference(model.rhs, edge[0], np.array([steer]), p, ts, rtol=1e-10, atol=1e-10)
+        xs = np.asarray(ref.x)
+        assert bool(ref.success)
+        collisions += int(footprint_hits(scenario.omap, vehicle, xs, spacing).sum())
+        joint_gap = max(joint_gap, float(np.hypot(*(edge[0, :2] - previous_end[:2]))))
+        previous_end = xs[-1]
+    conn = result.connection
+    fine = resimulate(conn, L=vehicle["Lf"] + vehicle["Lr"], m=vehicle["m"], refine=10)
+    collisions += int(footprint_hits(scenario.omap, vehicle, fine, spacing).sum())
+    joint_gap = max(joint_gap, float(np.hypot(*(fine[0, :2] - previous_end[:2]))))
+    miss = float(np.hypot(*(fine[-1, :2] - np.asarray(scenario.goal[:2]))))
+    return collisions, joint_gap, miss
+
+
+def test_dense_check_sees_a_pose_inside_an_obstacle():
+    omap = from_array(np.pad(np.ones((2, 2)), 10), 0.5)  # one 1 m block at (5..6, 5..6)
+    vehicle = dynamics.vehicle(None)
+    poses = np.array([[5.5, 5.5, 0.0], [5.5, 3.0, 0.0], [5.5, 4.2, 0.3], [2.0, 2.0, 0.0]])
+    assert footprint_hits(omap, vehicle, poses, 0.125).tolist() == [True, False, True, True]
+
+
+# --- the paper's claims -----------------------------------------------------------------------
+
+@pytest.mark.parametrize("name", builtin_names())
+def test_every_builtin_scenario_plans_an_exact_path_that_the_dense_check_accepts(plans, name):
+    scenario, result = plans[name]
+    assert result.status == "exact", result.reason
+    assert result.connection is not None and result.path_edges
+    collisions, joint_gap, miss = dense_check(scenario, result)
+    assert collisions == 0
+    # The reference lands where the planner's integrator put the next node: edges chain.
+    assert joint_gap < 1e-3
+    assert miss < 1e-3
+    assert np.allclose(result.path_edges[0][0, :3], scenario.start)
+
+
+def test_there_are_five_builtin_scenarios():
+    assert len(builtin_names()) == 5
+
+
+def test_same_inputs_give_the_same_path_and_another_seed_another_tree(plans):
+    scenario, first = plans["obstacles_between"]
+    again = finder_for(scenario).plan(scenario.start, scenario.goal, scenario.goal_speed, seed=0)
+    assert again.status == first.status and again.expansions == first.expansions
+    for a, b in zip(first.path_edges, again.path_edges, strict=True):
+        np.testing.assert_array_equal(a, b)
+    np.testing.assert_array_equal(first.connection.states, again.connection.states)
+    other = finder_for(scenario).plan(scenario.start, scenario.goal, scenario.goal_speed, seed=1)
+    assert (other.nodes, other.expansions) != (first.nodes, first.expansions) or any(
+        not np.array_equal(a, b) for a, b in zip(first.tree, other.tree))
+
+
+def test_no_two_tree_nodes_share_a_pruning_cell(plans):
+    scenario, result = plans["wall_between"]
+    prm = CONFIG.params
+    ends = np.array([scenario.start] + [e[-1, :3] for e in result.tree])
+    cells = np.column_stack([np.floor(ends[:, :2] / prm["cell_xy"]),
+                             np.floor(ends[:, 2] % (2 * np.pi) / prm["cell_heading"])])
+    assert len(np.unique(cells, axis=0)) == len(ends) == result.nodes
+
+
+def test_path_length_is_at_least_the_straight_line(plans):
+    for scenario, result in plans.values():
+        straight = np.hypot(*np.subtract(scenario.goal[:2], scenario.start[:2]))
+        assert result.path_length() >= straight
+
+
+# --- bad endpoints, walls, budgets, blow-up ---------------------------------------------------
+
+@pytest.mark.parametrize("start, goal, cause", [
+    ((30.0, 25.0, 0.0), (50.0, 25.0, 0.0), "start_in_collision"),
+    ((10.0, 25.0, 0.0), (30.0, 20.0, 1.0), "goal_in_collision"),
+    ((-5.0, 25.0, 0.0), (50.0, 25.0, 0.0), "start_off_map"),
+    ((10.0, 25.0, 0.0), (50.0, 99.0, 0.0), "goal_off_map"),
+    ((10.0, 0.5, 0.0), (50.0, 25.0, 0.0), "start_in_collision"),  # centre inside, car sticks out
+])
+def test_bad_endpoints_are_no_path_with_that_reason(start, goal, cause):
+    scenario = load_scenario("wall_between")
+    result = finder_for(scenario).plan(start, goal)
+    assert (result.status, result.cause, result.expansions) == ("no_path", cause, 0)
+    assert cause.split("_")[0] in result.reason and result.path_edges == []
+
+
+def walled_map():
+    """40 x 30 m; the goal's 10 x 10 m room at the right has no door."""
+    occupied = np.zeros((60, 80), bool)
+    occupied[10:50, 50:52] = occupied[10:12, 50:72] = occupied[48:50, 50:72] = True
+    occupied[10:50, 70:72] = True
+    return from_array(occupied, 0.5)
+
+
+def test_a_walled_off_goal_is_no_path_without_searching():
+    finder = PathFinder(walled_map(), CONFIG, None, 5.0)
+    result = finder.plan((5.0, 15.0, 0.0), (30.5, 15.0, 0.0))
+    assert (result.status, result.cause, result.expansions) == ("no_path", "walled_off", 0)
+
+
+def test_a_dead_end_the_car_cannot_turn_in_exhausts_the_search():
+    # A 3.5 m wide blind corridor: the corridor check passes (the goal is in the same free
+    # space), but a forward-only car facing the dead end cannot turn round.
+    occupied = np.ones((60, 100), bool)
+    occupied[10:50, 0:30] = False           # a 15 x 20 m yard with the goal
+    occupied[26:33, 30:95] = False           # the corridor, 3.5 m wide, closed at x = 47.5
+    finder = PathFinder(from_array(occupied, 0.5), CONFIG, None, 5.0)
+    result = finder.plan((30.0, 14.75, 0.0), (7.0, 15.0, 0.0))
+    assert (result.status, result.cause) == ("no_path", "exhausted")
+    assert 0 < result.expansions < CONFIG.params["max_expansions"]
+
+
+def test_the_expansion_budget_ends_in_the_closest_node():
+    scenario = load_scenario("wall_between")
+    config = make_config(max_expansions=5)
+    result = finder_for(scenario, config).plan(scenario.start, scenario.goal)
+    assert (result.status, result.cause, result.expansions) == ("approximate", "budget", 5)
+    ends = np.array([e[-1, :2] for e in result.tree])
+    closest = np.hypot(*(ends - scenario.goal[:2]).T).min()
+    assert np.hypot(*(result.path_edges[-1][-1, :2] - scenario.goal[:2])) == closest
+
+
+def test_a_blown_up_shooting_is_discarded_not_a_crash():
+    scenario = load_scenario("open_field")
+    # Forward Euler at 0.05 s on the default car at 0.25 m/s: h*lambda is about -43, far
+    # outside its stability interval [-2, 0]; 200 steps grow it past the float64 range.
+    config = make_config("euler", 0.05, horizon=10.0)
+    finder = PathFinder(scenario.omap, config, scenario.vehicle, 0.25)
+    state = np.array([*scenario.start, 0.0, 0.0])
+    points = point_selector(state, 4.0, finder.shooter.batch, np.pi / 4)
+    shots = finder.shooter.shoot(state, points, np.array(scenario.goal))
+    assert not np.isfinite(shots.states).all(axis=(1, 2)).any()
+    assert not shots.valid.any()
+    # Only straight-ahead shootings (steer 0 leaves the lateral states at rest) stay finite.
+    result = finder.plan(scenario.start, scenario.goal)
+    assert (result.status, result.cause) == ("no_path", "exhausted")
+    assert all(np.isfinite(edge).all() for edge in result.tree)
+
+
+# --- point selection and shooting -------------------------------------------------------------
+
+def test_point_selector_spreads_n_points_on_the_arc_within_the_steer_limit():
+    state = np.array([3.0, -2.0, 0.7])
+    points = point_selector(state, 5.0, 7, np.pi / 4)
+    rel = points - state[:2]
+    np.testing.assert_allclose(np.hypot(*rel.T), 5.0)
+    angles = np.arctan2(rel[:, 1], rel[:, 0]) - 0.7
+    np.testing.assert_allclose(angles, np.linspace(-np.pi / 4, np.pi / 4, 7), atol=1e-12)
+
+
+def test_random_points_fill_the_disc_around_the_destination_reproducibly():
+    a = random_points(np.random.default_rng(3), (10.0, 20.0), 2000, 3.0)
+    b = random_points(np.random.default_rng(3), (10.0, 20.0), 2000, 3.0)
+    np.testing.assert_array_equal(a, b)
+    r = np.hypot(*(a - (10.0, 20.0)).T)
+    assert r.max() <= 3.0 and np.mean(r <= 1.5) == pytest.approx(0.25, abs=0.03)
+
+
+def test_pure_pursuit_steers_onto_the_circle_through_the_point():
+    L = 2.6
+    state = np.array([1.0, 2.0, 0.4])
+    points = state[:2] + 6.0 * np.column_stack([np.cos(0.4 + np.array([-0.3, 0.0, 0.2])),
+                                                np.sin(0.4 + np.array([-0.3, 0.0, 0.2]))])
+    steer = pure_pursuit(state, points, L, np.pi / 4)
+    for delta, point in zip(steer, points):
+        # The kinematic circle of curvature tan(delta)/L tangent to the heading contains it.
+        kappa = np.tan(delta) / L
+        local = point - state[:2]
+        ahead = local @ [np.cos(0.4), np.sin(0.4)]
+        left = local @ [-np.sin(0.4), np.cos(0.4)]
+        assert kappa * (ahead ** 2 + left ** 2) == pytest.approx(2 * left, abs=1e-9)
+    far_side = state[:2] + [np.cos(0.4 + 2.5), np.sin(0.4 + 2.5)]
+    assert pure_pursuit(state, far_side[None], L, np.pi / 4)[0] == pytest.approx(np.pi / 4)
+
+
+def test_all_shootings_of_an_expansion_match_one_by_one_integration():
+    scenario = load_scenario("open_field")
+    shooter: Shooter = finder_for(scenario).shooter
+    state = np.array([*scenario.start, 0.1, 0.05])
+    points = point_selector(state, 4.0, shooter.batch, np.pi / 4)
+    shots = shooter.shoot(state, points, np.array(scenario.goal))
+    model = dynamics.model("dynamic5")
+    p = model.params(scenario.vehicle, scenario.speed)
+    for k in (0, shooter.batch - 1):
+        one = np.asarray(integrate(shooter.method, model.rhs, state, shots.steer[k:k + 1], p,
+                                   shooter.h, shooter.n_steps).x)
+        np.testing.assert_allclose(shots.states[k], one, rtol=1e-12, atol=1e-12)
+        assert shots.g[k] == pytest.approx(np.hypot(*np.diff(one[:, :2], axis=0).T).sum(),
+                                           rel=1e-12)
+        assert shots.H[k] == pytest.approx(np.hypot(*(one[-1, :2] - scenario.goal[:2])))
+    assert shots.valid.all()
+
+
+# --- every shared map -------------------------------------------------------------------------
+
+CELL_SIZE = {".map": 1.5, ".png": 1.0, ".pgm": 0.05}  # [m/cell]; .yaml files store their own
+
+
+def free_query(omap):
+    """A deterministic query: the start at the point farthest from obstacles, the goal the
+    point of its free region (clearance >= 2.5 m) nearest 40 m away, both facing the goal."""
+    distance = omap.distance
+    step = omap.resolution / SUBDIV
+    region = label(distance >= 2.5, structure=np.ones((3, 3)))[0]
+    i = np.unravel_index(np.argmax(distance), distance.shape)
+    candidates = np.argwhere(region == region[i])[:, ::-1] * step + omap.origin
+    start = np.array(i[::-1]) * step + omap.origin
+    goal = candidates[np.argmin(np.abs(np.hypot(*(candidates - start).T) - 40.0))]
+    psi = float(np.arctan2(*(goal - start)[::-1]))
+    return (*start, psi), (*goal, psi)
+
+
+@pytest.mark.parametrize("path", sorted(p for p in SHARED_MAPS.iterdir() if p.suffix != ".md"),
+                         ids=lambda p: p.name)
+def test_every_shared_map_loads_and_a_free_query_plans(path):
+    omap = load_map(path, cell_size=CELL_SIZE.get(path.suffix))
+    start, goal = free_query(omap)
+    result = PathFinder(omap, CONFIG, None, 5.0).plan(start, goal)
+    assert result.status == "exact", result.reason
