@@ -1,0 +1,107 @@
+"""`stepzoo report RESULTS --out DIR`: the HTML report (index.html, summary.md, PNGs) built
+from result folders alone. RESULTS is a sweep folder, or a `stepzoo run` folder whose
+sweep/, tuned.toml and plans/ are picked up; --tuned and --plans name them explicitly."""
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+from bench.errors import UsageError
+from reports import figures, tables
+from reports.html import write_report
+from reports.load import load_plans, load_sweep, load_tuned
+
+# Used for the summary table's cost column when no tuned config gives them.
+DEFAULT_POS_TOL_M = 0.1
+DEFAULT_MARGIN = 0.2
+
+
+def add_arguments(p):
+    p.add_argument("results", metavar="RESULTS",
+                   help="a sweep folder, or a `stepzoo run` folder (sweep/, tuned.toml, plans/)")
+    p.add_argument("--tuned", metavar="FILE", help="tuned config from `stepzoo tune` "
+                   "(default: RESULTS/tuned.toml of a run folder, if there)")
+    p.add_argument("--plans", metavar="DIR", help="plan folder(s) from `stepzoo plan` "
+                   "(default: RESULTS/plans of a run folder, if there)")
+    p.add_argument("--out", required=True, metavar="DIR", help="report folder to write")
+    p.add_argument("--format", choices=["text", "json"], default="text",
+                   help="what is printed: the report's path, or JSON with every file")
+
+
+def resolve(results, tuned=None, plans=None):
+    """(sweep folder, tuned file or None, plans folder or None) from the arguments."""
+    results = Path(results)
+    run_folder = (results / "sweep").is_dir() and not (results / "runs.parquet").exists()
+    sweep = results / "sweep" if run_folder else results
+    if run_folder:
+        if tuned is None and (results / "tuned.toml").is_file():
+            tuned = results / "tuned.toml"
+        if plans is None and (results / "plans").is_dir():
+            plans = results / "plans"
+    return sweep, tuned, plans
+
+
+def _facts(sweep, tuned, tuned_path, plan_list, plans_dir) -> list:
+    facts = [("sweep folder", str(sweep.folder)),
+             ("sweep config sha256", sweep.manifest.get("config_sha256", "not recorded"))]
+    timing = sweep.manifest.get("timing")
+    if timing:
+        facts.append(("timing", json.dumps(timing) if isinstance(timing, dict) else timing))
+    if tuned:
+        facts += [("tuned config", str(tuned_path)),
+                  ("tuned choice", f"{tuned['method']} at h = {tuned['h']:g} s"),
+                  ("why", tuned.get("why", "not stated"))]
+        made_from = tuned.get("sweep_config_sha256")
+        if made_from and made_from != sweep.manifest.get("config_sha256"):
+            # Not fatal, but the reader must know the figures and the choice disagree.
+            facts.append(("WARNING", "the tuned config was made from a different sweep "
+                          f"(config sha256 {made_from})"))
+    else:
+        facts.append(("tuned config", "none given"))
+    facts.append(("plans", f"{len(plan_list)} from {plans_dir}" if plan_list else "none given"))
+    return facts
+
+
+def build(results, out, tuned_path=None, plans_dir=None):
+    """Load every input, draw the figures, write the report; returns (index, summary, shown)."""
+    sweep_dir, tuned_path, plans_dir = resolve(results, tuned_path, plans_dir)
+    out = Path(out)
+    if out.exists() and not out.is_dir():
+        raise UsageError(f"--out {out} exists and is not a folder; give a folder")
+    sweep = load_sweep(sweep_dir)
+    tuned = load_tuned(tuned_path) if tuned_path is not None else None
+    plan_list = load_plans(plans_dir) if plans_dir is not None else []
+    out.mkdir(parents=True, exist_ok=True)
+    shown = [figures.yaw_rate(sweep, out), figures.xy_paths(sweep, out),
+             figures.stability_regions(sweep, tuned, out), figures.error_vs_step(sweep, out),
+             figures.work_precision(sweep, tuned, out),
+             figures.stable_step_vs_speed(sweep, out), figures.plans(plan_list, out)]
+    pos_tol = float(tuned["pos_tol_m"]) if tuned else DEFAULT_POS_TOL_M
+    margin = float(tuned.get("margin", DEFAULT_MARGIN)) if tuned else DEFAULT_MARGIN
+    summary = tables.Table(
+        "Methods", f"Per method: declared and fitted order, stability intervals on the real "
+        f"and imaginary axes, the smallest predicted and measured largest stable step over "
+        f"the envelope and their worst ratio; then the largest swept step stable everywhere, "
+        f"at most {1 - margin:g} of the measured limit, with worst position error <= "
+        f"{pos_tol:g} m{'' if tuned else ' (defaults: no tuned config given)'}, and its "
+        f"cost.", tables.method_summary(sweep, pos_tol, margin), tables.METHOD_COLUMNS)
+    decision = tables.Table(
+        "Tuning decision", "The (method, h) that `stepzoo tune` chose (rank 1) and its "
+        "runners-up, with their cost per simulated second and the reason each lost."
+        if tuned else "No tuned config was given.",
+        tables.tuning_rows(tuned) if tuned else [], tables.TUNING_COLUMNS)
+    facts = _facts(sweep, tuned, tuned_path, plan_list, plans_dir)
+    index, md = write_report(out, "stepzoo report", facts, [decision, summary], shown)
+    return index, md, shown
+
+
+def main(args) -> int:
+    index, md, shown = build(args.results, args.out, args.tuned, args.plans)
+    if args.format == "json":
+        files = [name for s in shown for name, _ in s.images]
+        sys.stdout.write(json.dumps({"index": str(index), "summary": str(md),
+                                     "figures": files}) + "\n")
+    else:
+        sys.stdout.write(f"report written to {index} (and {md.name})\n")
+    return 0

@@ -1,0 +1,395 @@
+"""The report's figures, one function each: draw from loaded result tables, save a PNG into
+the report folder and return a `Shown` record with the caption (what it shows, what to read).
+Matplotlib runs headless through the Agg canvas, without pyplot's global state."""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.collections import LineCollection
+from matplotlib.figure import Figure
+from matplotlib.lines import Line2D
+
+from integrators import METHODS
+from integrators.stability import amplification_theory, region_grid
+
+DPI = 100
+NCOLS = 4
+PANEL_IN = (3.2, 2.5)          # [inch] one small-multiple panel
+BLOWUP_FACTOR = 3.0            # a sample run this far beyond the reference's range diverged
+STABLE_FILL, UNSTABLE = "#cfe3f5", "#d62728"
+
+
+@dataclass(frozen=True)
+class Shown:
+    """A numbered figure of the report: its PNG files (name, sub-caption) and caption."""
+    number: int
+    title: str
+    caption: str
+    images: list
+
+
+def _save(fig: Figure, out_dir: Path, name: str) -> str:
+    fig.savefig(out_dir / name, dpi=DPI, bbox_inches="tight")
+    return name
+
+
+def _panels(n: int, ncols: int = NCOLS, panel=PANEL_IN, **kwargs):
+    """(figure, axes list of length n) for small multiples; unused slots are hidden."""
+    ncols = max(1, min(ncols, n))
+    nrows = math.ceil(n / ncols)
+    fig = Figure(figsize=(panel[0] * ncols, panel[1] * nrows), layout="constrained")
+    FigureCanvasAgg(fig)
+    axes = fig.subplots(nrows, ncols, squeeze=False, **kwargs).ravel()
+    for ax in axes[n:]:
+        ax.set_visible(False)
+    return fig, list(axes[:n])
+
+
+def method_order(names) -> list[str]:
+    """Methods in the zoo's registry order (families together), unknown names last."""
+    names = set(names)
+    return [m for m in METHODS if m in names] + sorted(names - set(METHODS))
+
+
+def worst_case(runs: pd.DataFrame) -> pd.DataFrame:
+    """Per (method, h): the worst position error [m] over the envelope's operating points and
+    the median costs; only steps stable at every point (an unstable point has no error)."""
+    g = runs.groupby(["method", "h"])
+    table = pd.DataFrame({
+        "all_stable": g["stable"].all(),
+        "err_pos": g["err_pos"].max(),
+        "evals_per_s": g["evals_per_s"].median(),
+        "time_per_s": g["time_per_step_s"].median(),
+    }).reset_index()
+    table["time_per_s"] = table["time_per_s"] / table["h"]     # wall seconds per simulated s
+    ok = table["all_stable"] & np.isfinite(table["err_pos"]) & (table["err_pos"] > 0)
+    return table[ok].sort_values(["method", "h"])
+
+
+def _sample_runs(traj: pd.DataFrame):
+    """(reference run, {method: [(h, run, diverged)]}) of the trajectories table."""
+    ref = traj[traj["method"] == "reference"].sort_values("t")
+    bound = {c: BLOWUP_FACTOR * max(np.abs(ref[c]).max(), 1e-9) for c in ("vy", "r")}
+    runs = {}
+    for (name, h), run in traj[traj["method"] != "reference"].groupby(["method", "h"]):
+        run = run.sort_values("t")
+        lateral = run[["vy", "r", "X", "Y"]].to_numpy()
+        diverged = (not np.isfinite(lateral).all()
+                    or any(np.abs(run[c]).max() > bound[c] for c in bound))
+        runs.setdefault(name, []).append((float(h), run, diverged))
+    return ref, {m: runs[m] for m in method_order(runs)}
+
+
+def _trajectory_figure(traj, xcol, ycol, xlabel, ylabel, equal):
+    """Per-method panels of ycol against xcol at each sampled step, over the reference.
+    Returns (figure, names of (method, h) runs that diverged)."""
+    ref, runs = _sample_runs(traj)
+    fig, axes = _panels(len(runs), sharex=not equal)
+    diverged_runs = []
+    for ax, (name, samples) in zip(axes, runs.items()):
+        stable_h = [h for h, _, d in samples if not d]
+        colours = dict(zip(stable_h, _shades(len(stable_h))))
+        shown = [ref[[xcol, ycol]].to_numpy()]
+        for h, run, diverged in samples:
+            xy = run[[xcol, ycol]].to_numpy()
+            if diverged:
+                diverged_runs.append(f"{name} at h = {h:g} s")
+                ax.plot(xy[:, 0], xy[:, 1], color=UNSTABLE, ls=":", lw=1.2,
+                        label=f"h={h:g} s, unstable")
+            else:
+                shown.append(xy)
+                ax.plot(xy[:, 0], xy[:, 1], color=colours[h], lw=1.2, label=f"h={h:g} s")
+        ax.plot(ref[xcol], ref[ycol], color="black", ls="--", lw=1.0, label="reference")
+        # Limits from the reference and the stable runs: a blown-up run leaves the panel.
+        pts = np.vstack(shown)
+        pts = pts[np.isfinite(pts).all(axis=1)]
+        lo, hi = pts.min(axis=0), pts.max(axis=0)
+        pad = 0.08 * np.maximum(hi - lo, 1e-6)
+        ax.set_xlim(lo[0] - pad[0], hi[0] + pad[0])
+        ax.set_ylim(lo[1] - pad[1], hi[1] + pad[1])
+        if equal:
+            ax.set_aspect("equal", adjustable="box")
+        ax.set_title(name, fontsize=10)
+        ax.set_xlabel(xlabel, fontsize=8)
+        ax.set_ylabel(ylabel, fontsize=8)
+        ax.tick_params(labelsize=7)
+        ax.legend(fontsize=6, loc="best")
+    return fig, diverged_runs
+
+
+def _shades(n):
+    from matplotlib import colormaps
+    return [colormaps["viridis"](v) for v in np.linspace(0.1, 0.75, max(n, 1))][:n]
+
+
+def _operating_point(sweep) -> str:
+    point = sweep.manifest.get("trajectory_point") or sweep.manifest.get("paper_point")
+    if isinstance(point, dict) and {"vx", "delta"} <= set(point):
+        return f" at vx = {point['vx']:g} m/s, delta = {point['delta']:.3g} rad"
+    return " at the paper's operating point"
+
+
+def yaw_rate(sweep, out_dir: Path) -> Shown:
+    """Figure 1: yaw rate r [rad/s] against time t [s], each method at several steps."""
+    fig, diverged = _trajectory_figure(sweep.trajectories, "t", "r", "t [s]", "r [rad/s]",
+                                       equal=False)
+    name = _save(fig, out_dir, "fig1_yaw_rate.png")
+    caption = ("Yaw rate against time for each method at several fixed step sizes (coloured "
+               f"by step){_operating_point(sweep)}, over the adaptive Dormand-Prince "
+               "reference (black, dashed); the paper's Figure 2. A stable step follows the "
+               "reference, and the gap grows with the step; red dotted runs are past the "
+               "method's stability limit and leave the panel. "
+               + (f"Unstable here: {', '.join(diverged)}." if diverged
+                  else "No sampled run went unstable."))
+    return Shown(1, "Yaw rate against time", caption, [(name, "")])
+
+
+def xy_paths(sweep, out_dir: Path) -> Shown:
+    """Figure 2: X-Y path [m] of each method at several steps, with the reference."""
+    fig, diverged = _trajectory_figure(sweep.trajectories, "X", "Y", "X [m]", "Y [m]",
+                                       equal=True)
+    name = _save(fig, out_dir, "fig2_xy_paths.png")
+    caption = ("The vehicle's path in the plane for the same runs as Figure 1; the paper's "
+               "Figure 3. The steady turn of the reference (black, dashed) is a circle; a "
+               "stable step stays on it, a coarse one drifts off it, and a run past the "
+               "stability limit (red, dotted) spirals away. "
+               + (f"Unstable here: {', '.join(diverged)}." if diverged else ""))
+    return Shown(2, "X-Y paths", caption.strip(), [(name, "")])
+
+
+def stability_regions(sweep, tuned, out_dir: Path) -> Shown:
+    """Figure 3: each method's stability region with h*lambda of the envelope at the tuned h."""
+    names = [m for m in method_order(sweep.summary["method"]) if m in METHODS]
+    eig = sweep.eigenvalues
+    lam = eig["lam_re"].to_numpy() + 1j * eig["lam_im"].to_numpy()
+    lam = np.concatenate([lam, lam.conj()])        # regions are symmetric; show both halves
+    h = float(tuned["h"]) if tuned else None
+    z = h * lam if h else np.zeros(0, complex)
+    reach = max(4.0, 1.1 * float(np.max(-z.real, initial=0.0)))
+    tall = max(3.5, 1.1 * float(np.max(np.abs(z.imag), initial=0.0)))
+    re, im = (-reach, 1.5), (-tall, tall)
+    fig, axes = _panels(len(names), sharex=True, sharey=True)
+    outside_by = {}
+    for ax, name in zip(axes, names):
+        m = METHODS[name]
+        x, y, amp = region_grid(m, re=re, im=im, n=181)
+        stable = np.nan_to_num(amp, nan=np.inf) <= 1.0
+        ax.contourf(x, y, stable.astype(float), levels=[0.5, 1.5], colors=[STABLE_FILL])
+        ax.contour(x, y, stable.astype(float), levels=[0.5], colors="#1f4e79", linewidths=0.8)
+        ax.axhline(0, color="grey", lw=0.5)
+        ax.axvline(0, color="grey", lw=0.5)
+        title = name
+        if z.size:
+            out = ~(np.nan_to_num(amplification_theory(m, z), nan=np.inf) <= 1.0 + 1e-12)
+            outside_by[name] = int(out.sum())
+            ax.plot(z.real[~out], z.imag[~out], ".", color="#1f77b4", ms=3)
+            ax.plot(z.real[out], z.imag[out], "x", color=UNSTABLE, ms=4)
+            title += f" ({out.sum()} of {z.size} outside)" if out.any() else " (all inside)"
+        weight = "bold" if tuned and name == tuned["method"] else "normal"
+        ax.set_title(title, fontsize=9, fontweight=weight)
+        ax.set_xlabel("Re(h lambda)", fontsize=8)
+        ax.set_ylabel("Im(h lambda)", fontsize=8)
+        ax.tick_params(labelsize=7)
+    name = _save(fig, out_dir, "fig3_stability_regions.png")
+    if h:
+        safe = [n for n, k in outside_by.items() if k == 0]
+        caption = (f"Stability region of each method (shaded: |R(z)| <= 1, or the root "
+                   f"condition for multistep methods) with h*lambda for every eigenvalue of "
+                   f"the lateral dynamics over the sweep's envelope at the tuned step h = "
+                   f"{h:g} s (blue dots inside, red crosses outside; the tuned method "
+                   f"{tuned['method']} has a bold title). A method is stable at this step on "
+                   f"the whole envelope when every point lies in its region: "
+                   f"{', '.join(safe) or 'none'}.")
+    else:
+        caption = ("Stability region of each method (shaded: |R(z)| <= 1, or the root "
+                   "condition for multistep methods). No tuned config was given, so no "
+                   "h*lambda points are drawn.")
+    return Shown(3, "Stability regions and h*lambda at the tuned step", caption, [(name, "")])
+
+
+def error_vs_step(sweep, out_dir: Path) -> Shown:
+    """Figure 4: worst position error [m] against h [s], log-log, with declared-order slopes."""
+    table = worst_case(sweep.runs)
+    names = method_order(table["method"])
+    summary = sweep.summary.set_index("method")
+    fig, axes = _panels(len(names), sharex=True, sharey=True)
+    for ax, name in zip(axes, names):
+        rows = table[table["method"] == name]
+        h, err = rows["h"].to_numpy(), rows["err_pos"].to_numpy()
+        ax.loglog(h, err, "o-", color="#1f77b4", ms=3, lw=1.0, label="measured")
+        p = int(summary.loc[name, "order_declared"]) if name in summary.index else None
+        if p and len(h):
+            # Slope line through the middle point: the eye compares slopes, not offsets.
+            i = len(h) // 2
+            hh = np.array([h.min(), h.max()])
+            ax.loglog(hh, err[i] * (hh / h[i]) ** p, "--", color="grey", lw=1.0,
+                      label=f"slope {p} (declared)")
+        fit = summary.loc[name, "order_fit_median"] if name in summary.index else np.nan
+        ax.set_title(f"{name}" + (f" (fit {fit:.2f})" if np.isfinite(fit) else ""), fontsize=9)
+        ax.set_xlabel("h [s]", fontsize=8)
+        ax.set_ylabel("worst position error [m]", fontsize=8)
+        ax.tick_params(labelsize=7)
+        ax.legend(fontsize=6)
+    name = _save(fig, out_dir, "fig4_error_vs_step.png")
+    caption = ("Worst position error over the envelope (largest over its operating points, "
+               "against the reference) against step size, log-log, for every step stable at "
+               "all points; the dashed line has the slope of the method's declared order, "
+               "and the title gives the fitted order. In the asymptotic range the measured "
+               "line is parallel to the dashed one; at small steps it flattens at the "
+               "reference's accuracy or round-off.")
+    return Shown(4, "Error against step size", caption, [(name, "")])
+
+
+def _styles(names):
+    from matplotlib import colormaps
+    cmap = colormaps["tab20"]
+    marks = "os^vDP*Xh<>p"
+    return {n: (cmap(i % 20), marks[i % len(marks)]) for i, n in enumerate(names)}
+
+
+def work_precision(sweep, tuned, out_dir: Path) -> Shown:
+    """Figure 5: worst error [m] against RHS evaluations and wall time per simulated second."""
+    table = worst_case(sweep.runs)
+    names = method_order(table["method"])
+    style = _styles(names)
+    fig = Figure(figsize=(12.5, 5.0), layout="constrained")
+    FigureCanvasAgg(fig)
+    axes = fig.subplots(1, 2, sharey=True)
+    for ax, col, label in zip(axes, ["evals_per_s", "time_per_s"],
+                              ["right-hand-side evaluations per simulated second",
+                               "measured wall time per simulated second [s]"]):
+        for name in names:
+            rows = table[table["method"] == name]
+            colour, mark = style[name]
+            ax.loglog(rows[col], rows["err_pos"], marker=mark, color=colour, ms=4, lw=1.0,
+                      label=name)
+        if tuned:
+            ax.axhline(float(tuned["pos_tol_m"]), color="black", ls=":", lw=1.0)
+            pick = table[(table["method"] == tuned["method"])
+                         & np.isclose(table["h"], float(tuned["h"]))]
+            ax.loglog(pick[col], pick["err_pos"], "*", color="black", ms=14, mfc="none")
+        ax.set_xlabel(label)
+        ax.grid(True, which="major", lw=0.3)
+    axes[0].set_ylabel("worst position error over the envelope [m]")
+    handles, labels = axes[0].get_legend_handles_labels()
+    if tuned:
+        handles += [Line2D([], [], color="black", ls=":"),
+                    Line2D([], [], marker="*", color="black", ls="", ms=12, mfc="none")]
+        labels += [f"tolerance {float(tuned['pos_tol_m']):g} m", "tuned choice"]
+    fig.legend(handles, labels, loc="outside right center", fontsize=8)
+    name = _save(fig, out_dir, "fig5_work_precision.png")
+    caption = ("Work-precision: worst position error over the envelope against cost, one line "
+               "per method, one point per step size (stable at every operating point). Left: "
+               "right-hand-side evaluations per simulated second; right: measured wall time "
+               "per simulated second. Lower-left is better; the cheapest method at a given "
+               "error is the leftmost line at that height"
+               + (", and the tuned choice (star) is the cheapest point under the tolerance "
+                  "(dotted) within the stability margin." if tuned else "."))
+    return Shown(5, "Work-precision", caption, [(name, "")])
+
+
+def stable_step_vs_speed(sweep, out_dir: Path) -> Shown:
+    """Figure 6: largest stable step [s] over vx [m/s], predicted (lines) and measured (dots)."""
+    limits = sweep.limits
+    names = method_order(limits["method"])
+    deltas = sorted(limits["delta"].unique())
+    colours = dict(zip(deltas, _shades(len(deltas))))
+    h_tried = sweep.runs.groupby("method")["h"].max()
+    fig, axes = _panels(len(names), sharex=True, sharey=True)
+    unlimited = []
+    for ax, name in zip(axes, names):
+        rows = limits[limits["method"] == name]
+        if not np.isfinite(rows["h_pred"]).any():
+            unlimited.append(name)
+            ax.text(0.5, 0.5, "no limit predicted\n(A-stable)", ha="center", va="center",
+                    transform=ax.transAxes, fontsize=8)
+        for delta in deltas:
+            sub = rows[rows["delta"] == delta].sort_values("vx")
+            colour = colours[delta]
+            finite = np.isfinite(sub["h_pred"])
+            ax.plot(sub["vx"][finite], sub["h_pred"][finite], "-", color=colour, lw=1.2,
+                    label=f"delta={delta:.3g} rad")
+            meas = sub["h_meas"].to_numpy(dtype=float)
+            ok = np.isfinite(meas) & (meas > 0)
+            ax.plot(sub["vx"][ok], meas[ok], "o", color=colour, ms=4, mfc="none")
+            if (~ok).any() and name in h_tried:
+                # No blow-up at any tried step: the true limit lies above the largest one.
+                ax.plot(sub["vx"][~ok], np.full((~ok).sum(), h_tried[name]), "^",
+                        color=colour, ms=5)
+        ax.set_yscale("log")
+        ax.set_title(name, fontsize=9)
+        ax.set_xlabel("vx [m/s]", fontsize=8)
+        ax.set_ylabel("largest stable h [s]", fontsize=8)
+        ax.tick_params(labelsize=7)
+    if axes:
+        axes[0].legend(fontsize=6)
+    name = _save(fig, out_dir, "fig6_stable_step_vs_speed.png")
+    caption = ("Largest stable step against speed, per method and steer angle: lines are the "
+               "prediction from the eigenvalues and the stability region, circles the step "
+               "where the sweep measured blow-up; a triangle means no blow-up up to the "
+               "largest step tried. Circles on the lines confirm the linear theory; the limit "
+               "grows with speed because the eigenvalues scale like 1/vx, so the slowest "
+               "speed of the envelope sets the step."
+               + (f" A-stable, no limit: {', '.join(unlimited)}." if unlimited else ""))
+    return Shown(6, "Measured and predicted largest stable step", caption, [(name, "")])
+
+
+def _plan_png(plan, out_dir: Path) -> str:
+    rec, occ = plan.record, plan.occupied
+    res, (ox, oy) = float(rec["map"]["resolution"]), rec["map"]["origin"]
+    extent = (ox, ox + occ.shape[1] * res, oy, oy + occ.shape[0] * res)
+    aspect = (extent[3] - extent[2]) / (extent[1] - extent[0])
+    fig = Figure(figsize=(7.0, min(max(7.0 * aspect, 3.0), 10.0)), layout="constrained")
+    FigureCanvasAgg(fig)
+    ax = fig.subplots()
+    ax.imshow(occ, cmap="gray_r", vmin=0, vmax=1, origin="lower", extent=extent,
+              interpolation="nearest")
+    ax.add_collection(LineCollection(rec["tree"], colors="blue", linewidths=0.5,
+                                     label="tree"))
+    if rec["path"]:
+        path = np.asarray(rec["path"], dtype=float)
+        ax.plot(path[:, 1], path[:, 2], color="red", lw=2.0, label="path")
+    arrow = 0.04 * (extent[1] - extent[0])          # heading arrows [m], sized to the map
+    for pose, marker, label in ((rec["start"], "o", "start"), (rec["goal"], "*", "goal")):
+        ax.plot(pose[0], pose[1], marker, color="#2ca02c", ms=10, mec="black", label=label)
+        ax.arrow(pose[0], pose[1], arrow * math.cos(pose[2]), arrow * math.sin(pose[2]),
+                 width=arrow / 12, color="#2ca02c", length_includes_head=True)
+    ax.set(xlim=extent[:2], ylim=extent[2:], xlabel="X [m]", ylabel="Y [m]",
+           title=f"{plan.name}: {rec['status']}")
+    ax.set_aspect("equal")
+    ax.legend(fontsize=8, loc="best")
+    return _save(fig, out_dir, f"fig7_plan_{_slug(plan.name)}.png")
+
+
+def _slug(text: str) -> str:
+    return "".join(c if c.isalnum() or c in "-_" else "_" for c in str(text))
+
+
+def _plan_caption(plan) -> str:
+    rec, st = plan.record, plan.record["stats"]
+
+    def num(key, unit, fmt="{:.3g}"):
+        v = st.get(key)
+        return f"{fmt.format(v)} {unit}".strip() if isinstance(v, (int, float)) else "-"
+    return (f"{plan.name}: {rec['status']}"
+            + (f" ({rec['reason']})" if rec.get("reason") else "")
+            + f"; {st.get('method', '?')} at h = {st.get('h', '?')} s, seed {st.get('seed', '?')};"
+            f" {num('expansions', 'expansions', '{}')}, {num('nodes', 'nodes', '{}')}; search "
+            f"{num('search_s', 's')}, connection {num('connect_s', 's')}; path "
+            f"{num('path_length_m', 'm')}, connection time {num('connect_tf_s', 's')}.")
+
+
+def plans(plan_list, out_dir: Path) -> Shown:
+    """Figure 7: every planned scenario, obstacles black, tree blue, path red."""
+    images = [(_plan_png(p, out_dir), _plan_caption(p)) for p in plan_list]
+    caption = ("Each planned scenario as the paper drew its results: obstacles black, the "
+               "explored tree blue, the final path (tree part and connection) red, start "
+               "(circle) and goal (star) green with heading arrows. A red line from start to "
+               "goal means a plan was found; its sub-caption gives the search effort."
+               if images else "No plan folders were given, so no scenario is drawn.")
+    return Shown(7, "Planned scenarios", caption, images)

@@ -1,0 +1,149 @@
+"""Reading result folders for the report: a sweep folder, a tuned config and plan folders,
+each checked against its contract so that a missing or damaged file is one UsageError line
+naming it, not a traceback halfway through a figure."""
+from __future__ import annotations
+
+import json
+import tomllib
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from bench.errors import UsageError
+
+# Columns each sweep table must have; the figures and tables read nothing else.
+SWEEP_TABLES = {
+    "runs.parquet": ["method", "h", "point", "vx", "delta", "stable", "err_pos",
+                     "evals_per_s", "time_per_step_s"],
+    "limits.parquet": ["method", "point", "vx", "delta", "h_pred", "h_meas"],
+    "summary.csv": ["method", "family", "order_declared", "order_fit_median", "real_interval",
+                    "imag_interval", "h_meas_min", "h_pred_min", "worst_ratio"],
+    "eigenvalues.parquet": ["point", "vx", "delta", "lam_re", "lam_im"],
+    "trajectories.parquet": ["method", "h", "t", "X", "Y", "psi", "vy", "r"],
+}
+TUNED_KEYS = ["method", "h", "pos_tol_m"]
+PLAN_KEYS = ["status", "path", "start", "goal", "tree", "map", "stats"]
+PLAN_MAP_KEYS = ["file", "resolution", "origin"]
+
+
+@dataclass(frozen=True)
+class Sweep:
+    """The tables of one `stepzoo sweep` folder, as written by it."""
+    folder: Path
+    manifest: dict
+    runs: pd.DataFrame
+    limits: pd.DataFrame
+    summary: pd.DataFrame
+    eigenvalues: pd.DataFrame
+    trajectories: pd.DataFrame
+
+
+@dataclass(frozen=True)
+class Plan:
+    """One planned scenario: plan.json as a dict and its occupancy grid (row 0 at the bottom)."""
+    name: str
+    folder: Path
+    record: dict
+    occupied: np.ndarray
+
+
+def _read_table(path: Path) -> pd.DataFrame:
+    try:
+        if path.suffix == ".csv":
+            return pd.read_csv(path)
+        return pd.read_parquet(path)
+    except Exception as err:  # pyarrow and pandas raise many types for one cause: bad bytes
+        raise UsageError(f"{path} is damaged ({type(err).__name__}); rerun `stepzoo sweep` "
+                         "into that folder") from None
+
+
+def load_sweep(folder) -> Sweep:
+    """Every table of a sweep folder, with its required columns checked."""
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise UsageError(f"sweep folder {folder} does not exist; run `stepzoo sweep CONFIG "
+                         f"--out {folder}` first")
+    missing = [name for name in ["manifest.json", *SWEEP_TABLES]
+               if not (folder / name).is_file()]
+    if missing:
+        raise UsageError(f"sweep folder {folder} lacks {', '.join(missing)}; rerun "
+                         f"`stepzoo sweep CONFIG --out {folder}`")
+    try:
+        manifest = json.loads((folder / "manifest.json").read_text())
+    except (UnicodeDecodeError, json.JSONDecodeError) as err:
+        raise UsageError(f"{folder / 'manifest.json'} is damaged ({err}); rerun "
+                         "`stepzoo sweep`") from None
+    tables = {}
+    for name, columns in SWEEP_TABLES.items():
+        table = _read_table(folder / name)
+        lacking = [c for c in columns if c not in table.columns]
+        if lacking:
+            raise UsageError(f"{folder / name} lacks column(s) {', '.join(lacking)}; it was "
+                             "not written by this version of `stepzoo sweep`, rerun it")
+        tables[name.split(".")[0]] = table
+    if tables["runs"].empty:
+        raise UsageError(f"{folder / 'runs.parquet'} has no rows; rerun `stepzoo sweep`")
+    if not (tables["trajectories"]["method"] == "reference").any():
+        raise UsageError(f"{folder / 'trajectories.parquet'} lacks the 'reference' run; "
+                         "rerun `stepzoo sweep`")
+    return Sweep(folder, manifest, **tables)
+
+
+def load_tuned(path) -> dict:
+    """The TOML written by `stepzoo tune`, with its required keys checked."""
+    path = Path(path)
+    if not path.is_file():
+        raise UsageError(f"tuned config {path} does not exist; run `stepzoo tune SWEEP_DIR "
+                         f"--pos-tol M --out {path}` first")
+    try:
+        data = tomllib.loads(path.read_text())
+    except (UnicodeDecodeError, tomllib.TOMLDecodeError) as err:
+        raise UsageError(f"tuned config {path} is damaged ({err}); rerun `stepzoo tune`") \
+            from None
+    missing = [k for k in TUNED_KEYS if k not in data]
+    if missing:
+        raise UsageError(f"tuned config {path} lacks {', '.join(missing)}; rerun `stepzoo tune`")
+    return data
+
+
+def _load_plan(folder: Path) -> Plan:
+    path = folder / "plan.json"
+    try:
+        record = json.loads(path.read_text())
+    except (UnicodeDecodeError, json.JSONDecodeError) as err:
+        raise UsageError(f"{path} is damaged ({err}); rerun `stepzoo plan`") from None
+    if not isinstance(record, dict):
+        raise UsageError(f"{path} is not a plan record (a JSON object); rerun `stepzoo plan`")
+    missing = [k for k in PLAN_KEYS if k not in record]
+    missing += [f"map.{k}" for k in PLAN_MAP_KEYS
+                if "map" in record and k not in record["map"]]
+    if missing:
+        raise UsageError(f"{path} lacks {', '.join(missing)}; rerun `stepzoo plan`")
+    grid = folder / record["map"]["file"]
+    if not grid.is_file():
+        raise UsageError(f"plan folder {folder} lacks {record['map']['file']} (the map of "
+                         "plan.json); rerun `stepzoo plan`")
+    try:
+        occupied = np.load(grid, allow_pickle=False)
+    except (OSError, ValueError) as err:
+        raise UsageError(f"{grid} is damaged ({err}); rerun `stepzoo plan`") from None
+    if occupied.ndim != 2:
+        raise UsageError(f"{grid} is not a 2-D occupancy grid; rerun `stepzoo plan`")
+    return Plan(record.get("scenario", folder.name), folder, record, occupied.astype(bool))
+
+
+def load_plans(folder) -> list[Plan]:
+    """Plans of a folder: itself when it holds plan.json, else each subfolder that does."""
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise UsageError(f"plans folder {folder} does not exist; run `stepzoo plan --all "
+                         f"--config tuned.toml --out {folder}` first")
+    if (folder / "plan.json").is_file():
+        return [_load_plan(folder)]
+    subs = sorted(p.parent for p in folder.glob("*/plan.json"))
+    if not subs:
+        raise UsageError(f"plans folder {folder} holds no plan.json (nor do its subfolders); "
+                         "give a folder written by `stepzoo plan`")
+    return [_load_plan(p) for p in subs]

@@ -1,0 +1,106 @@
+"""The report's tables as rows of plain values: the per-method summary of a sweep (order,
+stability intervals, largest stable step, cost at the tolerance) and the tuning decision with
+its runners-up; and their rendering as Markdown and as HTML."""
+from __future__ import annotations
+
+import html
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from reports.figures import method_order, worst_case
+
+
+@dataclass(frozen=True)
+class Table:
+    """A titled table of the report: rows of values, columns as (key, header label)."""
+    title: str
+    caption: str
+    rows: list
+    columns: list
+
+
+METHOD_COLUMNS = [
+    ("method", "method"), ("family", "family"), ("order_declared", "order"),
+    ("order_fit_median", "fitted order"), ("real_interval", "real interval"),
+    ("imag_interval", "imag. interval"), ("h_pred_min", "h max predicted [s]"),
+    ("h_meas_min", "h max measured [s]"), ("worst_ratio", "worst meas./pred."),
+    ("h_at_tol", "h at tolerance [s]"), ("evals_at_tol", "RHS evals per sim. s"),
+    ("time_at_tol", "wall s per sim. s"),
+]
+TUNING_COLUMNS = [
+    ("rank", "rank"), ("method", "method"), ("h", "h [s]"),
+    ("cost_evals_per_s", "RHS evals per sim. s"), ("cost_time_per_s", "wall s per sim. s"),
+    ("reason", "why"),
+]
+
+
+def method_summary(sweep, pos_tol: float, margin: float) -> list[dict]:
+    """One row per method: the sweep's summary.csv plus the largest step [s] that is stable at
+    every operating point, keeps `margin` below the measured limit and has a worst position
+    error <= pos_tol [m], with its costs (None when no step qualifies)."""
+    table = worst_case(sweep.runs)
+    summary = sweep.summary.set_index("method")
+    rows = []
+    for name in method_order(summary.index):
+        s = summary.loc[name]
+        row = {key: _plain(s[key]) for key, _ in METHOD_COLUMNS if key in s.index}
+        row["method"] = name
+        cap = (1.0 - margin) * float(s["h_meas_min"])
+        ok = table[(table["method"] == name) & (table["err_pos"] <= pos_tol)]
+        if math.isfinite(cap):
+            ok = ok[ok["h"] <= cap]
+        if len(ok):
+            best = ok.loc[ok["h"].idxmax()]
+            row.update(h_at_tol=float(best["h"]), evals_at_tol=float(best["evals_per_s"]),
+                       time_at_tol=float(best["time_per_s"]))
+        rows.append(row)
+    return rows
+
+
+def tuning_rows(tuned: dict) -> list[dict]:
+    """The chosen (method, h) as rank 1, then the runners-up in the order tune wrote them."""
+    chosen = {"rank": 1, "method": tuned["method"], "h": tuned["h"],
+              "cost_evals_per_s": tuned.get("cost_evals_per_s"),
+              "cost_time_per_s": tuned.get("cost_time_per_s"),
+              "reason": tuned.get("why", "chosen")}
+    others = [{"rank": i + 2, **{k: r.get(k) for k, _ in TUNING_COLUMNS[1:]}}
+              for i, r in enumerate(tuned.get("runners_up", []))]
+    return [chosen, *others]
+
+
+def _plain(v):
+    """numpy scalars to Python; NaN to None."""
+    if isinstance(v, np.generic):
+        v = v.item()
+    if isinstance(v, float) and math.isnan(v):
+        return None
+    return v
+
+
+def cell(v) -> str:
+    """A value as table text: 4 significant digits, inf as 'unbounded', missing as '-'."""
+    if v is None or (isinstance(v, float) and math.isnan(v)):
+        return "-"
+    if isinstance(v, bool):
+        return "yes" if v else "no"
+    if isinstance(v, float):
+        return "unbounded" if math.isinf(v) else f"{v:.4g}"
+    return str(v)
+
+
+def to_markdown(rows: list[dict], columns) -> str:
+    def esc(text):
+        return text.replace("|", "\\|").replace("\n", " ")
+    lines = ["| " + " | ".join(label for _, label in columns) + " |",
+             "|" + "---|" * len(columns)]
+    lines += ["| " + " | ".join(esc(cell(r.get(k))) for k, _ in columns) + " |" for r in rows]
+    return "\n".join(lines)
+
+
+def to_html(rows: list[dict], columns) -> str:
+    head = "".join(f"<th>{html.escape(label)}</th>" for _, label in columns)
+    body = "\n".join("<tr>" + "".join(f"<td>{html.escape(cell(r.get(k)))}</td>"
+                                      for k, _ in columns) + "</tr>" for r in rows)
+    return f"<table>\n<thead><tr>{head}</tr></thead>\n<tbody>\n{body}\n</tbody>\n</table>"
