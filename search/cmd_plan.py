@@ -23,7 +23,8 @@ def add_arguments(p):
                    ".npy) to plan on instead of a scenario")
     p.add_argument("--cell-size", type=float, metavar="M",
                    help="[m/cell] for map files that do not store it")
-    p.add_argument("--start", metavar="X,Y,PSI", help="start pose [m, m, rad] (with --map)")
+    p.add_argument("--start", metavar="X,Y,PSI", help="start pose [m, m, rad] (with --map; "
+                   "write --start=-1,2,0 when X is negative)")
     p.add_argument("--goal", metavar="X,Y,PSI[,V]",
                    help="goal pose [m, m, rad], optionally the goal speed [m/s] (with --map)")
     p.add_argument("--speed", type=float, metavar="VX", help="constant speed of the tree [m/s]")

@@ -98,12 +98,14 @@ class PathFinder:
         for name, pose in (("start", start), ("goal", goal)):
             if not (np.all(np.isfinite(pose)) and xmin <= pose[0] <= xmax
                     and ymin <= pose[1] <= ymax):
-                return f"{name}_off_map", (f"{name} ({pose[0]:g}, {pose[1]:g}) is off the map "
-                        f"(x {xmin:g}..{xmax:g}, y {ymin:g}..{ymax:g} m)")
+                return f"{name}_off_map", (
+                    f"{name} ({pose[0]:g}, {pose[1]:g}) is off the map "
+                    f"(x {xmin:g}..{xmax:g}, y {ymin:g}..{ymax:g} m)")
             if poses_collide(self.omap, self.footprint, pose):
-                return f"{name}_in_collision", (f"{name} pose ({pose[0]:g}, {pose[1]:g}, {pose[2]:g}) is in collision: the "
-                        f"{self.vehicle['length']:g} x {self.vehicle['width']:g} m footprint "
-                        f"(+{self.config.params['margin']:g} m margin) overlaps an obstacle")
+                return f"{name}_in_collision", (
+                    f"{name} pose ({pose[0]:g}, {pose[1]:g}, {pose[2]:g}) is in collision: the "
+                    f"{self.vehicle['length']:g} x {self.vehicle['width']:g} m footprint "
+                    f"(+{self.config.params['margin']:g} m margin) overlaps an obstacle")
         labels = self._corridors()
         a, b = (labels[self._lattice(p)] for p in (start, goal))
         if a == 0 or a != b:
@@ -203,17 +205,15 @@ class _Search:
         res.connect_attempts = len(self.tried)
         if done:
             return res
-        closest = int(np.argmin(self.H))
-        self._set_path(closest)
         failed = (f"; connections failed ({', '.join(sorted(set(self.failures)))})"
                   if self.failures else "")
         if res.cause == "exhausted":
-            res.status, res.path_edges, res.path_steers = NO_PATH, [], []
-            res.reason = ended + failed
-        else:
-            res.status = APPROXIMATE
-            res.reason = (f"{ended}; closest node {self.H[closest]:.2f} m from the goal"
-                          + failed)
+            res.status, res.reason = NO_PATH, ended + failed
+            return res
+        closest = int(np.argmin(self.H))
+        self._set_path(closest)
+        res.status = APPROXIMATE
+        res.reason = f"{ended}; closest node {self.H[closest]:.2f} m from the goal{failed}"
         return res
 
     def _expand(self, node) -> list[int]:

@@ -1,0 +1,200 @@
+"""`stepzoo plan`: the files and keys other modules read (plan.json, plan.png, map.npy, the
+--all summary), scenario files and map queries, the planner config, and one clear line with
+exit status 2 and nothing written for every bad input."""
+import csv
+import json
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from bench.cli import main
+from bench.errors import UsageError
+from search.planner_config import DEFAULT_CONFIG, PARAMS, load_config
+from search.scenarios import builtin_names, load_scenario
+
+STATS = {"expansions", "nodes", "search_s", "connect_s", "path_length_m", "connect_tf_s",
+         "seed", "method", "h"}
+SUMMARY = ["scenario", "status", "expansions", "nodes", "search_s", "connect_s",
+           "path_length_m", "connect_tf_s"]
+
+
+def run(*argv):
+    return main(["plan", *map(str, argv)])
+
+
+def read(folder):
+    return json.loads((folder / "plan.json").read_text())
+
+
+def grid_files(tmp_path):
+    """A 40 x 20 m grid at 0.5 m with a block in the middle, and a scenario file using it."""
+    occupied = np.zeros((40, 80), bool)
+    occupied[10:30, 36:44] = True  # x 18..22 m, y 5..15 m
+    np.save(tmp_path / "grid.npy", occupied)
+    (tmp_path / "query.toml").write_text(
+        'map = "grid.npy"\ncell_size = 0.5\nvehicle = "ge2021"\nspeed = 4.0\n'
+        "start = [4.0, 10.0, 0.0]\ngoal = [36.0, 10.0, 0.0, 2.0]\n")
+    return tmp_path / "grid.npy", tmp_path / "query.toml"
+
+
+@pytest.fixture(scope="module")
+def planned(tmp_path_factory):
+    out = tmp_path_factory.mktemp("plan")
+    assert run("obstacles_between", "--out", out) == 0
+    return out
+
+
+def test_plan_json_holds_the_contract(planned):
+    record = read(planned)
+    scenario = load_scenario("obstacles_between")
+    assert record["status"] == "exact" and record["reason"]
+    assert STATS <= set(record["stats"]) and record["stats"]["seed"] == 0
+    assert record["stats"]["method"] == "rk4" and record["stats"]["h"] == 0.02
+    assert record["vehicle"]["length"] == 4.508 and record["vehicle"]["width"] == 1.61
+    assert record["start"] == list(scenario.start) and record["goal"] == list(scenario.goal)
+    assert set(record["params"]) == set(PARAMS)
+    path = np.array(record["path"])
+    assert path.shape[1] == 4
+    assert np.hypot(*np.diff(path[:, 1:3], axis=0).T).max() <= 0.1
+    assert np.all(np.diff(path[:, 0]) >= 0) and path[0, 0] == 0.0
+    np.testing.assert_allclose(path[0, 1:], scenario.start, atol=1e-12)
+    np.testing.assert_allclose(path[-1, 1:3], scenario.goal[:2], atol=1e-5)
+    length = np.hypot(*np.diff(path[:, 1:3], axis=0).T).sum()
+    assert length == pytest.approx(record["stats"]["path_length_m"], rel=1e-3)
+    assert record["stats"]["connect_tf_s"] > 0
+    assert record["tree"] and all(len(pt) == 2 for edge in record["tree"] for pt in edge)
+
+
+def test_map_npy_is_the_grid_with_row_zero_at_the_bottom(planned):
+    record = read(planned)
+    grid = np.load(planned / record["map"]["file"])
+    assert grid.dtype == bool
+    np.testing.assert_array_equal(grid, load_scenario("obstacles_between").omap.occupied)
+    res, (x0, y0) = record["map"]["resolution"], record["map"]["origin"]
+
+    def cell(x, y):
+        return grid[int((y - y0) // res), int((x - x0) // res)]
+    # The blocks at x = 44..47 m span y = 6..17 and 24..34 m: not mirror images about the
+    # middle, so a flipped grid reads y = 16.5 m as free.
+    assert cell(45.5, 16.5) and not cell(45.5, 23.5)
+
+
+def test_plan_png_shows_black_obstacles_a_blue_tree_and_a_red_path(planned):
+    pixels = np.asarray(Image.open(planned / "plan.png").convert("RGB")).astype(int)
+    r, g, b = pixels[..., 0], pixels[..., 1], pixels[..., 2]
+    assert np.sum((r > 200) & (g < 60) & (b < 60)) > 200     # red path
+    assert np.sum((b > 200) & (r < 60) & (g < 60)) > 200     # blue tree
+    assert np.sum((r < 30) & (g < 30) & (b < 30)) > 2000     # black obstacles
+
+
+def test_the_same_command_gives_the_same_path(planned, tmp_path):
+    assert run("obstacles_between", "--out", tmp_path) == 0
+    assert read(tmp_path)["path"] == read(planned)["path"]
+    assert read(tmp_path)["tree"] == read(planned)["tree"]
+
+
+def test_all_plans_every_scenario_and_writes_the_summary(tmp_path, capsys):
+    assert run("--all", "--out", tmp_path) == 0
+    printed = capsys.readouterr().out
+    with open(tmp_path / "summary.csv") as fh:
+        rows = list(csv.DictReader(fh))
+    assert list(rows[0]) == SUMMARY
+    assert [r["scenario"] for r in rows] == builtin_names()
+    assert json.loads((tmp_path / "summary.json").read_text())[0]["scenario"] == rows[0]["scenario"]
+    for row in rows:
+        folder = tmp_path / row["scenario"]
+        assert {p.name for p in folder.iterdir()} == {"plan.json", "plan.png", "map.npy"}
+        assert row["status"] == read(folder)["status"] == "exact"
+        assert float(row["search_s"]) > 0 and float(row["connect_s"]) > 0
+        assert row["scenario"] in printed
+
+
+def test_a_scenario_file_names_its_map_vehicle_and_goal_speed(tmp_path):
+    _, toml = grid_files(tmp_path)
+    assert run(toml, "--out", tmp_path / "out") == 0
+    record = read(tmp_path / "out")
+    assert record["status"] == "exact"
+    assert record["vehicle"]["name"] == "ge2021" and record["goal_speed"] == 2.0
+    assert record["speed"] == 4.0
+
+
+def test_a_map_query_plans_and_a_walled_off_goal_is_written_as_no_path(tmp_path):
+    grid, _ = grid_files(tmp_path)
+    assert run("--map", grid, "--cell-size", 0.5, "--start", "4,10,0", "--goal", "36,10,0",
+               "--speed", 6, "--seed", 3, "--out", tmp_path / "free") == 0
+    record = read(tmp_path / "free")
+    assert (record["status"], record["stats"]["seed"], record["speed"]) == ("exact", 3, 6.0)
+    walled = np.load(grid)
+    walled[:, 36:44] = True
+    np.save(tmp_path / "walled.npy", walled)
+    assert run("--map", tmp_path / "walled.npy", "--cell-size", 0.5, "--start", "4,10,0",
+               "--goal", "36,10,0", "--out", tmp_path / "walled") == 0
+    record = read(tmp_path / "walled")
+    assert (record["status"], record["cause"], record["path"]) == ("no_path", "walled_off", [])
+
+
+def test_a_config_sets_the_integrator_and_overrides_params(tmp_path):
+    config = tmp_path / "tuned.toml"
+    config.write_text('method = "rk3"\nh = 0.025\nwhy = "a test"\npos_tol_m = 0.01\n'
+                      "runners_up = [1, 2]\n[planner]\nmindist = 7.5\n")
+    assert run("open_field", "--config", config, "--out", tmp_path / "out") == 0
+    record = read(tmp_path / "out")
+    assert (record["stats"]["method"], record["stats"]["h"]) == ("rk3", 0.025)
+    assert record["params"]["mindist"] == 7.5 and record["config"]["provenance"] == "a test"
+
+
+def test_the_shipped_default_is_rk4_at_20_ms_and_says_it_is_a_placeholder():
+    config = load_config()
+    assert (config.method, config.h) == ("rk4", 0.02)
+    assert "placeholder" in config.provenance and config.source == str(DEFAULT_CONFIG)
+
+
+@pytest.mark.parametrize("text, words", [
+    ('method = "rk99"\nh = 0.02\n', "unknown integration method"),
+    ('method = "rk4"\nh = 0.0\n', "h must be"),
+    ('method = "rk4"\nh = -1\n', "h must be"),
+    ('h = 0.02\n', "lacks method"),
+    ('method = "rk4"\nh = 0.02\n[planner]\nn_arc = 0\n', "n_arc"),
+    ('method = "rk4"\nh = 0.02\n[planner]\nmindst = 3\n', "unknown planner parameter"),
+    ('method = rk4\n', "not valid TOML"),
+])
+def test_a_bad_config_is_a_usage_error(tmp_path, text, words):
+    path = tmp_path / "bad.toml"
+    path.write_text(text)
+    with pytest.raises(UsageError, match=words):
+        load_config(path)
+
+
+BAD = {
+    "unknown scenario": ["nowhere"],
+    "nothing to plan": [],
+    "two things to plan": ["street", "--all"],
+    "malformed start": ["--map", "{grid}", "--cell-size", "0.5", "--start", "1,2",
+                        "--goal", "36,10,0"],
+    "start not numbers": ["--map", "{grid}", "--cell-size", "0.5", "--start", "a,b,c",
+                          "--goal", "36,10,0"],
+    "goal without map": ["street", "--goal", "1,2,3"],
+    "missing map file": ["--map", "{tmp}/absent.map", "--cell-size", "1", "--start", "4,10,0",
+                         "--goal", "36,10,0"],
+    "map needs a cell size": ["--map", "{grid}", "--start", "4,10,0", "--goal", "36,10,0"],
+    "start off the map": ["--map", "{grid}", "--cell-size", "0.5", "--start=-4,10,0",
+                          "--goal", "36,10,0"],
+    "goal off the map": ["--map", "{grid}", "--cell-size", "0.5", "--start", "4,10,0",
+                         "--goal", "36,50,0"],
+    "start in an obstacle": ["--map", "{grid}", "--cell-size", "0.5", "--start", "20,10,0",
+                             "--goal", "36,10,0"],
+    "negative speed": ["street", "--speed", "-3"],
+    "missing config": ["street", "--config", "{tmp}/absent.toml"],
+    "negative seed": ["street", "--seed", "-1"],
+}
+
+
+@pytest.mark.parametrize("case", BAD)
+def test_bad_input_is_one_line_exit_2_and_nothing_written(tmp_path, capsys, case):
+    grid, _ = grid_files(tmp_path)
+    out = tmp_path / "out"
+    assert run(*[a.format(grid=grid, tmp=tmp_path) for a in BAD[case]], "--out", out) == 2
+    err = capsys.readouterr().err
+    assert len(err.strip().splitlines()) == 1 and "error" in err
+    assert not out.exists()
