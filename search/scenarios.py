@@ -77,9 +77,8 @@ def custom_scenario(map_path, cell_size, start, goal, vx, vehicle=None) -> Scena
     omap = open_map(Path(map_path), cell_size)
     goal = tuple(goal)
     return Scenario(Path(map_path).stem, f"query on {map_path}", omap, str(map_path),
-                    tuple(start),
-                    goal[:3], goal[3] if len(goal) == 4 else None, vehicle_name(vehicle),
-                    speed(DEFAULT_SPEED if vx is None else vx, "--speed"))
+                    tuple(start), goal[:3], goal[3] if len(goal) == 4 else None,
+                    vehicle_name(vehicle), speed(DEFAULT_SPEED if vx is None else vx, "--speed"))
 
 
 def open_map(path: Path, cell_size=None) -> OccupancyMap:
