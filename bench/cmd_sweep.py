@@ -1,0 +1,41 @@
+"""`stepzoo sweep CONFIG --out DIR`: the stability/accuracy sweep of a config into a results
+folder (tables in Parquet, summaries in CSV), resumable chunk by chunk."""
+import sys
+
+from bench.output import text_table, to_json
+
+
+def add_arguments(p):
+    p.add_argument("config", metavar="CONFIG", help="sweep TOML (see bench/configs/)")
+    p.add_argument("--out", required=True, metavar="DIR", help="results folder")
+    p.add_argument("--resume", action="store_true",
+                   help="skip the chunks DIR already holds (same config only)")
+    p.add_argument("--overwrite", action="store_true", help="discard what DIR holds first")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
+    p.add_argument("--format", choices=["text", "json"], default="text")
+
+
+def main(args) -> int:
+    import pandas as pd
+
+    from bench.sweep import run_sweep
+    from bench.sweep_config import load
+    cfg = load(args.config)
+    manifest = run_sweep(cfg, args.out, resume=args.resume, overwrite=args.overwrite,
+                         progress=not args.no_progress)
+    if args.format == "json":
+        print(to_json({"out": str(args.out), "config_sha256": manifest["config_sha256"],
+                       "timing": manifest["timing"]}))
+        return 0
+    t = manifest["timing"]
+    summary = pd.read_csv(f"{args.out}/summary.csv").to_dict("records")
+    sys.stdout.write(text_table(summary, ["method", "order_declared", "order_fit_median",
+                                          "h_pred_min", "h_meas_min", "worst_ratio"]) + "\n")
+    compile_s = ", ".join(f"{k} {v:.2f}" for k, v in t["compile_s"].items())
+    print(f"wrote {args.out}: runs.parquet, limits.parquet/csv, summary.parquet/csv, "
+          "eigenvalues.parquet, trajectories.parquet, manifest.json")
+    print(f"timing [s]: total {t['total_s']:.1f} (this call {t['wall_s']:.1f}); compile "
+          f"{sum(t['compile_s'].values()):.1f} ({compile_s}); reference {t['reference_s']:.1f}; "
+          f"integration {t['integration_s']:.1f}; stability {t['stability_s']:.1f}; "
+          f"metrics {t['metrics_s']:.1f}")
+    return 0

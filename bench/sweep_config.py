@@ -1,0 +1,237 @@
+"""A sweep config: a TOML file read into a frozen, validated `SweepConfig`. Every mistake is
+one line naming the key, what is wrong and what to write instead; all mistakes are reported
+at once (UsageError, exit 2)."""
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+import tomllib
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from bench.errors import UsageError
+
+TOP = {"name", "model", "vehicle", "horizon", "methods", "envelope", "steps", "reference",
+       "stability", "chunks", "trajectories"}
+SECTIONS = {
+    "envelope": {"vx", "delta", "x0"},
+    "steps": {"h"},
+    "reference": {"rtol", "atol"},
+    "stability": {"steps", "growth", "perturbation", "h_probe_max", "rel_tol"},
+    "chunks": {"points"},
+    "trajectories": {"vx", "delta", "fractions", "past_limit"},
+}
+
+
+@dataclass(frozen=True)
+class SweepConfig:
+    """A validated sweep. Step sizes are snapped to horizon/n (whole steps, each run ends at
+    the horizon) and sorted; the operating points are every (vx, delta), vx-major."""
+    name: str
+    model: str
+    vehicle: str
+    horizon: float                 # [s] of the accuracy runs
+    methods: tuple
+    vx: tuple                      # [m/s]
+    delta: tuple                   # [rad]
+    x0: tuple                      # initial state of the accuracy runs
+    hs: tuple                      # [s], ascending
+    rtol: float
+    atol: float
+    stab_steps: int                # steps of one stability run
+    growth: float                  # blow-up threshold on the modal deviation
+    perturbation: float            # modal amplitude of the stability runs' initial deviation
+    h_probe_max: float             # [s] largest step probed for a blow-up
+    rel_tol: float                 # bisection stops when h_hi / h_lo - 1 <= rel_tol
+    points_per_chunk: int
+    traj_point: tuple              # (vx [m/s], delta [rad]) of the sample trajectories
+    traj_fractions: tuple          # sample steps, as fractions of the measured limit
+    traj_past_limit: float         # the sample past the limit, as a multiple of it
+    source: str = field(default="", compare=False)
+
+    @property
+    def points(self) -> list[tuple[float, float]]:
+        return [(v, d) for v in self.vx for d in self.delta]
+
+    def canonical(self) -> dict:
+        """Everything that decides the results (not the file's path or layout)."""
+        d = asdict(self)
+        d.pop("source")
+        return d
+
+    @property
+    def sha256(self) -> str:
+        text = json.dumps(self.canonical(), sort_keys=True, separators=(",", ":"))
+        return hashlib.sha256(text.encode()).hexdigest()
+
+
+def load(path) -> SweepConfig:
+    """Read and validate a sweep TOML; UsageError (one line per mistake) if it is wrong."""
+    path = Path(path)
+    if not path.is_file():
+        raise UsageError(f"sweep config {path} not found; give a TOML file such as "
+                         "bench/configs/small.toml")
+    try:
+        raw = tomllib.loads(path.read_text())
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as err:
+        raise UsageError(f"{path}: not valid TOML ({err}); fix the file") from None
+    return validate(raw, str(path))
+
+
+def validate(raw: dict, source: str = "config") -> SweepConfig:
+    import dynamics
+    from integrators import METHODS
+    bad: list[str] = []
+    check = _Checker(bad, source)
+
+    for key in sorted(set(raw) - TOP):
+        bad.append(f"{source}: unknown key {key!r}; known: {', '.join(sorted(TOP))}")
+    sections = {}
+    for sec, keys in SECTIONS.items():
+        table = raw.get(sec, {})
+        if not isinstance(table, dict):
+            bad.append(f"{source}: [{sec}] must be a table")
+            table = {}
+        for key in sorted(set(table) - keys):
+            bad.append(f"{source}: unknown key {sec}.{key}; known: {', '.join(sorted(keys))}")
+        sections[sec] = table
+
+    model_name = raw.get("model", "dynamic5")
+    if model_name != "dynamic5":
+        bad.append(f"{source}: model {model_name!r} is not supported by the sweep; use "
+                   "\"dynamic5\" (its lateral dynamics are linear, so limits can be predicted)")
+    vehicle = raw.get("vehicle", dynamics.default_vehicle())
+    if vehicle not in dynamics.vehicle_names():
+        bad.append(f"{source}: unknown vehicle {vehicle!r}; known: "
+                   f"{', '.join(dynamics.vehicle_names())}")
+
+    horizon = check.positive("horizon", raw.get("horizon"), "s")
+    methods = raw.get("methods", "all")
+    if methods == "all":
+        methods = list(METHODS)
+    elif not (isinstance(methods, list) and methods and all(isinstance(m, str) for m in methods)):
+        bad.append(f"{source}: methods must be \"all\" or a non-empty list of names")
+        methods = []
+    for m in methods:
+        if m not in METHODS:
+            bad.append(f"{source}: unknown method {m!r} in methods; known: {', '.join(METHODS)}")
+    if len(set(methods)) != len(methods):
+        bad.append(f"{source}: methods lists a name twice; list each once")
+
+    env = sections["envelope"]
+    vx = check.grid("envelope.vx", env.get("vx"), "m/s", positive=True, log=False)
+    delta = check.grid("envelope.delta", env.get("delta"), "rad", positive=False, log=False)
+    if any(abs(d) >= math.pi / 2 for d in delta):
+        bad.append(f"{source}: envelope.delta must lie in (-pi/2, pi/2) [rad]")
+    x0 = env.get("x0", [0.0] * 5)
+    if not (isinstance(x0, list) and len(x0) == 5 and all(_is_num(v) for v in x0)):
+        bad.append(f"{source}: envelope.x0 must be 5 finite numbers [X, Y, psi, vy, r]")
+        x0 = [0.0] * 5
+
+    hs = check.grid("steps.h", sections["steps"].get("h"), "s", positive=True, log=True)
+    if horizon and hs:
+        if max(hs) > horizon:
+            bad.append(f"{source}: steps.h reaches {max(hs):g} s, past the horizon "
+                       f"{horizon:g} s; keep every step <= horizon")
+        hs = sorted({horizon / max(1, round(horizon / h)) for h in hs})
+
+    ref = sections["reference"]
+    rtol = check.positive("reference.rtol", ref.get("rtol", 1e-10), "")
+    atol = check.positive("reference.atol", ref.get("atol", 1e-12), "")
+    stab = sections["stability"]
+    steps = stab.get("steps", 1000)
+    if not (isinstance(steps, int) and not isinstance(steps, bool) and 50 <= steps <= 100_000):
+        bad.append(f"{source}: stability.steps must be a whole number in [50, 100000], "
+                   f"got {steps!r}")
+    growth = check.positive("stability.growth", stab.get("growth", 100.0), "")
+    if growth and growth <= 2:
+        bad.append(f"{source}: stability.growth must be > 2 (a factor of growth), got {growth}")
+    perturbation = check.positive("stability.perturbation", stab.get("perturbation", 0.1), "")
+    h_probe_max = check.positive("stability.h_probe_max", stab.get("h_probe_max", 2.0), "s")
+    if h_probe_max and hs and h_probe_max < max(hs):
+        bad.append(f"{source}: stability.h_probe_max ({h_probe_max:g} s) is below the "
+                   f"largest step ({max(hs):g} s); raise it")
+    rel_tol = check.positive("stability.rel_tol", stab.get("rel_tol", 1e-3), "")
+    if rel_tol and rel_tol >= 0.1:
+        bad.append(f"{source}: stability.rel_tol must be < 0.1, got {rel_tol}")
+    per_chunk = sections["chunks"].get("points", 25)
+    if not (isinstance(per_chunk, int) and not isinstance(per_chunk, bool) and per_chunk >= 1):
+        bad.append(f"{source}: chunks.points must be a whole number >= 1, got {per_chunk!r}")
+
+    traj = sections["trajectories"]
+    tvx = traj.get("vx", vx[0] if vx else 1.0)
+    tdelta = traj.get("delta", delta[0] if delta else 0.0)
+    if not (_is_num(tvx) and tvx > 0 and _is_num(tdelta) and abs(tdelta) < math.pi / 2):
+        bad.append(f"{source}: trajectories.vx must be > 0 [m/s] and trajectories.delta in "
+                   "(-pi/2, pi/2) [rad]")
+    fractions = traj.get("fractions", [0.2, 0.5, 0.9])
+    if not (isinstance(fractions, list) and fractions
+            and all(_is_num(f) and 0 < f <= 1 for f in fractions)):
+        bad.append(f"{source}: trajectories.fractions must be numbers in (0, 1] (of the "
+                   "measured largest stable step)")
+        fractions = [0.5]
+    past = check.positive("trajectories.past_limit", traj.get("past_limit", 1.5), "")
+    if past and past <= 1:
+        bad.append(f"{source}: trajectories.past_limit must be > 1 (a multiple of the limit)")
+
+    name = raw.get("name", Path(source).stem)
+    if not isinstance(name, str):
+        bad.append(f"{source}: name must be a string")
+    if bad:
+        raise UsageError("\n".join(bad))
+    return SweepConfig(str(name), model_name, vehicle, float(horizon), tuple(methods),
+                       tuple(vx), tuple(delta), tuple(float(v) for v in x0), tuple(hs),
+                       float(rtol), float(atol), int(steps), float(growth), float(perturbation),
+                       float(h_probe_max), float(rel_tol), int(per_chunk),
+                       (float(tvx), float(tdelta)), tuple(float(f) for f in fractions),
+                       float(past), source)
+
+
+def _is_num(v) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+
+
+class _Checker:
+    """Appends one line per mistake to `bad`; returns a usable value either way."""
+
+    def __init__(self, bad, source):
+        self.bad, self.source = bad, source
+
+    def positive(self, key, value, unit):
+        if not (_is_num(value) and value > 0):
+            units = f" [{unit}]" if unit else ""
+            self.bad.append(f"{self.source}: {key} must be a number > 0{units}, got {value!r}")
+            return None
+        return float(value)
+
+    def grid(self, key, value, unit, positive, log):
+        """A list of numbers, or {min, max, num} spaced linearly (log-spaced if `log`)."""
+        spacing = "log-spaced" if log else "evenly spaced"
+        what = (f"{key} must be a list of numbers [{unit}] or {{min = ..., max = ..., "
+                f"num = ...}} ({spacing})")
+        if isinstance(value, dict):
+            lo, hi, num = value.get("min"), value.get("max"), value.get("num")
+            if set(value) != {"min", "max", "num"} or not (_is_num(lo) and _is_num(hi)) \
+                    or not (isinstance(num, int) and not isinstance(num, bool) and num >= 1) \
+                    or lo > hi:
+                self.bad.append(f"{self.source}: {what} with min <= max and num >= 1, "
+                                f"got {value!r}")
+                return []
+            if positive and lo <= 0:
+                self.bad.append(f"{self.source}: {key}.min must be > 0 [{unit}], got {lo!r}")
+                return []
+            values = np.geomspace(lo, hi, num) if log else np.linspace(lo, hi, num)
+            return [float(v) for v in values]
+        if not (isinstance(value, list) and value and all(_is_num(v) for v in value)):
+            self.bad.append(f"{self.source}: {what}, got {value!r}")
+            return []
+        if positive and min(value) <= 0:
+            self.bad.append(f"{self.source}: every {key} must be > 0 [{unit}], got {value!r}")
+            return []
+        if len(set(value)) != len(value):
+            self.bad.append(f"{self.source}: {key} lists a value twice; list each once")
+            return []
+        return [float(v) for v in value]
