@@ -20,6 +20,7 @@ from integrators.stability import amplification_theory, region_grid
 DPI = 100
 NCOLS = 4
 PANEL_IN = (3.2, 2.5)          # [inch] one small-multiple panel
+PANEL_ASPECT = 1.35            # width / height of a panel's plotting area, labels aside
 BLOWUP_FACTOR = 3.0            # a sample run this far beyond the reference's range diverged
 STABLE_FILL, UNSTABLE = "#cfe3f5", "#d62728"
 
@@ -47,6 +48,9 @@ def _panels(n: int, ncols: int = NCOLS, panel=PANEL_IN, **kwargs):
     axes = fig.subplots(nrows, ncols, squeeze=False, **kwargs).ravel()
     for ax in axes[n:]:
         ax.set_visible(False)
+    for ax in axes[:n]:
+        # Shared axes hide inner tick labels, which leaves a short last row unlabelled.
+        ax.tick_params(labelbottom=True, labelleft=True)
     return fig, list(axes[:n])
 
 
@@ -57,12 +61,14 @@ def method_order(names) -> list[str]:
 
 
 def worst_case(runs: pd.DataFrame) -> pd.DataFrame:
-    """Per (method, h): the worst position error [m] over the envelope's operating points and
-    the median costs; only steps stable at every point (an unstable point has no error)."""
+    """Per (method, h): the worst position [m] and yaw-rate [rad/s] errors over the envelope's
+    operating points and the median costs; only steps stable at every point (an unstable
+    point has no error)."""
     g = runs.groupby(["method", "h"])
     table = pd.DataFrame({
         "all_stable": g["stable"].all(),
         "err_pos": g["err_pos"].max(),
+        "err_r": g["err_r"].max(),
         "evals_per_s": g["evals_per_s"].median(),
         "time_per_s": g["time_per_step_s"].median(),
     }).reset_index()
@@ -72,54 +78,61 @@ def worst_case(runs: pd.DataFrame) -> pd.DataFrame:
 
 
 def _sample_runs(traj: pd.DataFrame):
-    """(reference run, {method: [(h, run, diverged)]}) of the trajectories table."""
+    """(reference run, {method: [(h, run, past its stability limit)]}) of the trajectories."""
     ref = traj[traj["method"] == "reference"].sort_values("t")
     bound = {c: BLOWUP_FACTOR * max(np.abs(ref[c]).max(), 1e-9) for c in ("vy", "r")}
     runs = {}
     for (name, h), run in traj[traj["method"] != "reference"].groupby(["method", "h"]):
         run = run.sort_values("t")
-        lateral = run[["vy", "r", "X", "Y"]].to_numpy()
-        diverged = (not np.isfinite(lateral).all()
+        # The sweep marks the run it placed past the predicted limit; without the mark, a
+        # run that left the reference's range far behind (or overflowed) is the one.
+        if "past_limit" in run:
+            past = bool(run["past_limit"].any())
+        else:
+            past = (not np.isfinite(run[["vy", "r", "X", "Y"]].to_numpy()).all()
                     or any(np.abs(run[c]).max() > bound[c] for c in bound))
-        runs.setdefault(name, []).append((float(h), run, diverged))
+        runs.setdefault(name, []).append((float(h), run, past))
     return ref, {m: runs[m] for m in method_order(runs)}
 
 
 def _trajectory_figure(traj, xcol, ycol, xlabel, ylabel, equal):
     """Per-method panels of ycol against xcol at each sampled step, over the reference.
-    Returns (figure, names of (method, h) runs that diverged)."""
+    Returns (figure, names of the (method, h) runs past the stability limit)."""
     ref, runs = _sample_runs(traj)
     fig, axes = _panels(len(runs), sharex=not equal)
-    diverged_runs = []
+    past_runs = []
     for ax, (name, samples) in zip(axes, runs.items()):
         stable_h = [h for h, _, d in samples if not d]
         colours = dict(zip(stable_h, _shades(len(stable_h))))
         shown = [ref[[xcol, ycol]].to_numpy()]
-        for h, run, diverged in samples:
+        for h, run, past in samples:
             xy = run[[xcol, ycol]].to_numpy()
-            if diverged:
-                diverged_runs.append(f"{name} at h = {h:g} s")
+            if past:
+                past_runs.append(f"{name} at h = {h:.3g} s")
                 ax.plot(xy[:, 0], xy[:, 1], color=UNSTABLE, ls=":", lw=1.2,
-                        label=f"h={h:g} s, unstable")
+                        label=f"h={h:.3g} s, past limit")
             else:
                 shown.append(xy)
-                ax.plot(xy[:, 0], xy[:, 1], color=colours[h], lw=1.2, label=f"h={h:g} s")
+                ax.plot(xy[:, 0], xy[:, 1], color=colours[h], lw=1.2, label=f"h={h:.3g} s")
         ax.plot(ref[xcol], ref[ycol], color="black", ls="--", lw=1.0, label="reference")
         # Limits from the reference and the stable runs: a blown-up run leaves the panel.
         pts = np.vstack(shown)
         pts = pts[np.isfinite(pts).all(axis=1)]
         lo, hi = pts.min(axis=0), pts.max(axis=0)
-        pad = 0.08 * np.maximum(hi - lo, 1e-6)
-        ax.set_xlim(lo[0] - pad[0], hi[0] + pad[0])
-        ax.set_ylim(lo[1] - pad[1], hi[1] + pad[1])
+        half = 0.54 * np.maximum(hi - lo, 1e-6)
         if equal:
+            # Widen the short side to the panel's shape, so equal axes fill the panel.
+            half = np.maximum(half, half[::-1] * np.array([PANEL_ASPECT, 1 / PANEL_ASPECT]))
             ax.set_aspect("equal", adjustable="box")
+        mid = 0.5 * (lo + hi)
+        ax.set_xlim(mid[0] - half[0], mid[0] + half[0])
+        ax.set_ylim(mid[1] - half[1], mid[1] + half[1])
         ax.set_title(name, fontsize=10)
         ax.set_xlabel(xlabel, fontsize=8)
         ax.set_ylabel(ylabel, fontsize=8)
-        ax.tick_params(labelsize=7)
+        ax.tick_params(which="both", labelsize=7)
         ax.legend(fontsize=6, loc="best")
-    return fig, diverged_runs
+    return fig, past_runs
 
 
 def _shades(n):
@@ -136,30 +149,31 @@ def _operating_point(sweep) -> str:
 
 def yaw_rate(sweep, out_dir: Path) -> Shown:
     """Figure 1: yaw rate r [rad/s] against time t [s], each method at several steps."""
-    fig, diverged = _trajectory_figure(sweep.trajectories, "t", "r", "t [s]", "r [rad/s]",
-                                       equal=False)
+    fig, past = _trajectory_figure(sweep.trajectories, "t", "r", "t [s]", "r [rad/s]",
+                                   equal=False)
     name = _save(fig, out_dir, "fig1_yaw_rate.png")
     caption = ("Yaw rate against time for each method at several fixed step sizes (coloured "
                f"by step){_operating_point(sweep)}, over the adaptive Dormand-Prince "
                "reference (black, dashed); the paper's Figure 2. A stable step follows the "
                "reference, and the gap grows with the step; red dotted runs are past the "
-               "method's stability limit and leave the panel. "
-               + (f"Unstable here: {', '.join(diverged)}." if diverged
-                  else "No sampled run went unstable."))
+               "method's predicted stability limit: they oscillate with growing amplitude "
+               "and leave the panel. "
+               + (f"Past the limit: {', '.join(past)}." if past
+                  else "No sampled run is past its limit (A-stable methods have none)."))
     return Shown(1, "Yaw rate against time", caption, [(name, "")])
 
 
 def xy_paths(sweep, out_dir: Path) -> Shown:
     """Figure 2: X-Y path [m] of each method at several steps, with the reference."""
-    fig, diverged = _trajectory_figure(sweep.trajectories, "X", "Y", "X [m]", "Y [m]",
-                                       equal=True)
+    fig, past = _trajectory_figure(sweep.trajectories, "X", "Y", "X [m]", "Y [m]",
+                                   equal=True)
     name = _save(fig, out_dir, "fig2_xy_paths.png")
     caption = ("The vehicle's path in the plane for the same runs as Figure 1; the paper's "
                "Figure 3. The steady turn of the reference (black, dashed) is a circle; a "
                "stable step stays on it, a coarse one drifts off it, and a run past the "
-               "stability limit (red, dotted) spirals away. "
-               + (f"Unstable here: {', '.join(diverged)}." if diverged else ""))
-    return Shown(2, "X-Y paths", caption.strip(), [(name, "")])
+               "stability limit (red, dotted) veers off. Past the limit: "
+               + (", ".join(past) or "none") + ".")
+    return Shown(2, "X-Y paths", caption, [(name, "")])
 
 
 def stability_regions(sweep, tuned, out_dir: Path) -> Shown:
@@ -194,7 +208,7 @@ def stability_regions(sweep, tuned, out_dir: Path) -> Shown:
         ax.set_title(title, fontsize=9, fontweight=weight)
         ax.set_xlabel("Re(h lambda)", fontsize=8)
         ax.set_ylabel("Im(h lambda)", fontsize=8)
-        ax.tick_params(labelsize=7)
+        ax.tick_params(which="both", labelsize=7)
     name = _save(fig, out_dir, "fig3_stability_regions.png")
     if h:
         safe = [n for n, k in outside_by.items() if k == 0]
@@ -213,35 +227,37 @@ def stability_regions(sweep, tuned, out_dir: Path) -> Shown:
 
 
 def error_vs_step(sweep, out_dir: Path) -> Shown:
-    """Figure 4: worst position error [m] against h [s], log-log, with declared-order slopes."""
+    """Figure 4: worst yaw-rate error [rad/s] against h [s], log-log, with declared slopes."""
     table = worst_case(sweep.runs)
+    table = table[np.isfinite(table["err_r"]) & (table["err_r"] > 0)]
     names = method_order(table["method"])
     summary = sweep.summary.set_index("method")
     fig, axes = _panels(len(names), sharex=True, sharey=True)
     for ax, name in zip(axes, names):
         rows = table[table["method"] == name]
-        h, err = rows["h"].to_numpy(), rows["err_pos"].to_numpy()
+        h, err = rows["h"].to_numpy(), rows["err_r"].to_numpy()
         ax.loglog(h, err, "o-", color="#1f77b4", ms=3, lw=1.0, label="measured")
-        p = int(summary.loc[name, "order_declared"]) if name in summary.index else None
-        if p and len(h):
+        order = summary["order_declared"].get(name)
+        if pd.notna(order) and len(h):
             # Slope line through the middle point: the eye compares slopes, not offsets.
             i = len(h) // 2
             hh = np.array([h.min(), h.max()])
-            ax.loglog(hh, err[i] * (hh / h[i]) ** p, "--", color="grey", lw=1.0,
-                      label=f"slope {p} (declared)")
-        fit = summary.loc[name, "order_fit_median"] if name in summary.index else np.nan
+            ax.loglog(hh, err[i] * (hh / h[i]) ** int(order), "--", color="grey", lw=1.0,
+                      label=f"slope {int(order)} (declared)")
+        fit = float(summary["order_fit_median"].get(name, np.nan))
         ax.set_title(f"{name}" + (f" (fit {fit:.2f})" if np.isfinite(fit) else ""), fontsize=9)
         ax.set_xlabel("h [s]", fontsize=8)
-        ax.set_ylabel("worst position error [m]", fontsize=8)
-        ax.tick_params(labelsize=7)
+        ax.set_ylabel("worst yaw-rate error [rad/s]", fontsize=8)
+        ax.tick_params(which="both", labelsize=7)
         ax.legend(fontsize=6)
     name = _save(fig, out_dir, "fig4_error_vs_step.png")
-    caption = ("Worst position error over the envelope (largest over its operating points, "
-               "against the reference) against step size, log-log, for every step stable at "
-               "all points; the dashed line has the slope of the method's declared order, "
-               "and the title gives the fitted order. In the asymptotic range the measured "
-               "line is parallel to the dashed one; at small steps it flattens at the "
-               "reference's accuracy or round-off.")
+    caption = ("Worst yaw-rate error over the envelope (largest over its operating points, "
+               "against the reference; the error the sweep fits its orders on) against step "
+               "size, log-log, for every step stable at all points; the dashed line has the "
+               "slope of the method's declared order, and the title gives the fitted order "
+               "(median over points). In the asymptotic range the measured line is parallel "
+               "to the dashed one; at small steps it may flatten at the reference's accuracy "
+               "or round-off.")
     return Shown(4, "Error against step size", caption, [(name, "")])
 
 
@@ -325,7 +341,7 @@ def stable_step_vs_speed(sweep, out_dir: Path) -> Shown:
         ax.set_title(name, fontsize=9)
         ax.set_xlabel("vx [m/s]", fontsize=8)
         ax.set_ylabel("largest stable h [s]", fontsize=8)
-        ax.tick_params(labelsize=7)
+        ax.tick_params(which="both", labelsize=7)
     if axes:
         axes[0].legend(fontsize=6)
     name = _save(fig, out_dir, "fig6_stable_step_vs_speed.png")

@@ -15,7 +15,7 @@ from bench.errors import UsageError
 
 # Columns each sweep table must have; the figures and tables read nothing else.
 SWEEP_TABLES = {
-    "runs.parquet": ["method", "h", "point", "vx", "delta", "stable", "err_pos",
+    "runs.parquet": ["method", "h", "point", "vx", "delta", "stable", "err_pos", "err_r",
                      "evals_per_s", "time_per_step_s"],
     "limits.parquet": ["method", "point", "vx", "delta", "h_pred", "h_meas"],
     "summary.csv": ["method", "family", "order_declared", "order_fit_median", "real_interval",
