@@ -28,6 +28,9 @@ SORT = {"runs": ["method", "h", "point"], "limits": ["method", "point"],
         "eigenvalues": ["point", "lam_re", "lam_im"], "trajectories": ["method", "h", "t"],
         "timing": ["chunk"]}
 STATES = ("X", "Y", "psi", "vy", "r")
+RUN_COLUMNS = ["method", "h", "point", "vx", "delta", "stable", "blowup_t",
+               *[f"err_{s}" for s in STATES], "err_pos", "err_final", "evals_per_s",
+               "time_per_step_s", "n_steps", "ref_ok"]
 
 
 # ---- chunks -----------------------------------------------------------------------------
@@ -197,7 +200,7 @@ class _Work:
 
         t0 = time.perf_counter()
         runs_df = pd.concat([pd.DataFrame(r) for r in runs], ignore_index=True)
-        runs_df = runs_df.drop_duplicates(["h", "point"])       # padded lanes repeat a point
+        runs_df = runs_df.drop_duplicates(["h", "point"])[RUN_COLUMNS]   # padded lanes repeat
         limits = []
         for lane, i in enumerate(self.ids):
             rows = runs_df[(runs_df["point"] == i) & runs_df["stable"]]

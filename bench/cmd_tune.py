@@ -1,0 +1,35 @@
+"""`stepzoo tune RESULTS --pos-tol M --out tuned.toml`: the cheapest (method, h) of a sweep that
+is stable with a margin and meets a position tolerance everywhere, as a planner config."""
+import sys
+from pathlib import Path
+
+from bench.errors import UsageError
+from bench.output import text_table, to_json
+
+
+def add_arguments(p):
+    p.add_argument("results", metavar="RESULTS", help="a folder written by `stepzoo sweep`")
+    p.add_argument("--pos-tol", type=float, required=True, metavar="METRES",
+                   help="largest position error allowed at every operating point [m]")
+    p.add_argument("--margin", type=float, default=0.1, metavar="FRACTION",
+                   help="keep h <= (1 - margin) x the measured largest stable step (default 0.1)")
+    p.add_argument("--out", required=True, metavar="FILE", help="tuned planner config (TOML)")
+    p.add_argument("--format", choices=["text", "json"], default="text")
+
+
+def main(args) -> int:
+    from bench.tune import tune, write
+    out = Path(args.out)
+    if out.is_dir():
+        raise UsageError(f"--out {out} is a folder; give a file name such as tuned.toml")
+    tuned = tune(args.results, args.pos_tol, args.margin)
+    write(tuned, out)
+    if args.format == "json":
+        print(to_json({"out": str(out), **{k: v for k, v in tuned.items()}}))
+        return 0
+    print(f"chose {tuned['method']} at h = {tuned['h']:g} s: {tuned['why']}")
+    rows = [{"method": r["method"], "h": r.get("h"), "evals_per_s": r.get("cost_evals_per_s"),
+             "reason": r["reason"]} for r in tuned["runners_up"]]
+    sys.stdout.write(text_table(rows, ["method", "h", "evals_per_s", "reason"]) + "\n")
+    print(f"wrote {out}")
+    return 0

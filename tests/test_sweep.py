@@ -1,0 +1,191 @@
+"""The sweep measures what theory predicts: every explicit (and Adams-Moulton) method's largest
+stable step within 3% of the prediction at every envelope point, A-stable methods never blow
+up, fitted orders match declared ones; an interrupted sweep resumes to the same tables, and
+config mistakes are one line with exit status 2."""
+import dataclasses
+import math
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from bench.cli import main as stepzoo
+from bench.sweep import _Work, compute_chunk, run_sweep
+from bench.sweep_config import load
+from integrators import METHODS, method
+from integrators.stability import max_stable_step
+
+CONFIGS = Path(__file__).resolve().parents[1] / "bench" / "configs"
+# Measured quantities: they differ between two runs of the same config.
+TIMED = {"time_per_step_s", "compile_s", "ref_compile_s", "reference_s", "integration_s",
+         "stability_s", "metrics_s", "total_s"}
+FINITE_LIMIT = [n for n, m in METHODS.items() if not math.isinf(max_stable_step(m, [-1.0]))]
+A_STABLE = [n for n in METHODS if n not in FINITE_LIMIT]
+
+
+def _limits(cfg, name):
+    """(measured, predicted) largest stable step [s] at every point of block 0 of cfg."""
+    work = _Work(cfg, 0, {})
+    m = method(name)
+    grid = np.array([work.stable(m, h)[0] for h in cfg.hs])
+    pred = np.array([max_stable_step(m, np.linalg.eigvals(A)) for A in work.A])
+    return work.measured_limits(m, grid)[: work.n_real], pred[: work.n_real]
+
+
+@pytest.fixture(scope="module")
+def envelope():
+    """The envelope's 25 points with a coarse step grid: bisection finds the limits anyway."""
+    cfg = load(CONFIGS / "envelope.toml")
+    assert len(cfg.points) == 25 and cfg.points_per_chunk >= 25
+    return dataclasses.replace(cfg, hs=(0.001, 0.004, 0.016, 0.064, 0.256))
+
+
+def test_explicit_and_multistep_methods_cover_every_finite_limit():
+    explicit = [n for n, m in METHODS.items() if not m.implicit]
+    assert set(explicit) <= set(FINITE_LIMIT)
+    assert {"ab2", "ab3", "ab4", "am3", "am4"} <= set(FINITE_LIMIT)
+
+
+@pytest.mark.parametrize("name", FINITE_LIMIT)
+def test_measured_limit_within_3pct_of_predicted_at_every_envelope_point(envelope, name):
+    meas, pred = _limits(envelope, name)
+    ratio = meas / pred
+    assert np.all(np.isfinite(pred)) and np.all(np.abs(ratio - 1) <= 0.03), (name, ratio)
+
+
+@pytest.mark.parametrize("name", A_STABLE)
+def test_a_stable_methods_never_blow_up_in_the_envelope(envelope, name):
+    cfg = dataclasses.replace(envelope, hs=(0.01, 0.256), h_probe_max=2.0)
+    meas, pred = _limits(cfg, name)
+    assert np.all(np.isinf(pred)) and np.all(np.isinf(meas)), (name, meas)
+
+
+def test_blowup_rule_flags_a_step_just_past_the_limit_and_not_just_below(envelope):
+    work = _Work(envelope, 0, {})
+    pred = np.array([max_stable_step(method("rk4"), np.linalg.eigvals(A)) for A in work.A])
+    below, _ = work.stable(method("rk4"), 0.99 * pred)
+    above, t_blow = work.stable(method("rk4"), 1.02 * pred)
+    assert below.all() and not above.any()
+    assert np.all((t_blow > 0) & (t_blow <= envelope.stab_steps * 1.02 * pred))
+
+
+@pytest.fixture(scope="module")
+def paper_sweep(tmp_path_factory):
+    """The paper's default sweep, restricted to one method of each family for speed."""
+    cfg = load(CONFIGS / "paper.toml")
+    cfg = dataclasses.replace(cfg, methods=("euler", "rk4", "rk6", "ab4", "trapezoidal"))
+    out = tmp_path_factory.mktemp("paper")
+    run_sweep(cfg, out, progress=False)
+    return out
+
+
+def test_fitted_orders_on_the_default_sweep_match_declared(paper_sweep):
+    limits = pd.read_parquet(paper_sweep / "limits.parquet")
+    for _, row in limits.iterrows():
+        assert abs(row["order_fit"] - row["order_declared"]) <= 0.25, row.to_dict()
+
+
+def test_results_folder_holds_the_contracted_tables(paper_sweep):
+    runs = pd.read_parquet(paper_sweep / "runs.parquet")
+    assert list(runs.columns[:16]) == [
+        "method", "h", "point", "vx", "delta", "stable", "blowup_t", "err_X", "err_Y",
+        "err_psi", "err_vy", "err_r", "err_pos", "err_final", "evals_per_s", "time_per_step_s"]
+    cfg = load(CONFIGS / "paper.toml")
+    assert len(runs) == 5 * len(cfg.hs) * len(cfg.points)
+    traj = pd.read_parquet(paper_sweep / "trajectories.parquet")
+    assert (traj["method"] == "reference").any()
+    past = traj[traj["past_limit"] & (traj["method"] == "rk4")]
+    assert past["h"].nunique() == 1 and not np.isfinite(past[["vy", "r"]]).all().all() \
+        or np.abs(past["r"]).max() > 10 * np.abs(traj[traj["method"] == "reference"]["r"]).max()
+    for name in ("config.toml", "manifest.json", "limits.csv", "summary.csv",
+                 "summary.parquet", "eigenvalues.parquet"):
+        assert (paper_sweep / name).is_file()
+
+
+def _tables(folder):
+    out = {}
+    for name in ("runs", "limits", "eigenvalues", "trajectories", "summary"):
+        df = pd.read_parquet(folder / f"{name}.parquet")
+        out[name] = df.drop(columns=[c for c in df.columns if c in TIMED])
+    return out
+
+
+def test_interrupted_sweep_resumed_gives_the_same_tables(tmp_path):
+    cfg = load(CONFIGS / "small.toml")
+    cfg = dataclasses.replace(cfg, methods=("euler", "ab2"), points_per_chunk=5)
+    whole, cut = tmp_path / "whole", tmp_path / "cut"
+    run_sweep(cfg, whole, progress=False)
+
+    class Interrupted(Exception):
+        pass
+
+    def stop_after_two(chunk_id):
+        if len(list((cut / "chunks").iterdir())) == 2:
+            raise Interrupted
+    with pytest.raises(Interrupted):
+        run_sweep(cfg, cut, progress=False, on_chunk=stop_after_two)
+    assert not (cut / "runs.parquet").exists()
+    assert stepzoo(["sweep", cfg.source, "--out", str(cut), "--resume", "--no-progress"]) == 2
+    done = sorted(p.name for p in (cut / "chunks").iterdir())
+    manifest = run_sweep(cfg, cut, resume=True, progress=False)
+    assert manifest["chunks"] == sorted(manifest["chunks"], key=manifest["chunks"].index)
+    assert set(done) < set(manifest["chunks"])
+    a, b = _tables(whole), _tables(cut)
+    for name in a:
+        pd.testing.assert_frame_equal(a[name], b[name], check_exact=True, obj=name)
+
+
+def test_compute_chunk_is_a_function_of_config_and_id(tmp_path):
+    cfg = dataclasses.replace(load(CONFIGS / "small.toml"), methods=("euler",))
+    first = compute_chunk(cfg, "euler-b000")
+    again = compute_chunk(cfg, "euler-b000", {})
+    for name in ("runs", "limits"):
+        pd.testing.assert_frame_equal(first[name].drop(columns=["time_per_step_s"], errors="ignore"),
+                                      again[name].drop(columns=["time_per_step_s"], errors="ignore"))
+
+
+def test_resume_with_a_different_config_is_refused_in_one_line(tmp_path, capsys):
+    small = CONFIGS / "small.toml"
+    other = tmp_path / "other.toml"
+    other.write_text(small.read_text().replace('methods = ["euler", "heun", "rk4", "ab2", '
+                                               '"trapezoidal"]', 'methods = ["euler"]'))
+    out = tmp_path / "out"
+    (out / "chunks").mkdir(parents=True)
+    cfg = load(small)
+    (out / "manifest.json").write_text(f'{{"config_sha256": "{cfg.sha256}"}}')
+    assert stepzoo(["sweep", str(other), "--out", str(out), "--resume"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "different config" in err
+
+
+BAD = [
+    ("horizon = -1", "horizon must be a number > 0"),
+    ('methods = ["rk5"]', "unknown method 'rk5'"),
+    ("colour = 3", "unknown key 'colour'"),
+    ("[steps]\nh = { min = 0.1, max = 0.01, num = 3 }", "steps.h must be"),
+    ("[envelope]\nvx = [0.0, 5.0]", "every envelope.vx must be > 0"),
+    ("[stability]\nsteps = 3", "stability.steps must be a whole number"),
+]
+
+
+@pytest.mark.parametrize("change,message", BAD)
+def test_a_config_mistake_is_one_clear_line_and_exit_2(tmp_path, capsys, change, message):
+    text = (CONFIGS / "small.toml").read_text()
+    key = change.split("\n")[0]
+    if key.startswith("["):            # replace that table's key inside its section
+        section, line = change.split("\n")
+        name = line.split("=")[0].strip()
+        head, _, tail = text.partition(section + "\n")
+        body = "\n".join(ln for ln in tail.split("\n") if not ln.startswith(name + " "))
+        text = head + section + "\n" + line + "\n" + body
+    else:
+        name = key.split("=")[0].strip()
+        lines = [ln for ln in text.split("\n") if not ln.startswith(name + " ")]
+        text = key + "\n" + "\n".join(lines)
+    path = tmp_path / "bad.toml"
+    path.write_text(text)
+    assert stepzoo(["sweep", str(path), "--out", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and message in err, err
+    assert not (tmp_path / "out").exists()
