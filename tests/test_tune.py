@@ -1,0 +1,109 @@
+"""The tuned (method, h) is the cheapest that the sweep shows stable with the margin and within
+the tolerance everywhere, it holds at 20 seeded operating points the sweep never saw, and the
+file carries what the planner reads; mistakes are one line, exit 2."""
+import tomllib
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pandas as pd
+import pytest
+
+import dynamics
+from bench.cli import main as stepzoo
+from bench.sweep import run_sweep
+from bench.sweep_config import load
+from bench.tune import candidates
+from dynamics.linear import lateral_eigenvalues
+from integrators import integrate_batch, method
+from integrators.reference import reference
+from integrators.stability import max_stable_step
+
+SMALL = Path(__file__).resolve().parents[1] / "bench" / "configs" / "small.toml"
+POS_TOL, MARGIN = 0.01, 0.1        # [m], fraction
+
+
+@pytest.fixture(scope="module")
+def tuned(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("tune")
+    run_sweep(load(SMALL), folder / "sweep", progress=False)
+    out = folder / "tuned.toml"
+    assert stepzoo(["tune", str(folder / "sweep"), "--pos-tol", str(POS_TOL), "--margin",
+                    str(MARGIN), "--out", str(out)]) == 0
+    return folder / "sweep", tomllib.loads(out.read_text())
+
+
+def test_tuned_file_says_what_why_and_from_which_sweep(tuned):
+    sweep, t = tuned
+    manifest = (sweep / "manifest.json").read_text()
+    assert t["sweep_config_sha256"] in manifest and t["pos_tol_m"] == POS_TOL
+    for key in ("method", "h", "why", "margin", "cost_evals_per_s", "cost_time_per_s",
+                "envelope", "runners_up", "provenance"):
+        assert key in t
+    assert t["method"] in t["why"] and "\n" not in t["why"]
+    assert {r["method"] for r in t["runners_up"]} | {t["method"]} == set(load(SMALL).methods)
+
+
+def test_choice_is_the_cheapest_that_qualifies(tuned):
+    sweep, t = tuned
+    runs = pd.read_parquet(sweep / "runs.parquet")
+    limits = pd.read_parquet(sweep / "limits.parquet")
+    rows = runs.merge(limits[["method", "point", "h_meas"]], on=["method", "point"])
+    mine = rows[(rows["method"] == t["method"]) & np.isclose(rows["h"], t["h"])]
+    assert mine["stable"].all() and (mine["h"] <= (1 - MARGIN) * mine["h_meas"]).all()
+    assert (mine["err_pos"] <= POS_TOL).all()
+    table = candidates(runs, limits, POS_TOL, MARGIN)
+    assert table[table["ok"]]["cost_evals_per_s"].min() == pytest.approx(t["cost_evals_per_s"])
+
+
+def test_tuned_step_holds_at_20_unseen_operating_points(tuned):
+    _, t = tuned
+    cfg = load(SMALL)
+    rng = np.random.default_rng(20240601)
+    vx = rng.uniform(min(cfg.vx), max(cfg.vx), 20)
+    delta = rng.uniform(min(cfg.delta), max(cfg.delta), 20)
+    seen = {(round(a, 9), round(b, 9)) for a, b in cfg.points}
+    assert not any((round(a, 9), round(b, 9)) in seen for a, b in zip(vx, delta))
+    model, meth, h = dynamics.model(cfg.model), method(t["method"]), t["h"]
+    n = round(cfg.horizon / h)
+    ps = [model.params(cfg.vehicle, v) for v in vx]
+    p = {k: jnp.asarray([q[k] for q in ps]) for k in ps[0]}
+    x0 = jnp.zeros((20, 5))
+    u = jnp.asarray(delta)[:, None]
+    x = np.asarray(integrate_batch(meth, model.rhs, x0, u, p, h, n).x)
+    ts = h * jnp.arange(n + 1)
+    ref = jax.vmap(lambda a, b, c: reference(model.rhs, a, b, c, ts).x)(x0, u, p)
+    err_pos = np.hypot(*(x[:, :, :2] - np.asarray(ref)[:, :, :2]).transpose(2, 0, 1)).max(axis=1)
+    assert np.all(err_pos <= POS_TOL), err_pos
+    phys = dynamics.physical(cfg.vehicle)
+    limit = [max_stable_step(meth, np.asarray(lateral_eigenvalues(a, b, phys)))
+             for a, b in zip(vx, delta)]
+    assert np.all(h <= (1 - MARGIN / 2) * np.asarray(limit))
+
+
+def test_an_impossible_tolerance_is_one_line_and_exit_2(tuned, tmp_path, capsys):
+    sweep, _ = tuned
+    assert stepzoo(["tune", str(sweep), "--pos-tol", "1e-15", "--out",
+                    str(tmp_path / "t.toml")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "loosen --pos-tol" in err
+    assert not (tmp_path / "t.toml").exists()
+
+
+@pytest.mark.parametrize("args,message", [
+    (["--pos-tol", "0.1", "--margin", "1.5"], "--margin must be a fraction"),
+    (["--pos-tol", "-1"], "--pos-tol must be a positive distance"),
+])
+def test_bad_flags_are_one_line_and_exit_2(tuned, tmp_path, capsys, args, message):
+    sweep, _ = tuned
+    assert stepzoo(["tune", str(sweep), *args, "--out", str(tmp_path / "t.toml")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and message in err
+
+
+def test_a_folder_that_is_no_sweep_is_one_line_and_exit_2(tmp_path, capsys):
+    assert stepzoo(["tune", str(tmp_path), "--pos-tol", "0.1", "--out",
+                    str(tmp_path / "t.toml")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "not a finished sweep folder" in err
