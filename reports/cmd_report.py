@@ -46,8 +46,8 @@ def _facts(sweep, tuned, tuned_path, plan_list, plans_dir) -> list:
     facts = [("sweep folder", str(sweep.folder)),
              ("sweep config sha256", sweep.manifest.get("config_sha256", "not recorded"))]
     timing = sweep.manifest.get("timing")
-    if timing:
-        facts.append(("timing", json.dumps(timing) if isinstance(timing, dict) else timing))
+    if isinstance(timing, dict) and isinstance(timing.get("total_s"), (int, float)):
+        facts.append(("sweep computing time", f"{timing['total_s']:.1f} s"))
     if tuned:
         facts += [("tuned config", str(tuned_path)),
                   ("tuned choice", f"{tuned['method']} at h = {tuned['h']:g} s"),

@@ -181,7 +181,8 @@ def stability_regions(sweep, tuned, out_dir: Path) -> Shown:
     names = [m for m in method_order(sweep.summary["method"]) if m in METHODS]
     eig = sweep.eigenvalues
     lam = eig["lam_re"].to_numpy() + 1j * eig["lam_im"].to_numpy()
-    lam = np.concatenate([lam, lam.conj()])        # regions are symmetric; show both halves
+    # Regions are symmetric: show both halves, each distinct eigenvalue once.
+    lam = np.unique(np.concatenate([lam, lam.conj()]))
     h = float(tuned["h"]) if tuned else None
     z = h * lam if h else np.zeros(0, complex)
     reach = max(4.0, 1.1 * float(np.max(-z.real, initial=0.0)))
@@ -391,10 +392,11 @@ def _plan_caption(plan) -> str:
 
     def num(key, unit, fmt="{:.3g}"):
         v = st.get(key)
-        return f"{fmt.format(v)} {unit}".strip() if isinstance(v, (int, float)) else "-"
+        return f"{fmt.format(v)} {unit}".strip() if isinstance(v, (int, float)) else "none"
     return (f"{plan.name}: {rec['status']}"
             + (f" ({rec['reason']})" if rec.get("reason") else "")
-            + f"; {st.get('method', '?')} at h = {st.get('h', '?')} s, seed {st.get('seed', '?')};"
+            + f"; {st.get('method', '?')} at h = {num('h', 's', '{:.4g}')}, seed "
+            f"{st.get('seed', '?')};"
             f" {num('expansions', 'expansions', '{}')}, {num('nodes', 'nodes', '{}')}; search "
             f"{num('search_s', 's')}, connection {num('connect_s', 's')}; path "
             f"{num('path_length_m', 'm')}, connection time {num('connect_tf_s', 's')}.")

@@ -1,0 +1,91 @@
+"""`stepzoo run`: the whole pipeline into one folder by calling the other commands in turn:
+sweep -> tune -> plan the built-in scenarios with the tuned step -> report. Progress goes to
+stderr (with each command's own output); stdout ends with the report's path."""
+from __future__ import annotations
+
+import contextlib
+import json
+import sys
+import time
+from pathlib import Path
+
+from bench import errors
+from bench.errors import UsageError
+
+# Package data of bench, beside its modules (a module's file, not the package's: an editable
+# install may make bench a namespace package, which has none).
+DEFAULT_CONFIG = Path(errors.__file__).with_name("configs") / "envelope.toml"
+
+
+def add_arguments(p):
+    p.add_argument("--out", default="results", metavar="DIR",
+                   help="output folder: sweep/, tuned.toml, plans/, report/ (default results)")
+    p.add_argument("--config", metavar="FILE",
+                   help="sweep config TOML (default: the shipped bench/configs/envelope.toml)")
+    p.add_argument("--pos-tol", type=float, default=0.1, metavar="M",
+                   help="position tolerance of the tuning [m] (default 0.1)")
+    p.add_argument("--margin", type=float, default=0.2, metavar="F",
+                   help="stability margin of the tuning, a fraction (default 0.2)")
+    p.add_argument("--seed", type=int, default=0, help="seed of the planner (default 0)")
+    p.add_argument("--format", choices=["text", "json"], default="text",
+                   help="what is printed at the end: the report's path, or JSON with every "
+                   "artefact")
+
+
+def _say(line: str):
+    sys.stderr.write(f"stepzoo run: {line}\n")
+    sys.stderr.flush()
+
+
+def config_path(given) -> Path:
+    path = Path(given) if given else DEFAULT_CONFIG
+    if not path.is_file():
+        raise UsageError(f"sweep config {path} not found; give --config FILE (a sweep TOML, "
+                         "e.g. bench/configs/small.toml)")
+    return path
+
+
+def stages(args, out: Path) -> list[tuple[str, list[str]]]:
+    """(name, `stepzoo` argv) of each command the pipeline runs before the report."""
+    return [
+        # --resume: a rerun reuses a finished sweep of the same config and completes an
+        # interrupted one; a different config is refused by the sweep with its own line.
+        ("sweep", ["sweep", str(config_path(args.config)), "--out", str(out / "sweep"),
+                   "--resume"]),
+        ("tune", ["tune", str(out / "sweep"), "--pos-tol", repr(args.pos_tol),
+                  "--margin", repr(args.margin), "--out", str(out / "tuned.toml")]),
+        ("plan", ["plan", "--all", "--config", str(out / "tuned.toml"),
+                  "--seed", str(args.seed), "--out", str(out / "plans")]),
+    ]
+
+
+def main(args) -> int:
+    from bench import cli
+    from reports import cmd_report
+    out = Path(args.out)
+    if out.exists() and not out.is_dir():
+        raise UsageError(f"--out {out} exists and is not a folder; give a folder")
+    steps = stages(args, out)
+    total = len(steps) + 1
+    started = time.perf_counter()
+    for i, (name, argv) in enumerate(steps, 1):
+        _say(f"[{i}/{total}] {name}: stepzoo {' '.join(argv)}")
+        t0 = time.perf_counter()
+        # The commands' own tables are progress here: stdout is kept for the final path.
+        with contextlib.redirect_stdout(sys.stderr):
+            code = cli.main(argv)
+        if code:
+            _say(f"stopped: `stepzoo {name}` failed (exit {code}); see its message above")
+            return code
+        _say(f"[{i}/{total}] {name} done in {time.perf_counter() - t0:.1f} s")
+    _say(f"[{total}/{total}] report: stepzoo report {out} --out {out / 'report'}")
+    index, _, _ = cmd_report.build(out / "sweep", out / "report", out / "tuned.toml",
+                                   out / "plans")
+    _say(f"done in {time.perf_counter() - started:.1f} s")
+    if args.format == "json":
+        sys.stdout.write(json.dumps({"sweep": str(out / "sweep"),
+                                     "tuned": str(out / "tuned.toml"),
+                                     "plans": str(out / "plans"), "report": str(index)}) + "\n")
+    else:
+        sys.stdout.write(f"{index}\n")
+    return 0

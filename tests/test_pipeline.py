@@ -1,0 +1,91 @@
+"""`stepzoo run`: the real pipeline on the small sweep config writes every artefact it
+promises (sweep tables, tuned config, a plan per built-in scenario made with the tuned step,
+the report), keeps stdout for the report's path, and a bad config is one line, exit 2."""
+import json
+import subprocess
+import sys
+import tomllib
+from pathlib import Path
+
+import pandas as pd
+import pytest
+from test_report import check_report
+
+from bench.cli import main as stepzoo
+from integrators import METHODS
+from search.scenarios import builtin_names
+
+ROOT = Path(__file__).resolve().parents[1]
+SMALL = ROOT / "bench" / "configs" / "small.toml"
+SWEEP_FILES = ["config.toml", "manifest.json", "runs.parquet", "limits.parquet", "limits.csv",
+               "summary.csv", "eigenvalues.parquet", "trajectories.parquet"]
+
+
+@pytest.fixture(scope="module")
+def ran(tmp_path_factory):
+    out = tmp_path_factory.mktemp("run") / "results"
+    proc = subprocess.run([sys.executable, "-m", "bench.cli", "run", "--config", str(SMALL),
+                           "--out", str(out)], capture_output=True, text=True, cwd=ROOT)
+    return out, proc
+
+
+def test_run_ends_by_printing_the_report_path(ran):
+    out, proc = ran
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert proc.stdout.strip().splitlines()[-1] == str(out / "report" / "index.html")
+    for stage in ("[1/4] sweep", "[2/4] tune", "[3/4] plan", "[4/4] report"):
+        assert stage in proc.stderr
+
+
+def test_run_writes_sweep_tables_and_a_tuned_config_from_them(ran):
+    out, proc = ran
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    for name in SWEEP_FILES:
+        assert (out / "sweep" / name).is_file(), name
+    assert len(pd.read_parquet(out / "sweep" / "runs.parquet")) > 0
+    tuned = tomllib.loads((out / "tuned.toml").read_text())
+    manifest = json.loads((out / "sweep" / "manifest.json").read_text())
+    assert tuned["method"] in METHODS and tuned["h"] > 0
+    assert tuned["sweep_config_sha256"] == manifest["config_sha256"]
+
+
+def test_run_plans_every_builtin_scenario_with_the_tuned_step(ran):
+    out, proc = ran
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    tuned = tomllib.loads((out / "tuned.toml").read_text())
+    assert (out / "plans" / "summary.csv").is_file()
+    for name in builtin_names():
+        stats = json.loads((out / "plans" / name / "plan.json").read_text())["stats"]
+        assert stats["method"] == tuned["method"] and stats["h"] == pytest.approx(tuned["h"])
+
+
+def test_run_builds_the_full_report(ran):
+    out, proc = ran
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    text = check_report(out / "report", n_plans=len(builtin_names()))
+    assert f"{tomllib.loads((out / 'tuned.toml').read_text())['method']} at h" in text
+
+
+def test_run_with_a_missing_config_is_one_line_and_writes_nothing(tmp_path, capsys):
+    out = tmp_path / "results"
+    assert stepzoo(["run", "--config", str(tmp_path / "nope.toml"), "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "nope.toml" in err
+    assert not out.exists()
+
+
+def test_run_default_config_is_the_shipped_envelope():
+    from reports.pipeline import config_path
+    assert config_path(None).resolve() == (ROOT / "bench" / "configs" / "envelope.toml")
+
+
+def test_a_second_run_reuses_the_finished_sweep(ran):
+    # Last in the module: it runs again into the shared folder, as a second `make run` does.
+    out, proc = ran
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    created = json.loads((out / "sweep" / "manifest.json").read_text())["created"]
+    again = subprocess.run([sys.executable, "-m", "bench.cli", "run", "--config", str(SMALL),
+                            "--out", str(out)], capture_output=True, text=True, cwd=ROOT)
+    assert again.returncode == 0, again.stderr[-2000:]
+    assert json.loads((out / "sweep" / "manifest.json").read_text())["created"] == created
+    assert again.stdout.strip().splitlines()[-1] == str(out / "report" / "index.html")
