@@ -25,7 +25,7 @@ def main(args) -> int:
     tuned = tune(args.results, args.pos_tol, args.margin)
     write(tuned, out)
     if args.format == "json":
-        print(to_json({"out": str(out), **{k: v for k, v in tuned.items()}}))
+        print(to_json({"out": str(out), **tuned}))
         return 0
     print(f"chose {tuned['method']} at h = {tuned['h']:g} s: {tuned['why']}")
     rows = [{"method": r["method"], "h": r.get("h"), "evals_per_s": r.get("cost_evals_per_s"),
