@@ -9,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
+from matplotlib import colormaps
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.collections import LineCollection
 from matplotlib.figure import Figure
@@ -40,12 +41,17 @@ def _save(fig: Figure, out_dir: Path, name: str) -> str:
 
 
 def _panels(n: int, ncols: int = NCOLS, panel=PANEL_IN, **kwargs):
-    """(figure, axes list of length n) for small multiples; unused slots are hidden."""
+    """(figure, axes list of length n) for small multiples; unused slots are hidden, and
+    with n = 0 one empty panel says so."""
     ncols = max(1, min(ncols, n))
-    nrows = math.ceil(n / ncols)
+    nrows = max(1, math.ceil(n / ncols))
     fig = Figure(figsize=(panel[0] * ncols, panel[1] * nrows), layout="constrained")
     FigureCanvasAgg(fig)
     axes = fig.subplots(nrows, ncols, squeeze=False, **kwargs).ravel()
+    if n == 0:
+        axes[0].text(0.5, 0.5, "nothing to show", ha="center", va="center")
+        axes[0].set_axis_off()
+        return fig, []
     for ax in axes[n:]:
         ax.set_visible(False)
     for ax in axes[:n]:
@@ -102,7 +108,7 @@ def _trajectory_figure(traj, xcol, ycol, xlabel, ylabel, equal):
     fig, axes = _panels(len(runs), sharex=not equal)
     past_runs = []
     for ax, (name, samples) in zip(axes, runs.items()):
-        stable_h = [h for h, _, d in samples if not d]
+        stable_h = [h for h, _, past in samples if not past]
         colours = dict(zip(stable_h, _shades(len(stable_h))))
         shown = [ref[[xcol, ycol]].to_numpy()]
         for h, run, past in samples:
@@ -136,7 +142,6 @@ def _trajectory_figure(traj, xcol, ycol, xlabel, ylabel, equal):
 
 
 def _shades(n):
-    from matplotlib import colormaps
     return [colormaps["viridis"](v) for v in np.linspace(0.1, 0.75, max(n, 1))][:n]
 
 
@@ -263,7 +268,6 @@ def error_vs_step(sweep, out_dir: Path) -> Shown:
 
 
 def _styles(names):
-    from matplotlib import colormaps
     cmap = colormaps["tab20"]
     marks = "os^vDP*Xh<>p"
     return {n: (cmap(i % 20), marks[i % len(marks)]) for i, n in enumerate(names)}

@@ -75,6 +75,9 @@ def load_sweep(folder) -> Sweep:
     except (UnicodeDecodeError, json.JSONDecodeError) as err:
         raise UsageError(f"{folder / 'manifest.json'} is damaged ({err}); rerun "
                          "`stepzoo sweep`") from None
+    if manifest.get("complete") is False:
+        raise UsageError(f"sweep folder {folder} holds an unfinished sweep; finish it with "
+                         f"`stepzoo sweep CONFIG --out {folder} --resume`")
     tables = {}
     for name, columns in SWEEP_TABLES.items():
         table = _read_table(folder / name)

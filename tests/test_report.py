@@ -229,6 +229,11 @@ def _damage_summary_column(res):
     pd.read_csv(path).drop(columns=["h_meas_min"]).to_csv(path, index=False)
 
 
+def _damage_unfinished(res):
+    path = res / "sweep" / "manifest.json"
+    path.write_text(json.dumps({**json.loads(path.read_text()), "complete": False}))
+
+
 def _damage_tuned(res):
     (res / "tuned.toml").write_text('method = "rk4"\nh = 0.02\n')
 
@@ -240,6 +245,7 @@ def _damage_tuned(res):
     (_damage_plan_map, "map.npy"),
     (_damage_summary_column, "h_meas_min"),
     (_damage_tuned, "pos_tol_m"),
+    (_damage_unfinished, "unfinished"),
 ])
 def test_damaged_input_is_one_line_naming_it(run_folder, tmp_path, capsys, damage, named):
     damage(run_folder)
