@@ -22,8 +22,9 @@ def add_arguments(p):
                    help="a sweep folder, or a `stepzoo run` folder (sweep/, tuned.toml, plans/)")
     p.add_argument("--tuned", metavar="FILE", help="tuned config from `stepzoo tune` "
                    "(default: RESULTS/tuned.toml of a run folder, if there)")
-    p.add_argument("--plans", metavar="DIR", help="plan folder(s) from `stepzoo plan` "
-                   "(default: RESULTS/plans of a run folder, if there)")
+    p.add_argument("--plans", metavar="DIR", help="a plan folder from `stepzoo plan`, or a "
+                   "folder of them from `stepzoo plan --all` (default: RESULTS/plans of a run "
+                   "folder, if there)")
     p.add_argument("--out", required=True, metavar="DIR", help="report folder to write")
     p.add_argument("--format", choices=["text", "json"], default="text",
                    help="what is printed: the report's path, or JSON with every file")
