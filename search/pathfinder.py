@@ -12,7 +12,7 @@ import numpy as np
 from scipy.ndimage import label
 
 import dynamics
-from search.connect import Connection, connect
+from search.connect import Connection, connect, dubins_paths
 from search.footprint import Footprint, first_collision, poses_collide
 from search.maps import SUBDIV, OccupancyMap
 from search.planner_config import PlannerConfig
@@ -159,6 +159,7 @@ class _Search:
         self.edges, self.steers = [None], [0.0]
         self.seen = {self._cell(root)}
         self.tried: set[int] = set()
+        self.dubins: dict[int, float] = {}
         self.failures: list[str] = []
         self.connect_s = 0.0
 
@@ -174,7 +175,7 @@ class _Search:
         t0 = perf_counter()
         heap = [(self.H[0], 0, 0)]  # (f, insertion order, node): ties go to the older node
         pushed = 1
-        done = self.H[0] <= prm["mindist"] and self._try_connect([0])
+        done = self.H[0] <= prm["mindist"] and self._try_connect()
         ended = ""
         while not done:
             if not heap:
@@ -196,8 +197,7 @@ class _Search:
             for i in new:
                 heapq.heappush(heap, (self.g[i] + self.H[i], pushed, i))
                 pushed += 1
-            near = [i for i in new if self.H[i] <= prm["mindist"]]
-            done = bool(near) and self._try_connect(near)
+            done = any(self.H[i] <= prm["mindist"] for i in new) and self._try_connect()
         res.nodes = len(self.states)
         res.tree = self.edges[1:]
         res.connect_s = self.connect_s
@@ -240,9 +240,22 @@ class _Search:
             self.steers.append(float(shots.steer[k]))
         return new
 
-    def _try_connect(self, candidates) -> bool:
-        """Connect from the candidates, nearest the goal first, within the attempts left."""
-        for i in sorted(candidates, key=lambda j: self.H[j]):
+    def _dubins_length(self, node) -> float:
+        """[m] of the shortest forward path at the minimum turning radius from the node's
+        pose to the goal pose: "nearest" for a car, which the straight distance ignores (a
+        node beside the goal but facing away needs a loop, which the map may not allow)."""
+        if node not in self.dubins:
+            radius = self.f.wheelbase / math.tan(self.prm["delta_max"])
+            paths = dubins_paths(self.states[node][:3], self.goal[:3], radius)
+            self.dubins[node] = sum(q for _, q in paths[0]) if paths else math.inf
+        return self.dubins[node]
+
+    def _try_connect(self) -> bool:
+        """Connect from the untried nodes within connect_radius of the goal, shortest Dubins
+        path first, within the attempts left."""
+        near = [i for i, d in enumerate(self.H)
+                if d <= self.prm["connect_radius"] and i not in self.tried]
+        for i in sorted(near, key=lambda j: (self._dubins_length(j), j)):
             if len(self.tried) >= self.prm["connect_tries"]:
                 return False
             self.tried.add(i)

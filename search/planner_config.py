@@ -38,6 +38,8 @@ PARAMS = {p.name: p for p in (
     Param("random_spread", 3.0, 0.0, 100.0, "m", "radius of the disc the random points fill"),
     Param("horizon", 0.8, 0.01, 10.0, "s", "duration of one shooting (rounded to whole steps)"),
     Param("mindist", 6.0, 0.5, 100.0, "m", "a node this close to the goal triggers a connection"),
+    Param("connect_radius", 12.0, 0.5, 200.0, "m",
+          "tree nodes this close to the goal are connection candidates, shortest Dubins first"),
     Param("cell_xy", 2.0, 0.05, 20.0, "m", "position cell of duplicate pruning"),
     Param("cell_heading", math.pi / 4, 0.01, math.pi, "rad", "heading cell of duplicate pruning"),
     Param("margin", 0.1, 0.0, 5.0, "m",
