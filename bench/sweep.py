@@ -336,9 +336,11 @@ def _ratio(meas, pred):
 # ---- the results folder -----------------------------------------------------------------
 
 def run_sweep(cfg: SweepConfig, out, resume=False, overwrite=False, progress=True,
-              on_chunk=None) -> dict:
+              on_chunk=None, runner=None) -> dict:
     """Compute every missing chunk of `cfg` into `out` and write the tables; returns the
-    manifest. `on_chunk(chunk_id)` is called after each chunk is safely on disk."""
+    manifest. `on_chunk(chunk_id)` is called after each chunk is safely on disk. `runner(cfg,
+    chunk_ids)`, if given, computes the chunks elsewhere (`bench.distributed`) and yields
+    (chunk id, tables) as they finish; by default they are computed here, in order."""
     from tqdm import tqdm
     started = time.perf_counter()
     out = Path(out)
@@ -357,9 +359,11 @@ def run_sweep(cfg: SweepConfig, out, resume=False, overwrite=False, progress=Tru
     _write_manifest(cfg, out, created, done, None, complete=False)
     ref_cache: dict = {}
     todo = [c for c in ids if c not in done]
-    for cid in tqdm(todo, desc=f"sweep {cfg.name}", unit="chunk", file=sys.stderr,
-                    disable=not progress):
-        _write_chunk(chunks, cid, compute_chunk(cfg, cid, ref_cache))
+    computed = runner(cfg, todo) if runner is not None else \
+        ((cid, compute_chunk(cfg, cid, ref_cache)) for cid in todo)
+    for cid, tables in tqdm(computed, total=len(todo), desc=f"sweep {cfg.name}", unit="chunk",
+                            file=sys.stderr, disable=not progress):
+        _write_chunk(chunks, cid, tables)
         done.append(cid)
         _write_manifest(cfg, out, created, [c for c in ids if c in done], None, complete=False)
         if on_chunk is not None:
