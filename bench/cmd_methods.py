@@ -14,9 +14,10 @@ def rows() -> list[dict]:
     out = []
     for m in METHODS.values():
         row = describe(m)
+        # Rounded to 1e-9: the bisection is exact to round-off (TOL), not to the last bit.
         real, imag = stability_intervals(m)
-        row["real_interval"] = None if real == float("inf") else real
-        row["imag_interval"] = None if imag == float("inf") else imag
+        row["real_interval"] = None if real == float("inf") else round(real, 9)
+        row["imag_interval"] = None if imag == float("inf") else round(imag, 9)
         out.append(row)
     return out
 
