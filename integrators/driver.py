@@ -3,14 +3,25 @@ and parameters. Everything that integrates with a fixed step goes through `integ
 
 With `max_steps` given, the step count may be a run-time value: the scan runs in blocks of
 `BLOCK` steps inside a loop, so one compilation serves every step size (output rows past the
-last step are NaN)."""
+last step are NaN).
+
+A batch runs in chunks of at most `CHUNK` trajectories with the batch as the last axis of
+the carried state: each component is then a contiguous row that XLA vectorises, and a chunk's
+state stays in cache through all its steps. With several host devices the
+chunks are shared out among them, one core each: see `use_all_cores`."""
+import os
 from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 from jax import lax
+from jax.sharding import Mesh, PartitionSpec
 
 BLOCK = 32
+# Trajectories per chunk: 5 float64 states x 512 = 20 kB per stage value, inside L2 with
+# every stage of RK4; measured at batch 1e5 (rk4, 500 steps, 2 cores) 512 beat 128 and 4096.
+CHUNK = 512
 
 
 class Trajectory(NamedTuple):
@@ -23,35 +34,32 @@ def _bound(f, u, p):
     return lambda t, y: f(t, y, u, p)
 
 
-def _integrate(method, f, x0, u, p, h, n_steps, t0, max_steps):
-    fun = _bound(f, u, p)
-    h = jnp.asarray(h, x0.dtype)
-    m = method.n_start
-    ys0, state = method.start(fun, t0, x0, h)
-    y_m = ys0[-1] if m else x0
+def _scan(start, step, x0, h, n_start, n_steps, t0, max_steps):
+    """States (N+1, *x0.shape) and the final method state; `start(t0, x0)` gives the starter's
+    (ys, state), `step(t, y, state)` one step. Only the step index k is a scalar, so y may
+    carry a trailing batch axis."""
+    ys0, state = start(t0, x0)
+    y_m = ys0[-1] if n_start else x0
 
     def body(carry, _):
         k, y, st = carry
-        y, st = method.step(fun, t0 + k * h, y, h, st)
+        y, st = step(t0 + k * h, y, st)
         return (k + 1, y, st), y
 
     if max_steps is None:
-        count = max(n_steps - m, 0)
-        (_, _, state), ys = lax.scan(body, (m, y_m, state), None, length=count)
+        count = max(n_steps - n_start, 0)
+        (_, _, state), ys = lax.scan(body, (n_start, y_m, state), None, length=count)
         xs = jnp.concatenate([x0[None], ys0, ys])[: n_steps + 1]
-        if n_steps < m:
-            state = dict(state, evals=jnp.nan)
-    else:
-        xs, state = _blocked(body, method, x0, ys0, y_m, state, n_steps, max_steps)
-    ts = t0 + h * jnp.arange(xs.shape[0])
-    return Trajectory(ts, xs, state["evals"])
+        if n_steps < n_start:
+            state = dict(state, evals=jnp.full_like(state["evals"], jnp.nan))
+        return xs, state
+    return _blocked(body, x0, ys0, y_m, state, n_start, n_steps, max_steps)
 
 
-def _blocked(body, method, x0, ys0, y_m, state, n_steps, max_steps):
+def _blocked(body, x0, ys0, y_m, state, m, n_steps, max_steps):
     """Run-time step count: blocks of BLOCK steps; steps past n_steps leave the carry alone."""
-    m = method.n_start
     n_blocks_max = -(-(max_steps - m) // BLOCK)
-    buf = jnp.full((n_blocks_max * BLOCK, x0.shape[0]), jnp.nan, x0.dtype)
+    buf = jnp.full((n_blocks_max * BLOCK,) + x0.shape, jnp.nan, x0.dtype)
 
     def masked(carry, x):
         new, y = body(carry, x)
@@ -62,18 +70,88 @@ def _blocked(body, method, x0, ys0, y_m, state, n_steps, max_steps):
     def block(i, c):
         carry, buf = c
         carry, ys = lax.scan(masked, carry, None, length=BLOCK)
-        return carry, lax.dynamic_update_slice(buf, ys, (i * BLOCK, 0))
+        return carry, lax.dynamic_update_slice(buf, ys, (i * BLOCK,) + (0,) * x0.ndim)
 
     n_blocks = (jnp.maximum(n_steps - m, 0) + BLOCK - 1) // BLOCK
     (_, _, state), buf = lax.fori_loop(0, n_blocks, block, ((m, y_m, state), buf))
     xs = jnp.concatenate([x0[None], ys0, buf])[: max_steps + 1]
-    rows = jnp.arange(max_steps + 1)[:, None]
+    rows = jnp.arange(max_steps + 1).reshape((-1,) + (1,) * x0.ndim)
     return jnp.where(rows <= n_steps, xs, jnp.nan), state
 
 
+def _integrate(method, f, x0, u, p, h, n_steps, t0, max_steps):
+    fun = _bound(f, u, p)
+    h = jnp.asarray(h, x0.dtype)
+    xs, state = _scan(lambda t, y: method.start(fun, t, y, h),
+                      lambda t, y, st: method.step(fun, t, y, h, st),
+                      x0, h, method.n_start, n_steps, t0, max_steps)
+    ts = t0 + h * jnp.arange(xs.shape[0])
+    return Trajectory(ts, xs, state["evals"])
+
+
+def _chunk(method, f, x0, u, p, h, n_steps, t0, max_steps):
+    """A chunk with the batch last: x0 (d, C), u (nu, C), p leaves (..., C), h (C,) or ().
+    Returns xs (N+1, d, C) and evals (C,)."""
+    h = jnp.asarray(h, x0.dtype)
+    h_axis = -1 if jnp.ndim(h) else None
+
+    def start(t, y, uu, pp, hh):
+        return method.start(_bound(f, uu, pp), t, y, hh)
+
+    def step(t, y, st, uu, pp, hh):
+        return method.step(_bound(f, uu, pp), t, y, hh, st)
+
+    vstart = jax.vmap(start, in_axes=(None, -1, -1, -1, h_axis), out_axes=-1)
+    vstep = jax.vmap(step, in_axes=(h_axis, -1, -1, -1, -1, h_axis), out_axes=-1)
+    # A multistep start returns ys of shape (n_start, d, C) with the batch last as well.
+    xs, state = _scan(lambda t, y: vstart(t, y, u, p, h),
+                      lambda t, y, st: vstep(t, y, st, u, p, h),
+                      x0, h, method.n_start, n_steps, t0, max_steps)
+    return xs, state["evals"]
+
+
+def _split(a, n_chunks, size):
+    """(B, ...) -> (n_chunks, ..., size), padding the batch with copies of its first row."""
+    a = jnp.asarray(a)
+    pad = n_chunks * size - a.shape[0]
+    if pad:
+        a = jnp.concatenate([a, jnp.broadcast_to(a[:1], (pad,) + a.shape[1:])])
+    return jnp.moveaxis(a.reshape((n_chunks, size) + a.shape[1:]), 1, -1)
+
+
 def _batch(method, f, x0, u, p, h, n_steps, t0, max_steps):
-    one = lambda x, uu, pp, hh: _integrate(method, f, x, uu, pp, hh, n_steps, t0, max_steps)
-    return jax.vmap(one, in_axes=(0, 0, 0, 0 if jnp.ndim(h) else None))(x0, u, p, h)
+    x0 = jnp.asarray(x0)
+    batch = x0.shape[0]
+    devices = jax.devices("cpu")
+    shards = len(devices) if batch >= 2 * CHUNK * len(devices) else 1
+    size = min(CHUNK, -(-batch // shards))
+    n_chunks = -(-batch // (size * shards)) * shards
+    args = jax.tree.map(lambda a: _split(a, n_chunks, size), (x0, u, p))
+    h_chunks = _split(h, n_chunks, size) if jnp.ndim(h) else jnp.broadcast_to(h, (n_chunks,))
+
+    def run(args, hs):
+        return lax.map(lambda a: _chunk(method, f, *a[0], a[1], n_steps, t0, max_steps),
+                       (args, hs))
+
+    if shards > 1:
+        mesh = Mesh(np.array(devices[:shards]), ("chunks",))
+        run = jax.shard_map(run, mesh=mesh, in_specs=PartitionSpec("chunks"),
+                            out_specs=PartitionSpec("chunks"))
+    xs, evals = run(args, h_chunks)
+    # (chunks, N+1, d, C) -> (B, N+1, d)
+    xs = jnp.moveaxis(xs, -1, 1).reshape((n_chunks * size,) + xs.shape[1:3])[:batch]
+    steps = jnp.arange(xs.shape[1])
+    ts = t0 + (h[:, None] * steps if jnp.ndim(h) else jnp.broadcast_to(h * steps, xs.shape[:2]))
+    return Trajectory(ts, xs, evals.reshape(-1)[:batch])
+
+
+def use_all_cores() -> int:
+    """One host device per core, so that batches of at least 2 CHUNK per device are shared
+    among all cores (measured at batch 1e5, rk4: about 1.9x on 2 cores). Call it before the
+    first JAX computation, since XLA fixes the device count when it starts (or set
+    XLA_FLAGS=--xla_force_host_platform_device_count=N); returns the device count."""
+    jax.config.update("jax_num_cpu_devices", os.cpu_count())
+    return len(jax.devices("cpu"))
 
 
 _STATIC = ("method", "f", "n_steps", "max_steps")
