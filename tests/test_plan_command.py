@@ -50,7 +50,8 @@ def test_plan_json_holds_the_contract(planned):
     scenario = load_scenario("obstacles_between")
     assert record["status"] == "exact" and record["reason"]
     assert STATS <= set(record["stats"]) and record["stats"]["seed"] == 0
-    assert record["stats"]["method"] == "rk4" and record["stats"]["h"] == 0.02
+    shipped = load_config()
+    assert (record["stats"]["method"], record["stats"]["h"]) == (shipped.method, shipped.h)
     assert record["vehicle"]["length"] == 4.508 and record["vehicle"]["width"] == 1.61
     assert record["start"] == list(scenario.start) and record["goal"] == list(scenario.goal)
     assert set(record["params"]) == set(PARAMS)
@@ -144,10 +145,24 @@ def test_a_config_sets_the_integrator_and_overrides_params(tmp_path):
     assert record["params"]["mindist"] == 7.5 and record["config"]["provenance"] == "a test"
 
 
-def test_the_shipped_default_is_rk4_at_20_ms_and_says_it_is_a_placeholder():
+def test_the_shipped_default_is_a_tune_output_stable_across_the_default_envelope():
+    """The shipped (method, h) came from `stepzoo tune` on the default envelope: it says so,
+    and it is inside its method's stability limit, with the tuning margin, at the stiffest
+    corner of that envelope (2 m/s, every steer)."""
+    import tomllib
+
+    import dynamics
+    from dynamics.linear import lateral_eigenvalues
+    from integrators import method
+    from integrators.stability import max_stable_step
     config = load_config()
-    assert (config.method, config.h) == ("rk4", 0.02)
-    assert "placeholder" in config.provenance and config.source == str(DEFAULT_CONFIG)
+    assert config.source == str(DEFAULT_CONFIG) and "default envelope" in config.provenance
+    raw = tomllib.loads(DEFAULT_CONFIG.read_text())
+    assert len(raw["sweep_config_sha256"]) == 64 and raw["why"].startswith(config.method)
+    p = dynamics.physical(None)
+    for delta in (-0.785, 0.0, 0.785):
+        h_max = max_stable_step(method(config.method), lateral_eigenvalues(2.0, delta, p))
+        assert config.h <= (1 - raw["margin"]) * h_max * 1.01
 
 
 @pytest.mark.parametrize("text, words", [
