@@ -19,9 +19,10 @@ from jax import lax
 from jax.sharding import Mesh, PartitionSpec
 
 BLOCK = 32
-# Trajectories per chunk: 5 float64 states x 512 = 20 kB per stage value, inside L2 with
-# every stage of RK4; measured at batch 1e5 (rk4, 500 steps, 2 cores) 512 beat 128 and 4096.
-CHUNK = 512
+# Trajectories per chunk: 5 float64 states x 256 = 10 kB per stage value, so every stage of
+# a step stays in L1/L2. Measured at batch 4e4 (rk4, fast_trig, 2 devices, load 5-7 on 2
+# cores, so noisy): 64-256 gave 4.4e6-9.7e6 trajectory-steps/s, 512-8192 gave 4.7e6-5.8e6.
+CHUNK = 256
 
 
 class Trajectory(NamedTuple):
