@@ -1,0 +1,64 @@
+"""Driver throughput (trajectory-steps per second) per method and batch size, on the generic
+model and, for rk4, with `fast_trig`; compile time per method apart from run time."""
+from time import perf_counter
+
+import jax
+import pytest
+
+from bench.perf.workload import H_S, MODEL, N_STEPS, problem
+from integrators import integrate_batch, method
+from integrators.fast_trig import fast_trig
+
+BATCHES = (1, 100, 10_000, 100_000)
+ROUNDS = {1: 30, 100: 10, 10_000: 3, 100_000: 2}
+METHODS = ("rk4", "dopri5", "ab4", "trapezoidal")
+
+
+def n_steps(name, batch):
+    """Newton makes trapezoidal ~30x slower per step: fewer steps keep its big batches to
+    seconds; throughput per trajectory-step is still comparable."""
+    return N_STEPS if name != "trapezoidal" else max(10, min(N_STEPS, 2_000_000 // batch))
+
+
+def _run(meth, f, args, n):
+    return lambda: jax.block_until_ready(integrate_batch(meth, f, *args, H_S, n).x)
+
+
+@pytest.mark.parametrize("batch", BATCHES)
+@pytest.mark.parametrize("name", METHODS)
+def test_driver(benchmark, name, batch):
+    n = n_steps(name, batch)
+    benchmark.extra_info.update(kind="driver", method=name, batch=batch, n_steps=n,
+                                work=batch * n, rhs="model")
+    benchmark.pedantic(_run(method(name), MODEL.rhs, problem(batch), n),
+                       rounds=ROUNDS[batch], warmup_rounds=1)
+
+
+@pytest.mark.parametrize("batch", BATCHES)
+def test_driver_fast_trig(benchmark, batch):
+    benchmark.extra_info.update(kind="driver", method="rk4", batch=batch, n_steps=N_STEPS,
+                                work=batch * N_STEPS, rhs="fast_trig")
+    benchmark.pedantic(_run(method("rk4"), fast_trig(MODEL.rhs), problem(batch), N_STEPS),
+                       rounds=ROUNDS[batch], warmup_rounds=1)
+
+
+@pytest.mark.parametrize("name", METHODS)
+def test_compile(benchmark, name):
+    """First call at batch 100 with a step count not compiled before (so each round compiles
+    afresh), less the run time of a compiled call: the compile time [s]."""
+    meth, args = method(name), problem(100)
+    counts = iter(range(N_STEPS + 1, N_STEPS + 100))
+    first = lambda n: jax.block_until_ready(integrate_batch(meth, MODEL.rhs, *args, H_S, n).x)
+    benchmark.pedantic(first, setup=lambda: ((next(counts),), {}), rounds=3)
+    benchmark.extra_info.update(kind="compile", method=name,
+                                run_s=_min_time(_run(meth, MODEL.rhs, args, N_STEPS + 1)))
+
+
+def _min_time(fn, reps=5):
+    """Best of `reps` calls [s]."""
+    best = float("inf")
+    for _ in range(reps):
+        t0 = perf_counter()
+        fn()
+        best = min(best, perf_counter() - t0)
+    return best

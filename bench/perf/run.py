@@ -1,0 +1,190 @@
+"""`make bench`: run the pytest-benchmark modules of bench/perf in one process, then write
+bench/results/latest.json ({"ratios", "figures", "machine"}) and latest.md, and name every
+figure more than 20% worse than in the previous latest.json.
+
+Usage: python -m bench.perf.run [-k EXPR]   (-k selects benchmarks, as in pytest)"""
+import json
+import os
+import platform
+import subprocess
+import sys
+import tempfile
+from datetime import datetime, timezone
+from pathlib import Path
+from statistics import median
+
+ROOT = Path(__file__).resolve().parents[2]
+RESULTS = ROOT / "bench" / "results"
+WORSE = 0.20   # a figure this much worse than the previous run is named
+TARGETS = {"rk4_b1e5_vs_numba_fastmath": (">=", 0.7), "rk4_b1e5_vs_diffrax": (">=", 4.0),
+           "rk4_b1_vs_numba_serial": (">=", 0.8), "sweep_vs_driver": ("<=", 1.5),
+           "plan_search_s_median": ("<=", 0.1), "plan_connect_s_median": ("<=", 0.02)}
+LABEL = {1: "1", 100: "100", 10_000: "1e4", 100_000: "1e5"}
+
+
+def run_benchmarks(json_path: Path, select: list[str]) -> int:
+    """pytest on bench/perf with one host device per core, so that the driver can share a
+    batch among them (XLA reads the flag when JAX starts, hence the subprocess)."""
+    env = dict(os.environ)
+    env["XLA_FLAGS"] = (env.get("XLA_FLAGS", "") +
+                        f" --xla_force_host_platform_device_count={os.cpu_count()}").strip()
+    cmd = [sys.executable, "-m", "pytest", str(ROOT / "bench" / "perf"), "-p", "no:cacheprovider",
+           "-o", "python_files=bench_*.py", "-o", "addopts=", "-q",
+           f"--benchmark-json={json_path}", "--benchmark-columns=min,median,rounds",
+           *select]
+    return subprocess.run(cmd, cwd=ROOT, env=env).returncode
+
+
+def figures_of(benchmarks: list[dict]) -> dict:
+    """Flat figures: throughputs [trajectory-steps/s] from the best and the median round,
+    times [s]; None where a benchmark did not run."""
+    fig = {}
+    for b in benchmarks:
+        info, st = b["extra_info"], b["stats"]
+        kind = info.get("kind")
+        if kind in ("driver", "baseline"):
+            who = (f"driver_{info['method']}" + ("_fast_trig" if info["rhs"] == "fast_trig"
+                                                 else "")) if kind == "driver" else info["baseline"]
+            key = f"{who}_b{LABEL[info['batch']]}_steps_per_s"
+            fig[key] = info["work"] / st["min"]
+            fig[key + "_median"] = info["work"] / st["median"]
+        elif kind == "compile":
+            fig[f"compile_{info['method']}_s"] = max(st["min"] - info["run_s"], 0.0)
+        elif kind == "connect":
+            fig[f"connect_{info['shooting']}_s_median"] = st["median"] / info["problems"]
+            fig[f"connect_{info['shooting']}_solved"] = info["solved"] / info["problems"]
+        elif kind == "sweep":
+            t = info["timing"]
+            for name, s in t["compile_s"].items():
+                fig[f"sweep_compile_{name}_s"] = s
+            fig["sweep_compile_s"] = sum(t["compile_s"].values())
+            for part in ("reference_s", "integration_s", "stability_s", "metrics_s", "total_s"):
+                fig[f"sweep_{part}"] = t[part]
+            fig["sweep_driver_replay_s"] = info["driver_s"]
+        elif kind == "planner":
+            rows = info["scenarios"]
+            for name, r in rows.items():
+                fig[f"plan_{name}_search_s"] = r["search_s"]
+                fig[f"plan_{name}_connect_s"] = r["connect_s"]
+            fig["plan_search_s_median"] = median(r["search_s"] for r in rows.values())
+            fig["plan_connect_s_median"] = median(r["connect_s"] for r in rows.values())
+            fig["plan_exact"] = sum(r["status"] == "exact" for r in rows.values()) / len(rows)
+    return fig
+
+
+def ratios_of(fig: dict) -> dict:
+    """Driver over baseline throughput (higher is better), both from their best rounds of
+    the same run; sweep integration time over raw driver time (lower is better)."""
+    def ratio(a, b):
+        return fig[a] / fig[b] if a in fig and b in fig else None
+
+    out = {}
+    for rhs, tag in (("_fast_trig", ""), ("", "_plain")):
+        drv = f"driver_rk4{rhs}"
+        out[f"rk4_b1e5{tag}_vs_numba_fastmath"] = ratio(f"{drv}_b1e5_steps_per_s",
+                                                        "numba_fastmath_b1e5_steps_per_s")
+        out[f"rk4_b1e5{tag}_vs_diffrax"] = ratio(f"{drv}_b1e5_steps_per_s",
+                                                 "diffrax_b1e5_steps_per_s")
+        out[f"rk4_b1{tag}_vs_numba_serial"] = ratio(f"{drv}_b1_steps_per_s",
+                                                    "numba_serial_b1_steps_per_s")
+        out[f"rk4_b1e5{tag}_vs_numpy"] = ratio(f"{drv}_b1e5_steps_per_s",
+                                               "numpy_b1e5_steps_per_s")
+        out[f"rk4_b1{tag}_vs_scipy_dop853"] = ratio(f"{drv}_b1_steps_per_s",
+                                                    "scipy_dop853_b1_steps_per_s")
+    out["sweep_vs_driver"] = ratio("sweep_integration_s", "sweep_driver_replay_s")
+    out["connect_single_vs_multiple"] = ratio("connect_single_s_median",
+                                              "connect_multiple_s_median")
+    return out
+
+
+def higher_is_better(name: str) -> bool:
+    return (name.endswith(("steps_per_s", "steps_per_s_median", "solved", "exact"))
+            or ("_vs_" in name and name != "sweep_vs_driver"
+                and not name.startswith("connect_")))
+
+
+def regressions(old: dict, new: dict) -> list[str]:
+    """Names (with old -> new) of figures and ratios more than WORSE worse than before."""
+    worse = []
+    for section in ("ratios", "figures"):
+        for name, v in new[section].items():
+            before = old.get(section, {}).get(name)
+            if v is None or before in (None, 0):
+                continue
+            change = v / before - 1
+            if (-change if higher_is_better(name) else change) > WORSE:
+                worse.append(f"{name}: {before:.4g} -> {v:.4g} ({change:+.0%})")
+    return worse
+
+
+def machine() -> dict:
+    import jax
+    cpu = next((line.split(":", 1)[1].strip() for line in
+                Path("/proc/cpuinfo").read_text().splitlines() if line.startswith("model name")),
+               platform.processor()) if Path("/proc/cpuinfo").exists() else platform.processor()
+    commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT,
+                            capture_output=True, text=True).stdout.strip()
+    return {"cpu": cpu, "cores": os.cpu_count(), "python": platform.python_version(),
+            "jax": jax.__version__, "platform": platform.platform(), "commit": commit,
+            "date": datetime.now(timezone.utc).isoformat(timespec="seconds")}
+
+
+def markdown(result: dict, worse: list[str]) -> str:
+    m = result["machine"]
+    lines = [f"# stepzoo benchmarks ({m['date']}, commit {m['commit']})", "",
+             f"{m['cpu']}, {m['cores']} cores, load average {m['load_before']} before and "
+             f"{m['load_after']} after: the machine is shared, so compare ratios (both sides "
+             "measured in this run), not raw figures.", "",
+             "| ratio | value | target | met |", "|---|---|---|---|"]
+    for name, v in result["ratios"].items():
+        op, goal = TARGETS.get(name, ("", None))
+        met = "" if goal is None or v is None else ("yes" if (v >= goal if op == ">=" else
+                                                              v <= goal) else "no")
+        lines.append(f"| {name} | {_fmt(v)} | {op} {goal if goal is not None else ''} | {met} |")
+    lines += ["", "| figure | value | target | met |", "|---|---|---|---|"]
+    for name, v in result["figures"].items():
+        op, goal = TARGETS.get(name, ("", None))
+        met = "" if goal is None or v is None else ("yes" if (v >= goal if op == ">=" else
+                                                              v <= goal) else "no")
+        lines.append(f"| {name} | {_fmt(v)} | {op} {goal if goal is not None else ''} | {met} |")
+    lines += ["", "## More than 20% worse than the previous run", ""]
+    lines += [f"- {w}" for w in worse] or ["none"]
+    return "\n".join(lines) + "\n"
+
+
+def _fmt(v):
+    return "null" if v is None else f"{v:.4g}"
+
+
+def main(argv=None) -> int:
+    argv = sys.argv[1:] if argv is None else argv
+    load_before = os.getloadavg()[0]
+    with tempfile.TemporaryDirectory() as tmp:
+        raw = Path(tmp) / "raw.json"
+        code = run_benchmarks(raw, argv)
+        if not raw.exists():
+            print("benchmarks did not run; nothing written", file=sys.stderr)
+            return code or 1
+        benchmarks = json.loads(raw.read_text())["benchmarks"]
+    fig = figures_of(benchmarks)
+    result = {"ratios": ratios_of(fig), "figures": fig,
+              "machine": dict(machine(), load_before=round(load_before, 2),
+                              load_after=round(os.getloadavg()[0], 2))}
+    latest = RESULTS / "latest.json"
+    old = json.loads(latest.read_text()) if latest.exists() else {}
+    worse = regressions(old, result)
+    RESULTS.mkdir(parents=True, exist_ok=True)
+    for path, text in ((latest, json.dumps(result, indent=1) + "\n"),
+                       (RESULTS / "latest.md", markdown(result, worse))):
+        tmp_path = path.with_suffix(path.suffix + ".tmp")
+        tmp_path.write_text(text)
+        tmp_path.replace(path)
+    for name, v in result["ratios"].items():
+        print(f"{name:40s} {_fmt(v)}")
+    print("more than 20% worse than the previous run: " + ("; ".join(worse) or "none"))
+    print(f"wrote {latest} and {RESULTS / 'latest.md'}")
+    return code
+
+
+if __name__ == "__main__":
+    sys.exit(main())
