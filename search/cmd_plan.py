@@ -1,6 +1,6 @@
 """`stepzoo plan`: plan a built-in scenario, a scenario file, or a query on a map file with the
-tree planner, and write plan.json, plan.png and map.npy; `--all` plans every built-in scenario
-and writes a summary table. Outputs are written only after planning, each atomically."""
+tree planner into plan.json, plan.png and map.npy; `--all` or a batch of scenarios (on a Dask
+cluster with --scheduler) adds a summary table. Outputs are written after planning, atomically."""
 import csv
 import io
 import json
@@ -16,8 +16,9 @@ SUMMARY_COLUMNS = ["scenario", "status", "expansions", "nodes", "search_s", "con
 
 
 def add_arguments(p):
-    p.add_argument("scenario", nargs="?", metavar="SCENARIO",
-                   help="a built-in scenario name or a scenario .toml file")
+    p.add_argument("scenario", nargs="*", metavar="SCENARIO",
+                   help="a built-in scenario name or a scenario .toml file; several are a "
+                   "batch, written like --all")
     p.add_argument("--all", action="store_true", help="plan every built-in scenario")
     p.add_argument("--map", metavar="FILE", help="map file (.yaml ROS, .map MovingAI, .png/.pgm, "
                    ".npy) to plan on instead of a scenario")
@@ -34,6 +35,8 @@ def add_arguments(p):
     p.add_argument("--out", required=True, metavar="DIR", help="output folder")
     p.add_argument("--format", choices=["text", "json"], default="text",
                    help="what is printed: a line/table, or JSON")
+    p.add_argument("--scheduler", metavar="ADDRESS", help="plan on a Dask cluster, one task "
+                   "per scenario: tcp://HOST:8786, or local:N worker processes here")
 
 
 def _numbers(text, flag):
@@ -49,7 +52,7 @@ def _scenarios(args):
     from search.scenarios import builtin_names, custom_scenario, load_scenario, pose
     query = [f for f, v in (("--start", args.start), ("--goal", args.goal),
                             ("--cell-size", args.cell_size)) if v is not None]
-    chosen = [f for f, v in (("SCENARIO", args.scenario), ("--all", args.all or None),
+    chosen = [f for f, v in (("SCENARIO", args.scenario or None), ("--all", args.all or None),
                              ("--map", args.map)) if v is not None]
     if len(chosen) != 1:
         raise UsageError("give exactly one of SCENARIO, --all or --map FILE "
@@ -62,8 +65,11 @@ def _scenarios(args):
         start = pose(_numbers(args.start, "--start"), "--start")
         goal = pose(_numbers(args.goal, "--goal"), "--goal", allow_speed=True)
         return [custom_scenario(args.map, args.cell_size, start, goal, args.speed)]
-    names = builtin_names() if args.all else [args.scenario]
+    names = builtin_names() if args.all else args.scenario
     scenarios = [load_scenario(n) for n in names]
+    if len({s.name for s in scenarios}) < len(scenarios):
+        raise UsageError("two scenarios of the batch have the same name (each is written to "
+                         "a folder of its name); rename one file")
     if args.speed is not None:
         from search.scenarios import speed
         vx = speed(args.speed, "--speed")
@@ -97,15 +103,18 @@ def main(args) -> int:
         raise UsageError(f"--out {out} exists and is not a folder; give a folder")
     config = load_config(args.config)
     scenarios = _scenarios(args)
-    records = []
-    for scenario in scenarios:
-        record = plan_scenario(scenario, config, args.seed)
+    if args.scheduler is None:
+        records = [plan_scenario(s, config, args.seed) for s in scenarios]
+    else:
+        from bench.distributed import connect, gather_in_order
+        with connect(args.scheduler) as client:
+            records = gather_in_order(client, plan_scenario, scenarios, config, args.seed)
+    for record in records:
         if record["cause"] in ("start_off_map", "start_in_collision", "goal_off_map",
                                "goal_in_collision"):
             # The poses are the user's input: no plan is written for a pose that cannot be.
             raise UsageError(f"{record['reason']}; choose a pose in free space on the map")
-        records.append(record)
-    if not args.all:
+    if len(records) == 1 and not args.all:
         path = write_plan(out, records[0], scenarios[0])
         if args.format == "json":
             sys.stdout.write(json.dumps(_summary_row(records[0])) + "\n")
