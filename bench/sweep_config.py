@@ -6,13 +6,13 @@ from __future__ import annotations
 import hashlib
 import json
 import math
-import tomllib
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import numpy as np
 
 from bench.errors import UsageError
+from bench.validate import read_toml
 
 TOP = {"name", "model", "vehicle", "horizon", "methods", "envelope", "steps", "reference",
        "stability", "chunks", "trajectories"}
@@ -70,14 +70,7 @@ class SweepConfig:
 
 def load(path) -> SweepConfig:
     """Read and validate a sweep TOML; UsageError (one line per mistake) if it is wrong."""
-    path = Path(path)
-    if not path.is_file():
-        raise UsageError(f"sweep config {path} not found; give a TOML file such as "
-                         "bench/configs/small.toml")
-    try:
-        raw = tomllib.loads(path.read_text())
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as err:
-        raise UsageError(f"{path}: not valid TOML ({err}); fix the file") from None
+    raw = read_toml(path, "sweep config", "give a TOML file such as bench/configs/small.toml")
     return validate(raw, str(path))
 
 

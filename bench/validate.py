@@ -1,5 +1,7 @@
 """Checks of user input shared by the commands: each failure is one UsageError line."""
 import math
+import tomllib
+from pathlib import Path
 
 from bench.errors import UsageError
 
@@ -16,3 +18,15 @@ def lookup(kind: str, fetch, name):
         return fetch(name)
     except KeyError as err:
         raise UsageError(f"{err.args[0]} (choose a {kind} from that list)") from None
+
+
+def read_toml(path, what: str, hint: str) -> dict:
+    """The table of a TOML file; a missing file or bad TOML is one UsageError line (`what`
+    names the file's role, `hint` says what to give instead)."""
+    path = Path(path)
+    if not path.is_file():
+        raise UsageError(f"{what} {path} not found; {hint}")
+    try:
+        return tomllib.loads(path.read_text())
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as err:
+        raise UsageError(f"{path}: not valid TOML ({err}); fix the file") from None

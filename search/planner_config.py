@@ -5,11 +5,11 @@ A config TOML has top-level `method` and `h`; an optional `[planner]` table over
 from __future__ import annotations
 
 import math
-import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 
 from bench.errors import UsageError
+from bench.validate import read_toml
 
 DEFAULT_CONFIG = Path(__file__).with_name("tuned_default.toml")
 
@@ -97,13 +97,7 @@ def load_config(path=None) -> PlannerConfig:
     """Read a planner config TOML (default: the shipped tuned_default.toml); unknown top-level
     keys (what `stepzoo tune` adds: why, pos_tol_m, runners_up, ...) are ignored."""
     path = Path(path) if path is not None else DEFAULT_CONFIG
-    if not path.is_file():
-        raise UsageError(f"planner config not found: {path}; give a TOML file written by "
-                         "`stepzoo tune`")
-    try:
-        data = tomllib.loads(path.read_text())
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as err:
-        raise UsageError(f"{path} is not valid TOML ({err}); fix the file") from None
+    data = read_toml(path, "planner config", "give a TOML file written by `stepzoo tune`")
     missing = [k for k in ("method", "h") if k not in data]
     if missing:
         raise UsageError(f"{path} lacks {' and '.join(missing)}; a planner config needs "
