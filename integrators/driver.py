@@ -136,8 +136,11 @@ def _batch(method, f, x0, u, p, h, n_steps, t0, max_steps):
 
     if shards > 1:
         mesh = Mesh(np.array(devices[:shards]), ("chunks",))
+        # Every shard runs the same code on its own chunks; without check_vma=False the
+        # Newton while_loop of implicit methods is refused for mixing per-shard and shared
+        # values in its carry, which is harmless here.
         run = jax.shard_map(run, mesh=mesh, in_specs=PartitionSpec("chunks"),
-                            out_specs=PartitionSpec("chunks"))
+                            out_specs=PartitionSpec("chunks"), check_vma=False)
     xs, evals = run(args, h_chunks)
     # (chunks, N+1, d, C) -> (B, N+1, d)
     xs = jnp.moveaxis(xs, -1, 1).reshape((n_chunks * size,) + xs.shape[1:3])[:batch]
