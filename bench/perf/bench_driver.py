@@ -10,7 +10,7 @@ from integrators import integrate_batch, method
 from integrators.fast_trig import fast_trig
 
 BATCHES = (1, 100, 10_000, 100_000)
-ROUNDS = {1: 30, 100: 10, 10_000: 3, 100_000: 2}
+ROUNDS = {1: 30, 100: 10, 10_000: 3, 100_000: 1}   # plus a warm-up round each
 METHODS = ("rk4", "dopri5", "ab4", "trapezoidal")
 
 
@@ -30,16 +30,18 @@ def test_driver(benchmark, name, batch):
     n = n_steps(name, batch)
     benchmark.extra_info.update(kind="driver", method=name, batch=batch, n_steps=n,
                                 work=batch * n, rhs="model")
-    benchmark.pedantic(_run(method(name), MODEL.rhs, problem(batch), n),
-                       rounds=ROUNDS[batch], warmup_rounds=1)
+    rounds = max(ROUNDS[batch], 2) if name == "rk4" else ROUNDS[batch]
+    benchmark.pedantic(_run(method(name), MODEL.rhs, problem(batch), n), rounds=rounds,
+                       warmup_rounds=1)
 
 
 @pytest.mark.parametrize("batch", BATCHES)
 def test_driver_fast_trig(benchmark, batch):
     benchmark.extra_info.update(kind="driver", method="rk4", batch=batch, n_steps=N_STEPS,
                                 work=batch * N_STEPS, rhs="fast_trig")
+    # rk4 at batch 1e5 is the headline ratio: a second round against load spikes.
     benchmark.pedantic(_run(method("rk4"), fast_trig(MODEL.rhs), problem(batch), N_STEPS),
-                       rounds=ROUNDS[batch], warmup_rounds=1)
+                       rounds=max(ROUNDS[batch], 2), warmup_rounds=1)
 
 
 @pytest.mark.parametrize("name", METHODS)
