@@ -124,7 +124,11 @@ def _batch(method, f, x0, u, p, h, n_steps, t0, max_steps):
     x0 = jnp.asarray(x0)
     batch = x0.shape[0]
     devices = jax.devices("cpu")
-    shards = len(devices) if batch >= 2 * CHUNK * len(devices) else 1
+    # Implicit methods and run-time step counts stay on one device: shard_map refuses the
+    # carry of their while loops (per-shard values mixed with shared ones), and with that
+    # check off two devices hung in Newton's loop (XLA CPU, jax 0.10.2).
+    shareable = not method.implicit and max_steps is None
+    shards = len(devices) if shareable and batch >= 2 * CHUNK * len(devices) else 1
     size = min(CHUNK, -(-batch // shards))
     n_chunks = -(-batch // (size * shards)) * shards
     args = jax.tree.map(lambda a: _split(a, n_chunks, size), (x0, u, p))
@@ -136,11 +140,8 @@ def _batch(method, f, x0, u, p, h, n_steps, t0, max_steps):
 
     if shards > 1:
         mesh = Mesh(np.array(devices[:shards]), ("chunks",))
-        # Every shard runs the same code on its own chunks; without check_vma=False the
-        # Newton while_loop of implicit methods is refused for mixing per-shard and shared
-        # values in its carry, which is harmless here.
         run = jax.shard_map(run, mesh=mesh, in_specs=PartitionSpec("chunks"),
-                            out_specs=PartitionSpec("chunks"), check_vma=False)
+                            out_specs=PartitionSpec("chunks"))
     xs, evals = run(args, h_chunks)
     # (chunks, N+1, d, C) -> (B, N+1, d)
     xs = jnp.moveaxis(xs, -1, 1).reshape((n_chunks * size,) + xs.shape[1:3])[:batch]
