@@ -69,6 +69,8 @@ def figures_of(benchmarks: list[dict]) -> dict:
             fig["plan_search_s_median"] = median(r["search_s"] for r in rows.values())
             fig["plan_connect_s_median"] = median(r["connect_s"] for r in rows.values())
             fig["plan_exact"] = sum(r["status"] == "exact" for r in rows.values()) / len(rows)
+        elif kind == "distributed":
+            fig.update(info["figures"])
     return fig
 
 
@@ -98,7 +100,7 @@ def ratios_of(fig: dict) -> dict:
 
 
 def higher_is_better(name: str) -> bool:
-    return (name.endswith(("steps_per_s", "steps_per_s_median", "solved", "exact"))
+    return (name.endswith(("steps_per_s", "steps_per_s_median", "runs_per_s", "solved", "exact"))
             or ("_vs_" in name and name != "sweep_vs_driver"
                 and not name.startswith("connect_")))
 
