@@ -131,25 +131,25 @@ def machine() -> dict:
             "date": datetime.now(timezone.utc).isoformat(timespec="seconds")}
 
 
+def _table(kind: str, values: dict) -> list[str]:
+    """Markdown rows of name, value, target and whether it is met."""
+    rows = [f"| {kind} | value | target | met |", "|---|---|---|---|"]
+    for name, v in values.items():
+        op, goal = TARGETS.get(name, ("", None))
+        met = "" if goal is None or v is None else ("yes" if (v >= goal if op == ">=" else
+                                                              v <= goal) else "no")
+        rows.append(f"| {name} | {_fmt(v)} | {op} {goal if goal is not None else ''} | {met} |")
+    return rows
+
+
 def markdown(result: dict, worse: list[str]) -> str:
     m = result["machine"]
     lines = [f"# stepzoo benchmarks ({m['date']}, commit {m['commit']})", "",
              f"{m['cpu']}, {m['cores']} cores, load average {m['load_before']} before and "
              f"{m['load_after']} after: the machine is shared, so compare ratios (both sides "
              "measured in this run), not raw figures.", "",
-             "| ratio | value | target | met |", "|---|---|---|---|"]
-    for name, v in result["ratios"].items():
-        op, goal = TARGETS.get(name, ("", None))
-        met = "" if goal is None or v is None else ("yes" if (v >= goal if op == ">=" else
-                                                              v <= goal) else "no")
-        lines.append(f"| {name} | {_fmt(v)} | {op} {goal if goal is not None else ''} | {met} |")
-    lines += ["", "| figure | value | target | met |", "|---|---|---|---|"]
-    for name, v in result["figures"].items():
-        op, goal = TARGETS.get(name, ("", None))
-        met = "" if goal is None or v is None else ("yes" if (v >= goal if op == ">=" else
-                                                              v <= goal) else "no")
-        lines.append(f"| {name} | {_fmt(v)} | {op} {goal if goal is not None else ''} | {met} |")
-    lines += ["", "## More than 20% worse than the previous run", ""]
+             *_table("ratio", result["ratios"]), "", *_table("figure", result["figures"]),
+             "", "## More than 20% worse than the previous run", ""]
     lines += [f"- {w}" for w in worse] or ["none"]
     return "\n".join(lines) + "\n"
 
