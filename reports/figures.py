@@ -3,6 +3,7 @@ the report folder and return a `Shown` record with the caption (what it shows, w
 Matplotlib runs headless through the Agg canvas, without pyplot's global state."""
 from __future__ import annotations
 
+import logging
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -17,6 +18,11 @@ from matplotlib.lines import Line2D
 
 from integrators import METHODS
 from integrators.stability import amplification_theory, region_grid
+
+# Log-axis tick labels go through mathtext, which probes STIX fonts that some matplotlib
+# wheels do not ship; the fallback to DejaVu Sans renders the same, so the probe's
+# warnings (20 lines per report) are noise.
+logging.getLogger("matplotlib.font_manager").setLevel(logging.ERROR)
 
 DPI = 100
 NCOLS = 4
