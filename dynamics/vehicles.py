@@ -4,7 +4,6 @@ from functools import cache
 from pathlib import Path
 
 PHYSICAL = ("m", "Iz", "Lf", "Lr", "Caf", "Car")
-FOOTPRINT = ("length", "width")
 
 
 @cache

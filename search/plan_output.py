@@ -16,7 +16,7 @@ from search.pathfinder import PlanResult
 from search.scenarios import Scenario
 
 MAX_GAP_M = 0.1       # no two consecutive path rows farther apart [m] (the report's contract)
-ROW_SPACING_M = 0.05  # spacing the path is filled to, half the contract for rounding room
+ROW_SPACING_M = MAX_GAP_M / 2  # spacing the path is filled to: half, for rounding room
 TREE_POINTS = 6       # points kept per tree edge: the picture needs shape, not every step
 
 
