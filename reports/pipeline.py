@@ -9,12 +9,12 @@ import sys
 import time
 from pathlib import Path
 
-from bench import errors
+import bench
 from bench.errors import UsageError
 
 # Package data of bench, beside its modules (a module's file, not the package's: an editable
 # install may make bench a namespace package, which has none).
-DEFAULT_CONFIG = Path(errors.__file__).with_name("configs") / "envelope.toml"
+DEFAULT_CONFIG = Path(bench.__file__).with_name("configs") / "envelope.toml"
 
 
 def add_arguments(p):
