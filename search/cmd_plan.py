@@ -94,6 +94,7 @@ def _summary_row(record):
 
 
 def main(args) -> int:
+    from search.pathfinder import BAD_ENDPOINT
     from search.planner_config import load_config
     from search.plan_output import write_plan
     if args.seed < 0:
@@ -110,8 +111,7 @@ def main(args) -> int:
         with connect(args.scheduler) as client:
             records = gather_in_order(client, plan_scenario, scenarios, config, args.seed)
     for record in records:
-        if record["cause"] in ("start_off_map", "start_in_collision", "goal_off_map",
-                               "goal_in_collision"):
+        if record["cause"] in BAD_ENDPOINT:
             # The poses are the user's input: no plan is written for a pose that cannot be.
             raise UsageError(f"{record['reason']}; choose a pose in free space on the map")
     if len(records) == 1 and not args.all:

@@ -20,9 +20,9 @@ from search.point_selector import point_selector, random_points
 from search.shooting import Shooter
 
 EXACT, APPROXIMATE, NO_PATH = "exact", "approximate", "no_path"
-# Why a plan ended. The first four are the caller's input: no search was run.
-CAUSES = ("start_off_map", "start_in_collision", "goal_off_map", "goal_in_collision",
-          "walled_off", "exhausted", "budget", "connections_failed", "connected")
+# Why a plan ended. Bad endpoints are the caller's input: no search was run.
+BAD_ENDPOINT = ("start_off_map", "start_in_collision", "goal_off_map", "goal_in_collision")
+CAUSES = (*BAD_ENDPOINT, "walled_off", "exhausted", "budget", "connections_failed", "connected")
 
 
 @dataclass
