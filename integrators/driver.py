@@ -23,6 +23,10 @@ BLOCK = 32
 # a step stays in L1/L2. Measured at batch 4e4 (rk4, fast_trig, 2 devices, load 5-7 on 2
 # cores, so noisy): 64-256 gave 4.4e6-9.7e6 trajectory-steps/s, 512-8192 gave 4.7e6-5.8e6.
 CHUNK = 256
+# Below this many trajectories the chunk layout has too little to vectorise: a plain vmap of
+# the one-trajectory loop was up to 1.7x faster (rk4 and dopri5, 64 and 500 steps, batch
+# 1-30; even at 60). With a single trajectory, the chunk layout cost 2x.
+SMALL_BATCH = 32
 
 
 class Trajectory(NamedTuple):
@@ -123,6 +127,13 @@ def _split(a, n_chunks, size):
 def _batch(method, f, x0, u, p, h, n_steps, t0, max_steps):
     x0 = jnp.asarray(x0)
     batch = x0.shape[0]
+    one = lambda x, uu, pp, hh: _integrate(method, f, x, uu, pp, hh, n_steps, t0, max_steps)
+    h_axis = 0 if jnp.ndim(h) else None
+    if batch == 1:      # a vmap of one still cost 1.2x (rk4, 500 steps)
+        first = jax.tree.map(lambda a: jnp.asarray(a)[0], (x0, u, p))
+        return jax.tree.map(lambda a: a[None], one(*first, h if h_axis is None else h[0]))
+    if batch < SMALL_BATCH:
+        return jax.vmap(one, in_axes=(0, 0, 0, h_axis))(x0, u, p, h)
     devices = jax.devices("cpu")
     # Implicit methods and run-time step counts stay on one device: shard_map refuses the
     # carry of their while loops (per-shard values mixed with shared ones), and with that

@@ -1,5 +1,6 @@
-"""The fast paths agree with the plain driver to 1e-12 of each trajectory's scale: batches
-in several chunks (padded), shared among host devices, and the vectorisable sin/cos."""
+"""The fast paths agree with the plain driver to 1e-12 of each trajectory's scale: small
+batches (vmapped), batches in several chunks (padded), shared among host devices, and the
+vectorisable sin/cos."""
 import os
 import subprocess
 import sys
@@ -10,7 +11,7 @@ import pytest
 
 import dynamics
 from integrators import integrate, integrate_batch, method
-from integrators.driver import CHUNK
+from integrators.driver import CHUNK, SMALL_BATCH
 from integrators.fast_trig import cos, fast_trig, sin
 
 MODEL = dynamics.model("dynamic5")
@@ -32,20 +33,20 @@ def assert_close(a, b):
     assert np.all(np.abs(a - b) <= 1e-12 * scale)
 
 
-@pytest.mark.parametrize("name", ["rk4", "ab4", "dopri5"])
-def test_batch_in_padded_chunks_equals_one_by_one(name):
-    batch = CHUNK + 3                       # two chunks, the second padded
+@pytest.mark.parametrize("batch", [1, SMALL_BATCH - 1, CHUNK + 3])   # CHUNK + 3: two chunks,
+@pytest.mark.parametrize("name", ["rk4", "ab4", "dopri5"])             # the second padded
+def test_batch_equals_one_by_one(name, batch):
     x0, u, p, ps = envelope(batch)
     tr = integrate_batch(method(name), MODEL.rhs, x0, u, p, 0.002, 60)
     assert tr.x.shape == (batch, 61, 5) and tr.t.shape == (batch, 61)
-    for i in (0, CHUNK - 1, CHUNK, batch - 1):
+    for i in sorted({0, min(CHUNK, batch) - 1, min(CHUNK, batch - 1), batch - 1}):
         one = integrate(method(name), MODEL.rhs, x0[i], u[i], ps[i], 0.002, 60)
         assert_close(tr.x[i], one.x)
         assert float(tr.evals[i]) == float(one.evals)
 
 
-def test_run_time_step_counts_and_step_sizes_per_trajectory_in_chunks():
-    batch = CHUNK + 1
+@pytest.mark.parametrize("batch", [3, CHUNK + 1])
+def test_run_time_step_counts_and_step_sizes_per_trajectory(batch):
     x0, u, p, ps = envelope(batch, seed=1)
     hs = np.linspace(0.0005, 0.003, batch)    # stable for ab4 down to 2 m/s
     tr = integrate_batch(method("ab4"), MODEL.rhs, x0, u, p, hs, jnp.asarray(37), max_steps=80)
