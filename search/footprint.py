@@ -1,17 +1,18 @@
 """Vehicle-footprint collision check: a rectangle covered by equal discs along the heading.
 
 Discs are tested against the map's distance field at every pose, and paths are densified so
-that no disc centre moves more than one disc radius between checked poses.
+that no disc centre moves more than one disc radius between checked poses. Poses far from
+every obstacle are cleared by one distance read at their centre before any disc is placed.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
-from search.maps import OccupancyMap
+from search.maps import SUBDIV, OccupancyMap
 
 
 @dataclass(frozen=True, eq=False)
@@ -22,6 +23,7 @@ class Footprint:
     width: float  # [m] across the heading
     offsets: np.ndarray  # (n,) [m] disc centres along the heading axis from (X, Y)
     radius: float  # [m] every disc's radius
+    reach: float = field(init=False)  # [m] the largest |offset|: no disc centre is farther
 
     def __post_init__(self):
         offsets = np.array(self.offsets, dtype=float).reshape(-1)
@@ -33,6 +35,7 @@ class Footprint:
         offsets.setflags(write=False)
         object.__setattr__(self, "offsets", offsets)
         object.__setattr__(self, "radius", float(self.radius))
+        object.__setattr__(self, "reach", float(np.abs(offsets).max()))
 
     @classmethod
     def from_vehicle(cls, length, width, n_discs=None) -> "Footprint":
@@ -69,8 +72,51 @@ def poses_collide(omap: OccupancyMap, footprint: Footprint, poses) -> np.ndarray
 
     Non-finite poses (a blown-up integration) collide.
     """
-    clearance = omap.clearance(footprint.disc_centres(poses))
-    return np.any(clearance <= footprint.radius, axis=-1)
+    poses = np.asarray(poses, dtype=float)
+    return _collide(omap, footprint, poses[..., 0], poses[..., 1], poses[..., 2])
+
+
+def _collide(omap, footprint, x, y, psi) -> np.ndarray:
+    """poses_collide of poses given as arrays (...) [m, m, rad]: the answer of discs_collide,
+    paid for only by the poses that roomy cannot clear."""
+    hit = np.asarray(~roomy(omap, footprint, x, y, psi))  # an array even for one pose
+    if hit.any():
+        hit[hit] = discs_collide(omap, footprint, x[hit], y[hit], psi[hit])
+    return hit
+
+
+def discs_collide(omap: OccupancyMap, footprint: Footprint, x, y, psi) -> np.ndarray:
+    """Poses as arrays (...) [m, m, rad] -> bool (...): the plain check, disc by disc.
+
+    The disc centres are those of `disc_centres` (the same arithmetic), laid out disc first so
+    that every array operation runs along the poses.
+    """
+    with np.errstate(invalid="ignore"):  # an infinite heading: see disc_centres
+        cos, sin = np.cos(psi), np.sin(psi)
+    offsets = footprint.offsets.reshape(-1, *(1,) * cos.ndim)
+    clearance = omap.clearance_at(x + offsets * cos, y + offsets * sin)
+    return (clearance <= footprint.radius).any(axis=0)
+
+
+def roomy(omap: OccupancyMap, footprint: Footprint, x, y, psi) -> np.ndarray:
+    """Poses as arrays (...) [m, m, rad] -> bool (...): True only where no disc can touch an
+    obstacle, from one distance read at the pose's centre; False says nothing.
+
+    Every disc centre d lies within reach = max |offset| of the centre c, and the lattice point
+    nearest an on-map point is within s / sqrt(2) of it (s the lattice step). With dist the
+    exact distance to the obstacles (1-Lipschitz) and D the field at lattice points, the
+    clearance at d is >= dist(d) - sqrt(2) s >= dist(c) - reach - sqrt(2) s >= D(nearest to c)
+    - reach - 1.5 sqrt(2) s; so D(nearest to c) > radius + reach + 1.5 sqrt(2) s clears every
+    disc, each of whose centres is then inside the map (dist(d) > 0, and all off the map is
+    obstacle). A centre off the map reads the boundary, where D = 0; a non-finite pose reads
+    D = 0 or fails the heading test.
+    """
+    step = omap.resolution / SUBDIV
+    # 1 um absorbs the rounding of the sums above (maps are far smaller than 1e6 m).
+    need = footprint.radius + footprint.reach + 1.5 * math.sqrt(2) * step + 1e-6
+    col, row = omap.nearest_lattice((x - omap.origin[0]) / step, (y - omap.origin[1]) / step)
+    room = omap.distance.take(row * omap.distance.shape[1] + col)
+    return (room > need) & np.isfinite(psi)
 
 
 def first_collision(omap: OccupancyMap, footprint: Footprint, paths) -> np.ndarray:
@@ -85,9 +131,23 @@ def first_collision(omap: OccupancyMap, footprint: Footprint, paths) -> np.ndarr
     n_paths, n_poses = paths.shape[:2]
     if n_poses == 0:
         return np.full(n_paths, -1)
-    hit = poses_collide(omap, footprint, paths)
+    # One copy with X, Y, psi each contiguous (B, N) makes every operation below run along N.
+    xyp = np.ascontiguousarray(paths[..., :3].transpose(2, 0, 1))
+    hit = _collide(omap, footprint, *xyp)
     first = np.where(hit.any(axis=1), hit.argmax(axis=1), n_poses)
+    # max |dX| + max |dY| + reach max |dpsi| bounds every segment's sweep (see _cut_segments:
+    # hypot <= |dX| + |dY| and |turn| <= |dpsi|), so while it stays below one radius (less a
+    # relative 1e-9 for rounding) no segment is cut, whatever its path's first hit.
+    largest = np.abs(xyp[..., 1:] - xyp[..., :-1]).max(axis=(1, 2), initial=0.0)
+    if not largest @ (1.0, 1.0, footprint.reach) < footprint.radius * (1 - 1e-9):
+        _cut_segments(omap, footprint, paths, first)
+    return np.where(first < n_poses, first, -1)
 
+
+def _cut_segments(omap, footprint, paths, first):
+    """Lower `first` (B,) to k where the interpolation from pose k-1 to k of paths (B, N, 3+)
+    [X, Y, psi] collides."""
+    n_poses = paths.shape[1]
     # Only segments before each path's first colliding pose can move its answer earlier. Both
     # ends of such a segment are inside the map, which bounds its subdivision count.
     step = np.diff(paths[..., :3], axis=1)
@@ -95,8 +155,7 @@ def first_collision(omap: OccupancyMap, footprint: Footprint, paths) -> np.ndarr
     # A disc centre at offset o moves at most |dXY| + |o| |dpsi| along the interpolation
     # (translation plus the arc its rotation sweeps), so cutting the segment into
     # ceil(that / radius) equal parts keeps every gap within one radius.
-    reach = np.abs(footprint.offsets).max()
-    sweep = np.hypot(step[..., 0], step[..., 1]) + reach * np.abs(turn)
+    sweep = np.hypot(step[..., 0], step[..., 1]) + footprint.reach * np.abs(turn)
     live = np.arange(1, n_poses)[None, :] < first[:, None]
     parts = np.ceil(np.where(live, sweep, 0.0) / footprint.radius).astype(np.intp)
     parts = np.where(parts > 1, parts, 0)
@@ -115,4 +174,3 @@ def first_collision(omap: OccupancyMap, footprint: Footprint, paths) -> np.ndarr
         inner = base + frac[:, None] * delta
         bad = poses_collide(omap, footprint, inner)
         np.minimum.at(first, b[bad], k[bad] + 1)
-    return np.where(first < n_poses, first, -1)

@@ -63,18 +63,31 @@ class OccupancyMap:
         Positive only in free space; <= 0 inside obstacles, off the map and at non-finite points.
         """
         xy = np.asarray(xy, dtype=float)
-        finite = np.all(np.isfinite(xy), axis=-1)
+        return self.clearance_at(xy[..., 0], xy[..., 1])
+
+    def clearance_at(self, x, y) -> np.ndarray:
+        """`clearance` of the points (x, y), given as two arrays (...) [m]."""
         step = self.resolution / SUBDIV
-        lattice = (np.where(finite[..., None], xy, 0.0) - self.origin) / step
-        # Points off the map snap to the boundary lattice, where the field is zero, so the
-        # bound below goes negative there without a separate test.
-        hi = np.array(self.distance.shape[::-1]) - 1
-        nearest = np.clip(np.rint(lattice), 0, hi).astype(np.intp)
-        # The distance to a set is 1-Lipschitz: moving from the lattice point to xy can shrink it
-        # by at most the length of that move.
-        offset = np.linalg.norm(lattice - nearest, axis=-1) * step
-        value = self.distance[nearest[..., 1], nearest[..., 0]] - offset
-        return np.where(finite, value, -np.inf)
+        col, row = (x - self.origin[0]) / step, (y - self.origin[1]) / step
+        near_col, near_row = self.nearest_lattice(col, row)
+        # The distance to a set is 1-Lipschitz: moving from the lattice point to (x, y) can
+        # shrink it by at most the length of that move.
+        gap_col, gap_row = col - near_col, row - near_row
+        offset = np.sqrt(gap_col * gap_col + gap_row * gap_row) * step
+        value = self.distance.take(near_row * self.distance.shape[1] + near_col) - offset
+        # Only a non-finite point gives a non-finite offset, hence NaN or -inf here.
+        return np.where(np.isnan(value), -np.inf, value)
+
+    def nearest_lattice(self, col, row) -> tuple[np.ndarray, np.ndarray]:
+        """Lattice coordinates [steps] -> int (column, row) of the nearest lattice point, clamped
+        to the grid; NaN goes to 0.
+
+        Points off the map land on the boundary lattice, where the field is zero, so their
+        clearance goes negative without a separate test.
+        """
+        rows, cols = self.distance.shape
+        return (np.fmin(np.fmax(np.rint(col), 0.0), cols - 1).astype(np.intp),
+                np.fmin(np.fmax(np.rint(row), 0.0), rows - 1).astype(np.intp))
 
     def is_free(self, xy) -> np.ndarray:
         """(..., 2) [m] -> bool (...): clearance > 0."""

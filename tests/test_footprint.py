@@ -1,10 +1,16 @@
-"""Footprint collision: the disc cover contains the car, and paths cannot jump walls."""
+"""Footprint collision: the disc cover contains the car, paths cannot jump walls, and the
+centre screen that spares most poses the per-disc check never changes an answer."""
+
+from pathlib import Path
 
 import numpy as np
 import pytest
 
-from search.footprint import Footprint, first_collision, poses_collide
-from search.maps import from_array
+from search.footprint import Footprint, discs_collide, first_collision, poses_collide, roomy
+from search.maps import SUBDIV, from_array, load_map
+
+# shared/ lies beside the repository (the checkout and CI clone alike).
+SHARED_MAPS = Path(__file__).resolve().parents[2] / "shared" / "maps"
 
 
 def grid_with(cells, shape=(200, 200), resolution=0.1):
@@ -168,6 +174,51 @@ def test_blown_up_states_and_extra_columns():
     path[1, 3, :2] = np.nan
     assert first_collision(omap, footprint, path).tolist() == [-1, 3]
     assert first_collision(omap, footprint, np.zeros((3, 0, 3))).tolist() == [-1, -1, -1]
+
+
+def per_disc_check(omap, footprint, poses):
+    """The check without any screen: every disc's clearance against its radius."""
+    return np.any(omap.clearance(footprint.disc_centres(poses)) <= footprint.radius, axis=-1)
+
+
+def poses_over(omap, footprint, rng, n=20000):
+    """Poses [X, Y, psi] all over the map and a little off it, a fifth of them placed where the
+    centre screen's margin is nearly used up, plus non-finite ones."""
+    xmin, xmax, ymin, ymax = omap.bounds()
+    spread = rng.uniform([xmin - 3, ymin - 3, -4], [xmax + 3, ymax + 3, 4], (n, 3))
+    step = omap.resolution / SUBDIV
+    need = footprint.radius + footprint.reach + 1.5 * np.sqrt(2) * step
+    rows, cols = np.nonzero((omap.distance > need) & (omap.distance < need + 2 * step))
+    pick = rng.integers(0, rows.size, n // 5)
+    edge = np.column_stack([cols[pick] * step + omap.origin[0], rows[pick] * step + omap.origin[1],
+                            rng.uniform(-4, 4, pick.size)])
+    edge[:, :2] += rng.uniform(-step / 2, step / 2, (pick.size, 2))
+    broken = np.array([[np.nan, ymin + 1, 0], [xmin + 1, np.inf, 0], [xmin + 1, ymin + 1, np.inf],
+                       [xmin + 1, ymin + 1, np.nan], [-np.inf, -np.inf, 0]])
+    return np.concatenate([spread, edge, broken])
+
+
+@pytest.mark.parametrize("name, cell_size", [("nav2_depot.yaml", None), ("Berlin_1_256.map", 1.5)])
+@pytest.mark.parametrize("length, width", [(4.708, 1.81), (1.0, 2.0)])
+def test_the_centre_screen_agrees_exactly_with_the_per_disc_check_on_a_real_map(
+        name, cell_size, length, width):
+    real = load_map(SHARED_MAPS / name, cell_size=cell_size)
+    omap = from_array(real.occupied, real.resolution, (-3.25, 7.1))  # an origin off zero
+    footprint = Footprint.from_vehicle(length, width)
+    poses = poses_over(omap, footprint, np.random.default_rng(5))
+    truth = per_disc_check(omap, footprint, poses)
+    screened = roomy(omap, footprint, *poses.T)
+    # Conservative: nothing the screen clears collides ...
+    assert not np.any(screened & truth)
+    # ... and poses_collide, which checks discs only where the screen says nothing, agrees
+    # with the plain check everywhere, as does its per-disc check alone.
+    assert np.array_equal(poses_collide(omap, footprint, poses), truth)
+    assert np.array_equal(discs_collide(omap, footprint, *poses.T), truth)
+    grid = poses[:24000].reshape(100, 240, 3)  # the shape of a batch of paths
+    assert np.array_equal(poses_collide(omap, footprint, grid), truth[:24000].reshape(100, 240))
+    assert [bool(poses_collide(omap, footprint, p)) for p in poses[:50]] == truth[:50].tolist()
+    # Both branches ran: the screen cleared poses, and left free ones to the discs.
+    assert screened.mean() > 0.05 and np.any(~screened & ~truth) and np.all(truth[-5:])
 
 
 def test_bad_input_raises_value_error():
