@@ -224,20 +224,22 @@ class _Search:
             point_selector(state, prm["arc_radius"], prm["n_arc"], prm["delta_max"]),
             random_points(self.rng, self.goal, prm["n_random"], prm["random_spread"])])
         shots = self.f.shooter.shoot(state, points, self.goal)
+        # Python floats: the same values, at a fraction of the cost of NumPy scalars.
+        ends, g, H, steer = (shots.states[:, -1, :3].tolist(), shots.g.tolist(),
+                             shots.H.tolist(), shots.steer.tolist())
         new = []
-        for k in np.flatnonzero(shots.valid):
-            end = shots.states[k, -1]
-            cell = self._cell(end)
+        for k in np.flatnonzero(shots.valid).tolist():
+            cell = self._cell(ends[k])
             if cell in self.seen:
                 continue
             self.seen.add(cell)
             new.append(len(self.states))
-            self.states.append(end)
+            self.states.append(shots.states[k, -1])
             self.parent.append(node)
-            self.g.append(self.g[node] + float(shots.g[k]))
-            self.H.append(float(shots.H[k]))
+            self.g.append(self.g[node] + g[k])
+            self.H.append(H[k])
             self.edges.append(shots.states[k])
-            self.steers.append(float(shots.steer[k]))
+            self.steers.append(steer[k])
         return new
 
     def _dubins_length(self, node) -> float:

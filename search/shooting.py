@@ -23,11 +23,12 @@ class Shots(NamedTuple):
 def pure_pursuit(state, points, wheelbase, delta_max) -> np.ndarray:
     """(B,) [rad]: the steer of the circle from `state` [X, Y, psi, ...] through each point
     (B, 2) [m], delta = atan(2 L sin(alpha) / l_d), clipped to +-delta_max."""
-    rel = np.asarray(points, float) - state[:2]
-    alpha = np.arctan2(rel[:, 1], rel[:, 0]) - state[2]
-    lookahead = np.maximum(np.hypot(rel[:, 0], rel[:, 1]), 1e-9)
+    points = np.asarray(points, float)
+    dx, dy = points[:, 0] - state[0], points[:, 1] - state[1]
+    alpha = np.arctan2(dy, dx) - state[2]
+    lookahead = np.maximum(np.hypot(dx, dy), 1e-9)
     steer = np.arctan(2 * wheelbase * np.sin(alpha) / lookahead)
-    return np.clip(steer, -delta_max, delta_max)
+    return np.minimum(np.maximum(steer, -delta_max), delta_max)
 
 
 class Shooter:
@@ -57,11 +58,12 @@ class Shooter:
     def shoot(self, state, points, destination) -> Shots:
         """Shoot from `state` (5,) towards each of `points` (B, 2) [m]."""
         steer = pure_pursuit(state, points, self.wheelbase, self.delta_max)
-        states = self.integrate(np.broadcast_to(state, (self.batch, state.size)), steer)
+        states = self.integrate(state[None].repeat(self.batch, axis=0), steer)
         # A blown-up shooting is a result (an invalid one), so its overflow warnings are noise;
         # first_collision treats non-finite poses as collisions, so it needs no branch either.
         with np.errstate(invalid="ignore", over="ignore"):
-            g = np.hypot(*np.diff(states[:, :, :2], axis=1).transpose(2, 0, 1)).sum(axis=1)
+            step = states[:, 1:, :2] - states[:, :-1, :2]
+            g = np.hypot(step[..., 0], step[..., 1]).sum(axis=1)
             H = np.hypot(*(states[:, -1, :2] - destination[:2]).T)
             hit = first_collision(self.omap, self.footprint, states) >= 0
         valid = np.isfinite(states).all(axis=(1, 2)) & ~hit
