@@ -1,6 +1,7 @@
 """The connection of the paper (Section 2.4): a minimum-time optimal control problem on the
-kinematic bicycle from a tree node to the goal pose, solved with CasADi's Opti and IPOPT.
-One parametrised Opti problem per (N, shooting, method, options) is built once and reused."""
+kinematic bicycle from a tree node to the goal pose, solved with IPOPT through CasADi's nlpsol.
+One parametrised solver per (N, shooting, method, options) is built once and called with the
+problem's numbers as parameters and bounds."""
 from dataclasses import dataclass
 from functools import cache
 from math import pi
@@ -15,12 +16,12 @@ from integrators import integrate, method as zoo_method
 from integrators.methods import TABLEAUS
 
 # Measured on 40 seeded problems (3-30 m, arbitrary headings, start speed 0-10 m/s, N=50,
-# rk4, 2-core CPU): in a 120 m box, multiple shooting solved 40/40 at a median of 17-20 ms,
-# single shooting 40/40 at 100 ms (t_f agree to 1e-7; the same with goal speed 0); in a box
-# only 5 m beyond start and goal, multiple 40/40 (17 ms), single 40/40 (85 ms, one after a
-# retry, at a worse local optimum). With max_iter 300 and no retry, single made 39/40.
-# Multiple shooting is the default. A pure-pursuit rollout guess instead of the Dubins one
-# left multiple shooting at 29/40 and a median of 255 ms.
+# rk4, 2-core CPU, before the IPOPT options below): in a 120 m box, multiple shooting solved
+# 40/40 at a median of 17-20 ms, single shooting 40/40 at 100 ms (t_f agree to 1e-7; the same
+# with goal speed 0); in a box only 5 m beyond start and goal, multiple 40/40 (17 ms), single
+# 40/40 (85 ms, one after a retry, at a worse local optimum). With max_iter 300 and no retry,
+# single made 39/40. Multiple shooting is the default. A pure-pursuit rollout guess instead of
+# the Dubins one left multiple shooting at 29/40 and a median of 255 ms.
 DEFAULT_SHOOTING = "multiple"
 # rk4 costs what Euler costs here (~16 ms) but is faithful: the end of an rk4 re-simulation
 # 10 times finer misses the goal by 5e-6 m (median; max 5e-5), against 0.66 m (max 2.1 m)
@@ -189,87 +190,88 @@ def _guess(N, segs, radius, start, a_max, v_max, v_goal):
     return turn, tf, np.vstack([steer, acc])
 
 
-@dataclass
+@dataclass(frozen=True)
 class _Problem:
-    """A built Opti problem and the handles `connect` sets and reads."""
-    opti: ca.Opti
-    par: dict        # name -> opti.parameter
-    T: ca.MX         # final time variable [s]
-    U: ca.MX         # (2, N) scaled inputs in [-1, 1]
-    Z: ca.MX | None  # (4, N) states 1..N (multiple shooting), else None
-    states: ca.MX    # (4, N+1) state expressions
-    inputs: ca.MX    # (2, N) inputs in [rad, N]
+    """A built IPOPT solver and the maps from its variables to the connection."""
+    solver: ca.Function   # nlpsol: x = [T, vec(U)(, vec(Z))], p = [x0, goal, L, m, d_max,
+    #                       a_max(, v_goal)]; g = [defects (multiple), end, state rows (single)]
+    rollout: ca.Function  # (T, U, p) -> states (4, N+1) simulated from x0
+    path: ca.Function     # (x, p) -> states (4, N+1), inputs (2, N) [rad, N]
+    shooting: str
+    n_end: int            # end-constraint rows: X, Y, theta (, v)
+    rows: slice           # which of [X, Y, theta, v] single shooting bounds in g
+
+
+# Measured against the Opti formulation with IPOPT's defaults, multiple shooting, on the
+# scenario connections and 208 seeded problems (same solved counts; t_f agree to 2e-7 but for
+# one better optimum): bounds on T, U and the states as variable bounds instead of
+# constraints cut a solve by 25%, the adaptive barrier update cut IPOPT's iterations by 20%
+# (10% faster) and its kkt-error globalisation 15% more (scenario connections 20% faster),
+# fast_step_computation saved 8% at the same iterations, and calling nlpsol directly saved
+# Opti's 0.5 ms of set-up and read-out. Single shooting keeps the monotone update: adaptive
+# was slower there (median 118 against 89 ms) and reached a worse local optimum on 1 of 60
+# problems. mu-based bound multipliers made connections of 3-12 m from 5 m/s 25% faster but
+# those of 3-30 m 10% slower. MUMPS ordering and scaling options changed nothing, spral was
+# 4x slower, HSL's ma27/ma57 do not ship, and limited-memory Hessians were 5x slower and
+# failed more often.
+IPOPT_OPTIONS = {"print_level": 0, "sb": "yes", "max_iter": 100, "fast_step_computation": "yes"}
+ADAPTIVE_MU = {"mu_strategy": "adaptive", "adaptive_mu_globalization": "kkt-error"}
 
 
 @cache
 def _problem(N: int, shooting: str, method: str, bounded: bool, speed_fixed: bool) -> _Problem:
     """The parametrised minimum-time OCP, positions relative to the start node."""
-    opti = ca.Opti()
-    names = {"x0": 4, "goal": 3, "theta_lo": 1, "theta_hi": 1, "tf_lo": 1, "tf_hi": 1,
-             "L": 1, "m": 1, "v_max": 1, "d_max": 1, "a_max": 1}
-    if speed_fixed:
-        names["v_goal"] = 1
-    if bounded:
-        names["box"] = 4  # [Xmin, Xmax, Ymin, Ymax]
-    par = {k: opti.parameter(n) for k, n in names.items()}
-    T = opti.variable()
-    U = opti.variable(2, N)
-    inputs = ca.vertcat(par["d_max"] * U[0, :], par["m"] * par["a_max"] * U[1, :])
-    step = step_function(method)
-    dt = T / N
+    p = ca.MX.sym("p", 11 + speed_fixed)
+    x0, goal, L, m, d_max, a_max = p[:4], p[4:7], p[7], p[8], p[9], p[10]
+    T, U = ca.MX.sym("T"), ca.MX.sym("U", 2, N)
+    inputs = ca.vertcat(d_max * U[0, :], m * a_max * U[1, :])
+    rollout = _open_loop(N, method)(x0, inputs, T / N, L, m)
     if shooting == "multiple":
-        Z = opti.variable(4, N)
-        states = ca.horzcat(par["x0"], Z)
-        opti.subject_to(Z == step.map(N)(states[:, :-1], inputs, dt, par["L"], par["m"]))
+        Z = ca.MX.sym("Z", 4, N)
+        x, states = ca.veccat(T, U, Z), ca.horzcat(x0, Z)
+        defects = Z - step_function(method).map(N)(states[:, :-1], inputs, T / N, L, m)
+        g = [ca.vec(defects)]
     elif shooting == "single":
-        Z, x, cols = None, par["x0"], [par["x0"]]
-        for k in range(N):
-            x = step(x, inputs[:, k], dt, par["L"], par["m"])
-            cols.append(x)
-        states = ca.horzcat(*cols)
+        x, states, g = ca.veccat(T, U), rollout, []
     else:
         raise ValueError(f"shooting must be 'single' or 'multiple', not {shooting!r}")
-    later = states[:, 1:]
-    opti.minimize(T)
-    opti.subject_to(opti.bounded(par["tf_lo"], T, par["tf_hi"]))
-    opti.subject_to(opti.bounded(-1, ca.vec(U), 1))
-    opti.subject_to(opti.bounded(0, later[3, :], par["v_max"]))
-    opti.subject_to(opti.bounded(par["theta_lo"], later[2, :], par["theta_hi"]))
-    if bounded:
-        box = par["box"]
-        opti.subject_to(opti.bounded(box[0], later[0, :], box[1]))
-        opti.subject_to(opti.bounded(box[2], later[1, :], box[3]))
-    opti.subject_to(states[:3, -1] == par["goal"])
+    g.append(states[:3, -1] - goal)
     if speed_fixed:
-        opti.subject_to(states[3, -1] == par["v_goal"])
-    opti.solver("ipopt", {"expand": True, "print_time": False},
-                {"print_level": 0, "sb": "yes", "max_iter": 100})
-    return _Problem(opti, par, T, U, Z, states, inputs)
+        g.append(states[3, -1] - p[11])
+    rows = slice(0 if bounded else 2, 4)
+    if shooting == "single":
+        g.append(ca.vec(states[rows, 1:]))
+    ipopt = {**IPOPT_OPTIONS, **ADAPTIVE_MU} if shooting == "multiple" else IPOPT_OPTIONS
+    solver = ca.nlpsol(f"connect_{shooting}{N}", "ipopt",
+                       {"x": x, "p": p, "f": T, "g": ca.vertcat(*g)},
+                       {"expand": True, "print_time": False, "ipopt": ipopt})
+    return _Problem(solver, ca.Function("rollout", [T, U, p], [rollout]),
+                    ca.Function("path", [x, p], [states, inputs]), shooting, 3 + speed_fixed,
+                    rows)
 
 
-def _solve(prob, values, tf_g, u_g, N, method):
-    """One IPOPT solve from the given guess: (success, status, tf, states, inputs)."""
-    opti, par = prob.opti, prob.par
-    for k, v in values.items():
-        opti.set_value(par[k], v)
-    opti.set_initial(prob.T, tf_g)
-    opti.set_initial(prob.U, u_g)
-    if prob.Z is not None:
-        scale = np.array([[values["d_max"]], [values["m"] * values["a_max"]]])
-        xs = _open_loop(N, method)(values["x0"], scale * u_g, tf_g / N, values["L"],
-                                   values["m"])
-        opti.set_initial(prob.Z, np.asarray(xs)[:, 1:])
-    try:
-        value = opti.solve_limited().value
-    except RuntimeError:  # IPOPT stopped without an iterate Opti accepts (e.g. infeasible)
-        value = opti.debug.value
-    stats = opti.stats()
-    states = np.asarray(value(prob.states)).T.copy()
-    end = np.r_[states[-1, :3] - values["goal"],
-                states[-1, 3] - values["v_goal"] if "v_goal" in values else 0.0]
+def _solve(prob, p, lo, hi, tf_range, tf_g, u_g):
+    """One IPOPT solve from the guess (tf_g [s], scaled inputs u_g (2, N)) with parameters p,
+    states 1..N within lo..hi ([X, Y, theta, v]) and t_f within tf_range [s]:
+    (success, status, tf, states, inputs)."""
+    N = u_g.shape[1]
+    x_g = np.r_[tf_g, u_g.ravel(order="F")]
+    lbx, ubx = np.r_[tf_range[0], np.full(2 * N, -1.0)], np.r_[tf_range[1], np.ones(2 * N)]
+    if prob.shooting == "multiple":
+        z_g = np.asarray(prob.rollout(tf_g, u_g, p))[:, 1:]
+        x_g = np.r_[x_g, z_g.ravel(order="F")]
+        lbx, ubx = np.r_[lbx, np.tile(lo, N)], np.r_[ubx, np.tile(hi, N)]
+        lbg = ubg = np.zeros(4 * N + prob.n_end)
+    else:
+        lbg = np.r_[np.zeros(prob.n_end), np.tile(lo[prob.rows], N)]
+        ubg = np.r_[np.zeros(prob.n_end), np.tile(hi[prob.rows], N)]
+    sol = prob.solver(x0=x_g, p=p, lbx=lbx, ubx=ubx, lbg=lbg, ubg=ubg)
+    stats = prob.solver.stats()
+    states, inputs = (np.asarray(a).T.copy() for a in prob.path(sol["x"], p))
+    target = np.r_[p[4:7], p[11:]]  # goal (, v_goal)
+    end = states[-1, :len(target)] - target
     success = bool(stats["success"]) and float(np.abs(end).max()) < END_TOL
-    inputs = np.asarray(value(prob.inputs)).reshape(2, N).T.copy()
-    return success, str(stats["return_status"]), float(value(prob.T)), states, inputs
+    return success, str(stats["return_status"]), float(sol["x"][0]), states, inputs
 
 
 def connect(start, goal, *, L, m, bounds=None, N=50, shooting=DEFAULT_SHOOTING,
@@ -288,7 +290,7 @@ def connect(start, goal, *, L, m, bounds=None, N=50, shooting=DEFAULT_SHOOTING,
     start and goal. The shortest path is tried first; if IPOPT fails (a map bound may cut
     that path), the shortest path of each other winding is tried, up to MAX_TRIES solves.
     Never raises for an infeasible problem: `success` is False and the arrays hold IPOPT's
-    last iterate. The cached Opti problem makes this function not thread-safe."""
+    last iterate. The cached solver makes this function not thread-safe."""
     t0 = perf_counter()
     start = np.asarray(start, dtype=float)
     goal = np.asarray(goal, dtype=float)
@@ -297,12 +299,9 @@ def connect(start, goal, *, L, m, bounds=None, N=50, shooting=DEFAULT_SHOOTING,
     # Positions relative to the start node keep the numbers small wherever the map lies.
     origin = start[:2]
     x0 = np.array([0.0, 0.0, start[2], start[3]])
-    values = {"x0": x0, "tf_lo": tf_lo, "tf_hi": tf_hi, "L": L, "m": m, "v_max": v_max,
-              "d_max": delta_max, "a_max": a_max}
-    if goal_speed is not None:
-        values["v_goal"] = goal_speed
-    if bounds is not None:
-        values["box"] = np.asarray(bounds, dtype=float) - np.repeat(origin, 2)
+    box = (np.array([-np.inf, np.inf, -np.inf, np.inf]) if bounds is None
+           else np.asarray(bounds, dtype=float) - np.repeat(origin, 2))
+    v_goal = [] if goal_speed is None else [goal_speed]
     radius = L / np.tan(delta_max)
     goal_local = np.array([*(goal[:2] - origin), goal[2]])
     tried = set()
@@ -313,11 +312,11 @@ def connect(start, goal, *, L, m, bounds=None, N=50, shooting=DEFAULT_SHOOTING,
         if winding in tried:
             continue
         tried.add(winding)
-        values.update(goal=np.array([*goal_local[:2], theta_g]),
-                      theta_lo=min(start[2], theta_g) - THETA_MARGIN,
-                      theta_hi=max(start[2], theta_g) + THETA_MARGIN)
+        p = np.r_[x0, goal_local[:2], theta_g, L, m, delta_max, a_max, v_goal]
+        lo = np.array([box[0], box[2], min(start[2], theta_g) - THETA_MARGIN, 0.0])
+        hi = np.array([box[1], box[3], max(start[2], theta_g) + THETA_MARGIN, v_max])
         success, status, tf, states, inputs = _solve(
-            prob, values, min(max(tf_g, tf_lo), tf_hi), u_g, N, method)
+            prob, p, lo, hi, (tf_lo, tf_hi), min(max(tf_g, tf_lo), tf_hi), u_g)
         if success or len(tried) == MAX_TRIES:
             break
     states[:, :2] += origin

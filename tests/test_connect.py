@@ -102,6 +102,19 @@ def test_a_map_bound_across_the_shortest_path_gives_the_other_winding():
     assert capped.tf > free.tf
 
 
+def test_single_shooting_holds_the_map_bound_like_multiple():
+    # Multiple shooting bounds its state variables, single shooting constrains the simulated
+    # states: under the same cap both must take the other winding, in the same time.
+    start, goal = np.array([0.0, 0.0, 2.5, 3.0]), np.array([15.0, 4.0, -2.0])
+    box = (-12, 22, -2, 7)
+    multiple = connect(start, goal, L=L, m=M, bounds=box)
+    single = connect(start, goal, L=L, m=M, bounds=box, shooting="single")
+    assert multiple.success and single.success
+    assert single.states[:, 1].max() <= 7 + 1e-7
+    assert single.states[-1, 2] == pytest.approx(-2.0 + 2 * pi_, abs=1e-6)
+    assert single.tf == pytest.approx(multiple.tf, rel=1e-6)
+
+
 def test_heading_crosses_the_wrap_with_the_short_turn():
     # Start at +3.0 rad, goal ahead at -3.1 rad = 3.18 rad: a 0.18 rad turn, not a loop,
     # which the paper's -pi <= theta <= pi would forbid.
