@@ -1,5 +1,5 @@
 """The connection OCP (search.connect) with single and multiple shooting on seeded problems
-3-30 m apart, after a warm-up that builds each Opti problem."""
+3-30 m apart, after a warm-up that builds each solver."""
 import numpy as np
 import pytest
 
