@@ -5,10 +5,12 @@ With `max_steps` given, the step count may be a run-time value: the scan runs in
 `BLOCK` steps inside a loop, so one compilation serves every step size (output rows past the
 last step are NaN).
 
-A batch runs in chunks of at most `CHUNK` trajectories with the batch as the last axis of
-the carried state: each component is then a contiguous row that XLA vectorises, and a chunk's
-state stays in cache through all its steps. With several host devices the
-chunks are shared out among them, one core each: see `use_all_cores`."""
+A batch of at least `SMALL_BATCH` trajectories runs in chunks of `CHUNK` with the batch as
+the last axis of the carried state: each component is then a contiguous row that XLA
+vectorises, and a chunk's state stays in registers and L1 through all its steps. A smaller
+batch is a plain vmap of the one-trajectory loop. With several host devices, batches of at
+least `SHARE` trajectories per device are shared out among them, one core each: see
+`use_all_cores`."""
 import os
 from typing import NamedTuple
 
@@ -19,14 +21,19 @@ from jax import lax
 from jax.sharding import Mesh, PartitionSpec
 
 BLOCK = 32
-# Trajectories per chunk: 5 float64 states x 256 = 10 kB per stage value, so every stage of
-# a step stays in L1/L2. Measured at batch 4e4 (rk4, fast_trig, 2 devices, load 5-7 on 2
-# cores, so noisy): 64-256 gave 4.4e6-9.7e6 trajectory-steps/s, 512-8192 gave 4.7e6-5.8e6.
-CHUNK = 256
-# Below this many trajectories the chunk layout has too little to vectorise: a plain vmap of
-# the one-trajectory loop was up to 1.7x faster (rk4 and dopri5, 64 and 500 steps, batch
-# 1-30; even at 60). With a single trajectory, the chunk layout cost 2x.
+# Trajectories per chunk. Measured at batch 4000 on one core, with each loop compiled whole
+# (see dynamics/__init__.py), in trajectory-steps/s: rk4 with fast_trig 1.4e7 / 1.8e7 /
+# 1.7e7 / 1.6e7 / 1.3e7 for chunks of 4 / 8 / 16 / 32 / 256; dopri5 1.1e7 / 1.2e7 / 1.3e7
+# for 4 / 8 / 16; ab4 1.6e7 for 4 and 8, 1.2e7 for 16.
+CHUNK = 8
+# Below this many trajectories a plain vmap of the one-trajectory loop beats the chunks (at 64
+# steps: rk4 1.2x at batch 10 and 20, dopri5 1.5x at 10; chunks win from 40). A single
+# trajectory runs without a batch axis, since a vmap of one still cost 1.2x.
 SMALL_BATCH = 32
+# Trajectories per device below which sharing a batch among devices costs more than it saves
+# (rk4 with fast_trig, 500 steps, 2 devices against 1: 2x slower at batch 40, 1.6x slower at
+# 100, 1.4x faster at 400 and 1.5x at 2000).
+SHARE = 128
 
 
 class Trajectory(NamedTuple):
@@ -139,7 +146,7 @@ def _batch(method, f, x0, u, p, h, n_steps, t0, max_steps):
     # carry of their while loops (per-shard values mixed with shared ones), and with that
     # check off two devices hung in Newton's loop (XLA CPU, jax 0.10.2).
     shareable = not method.implicit and max_steps is None
-    shards = len(devices) if shareable and batch >= 2 * CHUNK * len(devices) else 1
+    shards = len(devices) if shareable and batch >= SHARE * len(devices) else 1
     size = min(CHUNK, -(-batch // shards))
     n_chunks = -(-batch // (size * shards)) * shards
     args = jax.tree.map(lambda a: _split(a, n_chunks, size), (x0, u, p))
@@ -162,7 +169,7 @@ def _batch(method, f, x0, u, p, h, n_steps, t0, max_steps):
 
 
 def use_all_cores() -> int:
-    """One host device per core, so that batches of at least 2 CHUNK per device are shared
+    """One host device per core, so that batches of at least SHARE per device are shared
     among all cores (measured at batch 1e5, rk4: about 1.9x on 2 cores). Call it before the
     first JAX computation, since XLA fixes the device count when it starts (or set
     XLA_FLAGS=--xla_force_host_platform_device_count=N); returns the device count."""

@@ -11,7 +11,7 @@ import pytest
 
 import dynamics
 from integrators import integrate, integrate_batch, method
-from integrators.driver import CHUNK, SMALL_BATCH
+from integrators.driver import CHUNK, SHARE, SMALL_BATCH
 from integrators.fast_trig import cos, fast_trig, sin
 
 MODEL = dynamics.model("dynamic5")
@@ -33,8 +33,8 @@ def assert_close(a, b):
     assert np.all(np.abs(a - b) <= 1e-12 * scale)
 
 
-@pytest.mark.parametrize("batch", [1, SMALL_BATCH - 1, CHUNK + 3])   # CHUNK + 3: two chunks,
-@pytest.mark.parametrize("name", ["rk4", "ab4", "dopri5"])             # the second padded
+@pytest.mark.parametrize("batch", [1, SMALL_BATCH - 1, SMALL_BATCH + 3])   # the last: in
+@pytest.mark.parametrize("name", ["rk4", "ab4", "dopri5"])                   # chunks, one padded
 def test_batch_equals_one_by_one(name, batch):
     x0, u, p, ps = envelope(batch)
     tr = integrate_batch(method(name), MODEL.rhs, x0, u, p, 0.002, 60)
@@ -45,7 +45,7 @@ def test_batch_equals_one_by_one(name, batch):
         assert float(tr.evals[i]) == float(one.evals)
 
 
-@pytest.mark.parametrize("batch", [3, CHUNK + 1])
+@pytest.mark.parametrize("batch", [3, SMALL_BATCH + 1])
 def test_run_time_step_counts_and_step_sizes_per_trajectory(batch):
     x0, u, p, ps = envelope(batch, seed=1)
     hs = np.linspace(0.0005, 0.003, batch)    # stable for ab4 down to 2 m/s
@@ -82,13 +82,13 @@ def test_batch_shared_among_host_devices_equals_one_device(tmp_path, name, max_s
     out = tmp_path / "x.npy"
     n = 40 if max_steps is None else "jax.numpy.asarray(40)"
     code = ("import numpy as np, jax; from tests.test_fast_driver import *; "
-            "assert len(jax.devices()) == 2; x0, u, p, _ = envelope(4 * CHUNK + 5, 4); "
+            "assert len(jax.devices()) == 2; x0, u, p, _ = envelope(2 * SHARE + 5, 4); "
             f"tr = integrate_batch(method({name!r}), MODEL.rhs, x0, u, p, 0.002, {n}, "
             f"max_steps={max_steps}); assert len(tr.x.sharding.device_set) == {devices}; "
             f"np.save({str(out)!r}, np.asarray(tr.x))")
     env = dict(os.environ, XLA_FLAGS="--xla_force_host_platform_device_count=2")
     subprocess.run([sys.executable, "-c", code], env=env, check=True, timeout=300,
                    cwd=os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
-    x0, u, p, _ = envelope(4 * CHUNK + 5, 4)
+    x0, u, p, _ = envelope(2 * SHARE + 5, 4)
     one = integrate_batch(method(name), MODEL.rhs, x0, u, p, 0.002, 40)
     assert_close(np.load(out)[:, :41], one.x)
