@@ -11,7 +11,7 @@ import pytest
 
 import dynamics
 from integrators import integrate, integrate_batch, method
-from integrators.driver import CHUNK, SHARE, SMALL_BATCH
+from integrators.driver import CHUNK, CHUNK_IMPLICIT, SHARE, SMALL_BATCH
 from integrators.fast_trig import cos, fast_trig, sin
 
 MODEL = dynamics.model("dynamic5")
@@ -33,13 +33,18 @@ def assert_close(a, b):
     assert np.all(np.abs(a - b) <= 1e-12 * scale)
 
 
-@pytest.mark.parametrize("batch", [1, SMALL_BATCH - 1, SMALL_BATCH + 3])   # the last: in
-@pytest.mark.parametrize("name", ["rk4", "ab4", "dopri5"])                   # chunks, one padded
+# Batches of one, a vmap below SMALL_BATCH, and chunks with the last one padded.
+CASES = [(name, batch) for name in ("rk4", "ab4", "dopri5")
+         for batch in (1, SMALL_BATCH - 1, SMALL_BATCH + 3)] + [("bdf2", CHUNK_IMPLICIT + 3)]
+
+
+@pytest.mark.parametrize("name, batch", CASES)
 def test_batch_equals_one_by_one(name, batch):
     x0, u, p, ps = envelope(batch)
     tr = integrate_batch(method(name), MODEL.rhs, x0, u, p, 0.002, 60)
     assert tr.x.shape == (batch, 61, 5) and tr.t.shape == (batch, 61)
-    for i in sorted({0, min(CHUNK, batch) - 1, min(CHUNK, batch - 1), batch - 1}):
+    chunk = CHUNK_IMPLICIT if method(name).implicit else CHUNK
+    for i in sorted({0, min(chunk, batch) - 1, min(chunk, batch - 1), batch - 1}):
         one = integrate(method(name), MODEL.rhs, x0[i], u[i], ps[i], 0.002, 60)
         assert_close(tr.x[i], one.x)
         assert float(tr.evals[i]) == float(one.evals)
