@@ -1,8 +1,8 @@
 """`stepzoo methods`: the zoo as a table, with each method's stability intervals."""
 import sys
 
-from bench.output import text_table, to_json
-from integrators import METHODS, describe
+from stepzoo.output import text_table, to_json
+from stepzoo.integrators import METHODS, describe
 
 
 def add_arguments(p):
@@ -10,7 +10,7 @@ def add_arguments(p):
 
 
 def rows() -> list[dict]:
-    from integrators.stability import stability_intervals
+    from stepzoo.integrators.stability import stability_intervals
     out = []
     for m in METHODS.values():
         row = describe(m)

@@ -8,8 +8,8 @@ import sys
 
 import numpy as np
 
-from bench.errors import UsageError
-from bench.validate import lookup, positive
+from stepzoo.errors import UsageError
+from stepzoo.validate import lookup, positive
 
 
 def add_arguments(p):
@@ -28,9 +28,9 @@ def add_arguments(p):
 def simulate(method_name, h, T, vx, delta, vehicle=None, model_name="dynamic5",
              rtol=1e-10, atol=1e-12):
     """(columns, t, x, vehicle dict) of one run; raises UsageError on bad input."""
-    import dynamics
-    from integrators import integrate, method
-    from integrators.reference import reference
+    from stepzoo import dynamics
+    from stepzoo.integrators import integrate, method
+    from stepzoo.integrators.reference import reference
     h, T, vx = positive("--h", h), positive("--T", T), positive("--vx", vx)
     if h > T:
         raise UsageError(f"--h {h} is larger than the horizon --T {T}; use h <= T")

@@ -5,9 +5,9 @@ import sys
 
 import numpy as np
 
-from bench.errors import UsageError
-from bench.output import text_table, to_json
-from bench.validate import lookup, positive
+from stepzoo.errors import UsageError
+from stepzoo.output import text_table, to_json
+from stepzoo.validate import lookup, positive
 
 
 def add_arguments(p):
@@ -19,10 +19,10 @@ def add_arguments(p):
 
 def predict(vx: float, delta: float, vehicle=None) -> tuple[np.ndarray, dict]:
     """(eigenvalues [1/s], {method: largest stable step [s] or inf})."""
-    import dynamics
-    from dynamics.linear import lateral_eigenvalues
-    from integrators import METHODS
-    from integrators.stability import max_stable_step
+    from stepzoo import dynamics
+    from stepzoo.dynamics.linear import lateral_eigenvalues
+    from stepzoo.integrators import METHODS
+    from stepzoo.integrators.stability import max_stable_step
     positive("--vx", vx)
     if not math.isfinite(delta):
         raise UsageError(f"--delta must be a finite angle in radians, got {delta!r}")

@@ -2,7 +2,7 @@
 folder (tables in Parquet, summaries in CSV), resumable chunk by chunk."""
 import sys
 
-from bench.output import text_table, to_json
+from stepzoo.output import text_table, to_json
 
 
 def add_arguments(p):
@@ -21,14 +21,14 @@ def add_arguments(p):
 def main(args) -> int:
     import pandas as pd
 
-    from bench.sweep import run_sweep
-    from bench.sweep_config import load
+    from stepzoo.bench.sweep import run_sweep
+    from stepzoo.bench.sweep_config import load
     cfg = load(args.config)
     if args.scheduler is None:
         manifest = run_sweep(cfg, args.out, resume=args.resume, overwrite=args.overwrite,
                              progress=not args.no_progress)
     else:
-        from bench.distributed import connect, sweep_runner
+        from stepzoo.bench.distributed import connect, sweep_runner
         with connect(args.scheduler) as client:
             manifest = run_sweep(cfg, args.out, resume=args.resume, overwrite=args.overwrite,
                                  progress=not args.no_progress, runner=sweep_runner(client))

@@ -3,8 +3,8 @@ is stable with a margin and meets a position tolerance everywhere, as a planner 
 import sys
 from pathlib import Path
 
-from bench.errors import UsageError
-from bench.output import text_table, to_json
+from stepzoo.errors import UsageError
+from stepzoo.output import text_table, to_json
 
 
 def add_arguments(p):
@@ -18,7 +18,7 @@ def add_arguments(p):
 
 
 def main(args) -> int:
-    from bench.tune import tune, write
+    from stepzoo.bench.tune import tune, write
     out = Path(args.out)
     if out.is_dir():
         raise UsageError(f"--out {out} is a folder; give a file name such as tuned.toml")

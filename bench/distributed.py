@@ -6,7 +6,7 @@ from __future__ import annotations
 import contextlib
 import logging
 
-from bench.errors import UsageError
+from stepzoo.errors import UsageError
 
 CONNECT_TIMEOUT_S = 10.0      # [s] a scheduler silent this long is reported, not waited for
 # Re-runs of a task that raised on a worker. A task whose worker died is re-run by the
@@ -81,8 +81,12 @@ def sweep_runner(client):
 
 def compute_chunks(cfg, ids: list[str]) -> list[tuple[str, dict]]:
     """On a worker: [(chunk id, tables)] of a task, with the process's cache for this config,
-    so each worker compiles each method and computes each reference once."""
-    from bench.sweep import compute_chunk
+    so each worker compiles each method and computes each reference once. A sweep is
+    analysis in float64, which the worker process, like the `stepzoo` command, turns on."""
+    import jax
+
+    from stepzoo.bench.sweep import compute_chunk
+    jax.config.update("jax_enable_x64", True)
     if cfg.sha256 not in _caches:
         _caches.clear()            # a long-lived worker keeps only the latest sweep's state
         _caches[cfg.sha256] = {}

@@ -16,10 +16,10 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from bench import metrics
-from bench.errors import UsageError
-from bench.output import atomic_write, to_json
-from bench.sweep_config import SweepConfig
+from stepzoo.bench import metrics
+from stepzoo.errors import UsageError
+from stepzoo.output import atomic_write, to_json
+from stepzoo.bench.sweep_config import SweepConfig
 
 REF_WINDOW = 64        # output times per reference call: its cost per step grows with them
 TRAJ_SAMPLES = 200     # reference samples of the figure trajectory
@@ -64,7 +64,7 @@ def compute_chunk(cfg: SweepConfig, chunk_id: str, cache_: dict | None = None) -
 def _batched_reference(f, rtol, atol):
     """The adaptive reference, jitted and vmapped over lanes (one compilation per model)."""
     import jax
-    from integrators.reference import reference
+    from stepzoo.integrators.reference import reference
     return jax.jit(jax.vmap(lambda x0, u, p, ts: reference(f, x0, u, p, ts, rtol, atol),
                             in_axes=(0, 0, 0, None)))
 
@@ -74,8 +74,8 @@ class _Work:
     by repeating its last point, so every block of a method shares one compilation)."""
 
     def __init__(self, cfg: SweepConfig, block: int, ref_cache: dict):
-        import dynamics
-        from dynamics.linear import lateral_matrix
+        from stepzoo import dynamics
+        from stepzoo.dynamics.linear import lateral_matrix
         self.cfg, self.block, self.ref_cache = cfg, block, ref_cache
         self.model = dynamics.model(cfg.model)
         pts = cfg.points
@@ -104,7 +104,7 @@ class _Work:
     def integrate(self, meth, x0, h, n, vx=None, delta=None):
         """(x (B, n+1, 5), evals (B,), wall s) of n steps of h (scalar or (B,)) [s]."""
         import jax.numpy as jnp
-        from integrators import integrate_batch
+        from stepzoo.integrators import integrate_batch
         vx = self.vx if vx is None else vx
         p, u = self._arrays(vx, self.delta if delta is None else delta)
         hb = jnp.broadcast_to(jnp.asarray(h, float), (len(vx),))
@@ -168,7 +168,7 @@ class _Work:
 
     # -- chunks ------------------------------------------------------------------------------
     def reference_chunk(self) -> dict:
-        from dynamics.linear import lateral_eigenvalues
+        from stepzoo.dynamics.linear import lateral_eigenvalues
         rows = []
         for i in self.ids:
             vx, delta = self.cfg.points[i]
@@ -187,8 +187,8 @@ class _Work:
         return {"eigenvalues": pd.DataFrame(rows), "trajectories": traj}
 
     def method_chunk(self, name: str) -> dict:
-        from integrators import method
-        from integrators.stability import max_stable_step
+        from stepzoo.integrators import method
+        from stepzoo.integrators.stability import max_stable_step
         cfg, meth = self.cfg, method(name)
         self.compile(meth)
         runs = self._accuracy_runs(meth)
@@ -292,8 +292,8 @@ class _Work:
     def _trajectories(self, meth) -> pd.DataFrame:
         """Figure runs at the trajectory point: fractions of the predicted limit (of the
         largest grid step for A-stable methods) and one past it, from the accuracy x0."""
-        from dynamics.linear import lateral_eigenvalues
-        from integrators.stability import max_stable_step
+        from stepzoo.dynamics.linear import lateral_eigenvalues
+        from stepzoo.integrators.stability import max_stable_step
         cfg = self.cfg
         tvx, tdelta = cfg.traj_point
         limit = max_stable_step(meth, np.asarray(
@@ -441,8 +441,8 @@ def assemble(cfg: SweepConfig, chunks: Path) -> dict:
 
 def summary(runs: pd.DataFrame, limits: pd.DataFrame) -> pd.DataFrame:
     """One row per method: orders, stability intervals, limits and their worst agreement."""
-    from integrators import METHODS
-    from integrators.stability import stability_intervals
+    from stepzoo.integrators import METHODS
+    from stepzoo.integrators.stability import stability_intervals
     rows = []
     for name, lim in limits.groupby("method", sort=True):
         m = METHODS[name]

@@ -11,8 +11,8 @@ from pathlib import Path
 
 import numpy as np
 
-from bench.errors import UsageError
-from bench.validate import read_toml
+from stepzoo.errors import UsageError
+from stepzoo.validate import read_toml
 
 TOP = {"name", "model", "vehicle", "horizon", "methods", "envelope", "steps", "reference",
        "stability", "chunks", "trajectories"}
@@ -75,8 +75,8 @@ def load(path) -> SweepConfig:
 
 
 def validate(raw: dict, source: str = "config") -> SweepConfig:
-    import dynamics
-    from integrators import METHODS
+    from stepzoo import dynamics
+    from stepzoo.integrators import METHODS
     bad: list[str] = []
     check = _Checker(bad, source)
 

@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from bench.errors import UsageError
+from stepzoo.errors import UsageError
 
 
 def load_results(folder) -> tuple[pd.DataFrame, pd.DataFrame, dict]:
@@ -132,7 +132,7 @@ def _infeasible(rows: pd.DataFrame, name: str, pos_tol: float, margin: float) ->
 def write(tuned: dict, out) -> Path:
     import tomli_w
 
-    from bench.output import atomic_write
+    from stepzoo.output import atomic_write
     header = ("# Planner config written by `stepzoo tune`: `method` and `h` [s] are what the "
               "planner reads.\n")
     return atomic_write(out, header + tomli_w.dumps(tuned))

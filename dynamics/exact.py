@@ -5,7 +5,7 @@ import numpy as np
 from scipy.integrate import quad_vec
 from scipy.linalg import expm
 
-from dynamics.linear import lateral_matrix
+from stepzoo.dynamics.linear import lateral_matrix
 
 
 def _augmented(vx, delta, p):

@@ -5,8 +5,8 @@ from typing import Callable
 
 import jax.numpy as jnp
 
-from dynamics import bicycle, kinematic
-from dynamics.vehicles import physical
+from stepzoo.dynamics import bicycle, kinematic
+from stepzoo.dynamics.vehicles import physical
 
 
 @dataclass(frozen=True)

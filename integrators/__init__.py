@@ -1,7 +1,6 @@
 """The integrator zoo: fixed-step methods as data plus one generic step, one scan driver,
 the adaptive Dormand-Prince reference and stability analysis."""
-import dynamics  # noqa: F401  (float64 and the CPU platform are set there)
-from integrators.driver import Trajectory, integrate, integrate_batch
-from integrators.methods import METHODS, Method, describe, method
+from stepzoo.integrators.driver import Trajectory, integrate, integrate_batch
+from stepzoo.integrators.methods import METHODS, Method, describe, method
 
 __all__ = ["METHODS", "Method", "Trajectory", "describe", "integrate", "integrate_batch", "method"]

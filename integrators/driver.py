@@ -145,7 +145,7 @@ def _batch(method, f, x0, u, p, h, n_steps, t0, max_steps):
         return jax.tree.map(lambda a: a[None], one(*first, h if h_axis is None else h[0]))
     if batch < SMALL_BATCH:
         return jax.vmap(one, in_axes=(0, 0, 0, h_axis))(x0, u, p, h)
-    devices = jax.devices("cpu")
+    devices = jax.devices()
     # Implicit methods and run-time step counts stay on one device: shard_map refuses the
     # carry of their while loops (per-shard values mixed with shared ones), and with that
     # check off two devices hung in Newton's loop (XLA CPU, jax 0.10.2).
@@ -179,7 +179,7 @@ def use_all_cores() -> int:
     first JAX computation, since XLA fixes the device count when it starts (or set
     XLA_FLAGS=--xla_force_host_platform_device_count=N); returns the device count."""
     jax.config.update("jax_num_cpu_devices", os.cpu_count())
-    return len(jax.devices("cpu"))
+    return len(jax.devices())
 
 
 _STATIC = ("method", "f", "n_steps", "max_steps")

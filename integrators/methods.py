@@ -5,9 +5,9 @@ from dataclasses import dataclass
 import jax.numpy as jnp
 import numpy as np
 
-from integrators import steps
-from integrators.multistep import LinearMultistep, adams_bashforth, adams_moulton, bdf
-from integrators.tableau import ButcherTableau
+from stepzoo.integrators import steps
+from stepzoo.integrators.multistep import LinearMultistep, adams_bashforth, adams_moulton, bdf
+from stepzoo.integrators.tableau import ButcherTableau
 
 S3 = np.sqrt(3.0)
 

@@ -11,7 +11,7 @@ import jax
 import jax.numpy as jnp
 from jax import lax
 
-from integrators.methods import DOPRI5_B4, TABLEAUS
+from stepzoo.integrators.methods import DOPRI5_B4, TABLEAUS
 
 _TAB = TABLEAUS["dopri5"]
 _A, _B5, _C = _TAB.a, _TAB.b, _TAB.c

@@ -13,7 +13,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from integrators.methods import Method
+from stepzoo.integrators.methods import Method
 
 TOL = 1e-12            # |amplification| <= 1 + TOL counts as stable (round-off of |R| = 1)
 MEASURABLE = 1e-10     # |amplification| below 1 - MEASURABLE is inside beyond doubt

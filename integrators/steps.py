@@ -5,7 +5,7 @@ in state["evals"] (implicit: residual and Jacobian evaluations of Newton include
 import jax.numpy as jnp
 import numpy as np
 
-from integrators.newton import newton_solve
+from stepzoo.integrators.newton import newton_solve
 
 
 def explicit_rk_step(tab, fun, t, y, h, state):

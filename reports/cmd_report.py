@@ -7,10 +7,10 @@ import json
 import sys
 from pathlib import Path
 
-from bench.errors import UsageError
-from reports import figures, tables
-from reports.html import write_report
-from reports.load import load_plans, load_sweep, load_tuned
+from stepzoo.errors import UsageError
+from stepzoo.reports import figures, tables
+from stepzoo.reports.html import write_report
+from stepzoo.reports.load import load_plans, load_sweep, load_tuned
 
 # Used for the summary table's cost column when no tuned config gives them.
 DEFAULT_POS_TOL_M = 0.1

@@ -16,8 +16,8 @@ from matplotlib.collections import LineCollection
 from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
 
-from integrators import METHODS
-from integrators.stability import amplification_theory, region_grid
+from stepzoo.integrators import METHODS
+from stepzoo.integrators.stability import amplification_theory, region_grid
 
 # Log-axis tick labels go through mathtext, which probes STIX fonts that some matplotlib
 # wheels do not ship; the fallback to DejaVu Sans renders the same, so the probe's

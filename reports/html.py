@@ -5,8 +5,8 @@ from __future__ import annotations
 import html
 from pathlib import Path
 
-from bench.output import atomic_write
-from reports.tables import to_html, to_markdown
+from stepzoo.output import atomic_write
+from stepzoo.reports.tables import to_html, to_markdown
 
 STYLE = """
 body { font-family: sans-serif; max-width: 1300px; margin: 1.5em auto; padding: 0 1em;

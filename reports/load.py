@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from bench.errors import UsageError
+from stepzoo.errors import UsageError
 
 # Columns each sweep table must have; the figures and tables read nothing else.
 SWEEP_TABLES = {

@@ -9,8 +9,8 @@ import sys
 import time
 from pathlib import Path
 
-import bench
-from bench.errors import UsageError
+from stepzoo import bench
+from stepzoo.errors import UsageError
 
 # Package data of bench, beside its modules (a module's file, not the package's: an editable
 # install may make bench a namespace package, which has none).
@@ -60,8 +60,8 @@ def stages(args, out: Path) -> list[tuple[str, list[str]]]:
 
 
 def main(args) -> int:
-    from bench import cli
-    from reports import cmd_report
+    from stepzoo.bench import cli
+    from stepzoo.reports import cmd_report
     out = Path(args.out)
     if out.exists() and not out.is_dir():
         raise UsageError(f"--out {out} exists and is not a folder; give a folder")

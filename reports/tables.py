@@ -9,7 +9,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from reports.figures import method_order, worst_case
+from stepzoo.reports.figures import method_order, worst_case
 
 
 @dataclass(frozen=True)

@@ -8,8 +8,8 @@ import sys
 from dataclasses import replace
 from pathlib import Path
 
-from bench.errors import UsageError
-from bench.output import atomic_write, text_table, to_json
+from stepzoo.errors import UsageError
+from stepzoo.output import atomic_write, text_table, to_json
 
 SUMMARY_COLUMNS = ["scenario", "status", "expansions", "nodes", "search_s", "connect_s",
                    "path_length_m", "connect_tf_s"]
@@ -49,7 +49,7 @@ def _numbers(text, flag):
 
 def _scenarios(args):
     """The scenarios the arguments ask for; every inconsistency is a UsageError."""
-    from search.scenarios import builtin_names, custom_scenario, load_scenario, pose
+    from stepzoo.search.scenarios import builtin_names, custom_scenario, load_scenario, pose
     query = [f for f, v in (("--start", args.start), ("--goal", args.goal),
                             ("--cell-size", args.cell_size)) if v is not None]
     chosen = [f for f, v in (("SCENARIO", args.scenario or None), ("--all", args.all or None),
@@ -71,7 +71,7 @@ def _scenarios(args):
         raise UsageError("two scenarios of the batch have the same name (each is written to "
                          "a folder of its name); rename one file")
     if args.speed is not None:
-        from search.scenarios import speed
+        from stepzoo.search.scenarios import speed
         vx = speed(args.speed, "--speed")
         scenarios = [replace(s, speed=vx) for s in scenarios]
     return scenarios
@@ -79,8 +79,8 @@ def _scenarios(args):
 
 def plan_scenario(scenario, config, seed):
     """(record, finder): plan one scenario after a warm-up, so times measure planning."""
-    from search.pathfinder import PathFinder
-    from search.plan_output import plan_record
+    from stepzoo.search.pathfinder import PathFinder
+    from stepzoo.search.plan_output import plan_record
     finder = PathFinder(scenario.omap, config, scenario.vehicle, scenario.speed)
     warmup_s = finder.warm_up(scenario.goal_speed is not None)
     result = finder.plan(scenario.start, scenario.goal, scenario.goal_speed, seed)
@@ -94,9 +94,9 @@ def _summary_row(record):
 
 
 def main(args) -> int:
-    from search.pathfinder import BAD_ENDPOINT
-    from search.planner_config import load_config
-    from search.plan_output import write_plan
+    from stepzoo.search.pathfinder import BAD_ENDPOINT
+    from stepzoo.search.planner_config import load_config
+    from stepzoo.search.plan_output import write_plan
     if args.seed < 0:
         raise UsageError(f"--seed must be >= 0, got {args.seed}")
     out = Path(args.out)
@@ -107,7 +107,7 @@ def main(args) -> int:
     if args.scheduler is None:
         records = [plan_scenario(s, config, args.seed) for s in scenarios]
     else:
-        from bench.distributed import connect, gather_in_order
+        from stepzoo.bench.distributed import connect, gather_in_order
         with connect(args.scheduler) as client:
             records = gather_in_order(client, plan_scenario, scenarios, config, args.seed)
     for record in records:

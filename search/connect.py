@@ -11,9 +11,9 @@ import casadi as ca
 import jax.numpy as jnp
 import numpy as np
 
-from dynamics.kinematic import kinematic_bicycle, kinematic_terms
-from integrators import integrate, method as zoo_method
-from integrators.methods import TABLEAUS
+from stepzoo.dynamics.kinematic import kinematic_bicycle, kinematic_terms
+from stepzoo.integrators import integrate, method as zoo_method
+from stepzoo.integrators.methods import TABLEAUS
 
 # Measured on 40 seeded problems (3-30 m, arbitrary headings, start speed 0-10 m/s, N=50,
 # rk4, 2-core CPU, before the IPOPT options below): in a 120 m box, multiple shooting solved

@@ -12,7 +12,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from search.maps import SUBDIV, OccupancyMap
+from stepzoo.search.maps import SUBDIV, OccupancyMap
 
 
 @dataclass(frozen=True, eq=False)

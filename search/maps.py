@@ -17,6 +17,8 @@ from scipy.ndimage import distance_transform_edt
 # The distance field is sampled on a lattice SUBDIV times finer than the cells. Obstacles are
 # unions of whole cells, so at lattice points the field is exact, and reading it at the nearest
 # lattice point costs at most sqrt(2)/SUBDIV cells of conservativeness (0.71 cell for 2).
+# Real maps shipped with the package (MovingAI, ROS map_server), provenance in PROVENANCE.md.
+MAP_DIR = Path(__file__).with_name("mapdata")
 SUBDIV = 2
 
 _MOVINGAI_FREE = frozenset(".GS")

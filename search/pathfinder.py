@@ -11,13 +11,13 @@ from time import perf_counter
 import numpy as np
 from scipy.ndimage import label
 
-import dynamics
-from search.connect import Connection, connect, dubins_paths
-from search.footprint import Footprint, first_collision, poses_collide
-from search.maps import SUBDIV, OccupancyMap
-from search.planner_config import PlannerConfig
-from search.point_selector import point_selector, random_points
-from search.shooting import Shooter
+from stepzoo import dynamics
+from stepzoo.search.connect import Connection, connect, dubins_paths
+from stepzoo.search.footprint import Footprint, first_collision, poses_collide
+from stepzoo.search.maps import SUBDIV, OccupancyMap
+from stepzoo.search.planner_config import PlannerConfig
+from stepzoo.search.point_selector import point_selector, random_points
+from stepzoo.search.shooting import Shooter
 
 EXACT, APPROXIMATE, NO_PATH = "exact", "approximate", "no_path"
 # Why a plan ended. Bad endpoints are the caller's input: no search was run.

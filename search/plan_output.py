@@ -11,9 +11,9 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.collections import LineCollection
 from matplotlib.figure import Figure
 
-from bench.output import atomic_write
-from search.pathfinder import PlanResult
-from search.scenarios import Scenario
+from stepzoo.output import atomic_write
+from stepzoo.search.pathfinder import PlanResult
+from stepzoo.search.scenarios import Scenario
 
 MAX_GAP_M = 0.1       # no two consecutive path rows farther apart [m] (the report's contract)
 ROW_SPACING_M = MAX_GAP_M / 2  # spacing the path is filled to: half, for rounding room

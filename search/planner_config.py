@@ -8,8 +8,8 @@ import math
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from bench.errors import UsageError
-from bench.validate import read_toml
+from stepzoo.errors import UsageError
+from stepzoo.validate import read_toml
 
 DEFAULT_CONFIG = Path(__file__).with_name("tuned_default.toml")
 
@@ -82,7 +82,7 @@ def check_param(name: str, value):
 def make_config(method="rk4", h=0.02, provenance="built-in defaults", source="",
                 **overrides) -> PlannerConfig:
     """A validated config: method a zoo name, h > 0 [s], overrides by param name."""
-    from integrators import METHODS
+    from stepzoo.integrators import METHODS
     if not isinstance(method, str) or method not in METHODS:
         raise UsageError(f"unknown integration method {method!r} in the planner config; "
                          f"use one of {', '.join(METHODS)}")

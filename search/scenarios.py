@@ -10,9 +10,9 @@ from pathlib import Path
 
 import numpy as np
 
-import dynamics
-from bench.errors import UsageError
-from search.maps import OccupancyMap, from_array, load_map
+from stepzoo import dynamics
+from stepzoo.errors import UsageError
+from stepzoo.search.maps import OccupancyMap, from_array, load_map
 
 SCENARIO_DIR = Path(__file__).with_name("scenarios")
 DEFAULT_SPEED = 5.0  # [m/s] when a query names none

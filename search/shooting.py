@@ -6,10 +6,10 @@ from typing import NamedTuple
 import jax.numpy as jnp
 import numpy as np
 
-import dynamics
-from integrators import integrate_batch, method
-from search.footprint import Footprint, first_collision
-from search.maps import OccupancyMap
+from stepzoo import dynamics
+from stepzoo.integrators import integrate_batch, method
+from stepzoo.search.footprint import Footprint, first_collision
+from stepzoo.search.maps import OccupancyMap
 
 
 class Shots(NamedTuple):

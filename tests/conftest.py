@@ -1,7 +1,12 @@
+import jax
 import numpy as np
 import pytest
 
-import dynamics  # noqa: F401  (float64 on the CPU)
+from stepzoo import dynamics
+
+# The tests are a caller of the library like any other: they ask for float64 themselves
+# (the library changes no JAX setting; the `stepzoo` command turns float64 on at start-up).
+jax.config.update("jax_enable_x64", True)
 
 
 @pytest.fixture

@@ -8,11 +8,11 @@ import sys
 import numpy as np
 import pytest
 
-from bench.cli import main as stepzoo
+from stepzoo.bench.cli import main as stepzoo
 
 
 def run(args):
-    return subprocess.run([sys.executable, "-m", "bench.cli", *args], capture_output=True,
+    return subprocess.run([sys.executable, "-m", "stepzoo", *args], capture_output=True,
                           text=True)
 
 

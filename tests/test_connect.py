@@ -5,10 +5,10 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from dynamics.kinematic import kinematic_bicycle
-from dynamics.vehicles import vehicle
-from integrators import integrate, method
-from search.connect import (A_MAX, _fastest_profile, connect, dubins_paths, resimulate,
+from stepzoo.dynamics.kinematic import kinematic_bicycle
+from stepzoo.dynamics.vehicles import vehicle
+from stepzoo.integrators import integrate, method
+from stepzoo.search.connect import (A_MAX, _fastest_profile, connect, dubins_paths, resimulate,
                             step_function)
 
 CAR = vehicle("bmw320i")

@@ -4,9 +4,9 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from dynamics import model
-from dynamics.exact import exact_reduced
-from integrators import METHODS, integrate
+from stepzoo.dynamics import model
+from stepzoo.dynamics.exact import exact_reduced
+from stepzoo.integrators import METHODS, integrate
 
 T, K = 2.0, 20                       # horizon [s]; checkpoints where the error is taken
 NS = K * np.array([2, 3, 4, 6, 8, 11, 16, 23, 32, 45, 64, 90, 128])

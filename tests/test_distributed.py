@@ -15,10 +15,10 @@ import pytest
 
 pytest.importorskip("dask.distributed")
 
-from bench import distributed  # noqa: E402
-from bench.cli import main as stepzoo  # noqa: E402
-from bench.sweep import chunk_ids, run_sweep  # noqa: E402
-from bench.sweep_config import load  # noqa: E402
+from stepzoo.bench import distributed  # noqa: E402
+from stepzoo.bench.cli import main as stepzoo  # noqa: E402
+from stepzoo.bench.sweep import chunk_ids, run_sweep  # noqa: E402
+from stepzoo.bench.sweep_config import load  # noqa: E402
 
 CONFIGS = Path(__file__).resolve().parents[1] / "bench" / "configs"
 RESULTS = ("runs", "limits", "eigenvalues", "trajectories", "summary")

@@ -5,8 +5,8 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from dynamics import model, physical, vehicle, vehicle_names
-from dynamics.linear import lateral_eigenvalues, lateral_matrix, state_jacobian
+from stepzoo.dynamics import model, physical, vehicle, vehicle_names
+from stepzoo.dynamics.linear import lateral_eigenvalues, lateral_matrix, state_jacobian
 
 
 @pytest.mark.parametrize("vx,delta", [(15.0, np.pi / 4), (2.0, 0.0), (30.0, -0.3)])

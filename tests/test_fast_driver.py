@@ -9,10 +9,10 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-import dynamics
-from integrators import integrate, integrate_batch, method
-from integrators.driver import CHUNK, CHUNK_IMPLICIT, SHARE, SMALL_BATCH
-from integrators.fast_trig import cos, fast_trig, sin
+from stepzoo import dynamics
+from stepzoo.integrators import integrate, integrate_batch, method
+from stepzoo.integrators.driver import CHUNK, CHUNK_IMPLICIT, SHARE, SMALL_BATCH
+from stepzoo.integrators.fast_trig import cos, fast_trig, sin
 
 MODEL = dynamics.model("dynamic5")
 
@@ -86,7 +86,8 @@ def test_batch_shared_among_host_devices_equals_one_device(tmp_path, name, max_s
     # Implicit methods and run-time step counts are kept on one device (see the driver).
     out = tmp_path / "x.npy"
     n = 40 if max_steps is None else "jax.numpy.asarray(40)"
-    code = ("import numpy as np, jax; from tests.test_fast_driver import *; "
+    code = ("import numpy as np, jax; jax.config.update('jax_enable_x64', True); "
+            "from tests.test_fast_driver import *; "
             "assert len(jax.devices()) == 2; x0, u, p, _ = envelope(2 * SHARE + 5, 4); "
             f"tr = integrate_batch(method({name!r}), MODEL.rhs, x0, u, p, 0.002, {n}, "
             f"max_steps={max_steps}); assert len(tr.x.sharding.device_set) == {devices}; "

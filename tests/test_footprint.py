@@ -6,11 +6,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from search.footprint import Footprint, discs_collide, first_collision, poses_collide, roomy
-from search.maps import SUBDIV, from_array, load_map
+from stepzoo.search.footprint import Footprint, discs_collide, first_collision, poses_collide, roomy
+from stepzoo.search.maps import MAP_DIR, SUBDIV, from_array, load_map
 
-# shared/ lies beside the repository (the checkout and CI clone alike).
-SHARED_MAPS = Path(__file__).resolve().parents[2] / "shared" / "maps"
 
 
 def grid_with(cells, shape=(200, 200), resolution=0.1):
@@ -202,7 +200,7 @@ def poses_over(omap, footprint, rng, n=20000):
 @pytest.mark.parametrize("length, width", [(4.708, 1.81), (1.0, 2.0)])
 def test_the_centre_screen_agrees_exactly_with_the_per_disc_check_on_a_real_map(
         name, cell_size, length, width):
-    real = load_map(SHARED_MAPS / name, cell_size=cell_size)
+    real = load_map(MAP_DIR / name, cell_size=cell_size)
     omap = from_array(real.occupied, real.resolution, (-3.25, 7.1))  # an origin off zero
     footprint = Footprint.from_vehicle(length, width)
     poses = poses_over(omap, footprint, np.random.default_rng(5))

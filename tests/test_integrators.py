@@ -3,9 +3,9 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from integrators import METHODS, integrate, integrate_batch, method
-from integrators.multistep import adams_bashforth, adams_moulton, bdf
-from integrators.tableau import ButcherTableau
+from stepzoo.integrators import METHODS, integrate, integrate_batch, method
+from stepzoo.integrators.multistep import adams_bashforth, adams_moulton, bdf
+from stepzoo.integrators.tableau import ButcherTableau
 
 
 def test_multistep_factories_give_the_textbook_coefficients():
@@ -39,7 +39,7 @@ def test_run_time_step_count_equals_compiled_step_count(paper_point):
 
 @pytest.mark.parametrize("name", ["rk4", "ab4", "radau_iia3", "bdf2"])
 def test_vmapped_batch_equals_one_by_one(name):
-    from dynamics import model
+    from stepzoo.dynamics import model
     m = model("dynamic5")
     vxs, deltas = np.array([2.0, 8.0, 15.0, 30.0]), np.array([-0.7, 0.1, 0.785, 0.3])
     x0 = jnp.array([[0, 0, 0, 0.1 * i, -0.05 * i] for i in range(4)], dtype=float)

@@ -6,10 +6,8 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from search.maps import OccupancyMap, from_array, load_map
+from stepzoo.search.maps import MAP_DIR, OccupancyMap, from_array, load_map
 
-# shared/ lies beside the repository (the checkout and CI clone alike).
-SHARED_MAPS = Path(__file__).resolve().parents[2] / "shared" / "maps"
 
 
 def true_clearance(occupied, resolution, origin, xy):
@@ -240,7 +238,7 @@ def test_grid_and_parameters_are_validated():
         OccupancyMap(np.zeros((2, 2), bool), 1.0, (0.0,))
 
 
-MAP_FILES = sorted(p for p in SHARED_MAPS.iterdir() if p.suffix in (".map", ".yaml"))
+MAP_FILES = sorted(p for p in MAP_DIR.iterdir() if p.suffix in (".map", ".yaml"))
 
 
 def test_the_shared_map_folder_is_covered():

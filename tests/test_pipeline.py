@@ -11,9 +11,9 @@ import pandas as pd
 import pytest
 from test_report import check_report
 
-from bench.cli import main as stepzoo
-from integrators import METHODS
-from search.scenarios import builtin_names
+from stepzoo.bench.cli import main as stepzoo
+from stepzoo.integrators import METHODS
+from stepzoo.search.scenarios import builtin_names
 
 ROOT = Path(__file__).resolve().parents[1]
 SMALL = ROOT / "bench" / "configs" / "small.toml"
@@ -24,7 +24,7 @@ SWEEP_FILES = ["config.toml", "manifest.json", "runs.parquet", "limits.parquet",
 @pytest.fixture(scope="module")
 def ran(tmp_path_factory):
     out = tmp_path_factory.mktemp("run") / "results"
-    proc = subprocess.run([sys.executable, "-m", "bench.cli", "run", "--config", str(SMALL),
+    proc = subprocess.run([sys.executable, "-m", "stepzoo", "run", "--config", str(SMALL),
                            "--out", str(out)], capture_output=True, text=True, cwd=ROOT)
     return out, proc
 
@@ -75,7 +75,7 @@ def test_run_with_a_missing_config_is_one_line_and_writes_nothing(tmp_path, caps
 
 
 def test_run_default_config_is_the_shipped_envelope():
-    from reports.pipeline import config_path
+    from stepzoo.reports.pipeline import config_path
     assert config_path(None).resolve() == (ROOT / "bench" / "configs" / "envelope.toml")
 
 
@@ -84,7 +84,7 @@ def test_a_second_run_reuses_the_finished_sweep(ran):
     out, proc = ran
     assert proc.returncode == 0, proc.stderr[-2000:]
     created = json.loads((out / "sweep" / "manifest.json").read_text())["created"]
-    again = subprocess.run([sys.executable, "-m", "bench.cli", "run", "--config", str(SMALL),
+    again = subprocess.run([sys.executable, "-m", "stepzoo", "run", "--config", str(SMALL),
                             "--out", str(out)], capture_output=True, text=True, cwd=ROOT)
     assert again.returncode == 0, again.stderr[-2000:]
     assert json.loads((out / "sweep" / "manifest.json").read_text())["created"] == created

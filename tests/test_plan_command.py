@@ -8,10 +8,10 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from bench.cli import main
-from bench.errors import UsageError
-from search.planner_config import DEFAULT_CONFIG, PARAMS, load_config
-from search.scenarios import builtin_names, load_scenario
+from stepzoo.bench.cli import main
+from stepzoo.errors import UsageError
+from stepzoo.search.planner_config import DEFAULT_CONFIG, PARAMS, load_config
+from stepzoo.search.scenarios import builtin_names, load_scenario
 
 STATS = {"expansions", "nodes", "search_s", "connect_s", "path_length_m", "connect_tf_s",
          "seed", "method", "h"}
@@ -151,10 +151,10 @@ def test_the_shipped_default_is_a_tune_output_stable_across_the_default_envelope
     corner of that envelope (2 m/s, every steer)."""
     import tomllib
 
-    import dynamics
-    from dynamics.linear import lateral_eigenvalues
-    from integrators import method
-    from integrators.stability import max_stable_step
+    from stepzoo import dynamics
+    from stepzoo.dynamics.linear import lateral_eigenvalues
+    from stepzoo.integrators import method
+    from stepzoo.integrators.stability import max_stable_step
     config = load_config()
     assert config.source == str(DEFAULT_CONFIG) and "default envelope" in config.provenance
     raw = tomllib.loads(DEFAULT_CONFIG.read_text())

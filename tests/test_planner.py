@@ -7,18 +7,17 @@ import numpy as np
 import pytest
 from scipy.ndimage import label
 
-import dynamics
-from integrators import integrate
-from integrators.reference import reference
-from search.connect import resimulate
-from search.maps import SUBDIV, from_array, load_map
-from search.pathfinder import PathFinder
-from search.planner_config import make_config
-from search.point_selector import point_selector, random_points
-from search.scenarios import builtin_names, load_scenario
-from search.shooting import Shooter, pure_pursuit
+from stepzoo import dynamics
+from stepzoo.integrators import integrate
+from stepzoo.integrators.reference import reference
+from stepzoo.search.connect import resimulate
+from stepzoo.search.maps import MAP_DIR, SUBDIV, from_array, load_map
+from stepzoo.search.pathfinder import PathFinder
+from stepzoo.search.planner_config import make_config
+from stepzoo.search.point_selector import point_selector, random_points
+from stepzoo.search.scenarios import builtin_names, load_scenario
+from stepzoo.search.shooting import Shooter, pure_pursuit
 
-SHARED_MAPS = Path(__file__).resolve().parents[2] / "shared" / "maps"
 CONFIG = make_config()
 
 
@@ -281,7 +280,7 @@ def free_query(omap):
     return (*start, psi), (*goal, psi)
 
 
-@pytest.mark.parametrize("path", sorted(p for p in SHARED_MAPS.iterdir() if p.suffix != ".md"),
+@pytest.mark.parametrize("path", sorted(p for p in MAP_DIR.iterdir() if p.suffix != ".md"),
                          ids=lambda p: p.name)
 def test_every_shared_map_loads_and_a_free_query_plans(path):
     omap = load_map(path, cell_size=CELL_SIZE.get(path.suffix))

@@ -3,9 +3,9 @@ import jax.numpy as jnp
 import numpy as np
 from scipy.integrate import solve_ivp
 
-from dynamics import model
-from dynamics.exact import exact_reduced
-from integrators.reference import reference
+from stepzoo.dynamics import model
+from stepzoo.dynamics.exact import exact_reduced
+from stepzoo.integrators.reference import reference
 
 
 def test_reference_matches_exact_solution_of_the_reduced_model(paper_point):

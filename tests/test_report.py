@@ -9,9 +9,9 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from bench.cli import main as stepzoo
-from reports import tables
-from reports.load import load_sweep
+from stepzoo.bench.cli import main as stepzoo
+from stepzoo.reports import tables
+from stepzoo.reports.load import load_sweep
 
 PNG = b"\x89PNG\r\n\x1a\n"
 # Synthetic methods: (order, stages, limit constant c in h_max = c / |lambda| scale).
@@ -179,7 +179,7 @@ def test_report_without_tuned_config_or_plans_still_has_every_figure(tmp_path):
 
 
 def test_regions_caption_names_the_methods_stable_at_the_tuned_step(tmp_path):
-    from reports.figures import stability_regions
+    from stepzoo.reports.figures import stability_regions
     sweep = load_sweep(write_sweep(tmp_path / "sweep"))
     # |lambda| at 2 m/s is 32.5 1/s: h = 0.07 puts h*lambda inside RK4's region (|z| = 2.3,
     # angle 157 deg) but outside forward Euler's disc and AB4's small region.

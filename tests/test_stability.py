@@ -7,9 +7,9 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from bench.cli import main as stepzoo
-from integrators import METHODS, integrate, method
-from integrators.stability import max_stable_step, region_grid, stability_intervals
+from stepzoo.bench.cli import main as stepzoo
+from stepzoo.integrators import METHODS, integrate, method
+from stepzoo.integrators.stability import max_stable_step, region_grid, stability_intervals
 
 # Published (real, imaginary) intervals: Hairer & Wanner II; Butcher 2016; nodepy; the exact
 # polynomial |R(iy)|^2 - 1 for Heun, RK6 (leading term +y^8/786: tangent, interval 0) and

@@ -10,11 +10,11 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from bench.cli import main as stepzoo
-from bench.sweep import _Work, chunk_ids, compute_chunk, run_sweep
-from bench.sweep_config import load
-from integrators import METHODS, method
-from integrators.stability import max_stable_step
+from stepzoo.bench.cli import main as stepzoo
+from stepzoo.bench.sweep import _Work, chunk_ids, compute_chunk, run_sweep
+from stepzoo.bench.sweep_config import load
+from stepzoo.integrators import METHODS, method
+from stepzoo.integrators.stability import max_stable_step
 
 CONFIGS = Path(__file__).resolve().parents[1] / "bench" / "configs"
 # Measured quantities: they differ between two runs of the same config.

@@ -10,15 +10,15 @@ import numpy as np
 import pandas as pd
 import pytest
 
-import dynamics
-from bench.cli import main as stepzoo
-from bench.sweep import run_sweep
-from bench.sweep_config import load
-from bench.tune import candidates
-from dynamics.linear import lateral_eigenvalues
-from integrators import integrate_batch, method
-from integrators.reference import reference
-from integrators.stability import max_stable_step
+from stepzoo import dynamics
+from stepzoo.bench.cli import main as stepzoo
+from stepzoo.bench.sweep import run_sweep
+from stepzoo.bench.sweep_config import load
+from stepzoo.bench.tune import candidates
+from stepzoo.dynamics.linear import lateral_eigenvalues
+from stepzoo.integrators import integrate_batch, method
+from stepzoo.integrators.reference import reference
+from stepzoo.integrators.stability import max_stable_step
 
 SMALL = Path(__file__).resolve().parents[1] / "bench" / "configs" / "small.toml"
 POS_TOL, MARGIN = 0.01, 0.1        # [m], fraction

@@ -83,7 +83,7 @@ def diffrax_rk4(n, h):
     import jax
     import jax.numpy as jnp
 
-    from bench.perf.workload import MODEL
+    from stepzoo.bench.perf.workload import MODEL
 
     class RK4(diffrax.AbstractERK):
         tableau: ClassVar[diffrax.ButcherTableau] = diffrax.ButcherTableau(

@@ -3,8 +3,8 @@ NumPy, Numba serial and `prange`+`fastmath`, diffrax, and SciPy DOP853 on one tr
 import jax
 import pytest
 
-from bench.perf import baselines
-from bench.perf.workload import H_S, N_STEPS, problem
+from stepzoo.bench.perf import baselines
+from stepzoo.bench.perf.workload import H_S, N_STEPS, problem
 
 ROUNDS = {1: 30, 100: 10, 10_000: 3, 100_000: 2}   # as the driver's rk4, the contender
 

@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
-from dynamics.vehicles import vehicle
-from search.connect import connect
+from stepzoo.dynamics.vehicles import vehicle
+from stepzoo.search.connect import connect
 
 CAR = vehicle("bmw320i")
 L, M = CAR["Lf"] + CAR["Lr"], CAR["m"]

@@ -24,7 +24,7 @@ def sweep(config: Path, flags: list[str]) -> dict:
     import pandas as pd
     with tempfile.TemporaryDirectory() as tmp:
         started = time.perf_counter()
-        done = subprocess.run([sys.executable, "-m", "bench.cli", "sweep", str(config),
+        done = subprocess.run([sys.executable, "-m", "stepzoo", "sweep", str(config),
                                "--out", tmp, "--no-progress", "--format", "json", *flags],
                               capture_output=True, text=True, check=True)
         wall = time.perf_counter() - started
@@ -36,7 +36,7 @@ def sweep(config: Path, flags: list[str]) -> dict:
 def task_overhead(workers: int = 2) -> dict:
     """Dask's cost per task [s] on a LocalCluster: the median round trip of one no-op task at
     a time, the wall time per task of NOOPS submitted at once, and the cluster's start."""
-    from bench.distributed import connect
+    from stepzoo.bench.distributed import connect
     started = time.perf_counter()
     with connect(f"local:{workers}") as client:
         startup = time.perf_counter() - started

@@ -5,9 +5,9 @@ from time import perf_counter
 import jax
 import pytest
 
-from bench.perf.workload import H_S, MODEL, N_STEPS, problem
-from integrators import integrate_batch, method
-from integrators.fast_trig import fast_trig
+from stepzoo.bench.perf.workload import H_S, MODEL, N_STEPS, problem
+from stepzoo.integrators import integrate_batch, method
+from stepzoo.integrators.fast_trig import fast_trig
 
 BATCHES = (1, 100, 10_000, 100_000)
 ROUNDS = {1: 30, 100: 10, 10_000: 3, 100_000: 1}   # plus a warm-up round each

@@ -7,8 +7,8 @@ from time import perf_counter
 
 import jax
 
-import integrators
-from bench import sweep, sweep_config
+from stepzoo import integrators
+from stepzoo.bench import sweep, sweep_config
 
 ENVELOPE = Path(sweep.__file__).parent / "configs" / "envelope.toml"
 

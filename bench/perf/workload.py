@@ -2,7 +2,7 @@
 seeded operating points across the planner's envelope, N_STEPS fixed steps of H_S."""
 import numpy as np
 
-import dynamics
+from stepzoo import dynamics
 
 H_S = 0.01          # [s]
 N_STEPS = 500

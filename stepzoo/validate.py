@@ -3,7 +3,7 @@ import math
 import tomllib
 from pathlib import Path
 
-from bench.errors import UsageError
+from stepzoo.errors import UsageError
 
 
 def positive(name: str, value: float) -> float:
