@@ -4,6 +4,7 @@ from functools import cache
 from pathlib import Path
 
 PHYSICAL = ("m", "Iz", "Lf", "Lr", "Caf", "Car")
+G = 9.81        # [m/s^2] gravity, CommonRoad's value
 
 
 @cache
@@ -35,3 +36,36 @@ def physical(name: str | None = None) -> dict:
     """Only the float parameters the right-hand sides read (a JAX-friendly pytree)."""
     v = vehicle(name)
     return {k: float(v[k]) for k in PHYSICAL}
+
+
+def _sub_table(name: str | None, kind: str) -> dict:
+    v = vehicle(name)
+    if kind not in v:
+        have = [k for k in vehicle_names() if kind in _table()[k]]
+        raise KeyError(f"vehicle {v['name']!r} has no {kind} parameter set; sets with one: "
+                       f"{', '.join(have)}")
+    return v[kind]
+
+
+def axle_loads(p: dict) -> tuple[float, float]:
+    """Static front and rear axle loads Fz [N] of a set with m, Lf, Lr."""
+    L = p["Lf"] + p["Lr"]
+    return p["m"] * G * p["Lr"] / L, p["m"] * G * p["Lf"] / L
+
+
+def tyre_params(name: str | None, tyre: str) -> dict:
+    """The extra parameters a tyre law reads, per axle (suffix f, r): pacejka B, C, D [N], E;
+    fiala mu and Fz [N]; linear none (it reads Caf, Car)."""
+    if tyre == "linear":
+        return {}
+    t = _sub_table(name, tyre)
+    Fzf, Fzr = axle_loads(physical(name))
+    if tyre == "pacejka":
+        return {"Bf": t["B"], "Cf": t["C"], "Df": t["mu"] * Fzf, "Ef": t["E"],
+                "Br": t["B"], "Cr": t["C"], "Dr": t["mu"] * Fzr, "Er": t["E"]}
+    return {"mu": float(t["mu"]), "Fzf": Fzf, "Fzr": Fzr}
+
+
+def st_params(name: str | None) -> dict:
+    """Parameters of the CommonRoad single-track model for a set (see [NAME.st])."""
+    return {k: float(v) for k, v in _sub_table(name, "st").items() if k != "source"}
