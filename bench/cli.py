@@ -1,15 +1,18 @@
 """The `stepzoo` command: one subcommand per module, imported only when it runs.
 
 Each subcommand module has `add_arguments(parser)` and `main(args) -> int`. A user mistake
-(UsageError, or a bad flag) prints one line and exits with status 2, never a traceback."""
+(UsageError, or a bad flag) or an operating-system error (a file it may not read, a full
+disk) prints one line and exits with status 2, never a traceback; see EXIT_STATUSES."""
 import argparse
+import errno
 import importlib
 import os
 import re
 import signal
 import sys
 
-from stepzoo.errors import UsageError
+from stepzoo import __version__
+from stepzoo.errors import NoAnswer, UsageError
 
 COMMANDS = {
     "run": ("stepzoo.reports.pipeline", "the whole pipeline: sweep -> tune -> plan -> report"),
@@ -21,6 +24,26 @@ COMMANDS = {
     "plan": ("stepzoo.search.cmd_plan", "plan a scenario (built-in, or map + start + goal)"),
     "report": ("stepzoo.reports.cmd_report", "build the HTML report from result folders"),
 }
+# Commands that run long enough to show progress: they take --no-progress and -q.
+LONG = ("run", "sweep", "plan", "report")
+# A command that resumes where an interrupted call stopped, and how.
+RESUME = {"sweep": "resume with --resume",
+          "run": "resume by running the same command again (finished sweep chunks are kept)"}
+INTERRUPTED = 130          # the shell's status for a command ended by Ctrl-C (128 + SIGINT)
+EXIT_STATUSES = """exit status:
+  0    success
+  1    the command ran correctly but found no answer: a plan that is not exact
+       (approximate or no_path), a tuning where no (method, h) qualifies
+  2    bad input, or a file or folder that cannot be used (unreadable, read-only, disk
+       full, busy with another stepzoo command); one line on stderr says which
+  130  interrupted (Ctrl-C); a sweep resumes with --resume"""
+# Hints for the operating-system errors a user can fix, by errno.
+OS_HINTS = {errno.EACCES: "check its permissions", errno.EPERM: "check its permissions",
+            errno.EROFS: "the file system is read-only; give another --out",
+            errno.ENOSPC: "the disk is full; free space or give another --out",
+            errno.EDQUOT: "the disk quota is used up; free space or give another --out",
+            errno.ENOENT: "check the path", errno.EISDIR: "give a file, not a folder",
+            errno.ENOTDIR: "a part of the path is a file, not a folder"}
 
 
 # XLA:CPU compiles a while loop into one native function only when the loop touches fewer
@@ -58,15 +81,23 @@ class _Parser(argparse.ArgumentParser):
 
 def build_parser(only: str | None = None) -> argparse.ArgumentParser:
     parser = _Parser(prog="stepzoo", description="Integrator stability benchmarking for "
-                     "vehicle models, and the tree planner that uses the tuned step.")
+                     "vehicle models, and the tree planner that uses the tuned step.",
+                     epilog=EXIT_STATUSES, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--version", action="version", version=f"stepzoo {__version__}")
     sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser,
                                 metavar="COMMAND")
     common = argparse.ArgumentParser(add_help=False)
     common.add_argument("--platform", metavar="NAME",
                         help="JAX platform to run on, e.g. cpu, cuda, rocm (default: "
                         "JAX_PLATFORMS, else JAX's own choice)")
+    long = argparse.ArgumentParser(add_help=False)
+    long.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
+    long.add_argument("-q", "--quiet", action="store_true",
+                      help="print only results and errors (implies --no-progress)")
     for name, (module, helptext) in COMMANDS.items():
-        p = sub.add_parser(name, help=helptext, description=helptext, parents=[common])
+        p = sub.add_parser(name, help=helptext, description=helptext, epilog=EXIT_STATUSES,
+                           formatter_class=argparse.RawDescriptionHelpFormatter,
+                           parents=[common, long] if name in LONG else [common])
         if name == only:      # the other commands' modules (and JAX) stay unimported
             importlib.import_module(module).add_arguments(p)
     return parser
@@ -81,13 +112,45 @@ def main(argv=None) -> int:
     # Before any subcommand module is imported: XLA reads its flags when JAX starts.
     os.environ["XLA_FLAGS"] = _with_xla_option(os.environ.get("XLA_FLAGS", ""))
     args = build_parser(chosen).parse_args(argv)
+    if args.command in LONG:
+        args.progress = not (args.no_progress or args.quiet)
     configure_jax(args.platform)
     try:
-        return importlib.import_module(COMMANDS[args.command][0]).main(args) or 0
+        code = importlib.import_module(COMMANDS[args.command][0]).main(args) or 0
+        sys.stdout.flush()             # a full stdout fails here, not in a traceback at exit
+        return code
+    except NoAnswer as err:
+        sys.stderr.write(f"stepzoo {args.command}: no answer: {err}\n")
+        return 1
     except UsageError as err:
-        sys.stderr.write(f"stepzoo {args.command}: error: {err}\n")
-        return 2
+        return _fail(args.command, str(err))
+    except OSError as err:
+        if err.filename is None:
+            # Every file this package writes names itself in its errors (output.atomic_write):
+            # a nameless write error is stdout's.
+            _silence_stdout()
+            return _fail(args.command, f"cannot write the output to stdout: {err.strerror}")
+        return _fail(args.command, os_message(err))
+    except KeyboardInterrupt:
+        hint = RESUME.get(args.command)
+        sys.stderr.write(f"stepzoo {args.command}: interrupted{'; ' + hint if hint else ''}\n")
+        return INTERRUPTED
 
 
-if __name__ == "__main__":
-    sys.exit(main())
+def os_message(err: OSError) -> str:
+    """One line for an operating-system error: what failed, on which file, what to do."""
+    text = f"{err.strerror or err}: {err.filename}" if err.filename else str(err.strerror or err)
+    hint = OS_HINTS.get(err.errno)
+    return f"{text}; {hint}" if hint else text
+
+
+def _silence_stdout():
+    """Point a failed stdout at /dev/null, or Python flushes it again at exit and prints a
+    traceback (the command's own stdout only: `stepzoo run` lends stderr to its stages)."""
+    if sys.stdout is sys.__stdout__:
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+
+
+def _fail(command: str, message: str) -> int:
+    sys.stderr.write(f"stepzoo {command}: error: {message}\n")
+    return 2

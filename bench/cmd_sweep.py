@@ -11,7 +11,6 @@ def add_arguments(p):
     p.add_argument("--resume", action="store_true",
                    help="skip the chunks DIR already holds (same config only)")
     p.add_argument("--overwrite", action="store_true", help="discard what DIR holds first")
-    p.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
     p.add_argument("--scheduler", metavar="ADDRESS", help="compute the chunks on a Dask "
                    "cluster: tcp://HOST:8786, or local:N worker processes here (needs "
                    "stepzoo[distributed])")
@@ -26,12 +25,12 @@ def main(args) -> int:
     cfg = load(args.config)
     if args.scheduler is None:
         manifest = run_sweep(cfg, args.out, resume=args.resume, overwrite=args.overwrite,
-                             progress=not args.no_progress)
+                             progress=args.progress)
     else:
         from stepzoo.bench.distributed import connect, sweep_runner
         with connect(args.scheduler) as client:
             manifest = run_sweep(cfg, args.out, resume=args.resume, overwrite=args.overwrite,
-                                 progress=not args.no_progress, runner=sweep_runner(client))
+                                 progress=args.progress, runner=sweep_runner(client))
     if args.format == "json":
         print(to_json({"out": str(args.out), "config_sha256": manifest["config_sha256"],
                        "timing": manifest["timing"]}))

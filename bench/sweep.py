@@ -3,7 +3,6 @@ by one block of points. `compute_chunk(config, chunk_id)` is pure (a Dask worker
 it); `run_sweep` writes each chunk as it finishes, resumes, and concatenates the tables."""
 from __future__ import annotations
 
-import json
 import math
 import os
 import shutil
@@ -16,9 +15,10 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from stepzoo.bench import metrics
+from stepzoo.bench import metrics, sweep_folder
 from stepzoo.errors import UsageError
 from stepzoo.output import atomic_write, to_json
+from stepzoo.results_folder import writing
 from stepzoo.bench.sweep_config import SweepConfig
 
 REF_WINDOW = 64        # output times per reference call: its cost per step grows with them
@@ -340,12 +340,18 @@ def run_sweep(cfg: SweepConfig, out, resume=False, overwrite=False, progress=Tru
     """Compute every missing chunk of `cfg` into `out` and write the tables; returns the
     manifest. `on_chunk(chunk_id)` is called after each chunk is safely on disk. `runner(cfg,
     chunk_ids)`, if given, computes the chunks elsewhere (`bench.distributed`) and yields
-    (chunk id, tables) as they finish; by default they are computed here, in order."""
+    (chunk id, tables) as they finish; by default they are computed here, in order. The
+    folder is locked meanwhile: a second sweep into it is refused (`results_folder`)."""
+    sweep_folder.check_flags(resume, overwrite)
+    with writing(out, "sweep"):
+        return _fill(cfg, Path(out), resume, overwrite, progress, on_chunk, runner)
+
+
+def _fill(cfg, out: Path, resume, overwrite, progress, on_chunk, runner) -> dict:
     from tqdm import tqdm
     started = time.perf_counter()
-    out = Path(out)
     chunks = out / "chunks"
-    old = _check_folder(cfg, out, resume, overwrite)
+    old = sweep_folder.check_start(cfg, out, resume, overwrite)
     chunks.mkdir(parents=True, exist_ok=True)
     for stale in chunks.glob(".*.tmp*"):           # a chunk cut off while being written
         shutil.rmtree(stale, ignore_errors=True)
@@ -369,37 +375,21 @@ def run_sweep(cfg: SweepConfig, out, resume=False, overwrite=False, progress=Tru
         if on_chunk is not None:
             on_chunk(cid)
     t0 = time.perf_counter()
+    lost = sweep_folder.missing_chunks(ids, chunks)
+    if lost:
+        raise UsageError(f"{chunks} lost {len(lost)} chunk(s) while this sweep ran ({lost[0]}"
+                         f"{', ...' if len(lost) > 1 else ''}); tables not written: rerun with "
+                         "--resume")
     tables = assemble(cfg, chunks)
+    problem = sweep_folder.table_problem(cfg, tables["runs"], tables["limits"])
+    if problem:
+        raise UsageError(f"{out}: the chunks do not add up: {problem}; tables not written")
     for name in ("runs", "limits", "eigenvalues", "trajectories", "summary"):
         atomic_write(out / f"{name}.parquet", _parquet(tables[name]))
     for name in ("limits", "summary"):
         atomic_write(out / f"{name}.csv", tables[name].to_csv(index=False))
     timing = _timing(tables["timing"], time.perf_counter() - t0, time.perf_counter() - started)
     return _write_manifest(cfg, out, created, ids, timing, complete=True)
-
-
-def _check_folder(cfg, out: Path, resume, overwrite) -> dict | None:
-    if out.exists() and not out.is_dir():
-        raise UsageError(f"--out {out} exists and is not a folder; give a folder")
-    manifest = out / "manifest.json"
-    holds = manifest.is_file() or (out / "chunks").is_dir()
-    if not holds:
-        return None
-    try:
-        old = json.loads(manifest.read_text()) if manifest.is_file() else {}
-    except (json.JSONDecodeError, UnicodeDecodeError):
-        old = {}
-    if overwrite:
-        shutil.rmtree(out / "chunks", ignore_errors=True)
-        return None
-    if not resume:
-        raise UsageError(f"{out} already holds a sweep; pass --resume to continue it or "
-                         "--overwrite to start again")
-    if old.get("config_sha256") != cfg.sha256:
-        raise UsageError(f"{out} holds a sweep of a different config (sha256 "
-                         f"{str(old.get('config_sha256'))[:12]}..., this one {cfg.sha256[:12]}"
-                         "...); resume with the same config, or give a new --out")
-    return old
 
 
 def _write_chunk(chunks: Path, cid: str, tables: dict):

@@ -12,7 +12,8 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from stepzoo.errors import UsageError
+from stepzoo.bench.sweep_folder import check_finished
+from stepzoo.errors import NoAnswer, UsageError
 
 
 def load_results(folder) -> tuple[pd.DataFrame, pd.DataFrame, dict]:
@@ -27,12 +28,12 @@ def load_results(folder) -> tuple[pd.DataFrame, pd.DataFrame, dict]:
         manifest = json.loads((folder / "manifest.json").read_text())
         runs = pd.read_parquet(folder / "runs.parquet")
         limits = pd.read_parquet(folder / "limits.parquet")
+    except OSError:
+        raise                     # unreadable, not damaged: the command says which
     except Exception as err:  # damaged bytes raise many types from pyarrow and json
         raise UsageError(f"{folder}: a result file is damaged ({type(err).__name__}); rerun "
                          "`stepzoo sweep`") from None
-    if not manifest.get("complete"):
-        raise UsageError(f"{folder} holds an unfinished sweep; finish it with `stepzoo sweep "
-                         f"CONFIG --out {folder} --resume`")
+    check_finished(folder, manifest, runs, limits)
     return runs, limits, manifest
 
 
@@ -71,7 +72,7 @@ def tune(folder, pos_tol: float, margin: float) -> dict:
         hint = (f"the smallest worst-case error within the margin is "
                 f"{best['err_pos'].iloc[0]:.3g} m ({best['method'].iloc[0]} at h = "
                 f"{best['h'].iloc[0]:g} s)" if len(best) else "no step is within the margin")
-        raise UsageError(f"no (method, h) of {folder} is stable with margin {margin:g} and "
+        raise NoAnswer(f"no (method, h) of {folder} is stable with margin {margin:g} and "
                          f"within {pos_tol:g} m at every point: {hint}; loosen --pos-tol or "
                          "sweep smaller steps")
     per_method = ok.groupby("method", sort=False).head(1)      # each method's cheapest step
@@ -133,6 +134,8 @@ def write(tuned: dict, out) -> Path:
     import tomli_w
 
     from stepzoo.output import atomic_write
+    from stepzoo.results_folder import check_file_target
+    check_file_target(out)
     header = ("# Planner config written by `stepzoo tune`: `method` and `h` [s] are what the "
               "planner reads.\n")
     return atomic_write(out, header + tomli_w.dumps(tuned))

@@ -7,10 +7,10 @@ import json
 import sys
 from pathlib import Path
 
-from stepzoo.errors import UsageError
 from stepzoo.reports import figures, tables
 from stepzoo.reports.html import write_report
 from stepzoo.reports.load import load_plans, load_sweep, load_tuned
+from stepzoo.results_folder import check_kind, writing
 
 # Used for the summary table's cost column when no tuned config gives them.
 DEFAULT_POS_TOL_M = 0.1
@@ -67,13 +67,15 @@ def _facts(sweep, tuned, tuned_path, plan_list, plans_dir) -> list:
 def build(results, out, tuned_path=None, plans_dir=None):
     """Load every input, draw the figures, write the report; returns (index, summary, shown)."""
     sweep_dir, tuned_path, plans_dir = resolve(results, tuned_path, plans_dir)
-    out = Path(out)
-    if out.exists() and not out.is_dir():
-        raise UsageError(f"--out {out} exists and is not a folder; give a folder")
+    out = check_kind(out, "report")
     sweep = load_sweep(sweep_dir)
     tuned = load_tuned(tuned_path) if tuned_path is not None else None
     plan_list = load_plans(plans_dir) if plans_dir is not None else []
-    out.mkdir(parents=True, exist_ok=True)
+    with writing(out, "report"):
+        return _draw(sweep, tuned, tuned_path, plan_list, plans_dir, out)
+
+
+def _draw(sweep, tuned, tuned_path, plan_list, plans_dir, out):
     shown = [figures.yaw_rate(sweep, out), figures.xy_paths(sweep, out),
              figures.stability_regions(sweep, tuned, out), figures.error_vs_step(sweep, out),
              figures.work_precision(sweep, tuned, out),

@@ -11,6 +11,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from stepzoo.bench.sweep_folder import check_finished
 from stepzoo.errors import UsageError
 
 # Columns each sweep table must have; the figures and tables read nothing else.
@@ -75,9 +76,6 @@ def load_sweep(folder) -> Sweep:
     except (UnicodeDecodeError, json.JSONDecodeError) as err:
         raise UsageError(f"{folder / 'manifest.json'} is damaged ({err}); rerun "
                          "`stepzoo sweep`") from None
-    if manifest.get("complete") is False:
-        raise UsageError(f"sweep folder {folder} holds an unfinished sweep; finish it with "
-                         f"`stepzoo sweep CONFIG --out {folder} --resume`")
     tables = {}
     for name, columns in SWEEP_TABLES.items():
         table = _read_table(folder / name)
@@ -86,6 +84,7 @@ def load_sweep(folder) -> Sweep:
             raise UsageError(f"{folder / name} lacks column(s) {', '.join(lacking)}; it was "
                              "not written by this version of `stepzoo sweep`, rerun it")
         tables[name.split(".")[0]] = table
+    check_finished(folder, manifest, tables["runs"], tables["limits"])
     if tables["runs"].empty:
         raise UsageError(f"{folder / 'runs.parquet'} has no rows; rerun `stepzoo sweep`")
     if not (tables["trajectories"]["method"] == "reference").any():

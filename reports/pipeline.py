@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import contextlib
 import json
+import os
 import sys
 import time
 from pathlib import Path
@@ -62,6 +63,7 @@ def stages(args, out: Path) -> list[tuple[str, list[str]]]:
 def main(args) -> int:
     from stepzoo.bench import cli
     from stepzoo.reports import cmd_report
+    say = (lambda line: None) if args.quiet else _say
     out = Path(args.out)
     if out.exists() and not out.is_dir():
         raise UsageError(f"--out {out} exists and is not a folder; give a folder")
@@ -69,19 +71,22 @@ def main(args) -> int:
     total = len(steps) + 1
     started = time.perf_counter()
     for i, (name, argv) in enumerate(steps, 1):
-        _say(f"[{i}/{total}] {name}: stepzoo {' '.join(argv)}")
+        say(f"[{i}/{total}] {name}: stepzoo {' '.join(argv)}")
         t0 = time.perf_counter()
         # The commands' own tables are progress here: stdout is kept for the final path.
-        with contextlib.redirect_stdout(sys.stderr):
-            code = cli.main(argv)
+        # -q: the stages print nothing either; else their progress follows the run's.
+        quiet = ["-q"] if args.quiet else [] if args.progress else ["--no-progress"]
+        with open(os.devnull, "w") as null, \
+                contextlib.redirect_stdout(null if args.quiet else sys.stderr):
+            code = cli.main(argv + quiet if name in cli.LONG else argv)
         if code:
-            _say(f"stopped: `stepzoo {name}` failed (exit {code}); see its message above")
+            say(f"stopped: `stepzoo {name}` failed (exit {code}); see its message above")
             return code
-        _say(f"[{i}/{total}] {name} done in {time.perf_counter() - t0:.1f} s")
-    _say(f"[{total}/{total}] report: stepzoo report {out} --out {out / 'report'}")
+        say(f"[{i}/{total}] {name} done in {time.perf_counter() - t0:.1f} s")
+    say(f"[{total}/{total}] report: stepzoo report {out} --out {out / 'report'}")
     index, _, _ = cmd_report.build(out / "sweep", out / "report", out / "tuned.toml",
                                    out / "plans")
-    _say(f"done in {time.perf_counter() - started:.1f} s")
+    say(f"done in {time.perf_counter() - started:.1f} s")
     if args.format == "json":
         sys.stdout.write(json.dumps({"sweep": str(out / "sweep"),
                                      "tuned": str(out / "tuned.toml"),

@@ -6,10 +6,10 @@ import io
 import json
 import sys
 from dataclasses import replace
-from pathlib import Path
 
 from stepzoo.errors import UsageError
 from stepzoo.output import atomic_write, text_table, to_json
+from stepzoo.results_folder import check_kind, writing
 
 SUMMARY_COLUMNS = ["scenario", "status", "expansions", "nodes", "search_s", "connect_s",
                    "path_length_m", "connect_tf_s"]
@@ -96,12 +96,9 @@ def _summary_row(record):
 def main(args) -> int:
     from stepzoo.search.pathfinder import BAD_ENDPOINT
     from stepzoo.search.planner_config import load_config
-    from stepzoo.search.plan_output import write_plan
     if args.seed < 0:
         raise UsageError(f"--seed must be >= 0, got {args.seed}")
-    out = Path(args.out)
-    if out.exists() and not out.is_dir():
-        raise UsageError(f"--out {out} exists and is not a folder; give a folder")
+    out = check_kind(args.out, "plan")
     config = load_config(args.config)
     scenarios = _scenarios(args)
     if args.scheduler is None:
@@ -114,6 +111,13 @@ def main(args) -> int:
         if record["cause"] in BAD_ENDPOINT:
             # The poses are the user's input: no plan is written for a pose that cannot be.
             raise UsageError(f"{record['reason']}; choose a pose in free space on the map")
+    with writing(out, "plan"):
+        return _write(args, out, records, scenarios)
+
+
+def _write(args, out, records, scenarios) -> int:
+    """Write the plans (a batch: a folder each and the summary) and print them; the status."""
+    from stepzoo.search.plan_output import write_plan
     if len(records) == 1 and not args.all:
         path = write_plan(out, records[0], scenarios[0])
         if args.format == "json":
@@ -124,7 +128,7 @@ def main(args) -> int:
                              f"{r['stats']['expansions']} expansions, search "
                              f"{r['stats']['search_s']:.3f} s, connection "
                              f"{r['stats']['connect_s']:.3f} s -> {path}\n")
-        return 0
+        return _status(records)
     for record, scenario in zip(records, scenarios):
         write_plan(out / scenario.name, record, scenario)
     rows = [_summary_row(r) for r in records]
@@ -138,4 +142,9 @@ def main(args) -> int:
         sys.stdout.write(json.dumps(rows) + "\n")
     else:
         sys.stdout.write(text_table(rows, SUMMARY_COLUMNS) + f"\nwritten to {out}\n")
-    return 0
+    return _status(records)
+
+
+def _status(records) -> int:
+    """Exit status 1 when a plan is not exact: the planner ran, but reached no goal."""
+    return 0 if all(r["status"] == "exact" for r in records) else 1

@@ -16,6 +16,9 @@ def atomic_write(path, data: bytes | str) -> Path:
             fh.write(data)
         os.chmod(tmp, 0o644)           # mkstemp makes 0600; results are for everyone to read
         os.replace(tmp, path)
+    except OSError as err:             # a write error names no file: name the one meant
+        Path(tmp).unlink(missing_ok=True)
+        raise OSError(err.errno, err.strerror, str(path)) from None
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
         raise

@@ -120,7 +120,7 @@ def test_a_scenario_file_names_its_map_vehicle_and_goal_speed(tmp_path):
     assert record["speed"] == 4.0
 
 
-def test_a_map_query_plans_and_a_walled_off_goal_is_written_as_no_path(tmp_path):
+def test_a_map_query_plans_and_a_walled_off_goal_is_written_as_no_path_exit_1(tmp_path):
     grid, _ = grid_files(tmp_path)
     assert run("--map", grid, "--cell-size", 0.5, "--start", "4,10,0", "--goal", "36,10,0",
                "--speed", 6, "--seed", 3, "--out", tmp_path / "free") == 0
@@ -130,7 +130,7 @@ def test_a_map_query_plans_and_a_walled_off_goal_is_written_as_no_path(tmp_path)
     walled[:, 36:44] = True
     np.save(tmp_path / "walled.npy", walled)
     assert run("--map", tmp_path / "walled.npy", "--cell-size", 0.5, "--start", "4,10,0",
-               "--goal", "36,10,0", "--out", tmp_path / "walled") == 0
+               "--goal", "36,10,0", "--out", tmp_path / "walled") == 1
     record = read(tmp_path / "walled")
     assert (record["status"], record["cause"], record["path"]) == ("no_path", "walled_off", [])
 

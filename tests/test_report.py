@@ -10,6 +10,7 @@ import pandas as pd
 import pytest
 
 from stepzoo.bench.cli import main as stepzoo
+from stepzoo.bench.sweep_config import load
 from stepzoo.reports import tables
 from stepzoo.reports.load import load_sweep
 
@@ -32,10 +33,14 @@ def err_of(method, h):
 
 
 def write_sweep(folder):
+    """A finished sweep folder: its config implies exactly the rows written below."""
     folder.mkdir(parents=True)
-    (folder / "config.toml").write_text('methods = ["euler", "rk4", "ab4", "backward_euler"]\n')
+    (folder / "config.toml").write_text(
+        'horizon = 1.0\nmethods = ["euler", "rk4", "ab4", "backward_euler"]\n'
+        f"[envelope]\nvx = [2.0, 15.0]\ndelta = [0.1, 0.785]\n[steps]\nh = {STEPS}\n")
     (folder / "manifest.json").write_text(json.dumps(
-        {"config_sha256": "abc123", "timing": {"repeats": 3}, "blowup_rule": "|x| > 1e6",
+        {"config_sha256": load(folder / "config.toml").sha256, "complete": True,
+         "timing": {"repeats": 3}, "blowup_rule": "|x| > 1e6",
          "trajectory_point": {"vx": 15.0, "delta": 0.785}}))
     runs, limits = [], []
     for name, (p, stages, c) in METHODS.items():

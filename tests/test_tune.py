@@ -82,10 +82,10 @@ def test_tuned_step_holds_at_20_unseen_operating_points(tuned):
     assert np.all(h <= (1 - MARGIN / 2) * np.asarray(limit))
 
 
-def test_an_impossible_tolerance_is_one_line_and_exit_2(tuned, tmp_path, capsys):
+def test_an_impossible_tolerance_is_no_answer_one_line_and_exit_1(tuned, tmp_path, capsys):
     sweep, _ = tuned
     assert stepzoo(["tune", str(sweep), "--pos-tol", "1e-15", "--out",
-                    str(tmp_path / "t.toml")]) == 2
+                    str(tmp_path / "t.toml")]) == 1
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "loosen --pos-tol" in err
     assert not (tmp_path / "t.toml").exists()

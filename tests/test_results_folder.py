@@ -1,0 +1,233 @@
+"""A results folder is never silently lost: one writer at a time (a second one is refused in
+one line, exit 2, while a killed writer's lock is taken over), a folder of another command's
+results is refused, the sweep's tables are written only when every chunk its config implies
+is there, and tune and report refuse a sweep folder that is incomplete or inconsistent."""
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pandas as pd
+import pytest
+
+from stepzoo.bench.cli import main as stepzoo
+from stepzoo.bench.sweep import chunk_ids, run_sweep
+from stepzoo.bench.sweep_config import load
+from stepzoo.errors import UsageError
+from stepzoo.results_folder import LOCK, writing
+
+ROOT = Path(__file__).resolve().parents[1]
+# The smallest sweep that still has several chunks: 2 methods x 2 points, a chunk per point.
+TINY = """name = "tiny"
+horizon = 0.5
+methods = ["euler", "heun"]
+[envelope]
+vx = [6.0, 20.0]
+delta = [0.3]
+[steps]
+h = [0.01, 0.05, 0.1]
+[stability]
+steps = 200
+[chunks]
+points = 1
+[trajectories]
+vx = 20.0
+delta = 0.3
+"""
+TABLES = ("runs", "limits", "eigenvalues", "trajectories", "summary")
+TIMED = {"time_per_step_s", "compile_s", "ref_compile_s", "reference_s", "integration_s",
+         "stability_s", "metrics_s", "total_s"}
+
+
+def cli(*args, timeout=120):
+    """`stepzoo ARGS` in a new process: (status, stdout, stderr)."""
+    proc = subprocess.run([sys.executable, "-m", "stepzoo", *map(str, args)],
+                          capture_output=True, text=True, timeout=timeout, cwd=ROOT)
+    return proc.returncode, proc.stdout, proc.stderr
+
+
+def one_line(err: str) -> str:
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and "Traceback" not in err, err
+    return lines[0]
+
+
+def tables(folder):
+    out = {}
+    for name in TABLES:
+        df = pd.read_parquet(folder / f"{name}.parquet")
+        out[name] = df.drop(columns=[c for c in df.columns if c in TIMED])
+    return out
+
+
+@pytest.fixture(scope="module")
+def tiny(tmp_path_factory):
+    """(config file, its finished sweep folder)."""
+    base = tmp_path_factory.mktemp("tiny")
+    path = base / "tiny.toml"
+    path.write_text(TINY)
+    run_sweep(load(path), base / "whole", progress=False)
+    return path, base / "whole"
+
+
+def test_a_second_writer_is_refused_in_one_line_while_the_first_holds_the_folder(tmp_path):
+    out = tmp_path / "out"
+    with writing(out, "sweep"):
+        code, _, err = cli("sweep", ROOT / "bench" / "configs" / "small.toml", "--out", out,
+                           "--resume")
+    assert code == 2 and "in use by another stepzoo command" in one_line(err)
+    assert {p.name for p in out.iterdir()} == {LOCK}        # it wrote nothing
+
+
+def test_a_killed_writers_lock_is_taken_over(tmp_path):
+    out = tmp_path / "out"
+    holder = subprocess.Popen(
+        [sys.executable, "-c", "import sys, time\nfrom stepzoo.results_folder import writing\n"
+         f"with writing({str(out)!r}, 'sweep'):\n    print('held', flush=True)\n"
+         "    time.sleep(120)"], stdout=subprocess.PIPE, text=True)
+    try:
+        assert holder.stdout.readline().strip() == "held"
+        with pytest.raises(UsageError, match="in use"), writing(out, "sweep"):
+            pass
+    finally:
+        holder.send_signal(signal.SIGKILL)
+        holder.wait()
+    assert (out / LOCK).exists()          # the lock file stays; its lock died with the holder
+    with writing(out, "sweep"):
+        pass
+
+
+def test_racing_sweeps_leave_the_first_ones_tables_whole(tiny, tmp_path):
+    """While a sweep runs, an --overwrite and a --resume of the same folder are refused, and
+    a second writer killed at once cannot touch it: the first ends with every table whole,
+    equal to an undisturbed sweep's."""
+    path, whole = tiny
+    out = tmp_path / "out"
+    seen = []
+
+    def intrude(chunk_id):
+        if seen:
+            return
+        seen.append(chunk_id)
+        for flag in ("--overwrite", "--resume"):
+            code, _, err = cli("sweep", path, "--out", out, flag, "--no-progress")
+            assert code == 2 and "in use" in one_line(err)
+        killed = subprocess.Popen([sys.executable, "-m", "stepzoo", "sweep", str(path),
+                                   "--out", str(out), "--overwrite"], cwd=ROOT)
+        time.sleep(1.0)
+        killed.send_signal(signal.SIGKILL)
+        killed.wait()
+        assert (out / "chunks" / chunk_id).is_dir()
+
+    manifest = run_sweep(load(path), out, progress=False, on_chunk=intrude)
+    assert manifest["complete"] and manifest["chunks"] == chunk_ids(load(path))
+    a, b = tables(whole), tables(out)
+    for name in TABLES:
+        pd.testing.assert_frame_equal(a[name], b[name], check_exact=True, obj=name)
+
+
+def test_an_interrupted_sweep_says_how_to_resume_and_resumes_to_the_same_tables(tiny,
+                                                                              tmp_path):
+    path, whole = tiny
+    out = tmp_path / "out"
+    proc = subprocess.Popen([sys.executable, "-m", "stepzoo", "sweep", str(path), "--out",
+                             str(out), "--no-progress"], cwd=ROOT, stderr=subprocess.PIPE,
+                            text=True)
+    deadline = time.monotonic() + 120
+    while not any((out / "chunks").glob("euler-*")) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=120)
+    assert proc.returncode == 130, err
+    assert one_line(err) == "stepzoo sweep: interrupted; resume with --resume"
+    assert not (out / "runs.parquet").exists()
+    code, _, err = cli("sweep", path, "--out", out, "--resume", "--no-progress")
+    assert code == 0, err
+    a, b = tables(whole), tables(out)
+    for name in TABLES:
+        pd.testing.assert_frame_equal(a[name], b[name], check_exact=True, obj=name)
+
+
+def test_resume_with_overwrite_is_refused_and_writes_nothing(tiny, tmp_path):
+    path, _ = tiny
+    code = stepzoo(["sweep", str(path), "--out", str(tmp_path / "out"), "--resume",
+                    "--overwrite"])
+    assert code == 2 and not (tmp_path / "out").exists()
+
+
+def test_a_sweep_that_lost_a_chunk_writes_no_tables(tiny, tmp_path):
+    """A chunk removed behind the sweep's back (not by a stepzoo command: those wait for the
+    lock) is found missing at assembly: no table is written and the manifest stays
+    incomplete, so tune and report refuse the folder."""
+    import shutil
+    path, _ = tiny
+    out = tmp_path / "out"
+    lost = []
+
+    def remove_the_first(chunk_id):
+        if not lost:
+            lost.append(chunk_id)
+            shutil.rmtree(out / "chunks" / chunk_id)
+
+    with pytest.raises(UsageError, match="lost 1 chunk"):
+        run_sweep(load(path), out, progress=False, on_chunk=remove_the_first)
+    assert not (out / "runs.parquet").exists()
+    assert json.loads((out / "manifest.json").read_text())["complete"] is False
+    run_sweep(load(path), out, resume=True, progress=False)     # --resume recomputes it
+    assert (out / "chunks" / lost[0]).is_dir() and (out / "runs.parquet").is_file()
+
+
+@pytest.mark.parametrize("command", ["tune", "report"])
+def test_tune_and_report_refuse_a_sweep_whose_tables_lack_rows(tiny, tmp_path, capsys,
+                                                               command):
+    """The issue's case: a manifest that says complete over tables that hold only some
+    methods' runs."""
+    import shutil
+    _, whole = tiny
+    cut = tmp_path / "cut"
+    shutil.copytree(whole, cut)
+    runs = pd.read_parquet(cut / "runs.parquet")
+    runs[runs["method"] == "euler"].to_parquet(cut / "runs.parquet")
+    out = tmp_path / ("t.toml" if command == "tune" else "report")
+    args = ["--pos-tol", "0.1"] if command == "tune" else []
+    assert stepzoo([command, str(cut), *args, "--out", str(out)]) == 2
+    line = one_line(capsys.readouterr().err)
+    assert "incomplete or inconsistent sweep" in line and "runs has" in line
+    assert not out.exists()
+
+
+def test_tune_accepts_the_whole_sweep(tiny, tmp_path):
+    _, whole = tiny
+    assert stepzoo(["tune", str(whole), "--pos-tol", "1", "--out",
+                    str(tmp_path / "t.toml")]) == 0
+
+
+@pytest.mark.parametrize("target", ["/dev/null", "folder", "link"])
+def test_tune_writes_only_a_regular_file(tiny, tmp_path, capsys, target):
+    _, whole = tiny
+    if target == "folder":
+        (tmp_path / "folder").mkdir()
+    if target == "link":
+        (tmp_path / "real.toml").write_text("kept")
+        (tmp_path / "link").symlink_to(tmp_path / "real.toml")
+    out = target if target.startswith("/") else str(tmp_path / target)
+    before = os.stat(out, follow_symlinks=False)
+    assert stepzoo(["tune", str(whole), "--pos-tol", "1", "--out", out]) == 2
+    assert f"--out {out} is " in one_line(capsys.readouterr().err)
+    after = os.stat(out, follow_symlinks=False)
+    assert (after.st_ino, after.st_mode) == (before.st_ino, before.st_mode)
+
+
+def test_a_folder_of_another_commands_results_is_refused(tiny, tmp_path, capsys):
+    path, whole = tiny
+    plans = tmp_path / "plans"
+    plans.mkdir()
+    (plans / "plan.json").write_text("{}")
+    assert stepzoo(["sweep", str(path), "--out", str(plans)]) == 2
+    assert "holds the results of `stepzoo plan` (plan.json)" in one_line(capsys.readouterr().err)
+    assert {p.name for p in plans.iterdir()} == {"plan.json"}
+    assert stepzoo(["plan", "street", "--out", str(whole)]) == 2
+    assert "holds the results of `stepzoo sweep`" in one_line(capsys.readouterr().err)
