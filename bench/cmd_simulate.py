@@ -1,5 +1,5 @@
-"""`stepzoo simulate`: one trajectory from rest with a constant steer, by one method of the
-zoo or by the adaptive reference, as CSV or JSON on stdout."""
+"""`stepzoo simulate`: one trajectory of a vehicle model from rest with a constant steer, by
+one method of the zoo or by the adaptive reference, as CSV or JSON on stdout."""
 import csv
 import io
 import json
@@ -19,14 +19,16 @@ def add_arguments(p):
     p.add_argument("--vx", type=float, required=True, help="longitudinal speed [m/s]")
     p.add_argument("--delta", type=float, required=True, help="steer angle [rad]")
     p.add_argument("--vehicle", default=None, help="vehicle set (default: the documented one)")
-    p.add_argument("--model", default="dynamic5", help="dynamic5 | dynamic6 | kinematic")
+    p.add_argument("--model", default="dynamic5", help="dynamic5 | dynamic6 | kinematic | st")
+    p.add_argument("--tyre", default=None,
+                   help="tyre of the dynamic bicycles: linear (default) | pacejka | fiala")
     p.add_argument("--rtol", type=float, default=1e-10, help="reference relative tolerance")
     p.add_argument("--atol", type=float, default=1e-12, help="reference absolute tolerance")
     p.add_argument("--format", choices=["csv", "json"], default="csv")
 
 
 def simulate(method_name, h, T, vx, delta, vehicle=None, model_name="dynamic5",
-             rtol=1e-10, atol=1e-12):
+             rtol=1e-10, atol=1e-12, tyre=None):
     """(columns, t, x, vehicle dict) of one run; raises UsageError on bad input."""
     from stepzoo import dynamics
     from stepzoo.integrators import integrate, method
@@ -36,9 +38,14 @@ def simulate(method_name, h, T, vx, delta, vehicle=None, model_name="dynamic5",
         raise UsageError(f"--h {h} is larger than the horizon --T {T}; use h <= T")
     if not math.isfinite(delta):
         raise UsageError(f"--delta must be a finite angle in radians, got {delta!r}")
-    model = lookup("model", dynamics.model, model_name)
+    from stepzoo.dynamics.models import VEHICLE_MODELS
+    if model_name not in VEHICLE_MODELS:
+        lookup("model", dynamics.model, model_name)
+        raise UsageError(f"simulate runs the vehicle models ({', '.join(VEHICLE_MODELS)}), "
+                         f"not {model_name!r}")
+    model = lookup("model", lambda name: dynamics.model(name, tyre=tyre), model_name)
     veh = lookup("vehicle", dynamics.vehicle, vehicle)
-    p = model.params(vehicle, vx)
+    p = lookup("vehicle", lambda name: model.params(name, vx), vehicle)
     x0, u = model.from_rest(vx, delta)
     n = int(round(T / h))
     if abs(n * h - T) > 1e-9 * T:
@@ -55,9 +62,15 @@ def simulate(method_name, h, T, vx, delta, vehicle=None, model_name="dynamic5",
     return ["t", *model.states], t, x, veh
 
 
+def _tyre(model_name, tyre):
+    """The tyre law the run used (null for the models without tyres)."""
+    from stepzoo import dynamics
+    return dynamics.model(model_name, tyre=tyre).tyre
+
+
 def main(args) -> int:
     cols, t, x, veh = simulate(args.method, args.h, args.T, args.vx, args.delta, args.vehicle,
-                               args.model, args.rtol, args.atol)
+                               args.model, args.rtol, args.atol, args.tyre)
     if args.format == "json":
         vehicle = {k: veh[k] for k in ("name", "m", "Iz", "Lf", "Lr", "Caf", "Car",
                                        "length", "width", "source")}
@@ -66,7 +79,8 @@ def main(args) -> int:
         sys.stdout.write(json.dumps({"columns": cols, "t": t.tolist(), "x": xs,
                                      "method": args.method, "h": args.h, "vx": args.vx,
                                      "delta": args.delta, "model": args.model,
-                                     "vehicle": vehicle}) + "\n")
+                                     "tyre": _tyre(args.model, args.tyre), "vehicle": vehicle})
+                         + "\n")
     else:
         buf = io.StringIO()
         w = csv.writer(buf, lineterminator="\n")

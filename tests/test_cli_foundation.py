@@ -76,3 +76,42 @@ def test_bad_input_gets_one_line_and_exit_2(args, needle):
     lines = proc.stderr.strip().splitlines()
     assert len(lines) == 1 and needle in lines[0], proc.stderr
     assert proc.stdout == ""
+
+
+@pytest.mark.parametrize("tyre", ["pacejka", "fiala"])
+def test_simulate_takes_a_tyre_and_small_steer_stays_near_the_linear_tyre(capsys, tyre):
+    """At 1 mrad the slip angles are small: each tyre's run is within 1% of the linear one
+    (Fiala departs from linear at first order in |alpha|: Ca |alpha| / (3 mu Fz) = 0.7% at
+    1 mrad on the front axle); the JSON names the tyre."""
+    runs = {}
+    for t in ("linear", tyre):
+        assert stepzoo(["simulate", "--method", "rk4", "--h", "0.01", "--T", "1", "--vx", "15",
+                        "--delta", "0.001", "--tyre", t, "--format", "json"]) == 0
+        out = json.loads(capsys.readouterr().out)
+        assert out["tyre"] == t
+        runs[t] = np.array(out["x"])
+    lateral = np.abs(runs["linear"][:, 3:]).max(axis=0)
+    assert np.all(np.abs(runs[tyre][:, 3:] - runs["linear"][:, 3:]).max(axis=0) < 0.01 * lateral)
+
+
+def test_simulate_runs_the_commonroad_single_track_model(capsys):
+    assert stepzoo(["simulate", "--method", "rk4", "--h", "0.01", "--T", "1", "--vx", "15",
+                    "--delta", "0.05", "--model", "st"]) == 0
+    rows = list(csv.reader(io.StringIO(capsys.readouterr().out)))
+    assert rows[0] == ["t", "X", "Y", "delta", "v", "psi", "r", "beta"]
+    assert float(rows[-1][4]) == pytest.approx(15.0) and float(rows[-1][6]) > 0
+
+
+@pytest.mark.parametrize("args,needle", [
+    (["--tyre", "brush"], "unknown tyre"),
+    (["--tyre", "pacejka", "--vehicle", "ge2021"], "no pacejka parameter set"),
+    (["--model", "detest_a1"], "simulate runs the vehicle models"),
+])
+def test_bad_tyre_or_model_gets_one_line_and_exit_2(args, needle):
+    base = {"--method": "rk4", "--h": "0.01", "--T": "1", "--vx": "15", "--delta": "0.3"}
+    for flag, value in zip(args[::2], args[1::2]):
+        base[flag] = value
+    proc = run(["simulate"] + [x for kv in base.items() for x in kv])
+    assert proc.returncode == 2 and proc.stdout == ""
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1 and needle in lines[0], proc.stderr
