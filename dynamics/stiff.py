@@ -7,14 +7,16 @@ import numpy as np
 
 
 def _robertson(t, x, u, p):
+    """Rate constants k1, k2, k3 in p (0.04, 3e7, 1e4 as published: y1 -> y2 at k1,
+    2 y2 -> y2 + y3 at k2, y2 + y3 -> y1 + y3 at k3)."""
     y1, y2, y3 = x[0], x[1], x[2]
-    return jnp.stack([-0.04 * y1 + 1e4 * y2 * y3,
-                      0.04 * y1 - 1e4 * y2 * y3 - 3e7 * y2**2,
-                      3e7 * y2**2])
+    slow, fast, square = p["k1"] * y1, p["k3"] * y2 * y3, p["k2"] * y2**2
+    return jnp.stack([-slow + fast, slow - fast - square, square])
 
 
-def _vdp1000(t, x, u, p):
-    return jnp.stack([x[1], 1000.0 * (1 - x[0] ** 2) * x[1] - x[0]])
+def _vdp(t, x, u, p):
+    """x'' - mu (1 - x^2) x' + x = 0 as a first-order system; mu in p."""
+    return jnp.stack([x[1], p["mu"] * (1 - x[0] ** 2) * x[1] - x[0]])
 
 
 def _hires(t, x, u, p):
@@ -44,11 +46,12 @@ TEST_SET = "Test Set for IVP Solvers, release 2.4 (Mazzia, Magherini, Univ. Bari
 PROBLEMS = {
     "robertson": dict(
         rhs=_robertson, x0=(1.0, 0.0, 0.0), t_span=(0.0, 40.0), exact=None,
+        params={"k1": 0.04, "k2": 3e7, "k3": 1e4},
         description="Robertson's autocatalytic reaction (3 species), on [0, 40]",
         source="Robertson, 'The solution of a set of reaction rate equations', 1966; "
                "Hairer and Wanner, Solving ODEs II, 2nd ed., 1996, sec. IV.1 (interval [0, 40])"),
     "vdp1000": dict(
-        rhs=_vdp1000, x0=(2.0, 0.0), t_span=(0.0, 2000.0), exact=None,
+        rhs=_vdp, x0=(2.0, 0.0), t_span=(0.0, 2000.0), exact=None, params={"mu": 1000.0},
         description="Van der Pol oscillator x'' - mu (1 - x^2) x' + x = 0, mu = 1000",
         source=f"{TEST_SET}, problem VDPOL (unscaled form, t in [0, 2000])"),
     "hires": dict(

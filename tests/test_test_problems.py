@@ -30,7 +30,7 @@ def test_closed_form_satisfies_the_ode_and_the_published_initial_value(name):
     h = 1e-4
     x = m.exact
     dx = (x(ts - 2 * h) - 8 * x(ts - h) + 8 * x(ts + h) - x(ts + 2 * h)) / (12 * h)
-    f = np.array([m.rhs(t, jnp.asarray(xi), jnp.zeros(0), {}) for t, xi in zip(ts, x(ts))])
+    f = np.array([m.rhs(t, jnp.asarray(xi), jnp.zeros(0), m.params()) for t, xi in zip(ts, x(ts))])
     np.testing.assert_allclose(dx, f, rtol=1e-8, atol=1e-8 * np.max(np.abs(f)))
     np.testing.assert_allclose(x(np.array([t0]))[0], m.x0, rtol=1e-15, atol=1e-15)
 
@@ -63,7 +63,7 @@ def test_robertson_reference_agrees_with_radau_and_conserves_mass():
     m = model("robertson")
     ts = np.array([0.0, 0.4, 4.0, 40.0])
     x = m.solution(ts)
-    radau = solve(m.rhs, m.x0, m.u0, {}, ts, method="Radau", rtol=1e-10, atol=1e-14)
+    radau = solve(m.rhs, m.x0, m.u0, m.params(), ts, method="Radau", rtol=1e-10, atol=1e-14)
     np.testing.assert_allclose(x, radau, rtol=1e-7, atol=1e-12)
     np.testing.assert_allclose(x.sum(axis=1), 1.0, atol=1e-12)
 
@@ -73,7 +73,7 @@ def test_stiff_linear_is_stiff_and_its_solution_is_smooth():
     slow scale only: the regime where explicit methods are limited by stability."""
     import jax
     m = model("stiff_linear")
-    J = jax.jacfwd(m.rhs, argnums=1)(0.0, jnp.asarray(m.x0), jnp.zeros(0), {})
+    J = jax.jacfwd(m.rhs, argnums=1)(0.0, jnp.asarray(m.x0), jnp.zeros(0), m.params())
     np.testing.assert_allclose(np.sort(np.linalg.eigvals(np.asarray(J)).real), [-1000, -1])
     ts = np.linspace(0.0, 1e-3, 3)
     assert np.max(np.abs(np.diff(m.solution(ts), axis=0))) < 3e-3
