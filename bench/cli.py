@@ -26,6 +26,8 @@ COMMANDS = {
 }
 # Commands that run long enough to show progress: they take --no-progress and -q.
 LONG = ("run", "sweep", "plan", "report")
+# Commands that integrate: they estimate their memory and work first (--max-memory/-steps).
+INTEGRATE = ("run", "simulate", "sweep", "plan")
 # A command that resumes where an interrupted call stopped, and how.
 RESUME = {"sweep": "resume with --resume",
           "run": "resume by running the same command again (finished sweep chunks are kept)"}
@@ -94,10 +96,16 @@ def build_parser(only: str | None = None) -> argparse.ArgumentParser:
     long.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
     long.add_argument("-q", "--quiet", action="store_true",
                       help="print only results and errors (implies --no-progress)")
+    budget = argparse.ArgumentParser(add_help=False)
+    budget.add_argument("--max-memory", type=float, metavar="GIB", help="memory the "
+                        "trajectories may take [GiB] (default: half of this machine's)")
+    budget.add_argument("--max-steps", type=float, metavar="N", help="integration steps, "
+                        "summed over trajectories, it may take on (default 1e11)")
     for name, (module, helptext) in COMMANDS.items():
+        parents = [common] + [long] * (name in LONG) + [budget] * (name in INTEGRATE)
         p = sub.add_parser(name, help=helptext, description=helptext, epilog=EXIT_STATUSES,
                            formatter_class=argparse.RawDescriptionHelpFormatter,
-                           parents=[common, long] if name in LONG else [common])
+                           parents=parents)
         if name == only:      # the other commands' modules (and JAX) stay unimported
             importlib.import_module(module).add_arguments(p)
     return parser
@@ -116,6 +124,8 @@ def main(argv=None) -> int:
         args.progress = not (args.no_progress or args.quiet)
     configure_jax(args.platform)
     try:
+        if args.command in INTEGRATE:
+            _set_budget(args.max_memory, args.max_steps)
         code = importlib.import_module(COMMANDS[args.command][0]).main(args) or 0
         sys.stdout.flush()             # a full stdout fails here, not in a traceback at exit
         return code
@@ -135,6 +145,14 @@ def main(argv=None) -> int:
         hint = RESUME.get(args.command)
         sys.stderr.write(f"stepzoo {args.command}: interrupted{'; ' + hint if hint else ''}\n")
         return INTERRUPTED
+
+
+def _set_budget(max_memory, max_steps):
+    from stepzoo import validate
+    for flag, value in (("--max-memory", max_memory), ("--max-steps", max_steps)):
+        if value is not None and not (value > 0 and value < float("inf")):
+            raise UsageError(f"{flag} must be a number > 0, got {value!r}")
+    validate.BUDGET = validate.Budget(max_memory and max_memory * validate.GIB, max_steps)
 
 
 def os_message(err: OSError) -> str:

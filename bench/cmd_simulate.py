@@ -9,7 +9,7 @@ import sys
 import numpy as np
 
 from stepzoo.errors import UsageError
-from stepzoo.validate import lookup, positive
+from stepzoo.validate import check, check_budget, lookup
 
 
 def add_arguments(p):
@@ -33,11 +33,12 @@ def simulate(method_name, h, T, vx, delta, vehicle=None, model_name="dynamic5",
     from stepzoo import dynamics
     from stepzoo.integrators import integrate, method
     from stepzoo.integrators.reference import reference
-    h, T, vx = positive("--h", h), positive("--T", T), positive("--vx", vx)
+    h, T = check("step", "--h", h), check("horizon", "--T", T)
+    vx, delta = check("speed", "--vx", vx), check("steer", "--delta", delta)
     if h > T:
         raise UsageError(f"--h {h} is larger than the horizon --T {T}; use h <= T")
-    if not math.isfinite(delta):
-        raise UsageError(f"--delta must be a finite angle in radians, got {delta!r}")
+    if method_name == "reference":
+        check("rtol", "--rtol", rtol), check("atol", "--atol", atol)
     from stepzoo.dynamics.models import VEHICLE_MODELS
     if model_name not in VEHICLE_MODELS:
         lookup("model", dynamics.model, model_name)
@@ -50,8 +51,8 @@ def simulate(method_name, h, T, vx, delta, vehicle=None, model_name="dynamic5",
     n = int(round(T / h))
     if abs(n * h - T) > 1e-9 * T:
         n = int(math.floor(T / h))
+    check_budget(f"a run of {n:.3g} steps", n + 1, 1, len(model.states))
     if method_name == "reference":
-        positive("--rtol", rtol), positive("--atol", atol)
         ts = h * np.arange(n + 1)
         ref = reference(model.rhs, x0, u, p, ts, rtol=rtol, atol=atol)
         t, x = np.asarray(ts), np.asarray(ref.x)

@@ -5,9 +5,8 @@ import sys
 
 import numpy as np
 
-from stepzoo.errors import UsageError
 from stepzoo.output import text_table, to_json
-from stepzoo.validate import lookup, positive
+from stepzoo.validate import check, lookup
 
 
 def add_arguments(p):
@@ -23,9 +22,7 @@ def predict(vx: float, delta: float, vehicle=None) -> tuple[np.ndarray, dict]:
     from stepzoo.dynamics.linear import lateral_eigenvalues
     from stepzoo.integrators import METHODS
     from stepzoo.integrators.stability import max_stable_step
-    positive("--vx", vx)
-    if not math.isfinite(delta):
-        raise UsageError(f"--delta must be a finite angle in radians, got {delta!r}")
+    vx, delta = check("speed", "--vx", vx), check("steer", "--delta", delta)
     lookup("vehicle", dynamics.vehicle, vehicle)
     ev = np.asarray(lateral_eigenvalues(vx, delta, dynamics.physical(vehicle)))
     return ev, {name: max_stable_step(m, ev) for name, m in METHODS.items()}

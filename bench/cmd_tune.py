@@ -3,6 +3,7 @@ is stable with a margin and meets a position tolerance everywhere, as a planner 
 import sys
 from pathlib import Path
 
+from stepzoo.bench.tune import DEFAULT_MARGIN
 from stepzoo.errors import UsageError
 from stepzoo.output import text_table, to_json
 
@@ -11,8 +12,9 @@ def add_arguments(p):
     p.add_argument("results", metavar="RESULTS", help="a folder written by `stepzoo sweep`")
     p.add_argument("--pos-tol", type=float, required=True, metavar="METRES",
                    help="largest position error allowed at every operating point [m]")
-    p.add_argument("--margin", type=float, default=0.1, metavar="FRACTION",
-                   help="keep h <= (1 - margin) x the measured largest stable step (default 0.1)")
+    p.add_argument("--margin", type=float, default=DEFAULT_MARGIN, metavar="FRACTION",
+                   help="keep h <= (1 - margin) x the measured largest stable step (default "
+                   f"{DEFAULT_MARGIN})")
     p.add_argument("--out", required=True, metavar="FILE", help="tuned planner config (TOML)")
     p.add_argument("--format", choices=["text", "json"], default="text")
 

@@ -19,7 +19,7 @@ from stepzoo.bench import metrics, sweep_folder
 from stepzoo.errors import UsageError
 from stepzoo.output import atomic_write, to_json
 from stepzoo.results_folder import writing
-from stepzoo.bench.sweep_config import SweepConfig
+from stepzoo.bench.sweep_config import SweepConfig, check_workload
 
 REF_WINDOW = 64        # output times per reference call: its cost per step grows with them
 TRAJ_SAMPLES = 200     # reference samples of the figure trajectory
@@ -343,6 +343,7 @@ def run_sweep(cfg: SweepConfig, out, resume=False, overwrite=False, progress=Tru
     (chunk id, tables) as they finish; by default they are computed here, in order. The
     folder is locked meanwhile: a second sweep into it is refused (`results_folder`)."""
     sweep_folder.check_flags(resume, overwrite)
+    check_workload(cfg)
     with writing(out, "sweep"):
         return _fill(cfg, Path(out), resume, overwrite, progress, on_chunk, runner)
 

@@ -12,10 +12,11 @@ from pathlib import Path
 import numpy as np
 
 from stepzoo.errors import UsageError
-from stepzoo.validate import read_toml
+from stepzoo.validate import problem, read_toml
 
-TOP = {"name", "model", "vehicle", "horizon", "methods", "envelope", "steps", "reference",
+TOP = {"name", "model", "vehicle", "horizon", "methods", "envelope", "steps", "reference", "limits",
        "stability", "chunks", "trajectories"}
+MAX_GRID = 10_000       # values of one grid: more is a typo, and would be allocated first
 SECTIONS = {
     "envelope": {"vx", "delta", "x0"},
     "steps": {"h"},
@@ -23,6 +24,7 @@ SECTIONS = {
     "stability": {"steps", "growth", "perturbation", "h_probe_max", "rel_tol"},
     "chunks": {"points"},
     "trajectories": {"vx", "delta", "fractions", "past_limit"},
+    "limits": {"memory_gib", "steps"},
 }
 
 
@@ -51,6 +53,9 @@ class SweepConfig:
     traj_fractions: tuple          # sample steps, as fractions of the measured limit
     traj_past_limit: float         # the sample past the limit, as a multiple of it
     source: str = field(default="", compare=False)
+    # [limits]: what the sweep may allocate [GiB] and integrate (they decide no result)
+    max_memory_gib: float | None = field(default=None, compare=False)
+    max_steps: float | None = field(default=None, compare=False)
 
     @property
     def points(self) -> list[tuple[float, float]]:
@@ -59,7 +64,8 @@ class SweepConfig:
     def canonical(self) -> dict:
         """Everything that decides the results (not the file's path or layout)."""
         d = asdict(self)
-        d.pop("source")
+        for key in ("source", "max_memory_gib", "max_steps"):
+            d.pop(key)
         return d
 
     @property
@@ -101,7 +107,7 @@ def validate(raw: dict, source: str = "config") -> SweepConfig:
         bad.append(f"{source}: unknown vehicle {vehicle!r}; known: "
                    f"{', '.join(dynamics.vehicle_names())}")
 
-    horizon = check.positive("horizon", raw.get("horizon"), "s")
+    horizon = check.ranged("horizon", "horizon", raw.get("horizon"))
     methods = raw.get("methods", "all")
     if methods == "all":
         methods = list(METHODS)
@@ -115,16 +121,14 @@ def validate(raw: dict, source: str = "config") -> SweepConfig:
         bad.append(f"{source}: methods lists a name twice; list each once")
 
     env = sections["envelope"]
-    vx = check.grid("envelope.vx", env.get("vx"), "m/s", positive=True, log=False)
-    delta = check.grid("envelope.delta", env.get("delta"), "rad", positive=False, log=False)
-    if any(abs(d) >= math.pi / 2 for d in delta):
-        bad.append(f"{source}: envelope.delta must lie in (-pi/2, pi/2) [rad]")
+    vx = check.grid("envelope.vx", env.get("vx"), "m/s", "speed", log=False)
+    delta = check.grid("envelope.delta", env.get("delta"), "rad", "steer", log=False)
     x0 = env.get("x0", [0.0] * 5)
     if not (isinstance(x0, list) and len(x0) == 5 and all(_is_num(v) for v in x0)):
         bad.append(f"{source}: envelope.x0 must be 5 finite numbers [X, Y, psi, vy, r]")
         x0 = [0.0] * 5
 
-    hs = check.grid("steps.h", sections["steps"].get("h"), "s", positive=True, log=True)
+    hs = check.grid("steps.h", sections["steps"].get("h"), "s", "step", log=True)
     if horizon and hs:
         if max(hs) > horizon:
             bad.append(f"{source}: steps.h reaches {max(hs):g} s, past the horizon "
@@ -132,24 +136,21 @@ def validate(raw: dict, source: str = "config") -> SweepConfig:
         hs = sorted({horizon / max(1, round(horizon / h)) for h in hs})
 
     ref = sections["reference"]
-    rtol = check.positive("reference.rtol", ref.get("rtol", 1e-10), "")
-    atol = check.positive("reference.atol", ref.get("atol", 1e-12), "")
+    rtol = check.ranged("rtol", "reference.rtol", ref.get("rtol", 1e-10))
+    atol = check.ranged("atol", "reference.atol", ref.get("atol", 1e-12))
     stab = sections["stability"]
     steps = stab.get("steps", 1000)
     if not (isinstance(steps, int) and not isinstance(steps, bool) and 50 <= steps <= 100_000):
         bad.append(f"{source}: stability.steps must be a whole number in [50, 100000], "
                    f"got {steps!r}")
-    growth = check.positive("stability.growth", stab.get("growth", 100.0), "")
-    if growth and growth <= 2:
-        bad.append(f"{source}: stability.growth must be > 2 (a factor of growth), got {growth}")
-    perturbation = check.positive("stability.perturbation", stab.get("perturbation", 0.1), "")
-    h_probe_max = check.positive("stability.h_probe_max", stab.get("h_probe_max", 2.0), "s")
+    growth = check.ranged("growth", "stability.growth", stab.get("growth", 100.0))
+    perturbation = check.ranged("perturbation", "stability.perturbation",
+                                stab.get("perturbation", 0.1))
+    h_probe_max = check.ranged("step", "stability.h_probe_max", stab.get("h_probe_max", 2.0))
     if h_probe_max and hs and h_probe_max < max(hs):
         bad.append(f"{source}: stability.h_probe_max ({h_probe_max:g} s) is below the "
                    f"largest step ({max(hs):g} s); raise it")
-    rel_tol = check.positive("stability.rel_tol", stab.get("rel_tol", 1e-3), "")
-    if rel_tol and rel_tol >= 0.1:
-        bad.append(f"{source}: stability.rel_tol must be < 0.1, got {rel_tol}")
+    rel_tol = check.ranged("rel_tol", "stability.rel_tol", stab.get("rel_tol", 1e-3))
     per_chunk = sections["chunks"].get("points", 25)
     if not (isinstance(per_chunk, int) and not isinstance(per_chunk, bool) and per_chunk >= 1):
         bad.append(f"{source}: chunks.points must be a whole number >= 1, got {per_chunk!r}")
@@ -157,9 +158,8 @@ def validate(raw: dict, source: str = "config") -> SweepConfig:
     traj = sections["trajectories"]
     tvx = traj.get("vx", vx[0] if vx else 1.0)
     tdelta = traj.get("delta", delta[0] if delta else 0.0)
-    if not (_is_num(tvx) and tvx > 0 and _is_num(tdelta) and abs(tdelta) < math.pi / 2):
-        bad.append(f"{source}: trajectories.vx must be > 0 [m/s] and trajectories.delta in "
-                   "(-pi/2, pi/2) [rad]")
+    check.ranged("speed", "trajectories.vx", tvx)
+    check.ranged("steer", "trajectories.delta", tdelta)
     fractions = traj.get("fractions", [0.2, 0.5, 0.9])
     if not (isinstance(fractions, list) and fractions
             and all(_is_num(f) and 0 < f <= 1 for f in fractions)):
@@ -170,6 +170,10 @@ def validate(raw: dict, source: str = "config") -> SweepConfig:
     if past and past <= 1:
         bad.append(f"{source}: trajectories.past_limit must be > 1 (a multiple of the limit)")
 
+    limits = [sections["limits"].get(key) for key in ("memory_gib", "steps")]
+    for key, value in zip(("limits.memory_gib", "limits.steps"), limits):
+        if value is not None and not (_is_num(value) and value > 0):
+            bad.append(f"{source}: {key} must be a number > 0, got {value!r}")
     name = raw.get("name", Path(source).stem)
     if not isinstance(name, str):
         bad.append(f"{source}: name must be a string")
@@ -180,7 +184,7 @@ def validate(raw: dict, source: str = "config") -> SweepConfig:
                        float(rtol), float(atol), int(steps), float(growth), float(perturbation),
                        float(h_probe_max), float(rel_tol), int(per_chunk),
                        (float(tvx), float(tdelta)), tuple(float(f) for f in fractions),
-                       float(past), source)
+                       float(past), source, *limits)
 
 
 def _is_num(v) -> bool:
@@ -200,31 +204,60 @@ class _Checker:
             return None
         return float(value)
 
-    def grid(self, key, value, unit, positive, log):
-        """A list of numbers, or {min, max, num} spaced linearly (log-spaced if `log`)."""
+    def ranged(self, kind, key, value):
+        """`value` if it lies in RANGES[kind], else None (and a line in `bad`)."""
+        message = problem(kind, key, value)
+        if message:
+            self.bad.append(f"{self.source}: {message}")
+            return None
+        return float(value)
+
+    def grid(self, key, value, unit, kind, log):
+        """A list of numbers, or {min, max, num <= MAX_GRID} spaced linearly (log-spaced if
+        `log`), each in RANGES[kind]."""
         spacing = "log-spaced" if log else "evenly spaced"
         what = (f"{key} must be a list of numbers [{unit}] or {{min = ..., max = ..., "
                 f"num = ...}} ({spacing})")
         if isinstance(value, dict):
             lo, hi, num = value.get("min"), value.get("max"), value.get("num")
             if set(value) != {"min", "max", "num"} or not (_is_num(lo) and _is_num(hi)) \
-                    or not (isinstance(num, int) and not isinstance(num, bool) and num >= 1) \
-                    or lo > hi:
-                self.bad.append(f"{self.source}: {what} with min <= max and num >= 1, "
-                                f"got {value!r}")
+                    or not (isinstance(num, int) and not isinstance(num, bool)
+                            and 1 <= num <= MAX_GRID) or lo > hi:
+                self.bad.append(f"{self.source}: {what} with min <= max and 1 <= num <= "
+                                f"{MAX_GRID}, got {value!r}")
                 return []
-            if positive and lo <= 0:
-                self.bad.append(f"{self.source}: {key}.min must be > 0 [{unit}], got {lo!r}")
+            if self.ranged(kind, f"{key}.min", lo) is None \
+                    or self.ranged(kind, f"{key}.max", hi) is None:
                 return []
             values = np.geomspace(lo, hi, num) if log else np.linspace(lo, hi, num)
             return [float(v) for v in values]
         if not (isinstance(value, list) and value and all(_is_num(v) for v in value)):
             self.bad.append(f"{self.source}: {what}, got {value!r}")
             return []
-        if positive and min(value) <= 0:
-            self.bad.append(f"{self.source}: every {key} must be > 0 [{unit}], got {value!r}")
+        if len(value) > MAX_GRID:
+            self.bad.append(f"{self.source}: {key} lists {len(value)} values; at most "
+                            f"{MAX_GRID}")
+            return []
+        if any(self.ranged(kind, f"every {key}", v) is None for v in value):
             return []
         if len(set(value)) != len(value):
             self.bad.append(f"{self.source}: {key} lists a value twice; list each once")
             return []
         return [float(v) for v in value]
+
+
+def check_workload(cfg: SweepConfig):
+    """UsageError (the estimate and the limit) if the sweep would hold more trajectory memory
+    or integrate more steps than allowed ([limits], --max-memory, --max-steps)."""
+    from stepzoo.validate import GIB, check_budget
+    lanes = min(cfg.points_per_chunk, len(cfg.points))
+    steps = max(round(cfg.horizon / cfg.hs[0]), cfg.stab_steps) + 1   # every call's length
+    blocks = -(-len(cfg.points) // cfg.points_per_chunk)
+    # Per method and block: accuracy and stability runs at every step, the probes past the
+    # grid (doubling to h_probe_max, ten halvings) and the bisection to rel_tol.
+    probes = 2 * len(cfg.hs) + math.log2(cfg.h_probe_max / cfg.hs[-1]) + 10 \
+        + math.log2(1 / cfg.rel_tol) + 2
+    memory = cfg.max_memory_gib and cfg.max_memory_gib * GIB
+    check_budget(f"the sweep {cfg.name!r}", steps, lanes, len(cfg.x0),
+                 calls=len(cfg.methods) * blocks * probes, memory=memory,
+                 max_steps=cfg.max_steps)

@@ -5,7 +5,6 @@ go to the smaller worst-case error (measured time is noisy, so it is only a seco
 from __future__ import annotations
 
 import json
-import math
 from datetime import datetime, timezone
 from pathlib import Path
 
@@ -14,6 +13,12 @@ import pandas as pd
 
 from stepzoo.bench.sweep_folder import check_finished
 from stepzoo.errors import NoAnswer, UsageError
+from stepzoo.validate import check
+
+# The stability margin: h <= (1 - margin) x the measured largest stable step. 0.2, not less:
+# the limit is measured at the envelope's grid points only, and a step that close to it
+# leaves |R(h lambda)| near 1, so a perturbation decays over hundreds of steps.
+DEFAULT_MARGIN = 0.2
 
 
 def load_results(folder) -> tuple[pd.DataFrame, pd.DataFrame, dict]:
@@ -57,12 +62,14 @@ def candidates(runs: pd.DataFrame, limits: pd.DataFrame, pos_tol: float, margin:
     return table
 
 
+def check_arguments(pos_tol: float, margin: float):
+    """UsageError unless the tolerance [m] and the margin (a fraction) are in range."""
+    check("pos_tol", "--pos-tol", pos_tol), check("margin", "--margin", margin)
+
+
 def tune(folder, pos_tol: float, margin: float) -> dict:
     """The tuned planner config as a dict (the TOML's content)."""
-    if not (isinstance(pos_tol, (int, float)) and math.isfinite(pos_tol) and pos_tol > 0):
-        raise UsageError(f"--pos-tol must be a positive distance [m], got {pos_tol!r}")
-    if not (isinstance(margin, (int, float)) and 0 <= margin < 1):
-        raise UsageError(f"--margin must be a fraction in [0, 1), got {margin!r}")
+    check_arguments(pos_tol, margin)
     runs, limits, manifest = load_results(folder)
     table = candidates(runs, limits, pos_tol, margin)
     order = ["cost_evals_per_s", "err_pos", "method"]

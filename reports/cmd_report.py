@@ -7,6 +7,7 @@ import json
 import sys
 from pathlib import Path
 
+from stepzoo.bench.tune import DEFAULT_MARGIN
 from stepzoo.reports import figures, tables
 from stepzoo.reports.html import write_report
 from stepzoo.reports.load import load_plans, load_sweep, load_tuned
@@ -14,7 +15,6 @@ from stepzoo.results_folder import check_kind, writing
 
 # Used for the summary table's cost column when no tuned config gives them.
 DEFAULT_POS_TOL_M = 0.1
-DEFAULT_MARGIN = 0.2
 
 
 def add_arguments(p):

@@ -10,6 +10,7 @@ from dataclasses import replace
 from stepzoo.errors import UsageError
 from stepzoo.output import atomic_write, text_table, to_json
 from stepzoo.results_folder import check_kind, writing
+from stepzoo.validate import check
 
 SUMMARY_COLUMNS = ["scenario", "status", "expansions", "nodes", "search_s", "connect_s",
                    "path_length_m", "connect_tf_s"]
@@ -96,8 +97,7 @@ def _summary_row(record):
 def main(args) -> int:
     from stepzoo.search.pathfinder import BAD_ENDPOINT
     from stepzoo.search.planner_config import load_config
-    if args.seed < 0:
-        raise UsageError(f"--seed must be >= 0, got {args.seed}")
+    check("seed", "--seed", args.seed)
     out = check_kind(args.out, "plan")
     config = load_config(args.config)
     scenarios = _scenarios(args)

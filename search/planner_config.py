@@ -9,7 +9,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from stepzoo.errors import UsageError
-from stepzoo.validate import read_toml
+from stepzoo.validate import check, check_budget, read_toml
 
 DEFAULT_CONFIG = Path(__file__).with_name("tuned_default.toml")
 
@@ -86,11 +86,15 @@ def make_config(method="rk4", h=0.02, provenance="built-in defaults", source="",
     if not isinstance(method, str) or method not in METHODS:
         raise UsageError(f"unknown integration method {method!r} in the planner config; "
                          f"use one of {', '.join(METHODS)}")
-    if isinstance(h, bool) or not isinstance(h, (int, float)) or not (math.isfinite(h) and h > 0):
-        raise UsageError(f"planner step h must be a number > 0 [s], got {h!r}")
+    check("step", "planner step h", h)
     params = {k: p.default for k, p in PARAMS.items()}
     params.update({k: check_param(k, v) for k, v in overrides.items()})
-    return PlannerConfig(method, float(h), params, str(provenance), str(source))
+    config = PlannerConfig(method, float(h), params, str(provenance), str(source))
+    # One expansion shoots n_arc + n_random trajectories of n_steps, the 5 states kept.
+    batch = params["n_arc"] + params["n_random"]
+    check_budget(f"the planner at h = {h:g} s", config.n_steps + 1, batch, 5,
+                 calls=params["max_expansions"])
+    return config
 
 
 def load_config(path=None) -> PlannerConfig:

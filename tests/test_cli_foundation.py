@@ -61,8 +61,8 @@ def test_blow_up_is_written_not_raised(capsys):
     (["--method", "nope"], "unknown method"),
     (["--model", "nope"], "unknown model"),
     (["--vehicle", "nope"], "unknown vehicle"),
-    (["--h", "0"], "--h must be a positive"),
-    (["--h", "-0.1"], "--h must be a positive"),
+    (["--h", "0"], "--h must be a step size"),
+    (["--h", "-0.1"], "--h must be a step size"),
     (["--h", "5"], "larger than the horizon"),
     (["--h", "abc"], "invalid float value"),
 ])

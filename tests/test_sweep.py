@@ -162,11 +162,11 @@ def test_resume_with_a_different_config_is_refused_in_one_line(tmp_path, capsys)
 
 
 BAD = [
-    ("horizon = -1", "horizon must be a number > 0"),
+    ("horizon = -1", "horizon must be a horizon"),
     ('methods = ["rk5"]', "unknown method 'rk5'"),
     ("colour = 3", "unknown key 'colour'"),
     ("[steps]\nh = { min = 0.1, max = 0.01, num = 3 }", "steps.h must be"),
-    ("[envelope]\nvx = [0.0, 5.0]", "every envelope.vx must be > 0"),
+    ("[envelope]\nvx = [0.0, 5.0]", "every envelope.vx must be a speed"),
     ("[stability]\nsteps = 3", "stability.steps must be a whole number"),
 ]
 

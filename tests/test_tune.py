@@ -84,7 +84,7 @@ def test_tuned_step_holds_at_20_unseen_operating_points(tuned):
 
 def test_an_impossible_tolerance_is_no_answer_one_line_and_exit_1(tuned, tmp_path, capsys):
     sweep, _ = tuned
-    assert stepzoo(["tune", str(sweep), "--pos-tol", "1e-15", "--out",
+    assert stepzoo(["tune", str(sweep), "--pos-tol", "1e-12", "--out",
                     str(tmp_path / "t.toml")]) == 1
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "loosen --pos-tol" in err
@@ -92,8 +92,8 @@ def test_an_impossible_tolerance_is_no_answer_one_line_and_exit_1(tuned, tmp_pat
 
 
 @pytest.mark.parametrize("args,message", [
-    (["--pos-tol", "0.1", "--margin", "1.5"], "--margin must be a fraction"),
-    (["--pos-tol", "-1"], "--pos-tol must be a positive distance"),
+    (["--pos-tol", "0.1", "--margin", "1.5"], "--margin must be a stability margin"),
+    (["--pos-tol", "-1"], "--pos-tol must be a position tolerance"),
 ])
 def test_bad_flags_are_one_line_and_exit_2(tuned, tmp_path, capsys, args, message):
     sweep, _ = tuned
