@@ -11,7 +11,10 @@ import time
 from pathlib import Path
 
 from stepzoo import bench
+from stepzoo.bench.tune import DEFAULT_MARGIN
 from stepzoo.errors import UsageError
+from stepzoo.results_folder import check_kind, writing
+from stepzoo.validate import check
 
 # Package data of bench, beside its modules (a module's file, not the package's: an editable
 # install may make bench a namespace package, which has none).
@@ -25,8 +28,8 @@ def add_arguments(p):
                    help="sweep config TOML (default: the shipped bench/configs/envelope.toml)")
     p.add_argument("--pos-tol", type=float, default=0.1, metavar="M",
                    help="position tolerance of the tuning [m] (default 0.1)")
-    p.add_argument("--margin", type=float, default=0.2, metavar="F",
-                   help="stability margin of the tuning, a fraction (default 0.2)")
+    p.add_argument("--margin", type=float, default=DEFAULT_MARGIN, metavar="F",
+                   help=f"stability margin of the tuning, a fraction (default {DEFAULT_MARGIN})")
     p.add_argument("--seed", type=int, default=0, help="seed of the planner (default 0)")
     p.add_argument("--format", choices=["text", "json"], default="text",
                    help="what is printed at the end: the report's path, or JSON with every "
@@ -61,14 +64,26 @@ def stages(args, out: Path) -> list[tuple[str, list[str]]]:
 
 
 def main(args) -> int:
+    from stepzoo.bench.tune import check_arguments
+    say = (lambda line: None) if args.quiet else _say
+    # Every argument is checked before the first stage starts, not when its stage comes.
+    check_arguments(args.pos_tol, args.margin)
+    check("seed", "--seed", args.seed)
+    out = check_kind(args.out, "run")
+    steps = stages(args, out)
+    with writing(out, "run"):
+        return _run(args, out, steps, say)
+
+
+def _run(args, out: Path, steps, say) -> int:
+    """Run the stages, then the report; 1 when a plan is not exact (the report is made)."""
     from stepzoo.bench import cli
     from stepzoo.reports import cmd_report
-    say = (lambda line: None) if args.quiet else _say
-    out = Path(args.out)
-    if out.exists() and not out.is_dir():
-        raise UsageError(f"--out {out} exists and is not a folder; give a folder")
-    steps = stages(args, out)
     total = len(steps) + 1
+    status = 0
+    budget = [x for flag, value in (("--max-memory", args.max_memory),
+                                    ("--max-steps", args.max_steps))
+              if value is not None for x in (flag, repr(value))]
     started = time.perf_counter()
     for i, (name, argv) in enumerate(steps, 1):
         say(f"[{i}/{total}] {name}: stepzoo {' '.join(argv)}")
@@ -78,8 +93,11 @@ def main(args) -> int:
         quiet = ["-q"] if args.quiet else [] if args.progress else ["--no-progress"]
         with open(os.devnull, "w") as null, \
                 contextlib.redirect_stdout(null if args.quiet else sys.stderr):
-            code = cli.main(argv + quiet if name in cli.LONG else argv)
-        if code:
+            code = cli.main(argv + quiet + budget if name in cli.INTEGRATE else argv)
+        if code == 1 and name == "plan":
+            status = 1
+            say("not every plan is exact; the report shows them")
+        elif code:
             say(f"stopped: `stepzoo {name}` failed (exit {code}); see its message above")
             return code
         say(f"[{i}/{total}] {name} done in {time.perf_counter() - t0:.1f} s")
@@ -93,4 +111,4 @@ def main(args) -> int:
                                      "plans": str(out / "plans"), "report": str(index)}) + "\n")
     else:
         sys.stdout.write(f"{index}\n")
-    return 0
+    return status

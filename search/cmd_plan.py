@@ -101,6 +101,10 @@ def main(args) -> int:
     out = check_kind(args.out, "plan")
     config = load_config(args.config)
     scenarios = _scenarios(args)
+    for s in scenarios:
+        if tuple(s.start) == tuple(s.goal):
+            raise UsageError(f"{s.name}: the start is the goal ({', '.join(map(str, s.start))}); "
+                             "nothing to plan, give a goal elsewhere")
     if args.scheduler is None:
         records = [plan_scenario(s, config, args.seed) for s in scenarios]
     else:

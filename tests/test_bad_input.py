@@ -1,0 +1,345 @@
+"""The bad-input battery: every number out of its physical or numerical range, every request
+too large to fit or finish, every unusable file (unreadable, read-only, a full disk or
+stdout) is one line on stderr with exit status 2, never a traceback or a hang, and leaves
+what was already written as it was. Exit status 1 means a correct run found no answer."""
+import hashlib
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from stepzoo.bench.cli import main as stepzoo
+from stepzoo.bench.sweep import run_sweep
+from stepzoo.bench.sweep_config import load
+from stepzoo.validate import RANGES
+
+ROOT = Path(__file__).resolve().parents[1]
+SMALL = ROOT / "bench" / "configs" / "small.toml"
+BERLIN = ROOT / "search" / "mapdata" / "Berlin_1_256.map"
+TINY = """name = "tiny"
+horizon = 0.5
+methods = ["euler"]
+[envelope]
+vx = [20.0]
+delta = [0.3]
+[steps]
+h = [0.05, 0.1]
+[stability]
+steps = 100
+"""
+
+
+def one_line(err: str) -> str:
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and "Traceback" not in err, err
+    return lines[0]
+
+
+def refused(capsys, *argv) -> str:
+    """The one line `stepzoo ARGV` prints when it refuses with exit status 2."""
+    assert stepzoo(list(map(str, argv))) == 2
+    captured = capsys.readouterr()
+    assert captured.out == ""
+    return one_line(captured.err)
+
+
+def digest(folder: Path) -> dict:
+    """{relative path: sha256} of every file under `folder`, lock files aside."""
+    return {str(p.relative_to(folder)): hashlib.sha256(p.read_bytes()).hexdigest()
+            for p in sorted(folder.rglob("*")) if p.is_file() and p.name != ".stepzoo.lock"}
+
+
+@pytest.fixture(scope="module")
+def finished(tmp_path_factory):
+    """(config file, a finished sweep folder of it, a tuned config from it)."""
+    base = tmp_path_factory.mktemp("finished")
+    config = base / "tiny.toml"
+    config.write_text(TINY)
+    run_sweep(load(config), base / "sweep", progress=False)
+    assert stepzoo(["tune", str(base / "sweep"), "--pos-tol", "10", "--out",
+                    str(base / "tuned.toml")]) == 0
+    return config, base / "sweep", base / "tuned.toml"
+
+
+SIMULATE = ["simulate", "--method", "rk4", "--h", "0.01", "--T", "1", "--vx", "10",
+            "--delta", "0.1"]
+
+
+def with_flags(argv, **flags):
+    argv = list(argv)
+    for flag, value in flags.items():
+        flag = "--" + flag.replace("_", "-")
+        if flag in argv:
+            argv[argv.index(flag) + 1] = value
+        else:
+            argv += [flag, value]
+    return argv
+
+
+@pytest.mark.parametrize("flags, words", [
+    ({"h": "1", "T": "1e308"}, "--T must be a horizon"),
+    ({"h": "0.01", "T": "1e12"}, "--T must be a horizon"),
+    ({"h": "1e-12", "T": "1"}, "--h must be a step size"),
+    ({"vx": "1e308"}, "--vx must be a speed"),
+    ({"delta": "10"}, "--delta must be a steer angle"),
+    ({"method": "reference", "rtol": "1e-300"}, "--rtol must be a relative tolerance"),
+    ({"h": "1e-6", "T": "1e5"}, "would hold"),
+    ({"h": "1e-5", "T": "10", "max_memory": "0.001"}, "past the limit of 0.001 GiB"),
+    ({"h": "1e-5", "T": "10", "max_steps": "1000"}, "past the limit of 1e+03"),
+    ({"max_memory": "-1"}, "--max-memory must be a number > 0"),
+])
+def test_simulate_refuses_what_is_out_of_range_or_too_large(capsys, flags, words):
+    assert words in refused(capsys, *with_flags(SIMULATE, **flags))
+
+
+def config_with(tmp_path, section, key, value) -> Path:
+    """TINY with `key` of `section` (None: top level) set to `value`, as a file."""
+    import tomllib
+
+    import tomli_w
+    raw = tomllib.loads(TINY)
+    (raw.setdefault(section, {}) if section else raw)[key] = value
+    path = tmp_path / "bad.toml"
+    path.write_text(tomli_w.dumps(raw))
+    return path
+
+
+@pytest.mark.parametrize("kind, section, key, flag, value", [
+    ("speed", "envelope", "vx", "--vx", 1e308),
+    ("steer", "envelope", "delta", "--delta", 10.0),
+])
+def test_every_command_checks_a_number_against_the_same_range(tmp_path, capsys, kind,
+                                                               section, key, flag, value):
+    rule = RANGES[kind].describe()
+    for argv in (with_flags(SIMULATE, **{flag[2:]: str(value)}),
+                 with_flags(["stability", "--vx", "10", "--delta", "0.1"],
+                            **{flag[2:]: str(value)}),
+                 ["sweep", config_with(tmp_path, section, key, [value]), "--out",
+                  tmp_path / "out"]):
+        assert rule in refused(capsys, *argv), argv
+
+
+@pytest.mark.parametrize("section, key, value, words", [
+    (None, "horizon", 1e308, "horizon must be a horizon"),
+    ("steps", "h", [1e-300, 0.1], "every steps.h must be a step size"),
+    ("envelope", "vx", [5.0, 1e308], "every envelope.vx must be a speed"),
+    ("reference", "rtol", 1e-300, "reference.rtol must be a relative tolerance"),
+    ("stability", "growth", 1e308, "stability.growth must be a blow-up growth factor"),
+    ("steps", "h", {"min": 0.01, "max": 0.1, "num": 1_000_000_000}, "1 <= num <= 10000"),
+    ("steps", "h", {"min": 1e-9, "max": 0.1, "num": 3}, "past the limit"),
+    ("limits", "memory_gib", 1e-6, "past the limit of 1e-06 GiB"),
+    ("limits", "steps", 10, "past the limit of 10"),
+])
+def test_a_sweep_config_out_of_range_or_too_large_is_refused_before_any_work(
+        tmp_path, capsys, section, key, value, words):
+    out = tmp_path / "out"
+    assert words in refused(capsys, "sweep", config_with(tmp_path, section, key, value),
+                            "--out", out)
+    assert not out.exists()
+
+
+def test_plan_refuses_speeds_poses_maps_and_steps_out_of_range(tmp_path, capsys):
+    out = tmp_path / "out"
+    query = ["--map", BERLIN, "--cell-size", "1.5", "--goal", "213.75,16.5,-1.68"]
+    assert "--speed must be a speed" in refused(capsys, "plan", "street", "--speed", "1e308",
+                                                "--out", out)
+    assert "X must be a coordinate" in refused(capsys, "plan", *query, "--start",
+                                               "1e308,56.25,0", "--out", out)
+    assert "PSI must be a heading" in refused(capsys, "plan", *query, "--start",
+                                              "218.25,56.25,1e308", "--out", out)
+    (tmp_path / "big.toml").write_text(
+        'map = { size = [1e7, 1e7], resolution = 0.5, obstacles = [] }\n'
+        "start = [1, 1, 0]\ngoal = [5, 5, 0]\nspeed = 5\n")
+    assert "4e+14 cells" in refused(capsys, "plan", tmp_path / "big.toml", "--out", out)
+    (tmp_path / "h.toml").write_text('method = "rk4"\nh = 1e-12\n')
+    assert "planner step h must be a step size" in refused(
+        capsys, "plan", "street", "--config", tmp_path / "h.toml", "--out", out)
+    (tmp_path / "h9.toml").write_text('method = "rk4"\nh = 1e-9\n')
+    assert "the planner at h = 1e-09 s would hold" in refused(
+        capsys, "plan", "street", "--config", tmp_path / "h9.toml", "--out", out)
+    (tmp_path / "bad.png").write_bytes(b"not an image")
+    assert "cannot read map image" in refused(capsys, "plan", "--map", tmp_path / "bad.png",
+                                              "--cell-size", "1", "--start", "1,1,0",
+                                              "--goal", "2,2,0", "--out", out)
+    (tmp_path / "m.yaml").write_text("image: missing.png\nresolution: 0.05\norigin: [0, 0, 0]\n"
+                                     "occupied_thresh: 0.65\nfree_thresh: 0.2\nnegate: 0\n")
+    assert "missing.png" in refused(capsys, "plan", "--map", tmp_path / "m.yaml", "--start",
+                                    "1,1,0", "--goal", "2,2,0", "--out", out)
+    (tmp_path / "file").write_text("kept")
+    assert "is not a folder" in refused(capsys, "plan", "street", "--out", tmp_path / "file")
+    assert not out.exists() and (tmp_path / "file").read_text() == "kept"
+
+
+def test_a_start_equal_to_the_goal_is_refused(tmp_path, capsys):
+    pose = "218.25,56.25,-1.68"
+    assert "the start is the goal" in refused(
+        capsys, "plan", "--map", BERLIN, "--cell-size", "1.5", "--start", pose, "--goal", pose,
+        "--out", tmp_path / "out")
+    assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.parametrize("args, words", [
+    (["--margin", "2"], "--margin must be a stability margin"),
+    (["--pos-tol=-1"], "--pos-tol must be a position tolerance"),
+    (["--seed=-1"], "--seed must be a seed"),
+])
+def test_run_refuses_bad_arguments_before_it_starts(tmp_path, capsys, args, words):
+    out = tmp_path / "results"
+    assert words in refused(capsys, "run", "--config", SMALL, "--out", out, *args)
+    assert not out.exists()
+
+
+def test_tune_finding_nothing_is_exit_1_and_keeps_the_old_file(finished, tmp_path, capsys):
+    _, sweep, tuned = finished
+    before = tuned.read_bytes()
+    assert stepzoo(["tune", str(sweep), "--pos-tol", "1e-12", "--out", str(tuned)]) == 1
+    assert "no answer" in one_line(capsys.readouterr().err)
+    assert tuned.read_bytes() == before
+
+
+# ---- files the operating system refuses ---------------------------------------------------
+
+def as_user(*argv, cwd=ROOT):
+    """`python -m stepzoo ARGV` with file modes enforced: as root, without the capabilities
+    that let root ignore them (setpriv); (status, stderr)."""
+    cmd = [sys.executable, "-m", "stepzoo", *map(str, argv)]
+    if os.geteuid() == 0:
+        cmd = ["setpriv", "--bounding-set", "-dac_override,-dac_read_search", "--", *cmd]
+    proc = subprocess.run(cmd, capture_output=True, text=True, cwd=cwd, timeout=300)
+    return proc.returncode, proc.stderr
+
+
+def _modes_enforced() -> str | None:
+    """Why file modes cannot be enforced on a command here, or None."""
+    if os.geteuid() != 0:
+        return None
+    if shutil.which("setpriv") is None:
+        return "running as root without setpriv, which drops root's override of file modes"
+    import tempfile
+    with tempfile.NamedTemporaryFile() as closed:
+        os.chmod(closed.name, 0)
+        probe = subprocess.run(["setpriv", "--bounding-set", "-dac_override,-dac_read_search",
+                                "--", "test", "-r", closed.name], capture_output=True)
+    if probe.returncode == 0 or probe.stderr:
+        return "setpriv cannot drop root's override of file modes in this container"
+    return None
+
+
+needs_modes = pytest.mark.skipif(_modes_enforced() is not None,
+                                 reason=str(_modes_enforced()))
+
+
+@needs_modes
+def test_unreadable_inputs_are_one_line(finished, tmp_path):
+    config, _, _ = finished
+    secret = tmp_path / "secret.toml"
+    shutil.copy(config, secret)
+    secret.chmod(0)
+    code, err = as_user("sweep", secret, "--out", tmp_path / "out")
+    assert code == 2 and "Permission denied" in one_line(err)
+    grid = tmp_path / "grid.npy"
+    np.save(grid, np.zeros((40, 40), bool))
+    grid.chmod(0)
+    code, err = as_user("plan", "--map", grid, "--cell-size", "1", "--start", "5,5,0",
+                        "--goal", "30,30,0", "--out", tmp_path / "plan")
+    assert code == 2 and "grid.npy" in one_line(err)
+    yaml = tmp_path / "m.yaml"
+    yaml.write_text("image: grid.png\nresolution: 1\norigin: [0, 0, 0]\n")
+    yaml.chmod(0)
+    code, err = as_user("plan", "--map", yaml, "--start", "5,5,0", "--goal", "30,30,0",
+                        "--out", tmp_path / "plan")
+    assert code == 2 and "m.yaml" in one_line(err)
+    assert not (tmp_path / "out").exists() and not (tmp_path / "plan").exists()
+
+
+@needs_modes
+def test_a_read_only_output_folder_is_one_line_and_keeps_what_it_holds(finished, tmp_path):
+    config, sweep, tuned = finished
+    shutil.copytree(sweep, tmp_path / "sweep")
+    shutil.copy(tuned, tmp_path / "tuned.toml")
+    (tmp_path / "plans").mkdir()
+    before = digest(tmp_path)
+    for folder in (tmp_path / "sweep", tmp_path / "plans", tmp_path):
+        folder.chmod(0o555)
+    try:
+        for argv in (["sweep", config, "--out", tmp_path / "sweep", "--resume"],
+                     ["tune", tmp_path / "sweep", "--pos-tol", "10", "--out",
+                      tmp_path / "tuned.toml"],
+                     ["report", tmp_path / "sweep", "--out", tmp_path / "report"],
+                     ["plan", "street", "--out", tmp_path / "plans"]):
+            code, err = as_user(*argv)
+            assert code == 2 and "Permission denied" in one_line(err), argv
+    finally:
+        for folder in (tmp_path / "sweep", tmp_path / "plans", tmp_path):
+            folder.chmod(0o755)
+    assert digest(tmp_path) == before
+
+
+def _private_tmpfs() -> str | None:
+    """Why a small file system cannot be made here, or None."""
+    if shutil.which("unshare") is None:
+        return "no unshare to make a private mount namespace"
+    probe = subprocess.run(["unshare", "-m", "--propagation", "private", "sh", "-c",
+                            "mount -t tmpfs -o size=64k tmpfs /mnt"], capture_output=True)
+    if probe.returncode:
+        return f"cannot mount a small tmpfs here ({probe.stderr.decode().strip()})"
+    return None
+
+
+@pytest.mark.skipif(_private_tmpfs() is not None, reason=str(_private_tmpfs()))
+def test_a_full_disk_is_one_line_and_keeps_what_it_holds(finished, tmp_path):
+    """On a tmpfs filled to the last byte (in a private mount namespace), sweep, tune,
+    report and plan each say the disk is full, and the files there are unchanged."""
+    config, sweep, tuned = finished
+    disk = tmp_path / "disk"
+    disk.mkdir()
+    py = f"{sys.executable} -m stepzoo"
+    script = f"""set -u
+mount -t tmpfs -o size=4m tmpfs {disk}
+cp -r {sweep} {disk}/sweep && cp {tuned} {disk}/tuned.toml && mkdir {disk}/plans
+dd if=/dev/zero of={disk}/fill bs=4096 2>/dev/null
+find {disk}/sweep {disk}/tuned.toml -type f ! -name .stepzoo.lock | sort | xargs sha256sum > {tmp_path}/before
+{py} sweep {config} --out {disk}/sweep --resume --no-progress 2> {tmp_path}/sweep.err
+echo $? > {tmp_path}/sweep.rc
+{py} tune {disk}/sweep --pos-tol 10 --out {disk}/tuned.toml 2> {tmp_path}/tune.err
+echo $? > {tmp_path}/tune.rc
+{py} report {disk}/sweep --out {disk}/report 2> {tmp_path}/report.err
+echo $? > {tmp_path}/report.rc
+{py} plan street --out {disk}/plans 2> {tmp_path}/plan.err
+echo $? > {tmp_path}/plan.rc
+find {disk}/sweep {disk}/tuned.toml -type f ! -name .stepzoo.lock | sort | xargs sha256sum > {tmp_path}/after
+"""
+    subprocess.run(["unshare", "-m", "--propagation", "private", "sh", "-c", script],
+                   cwd=ROOT, timeout=600, check=True)
+    for name in ("sweep", "tune", "report", "plan"):
+        err = (tmp_path / f"{name}.err").read_text()
+        assert (tmp_path / f"{name}.rc").read_text().strip() == "2", (name, err)
+        assert "No space left on device" in one_line(err), name
+    assert (tmp_path / "before").read_text() == (tmp_path / "after").read_text()
+
+
+@pytest.mark.skipif(not Path("/dev/full").exists(), reason="no /dev/full on this system")
+@pytest.mark.parametrize("argv", [["methods"], SIMULATE[:4] + ["0.0001"] + SIMULATE[5:]])
+def test_a_full_stdout_is_one_line(argv):
+    with open("/dev/full", "w") as full:
+        proc = subprocess.run([sys.executable, "-m", "stepzoo", *argv], stdout=full,
+                              stderr=subprocess.PIPE, text=True, cwd=ROOT, timeout=300)
+    assert proc.returncode == 2
+    assert "cannot write the output to stdout: No space left on device" in one_line(proc.stderr)
+
+
+def test_version_and_the_exit_statuses_are_documented(capsys):
+    with pytest.raises(SystemExit) as stop:
+        stepzoo(["--version"])
+    assert stop.value.code == 0
+    from stepzoo import __version__
+    assert capsys.readouterr().out.strip() == f"stepzoo {__version__}"
+    with pytest.raises(SystemExit):
+        stepzoo(["tune", "--help"])
+    helptext = capsys.readouterr().out
+    for status in ("0 ", "1 ", "2 ", "130"):
+        assert f"\n  {status}" in helptext
