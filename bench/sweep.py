@@ -17,7 +17,7 @@ import pandas as pd
 
 from stepzoo.bench import metrics, sweep_folder
 from stepzoo.errors import UsageError
-from stepzoo.output import atomic_write, to_json
+from stepzoo.output import atomic_write, to_json, write_file
 from stepzoo.results_folder import writing
 from stepzoo.bench.sweep_config import SweepConfig, check_workload
 
@@ -400,7 +400,7 @@ def _write_chunk(chunks: Path, cid: str, tables: dict):
     shutil.rmtree(tmp, ignore_errors=True)
     tmp.mkdir(parents=True)
     for name, df in tables.items():
-        (tmp / f"{name}.parquet").write_bytes(_parquet(df))
+        write_file(tmp / f"{name}.parquet", _parquet(df))
     os.replace(tmp, chunks / cid)
 
 

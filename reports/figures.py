@@ -3,6 +3,7 @@ the report folder and return a `Shown` record with the caption (what it shows, w
 Matplotlib runs headless through the Agg canvas, without pyplot's global state."""
 from __future__ import annotations
 
+import io
 import logging
 import math
 from dataclasses import dataclass
@@ -17,6 +18,7 @@ from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
 
 from stepzoo.integrators import METHODS
+from stepzoo.output import atomic_write
 from stepzoo.integrators.stability import amplification_theory, region_grid
 
 # Log-axis tick labels go through mathtext, which probes STIX fonts that some matplotlib
@@ -42,7 +44,9 @@ class Shown:
 
 
 def _save(fig: Figure, out_dir: Path, name: str) -> str:
-    fig.savefig(out_dir / name, dpi=DPI, bbox_inches="tight")
+    buf = io.BytesIO()
+    fig.savefig(buf, format=Path(name).suffix[1:], dpi=DPI, bbox_inches="tight")
+    atomic_write(out_dir / name, buf.getvalue())       # a full disk names the file
     return name
 
 

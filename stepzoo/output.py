@@ -25,6 +25,17 @@ def atomic_write(path, data: bytes | str) -> Path:
     return path
 
 
+def write_file(path, data: bytes) -> Path:
+    """Write `data` to `path` (no rename: for files inside a folder that is itself renamed
+    into place); an error names `path`, as a failed write() alone does not."""
+    path = Path(path)
+    try:
+        path.write_bytes(data)
+    except OSError as err:
+        raise OSError(err.errno, err.strerror, str(path)) from None
+    return path
+
+
 def to_json(obj) -> str:
     return json.dumps(obj, indent=2, allow_nan=False)
 

@@ -318,7 +318,7 @@ find {disk}/sweep {disk}/tuned.toml -type f ! -name .stepzoo.lock | sort | xargs
     for name in ("sweep", "tune", "report", "plan"):
         err = (tmp_path / f"{name}.err").read_text()
         assert (tmp_path / f"{name}.rc").read_text().strip() == "2", (name, err)
-        assert "No space left on device" in one_line(err), name
+        assert f"No space left on device: {disk}" in one_line(err), name
     assert (tmp_path / "before").read_text() == (tmp_path / "after").read_text()
 
 

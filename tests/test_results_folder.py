@@ -229,8 +229,11 @@ def test_a_folder_of_another_commands_results_is_refused(tiny, tmp_path, capsys)
     assert stepzoo(["sweep", str(path), "--out", str(plans)]) == 2
     assert "holds the results of `stepzoo plan` (plan.json)" in one_line(capsys.readouterr().err)
     assert {p.name for p in plans.iterdir()} == {"plan.json"}
-    assert stepzoo(["plan", "street", "--out", str(whole)]) == 2
-    assert "holds the results of `stepzoo sweep`" in one_line(capsys.readouterr().err)
+    before = {p.name for p in whole.iterdir()}
+    for argv in (["plan", "street"], ["report", str(whole)], ["run", "--config", str(path)]):
+        assert stepzoo([*argv, "--out", str(whole)]) == 2
+        assert "holds the results of `stepzoo sweep`" in one_line(capsys.readouterr().err)
+    assert {p.name for p in whole.iterdir()} == before
 
 
 def test_a_killed_run_resumes_to_the_same_tables(tiny, tmp_path):
