@@ -97,6 +97,8 @@ def _run(args, out: Path, steps, say) -> int:
         if code == 1 and name == "plan":
             status = 1
             say("not every plan is exact; the report shows them")
+        elif code == cli.INTERRUPTED:
+            return code                   # the stage said so, and how to resume, in one line
         elif code:
             say(f"stopped: `stepzoo {name}` failed (exit {code}); see its message above")
             return code

@@ -142,7 +142,7 @@ def test_an_interrupted_sweep_says_how_to_resume_and_resumes_to_the_same_tables(
     proc.send_signal(signal.SIGINT)
     _, err = proc.communicate(timeout=120)
     assert proc.returncode == 130, err
-    assert one_line(err) == "stepzoo sweep: interrupted; resume with --resume"
+    assert one_line(err).startswith("stepzoo sweep: interrupted; resume with --resume")
     assert not (out / "runs.parquet").exists()
     code, _, err = cli("sweep", path, "--out", out, "--resume", "--no-progress")
     assert code == 0, err
@@ -263,3 +263,18 @@ def test_a_killed_run_resumes_to_the_same_tables(tiny, tmp_path):
     mine, theirs = (tomllib.loads(p.read_text()) for p in (out / "tuned.toml",
                                                           tmp_path / "t.toml"))
     assert (mine["method"], mine["h"]) == (theirs["method"], theirs["h"])
+
+
+def test_ctrl_c_stops_a_run_with_one_line_and_status_130(tiny, tmp_path):
+    path, _ = tiny
+    out = tmp_path / "results"
+    proc = subprocess.Popen([sys.executable, "-m", "stepzoo", "run", "--config", str(path),
+                             "--out", str(out), "-q"], cwd=ROOT, stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 120
+    while not any((out / "sweep" / "chunks").glob("euler-*")) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    proc.send_signal(signal.SIGINT)
+    stdout, err = proc.communicate(timeout=120)
+    assert proc.returncode == 130 and stdout == ""
+    assert "interrupted; resume" in one_line(err) and "run it again" in err
