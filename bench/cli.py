@@ -22,6 +22,8 @@ COMMANDS = {
     "sweep": ("stepzoo.bench.cmd_sweep", "stability/accuracy sweep into a results folder"),
     "tune": ("stepzoo.bench.cmd_tune", "choose (method, h) under a tolerance -> planner config"),
     "plan": ("stepzoo.search.cmd_plan", "plan a scenario (built-in, or map + start + goal)"),
+    "plan-bench": ("stepzoo.search.cmd_plan_bench", "plan a file of queries N times: a table "
+                   "and OMPL benchmark logs"),
     "report": ("stepzoo.reports.cmd_report", "build the HTML report from result folders"),
 }
 # Commands that run long enough to show progress: they take --no-progress and -q.

@@ -4,6 +4,7 @@ One parametrised solver per (N, shooting, method, options) is built once and cal
 problem's numbers as parameters and bounds."""
 from dataclasses import dataclass
 from functools import cache
+import math
 from math import pi
 from time import perf_counter
 
@@ -153,6 +154,17 @@ def dubins_paths(start, goal, radius):
         if np.abs(miss).max() < 1e-6 * (1 + radius):
             paths.append(segs)
     return sorted(paths, key=lambda segs: sum(q for _, q in segs))
+
+
+def dubins_poses(start, segs, radius, spacing) -> np.ndarray:
+    """(K, 3) poses [X, Y, theta] along the path `segs` (from dubins_paths) from `start`,
+    at most `spacing` [m] apart, both ends included."""
+    poses, pose = [np.asarray(start, float)], np.asarray(start, float)
+    for sign, length in segs:
+        n = max(1, math.ceil(length / spacing))
+        poses += [_advance(pose, sign, length * k / n, radius) for k in range(1, n + 1)]
+        pose = poses[-1]
+    return np.array(poses)
 
 
 def _fastest_profile(s_total, v0, a_max, v_max, v_goal):

@@ -86,7 +86,8 @@ def _collide(omap, footprint, x, y, psi) -> np.ndarray:
 
 
 def discs_collide(omap: OccupancyMap, footprint: Footprint, x, y, psi) -> np.ndarray:
-    """Poses as arrays (...) [m, m, rad] -> bool (...): the plain check, disc by disc.
+    """Poses as arrays (...) [m, m, rad] -> bool (...): the plain check, disc by disc: a disc
+    collides if an obstacle lies within its radius (OccupancyMap.disc_hits).
 
     The disc centres are those of `disc_centres` (the same arithmetic), laid out disc first so
     that every array operation runs along the poses.
@@ -94,8 +95,15 @@ def discs_collide(omap: OccupancyMap, footprint: Footprint, x, y, psi) -> np.nda
     with np.errstate(invalid="ignore"):  # an infinite heading: see disc_centres
         cos, sin = np.cos(psi), np.sin(psi)
     offsets = footprint.offsets.reshape(-1, *(1,) * cos.ndim)
-    clearance = omap.clearance_at(x + offsets * cos, y + offsets * sin)
-    return (clearance <= footprint.radius).any(axis=0)
+    cx, cy = x + offsets * cos, y + offsets * sin
+    clearance = omap.clearance_at(cx, cy)
+    hit = clearance <= footprint.radius
+    # The bound is below the true distance by at most sqrt(2) lattice steps: a disc it cannot
+    # clear within that is decided exactly.
+    doubt = hit & (clearance > footprint.radius - math.sqrt(2) * omap.resolution / SUBDIV)
+    if doubt.any():
+        hit[doubt] = omap.disc_hits(cx[doubt], cy[doubt], footprint.radius)
+    return hit.any(axis=0)
 
 
 def roomy(omap: OccupancyMap, footprint: Footprint, x, y, psi) -> np.ndarray:

@@ -6,6 +6,7 @@ and everything outside the grid are obstacles; a distance field answers clearanc
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -20,6 +21,9 @@ from scipy.ndimage import distance_transform_edt
 # Real maps shipped with the package (MovingAI, ROS map_server), provenance in PROVENANCE.md.
 MAP_DIR = Path(__file__).with_name("mapdata")
 SUBDIV = 2
+# Widest square of cells (a side) that OccupancyMap.disc_hits searches exactly: 9 x 9 covers a
+# car's disc (radius about 1.2 m) on cells of 0.3 m and up, where the lattice bound is loosest.
+EXACT_CELLS = 9
 
 _MOVINGAI_FREE = frozenset(".GS")
 _MOVINGAI_BLOCKED = frozenset("@OTW")
@@ -90,6 +94,35 @@ class OccupancyMap:
         rows, cols = self.distance.shape
         return (np.fmin(np.fmax(np.rint(col), 0.0), cols - 1).astype(np.intp),
                 np.fmin(np.fmax(np.rint(row), 0.0), rows - 1).astype(np.intp))
+
+    def disc_hits(self, x, y, radius) -> np.ndarray:
+        """Points as two arrays (...) [m] -> bool (...): an obstacle lies within `radius` [m]
+        of the point, decided exactly from the cells around it (the lattice field's bound is
+        loose by up to sqrt(2)/SUBDIV cells, which closes doors a car fits through on coarse
+        maps). Where that needs more than EXACT_CELLS cells a side, the bound answers."""
+        x, y = np.asarray(x, dtype=float), np.asarray(y, dtype=float)
+        k = math.ceil(radius / self.resolution)
+        if 2 * k + 1 > EXACT_CELLS:
+            return self.clearance_at(x, y) <= radius
+        u, v = (x - self.origin[0]) / self.resolution, (y - self.origin[1]) / self.resolution
+        rows, cols = self.occupied.shape
+        # Off the grid (or on its edge) is in the obstacle region; non-finite is never free.
+        hit = ~((u > 0) & (u < cols) & (v > 0) & (v < rows))
+        u, v = np.where(hit, 0.5, u), np.where(hit, 0.5, v)
+        col, row = np.floor(u).astype(np.intp), np.floor(v).astype(np.intp)
+        reach2 = (radius / self.resolution) ** 2
+        for dc in range(-k, k + 1):
+            c = col + dc
+            gap_u = np.maximum(np.maximum(c - u, u - (c + 1)), 0.0)  # [cells] to the column
+            for dr in range(-k, k + 1):
+                r = row + dr
+                gap_v = np.maximum(np.maximum(r - v, v - (r + 1)), 0.0)
+                near = gap_u * gap_u + gap_v * gap_v <= reach2
+                inside = (r >= 0) & (r < rows) & (c >= 0) & (c < cols)
+                # Everything outside the grid is obstacle.
+                blocked = ~inside | self.occupied[np.clip(r, 0, rows - 1), np.clip(c, 0, cols - 1)]
+                hit |= near & blocked
+        return hit
 
     def is_free(self, xy) -> np.ndarray:
         """(..., 2) [m] -> bool (...): clearance > 0."""

@@ -1,6 +1,7 @@
 """PathFinder (paper Algorithm 1): best-first growth of a tree of shootings ordered by
 f = g + H, duplicates pruned by (x, y, heading) cells as in Hybrid A*, under budgets of
-expansions and seconds; then the connection (Section 2.4) from the nodes nearest the goal."""
+expansions and seconds; the connection (Section 2.4) from the nodes nearest the goal; then,
+anytime, shorter connections until no node can shorten the path or the budget ends."""
 from __future__ import annotations
 
 import heapq
@@ -9,10 +10,12 @@ from dataclasses import dataclass, field
 from time import perf_counter
 
 import numpy as np
-from scipy.ndimage import label
+from scipy.ndimage import label, minimum_filter
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import dijkstra
 
 from stepzoo import dynamics
-from stepzoo.search.connect import Connection, connect, dubins_paths
+from stepzoo.search.connect import Connection, connect, dubins_paths, dubins_poses
 from stepzoo.search.footprint import Footprint, first_collision, poses_collide
 from stepzoo.search.maps import SUBDIV, OccupancyMap
 from stepzoo.search.planner_config import PlannerConfig
@@ -20,6 +23,11 @@ from stepzoo.search.point_selector import point_selector, random_points
 from stepzoo.search.shooting import Shooter
 
 EXACT, APPROXIMATE, NO_PATH = "exact", "approximate", "no_path"
+REFINE = 2              # times the pruning cells are halved when the heap empties unsolved
+PREFIX_FRACTION = 4     # a colliding shooting's free first part is kept from 1/4 of its rows
+IMPROVE_TOL = 1e-3      # a path counts as shorter when it is shorter by this fraction
+DUBINS_SPACING = 0.5    # [m] between the poses of a Dubins path checked before an OCP
+OCTILE_EXCESS = 1.0824  # the 8-connected lattice metric's largest ratio to Euclidean length
 # Why a plan ended. Bad endpoints are the caller's input: no search was run.
 BAD_ENDPOINT = ("start_off_map", "start_in_collision", "goal_off_map", "goal_in_collision")
 CAUSES = (*BAD_ENDPOINT, "walled_off", "exhausted", "budget", "connections_failed", "connected")
@@ -45,6 +53,9 @@ class PlanResult:
     connect_s: float = 0.0        # [s] wall time of all connection attempts
     connect_attempts: int = 0
     cause: str = ""               # the reason as a word for programs, one of CAUSES
+    first_solution_s: float | None = None  # [s] from the search's start to the first exact path
+    solution_s: float | None = None        # [s] ... to the path returned (the shortest found)
+    progress: list = field(default_factory=list)  # (time [s], length [m]) of each better path
 
     def path_length(self) -> float:
         """[m] along the tree edges and the connection."""
@@ -65,8 +76,12 @@ class PathFinder:
         prm = config.params
         self.vehicle = dynamics.vehicle(vehicle)
         grow = 2 * prm["margin"]
-        self.footprint = Footprint.from_vehicle(self.vehicle["length"] + grow,
-                                                self.vehicle["width"] + grow)
+        length, width = self.vehicle["length"] + grow, self.vehicle["width"] + grow
+        # Slices half as long as the car is wide: the discs stick out 12% past the sides
+        # instead of 32%, which is what lets a car through a door 0.6 m wider than itself.
+        self.footprint = Footprint.from_vehicle(length, width, 2 * math.ceil(length / width))
+        self.vehicle_footprint = Footprint.from_vehicle(  # the car itself, for measures
+            self.vehicle["length"], self.vehicle["width"], len(self.footprint.offsets))
         self.wheelbase = self.vehicle["Lf"] + self.vehicle["Lr"]
         self.shooter = Shooter(omap, self.footprint, self.vehicle["name"], self.vx, config.method,
                                config.h, config.n_steps, prm["n_arc"] + prm["n_random"],
@@ -127,6 +142,35 @@ class PathFinder:
             self._components = label(room, structure=np.ones((3, 3)))[0]
         return self._components
 
+    def _geodesic(self, goal) -> np.ndarray:
+        """[m] the shortest 8-connected path over free lattice points of the goal's corridor
+        component from every lattice point to the goal's, the guide H of the search (Hybrid
+        A*'s obstacle heuristic); a point just outside takes its best neighbour's value plus a
+        diagonal step, and inf marks points with no way to the goal."""
+        labels = self._corridors()
+        step = self.omap.resolution / SUBDIV
+        target = self._lattice(goal)
+        mask = (labels == labels[target]) & (self.omap.distance > 0)
+        mask[target] = True
+        index = np.full(mask.shape, -1)
+        index[mask] = np.arange(mask.sum())
+        rows, cols = mask.shape
+        src, dst, weight = [], [], []
+        for dr, dc in ((0, 1), (1, 0), (1, 1), (1, -1)):
+            a = index[:rows - dr, max(0, -dc):cols - max(0, dc)]
+            b = index[dr:, max(0, dc):cols - max(0, -dc) if dc < 0 else cols]
+            both = (a >= 0) & (b >= 0)
+            src.append(a[both])
+            dst.append(b[both])
+            weight.append(np.full(both.sum(), step * math.hypot(dr, dc)))
+        n = int(mask.sum())
+        graph = coo_matrix((np.concatenate(weight), (np.concatenate(src), np.concatenate(dst))),
+                           shape=(n, n)).tocsr()
+        field = np.full(mask.shape, np.inf)
+        field[mask] = dijkstra(graph, directed=False, indices=int(index[target]))
+        near = minimum_filter(field, size=3, mode="constant", cval=np.inf) + step * math.sqrt(2)
+        return np.where(np.isfinite(field), field, near)
+
     def _lattice(self, pose) -> tuple[int, int]:
         step = self.omap.resolution / SUBDIV
         col, row = np.rint((pose[:2] - self.omap.origin) / step).astype(int)
@@ -147,63 +191,115 @@ class PathFinder:
 
 
 class _Search:
-    """One run of Algorithm 1; the tree is held in flat lists indexed by node id."""
+    """One run of Algorithm 1, made anytime; the tree is held in flat lists indexed by node id.
+
+    Before the first solution the search is best-first on f = g + H with H the geodesic
+    lattice distance to the goal; a shooting that collides keeps its collision-free first part
+    (at least a quarter of the horizon) as a node, so a car facing a wall still moves; when the
+    heap empties the pruning cells are halved (REFINE times) and every node is expanded again.
+    After it, nodes that cannot beat the best path (g + a lower bound of the rest) are dropped
+    and connections that would shorten it are tried, until no node is left, improve_expansions
+    expansions pass without a shorter path, or the budget ends."""
 
     def __init__(self, finder: PathFinder, start, goal, goal_speed, rng, result: PlanResult):
         self.f, self.goal, self.goal_speed, self.rng, self.result = (
             finder, goal, goal_speed, rng, result)
         self.prm = finder.config.params
+        self.cell_xy, self.cell_heading, self.level = (self.prm["cell_xy"],
+                                                       self.prm["cell_heading"], 0)
+        self.geodesic = finder._geodesic(goal)
         root = np.array([*start, 0.0, 0.0])
         self.states, self.parent, self.g = [root], [-1], [0.0]
         self.H = [float(np.hypot(*(start[:2] - goal[:2])))]
+        self.rest = [float(self._rest(start[None])[0])]
         self.edges, self.steers = [None], [0.0]
         self.seen = {self._cell(root)}
         self.tried: set[int] = set()
+        self.cheap: set[int] = set()  # tried nodes whose every Dubins path collides: no OCP
         self.dubins: dict[int, float] = {}
         self.failures: list[str] = []
         self.connect_s = 0.0
+        self.best = math.inf
+        self.t0 = perf_counter()
 
     def _cell(self, state) -> tuple[int, int, int]:
         """Pruning cell of a state: position cells of cell_xy, heading cells of cell_heading."""
         heading = state[2] % (2 * math.pi)
-        return (math.floor(state[0] / self.prm["cell_xy"]),
-                math.floor(state[1] / self.prm["cell_xy"]),
-                math.floor(heading / self.prm["cell_heading"]))
+        return (math.floor(state[0] / self.cell_xy), math.floor(state[1] / self.cell_xy),
+                math.floor(heading / self.cell_heading))
+
+    def _rest(self, xy) -> np.ndarray:
+        """(K,) [m] geodesic lattice distance from points (K, 2+) to the goal (inf: none)."""
+        omap = self.f.omap
+        step = omap.resolution / SUBDIV
+        col, row = omap.nearest_lattice((xy[:, 0] - omap.origin[0]) / step,
+                                        (xy[:, 1] - omap.origin[1]) / step)
+        return self.geodesic[row, col]
+
+    def _f(self, node) -> float:
+        """The search's order: g + w H, w = h_weight (above 1: greedier first solutions)."""
+        return self.g[node] + self.prm["h_weight"] * self.rest[node]
+
+    def _bound(self, node) -> float:
+        """[m] a lower bound of the length of any path through `node`: g plus the geodesic,
+        less the octile metric's excess (at most 8.3% over Euclidean) and two lattice steps."""
+        step = self.f.omap.resolution / SUBDIV
+        return self.g[node] + max(self.rest[node] / OCTILE_EXCESS - 2 * step, 0.0)
+
+    def _budget_left(self, res) -> bool:
+        return (res.expansions < self.prm["max_expansions"]
+                and perf_counter() - self.t0 < self.prm["max_seconds"])
 
     def run(self) -> PlanResult:
         prm, res = self.prm, self.result
-        t0 = perf_counter()
-        heap = [(self.H[0], 0, 0)]  # (f, insertion order, node): ties go to the older node
-        pushed = 1
-        done = self.H[0] <= prm["mindist"] and self._try_connect()
-        ended = ""
-        while not done:
-            if not heap:
-                res.cause, ended = "exhausted", ("search exhausted: every reachable pruning "
-                                                 "cell was expanded")
+        heap = [(self._f(0), 0, 0)]  # (f, order, node): ties go to the older
+        self.pushed = 1
+        if self.H[0] <= prm["mindist"]:
+            self._try_connect()
+        ended, stall = "", 0
+        while True:
+            if math.isfinite(self.best) and stall >= prm["improve_expansions"]:
+                ended = (f"no shorter path in {stall} expansions" if stall else
+                         "improvement off (improve_expansions = 0)")
                 break
-            if len(self.tried) >= prm["connect_tries"]:
+            if not self._budget_left(res):
+                res.cause = res.cause or "budget"
+                ended = (f"budget ended after {res.expansions} expansions and "
+                         f"{perf_counter() - self.t0:.2f} s")
+                break
+            if not math.isfinite(self.best) and self._attempts() >= prm["connect_tries"]:
                 res.cause = "connections_failed"
                 ended = f"all {prm['connect_tries']} connection attempts failed"
                 break
-            if res.expansions >= prm["max_expansions"] or \
-                    perf_counter() - t0 >= prm["max_seconds"]:
-                res.cause, ended = "budget", (f"budget ended after {res.expansions} expansions "
-                                              f"and {perf_counter() - t0:.2f} s")
+            if not heap:
+                if not math.isfinite(self.best) and self.level < REFINE:
+                    heap = self._refine()
+                    continue
+                res.cause = res.cause or "exhausted"
+                ended = ("no node left that could shorten the path" if res.cause == "connected"
+                         else f"search exhausted: every reachable pruning cell of "
+                         f"{self.cell_xy:g} m and {self.cell_heading:.3g} rad was expanded")
                 break
             _, _, node = heapq.heappop(heap)
+            if self._bound(node) >= self.best * (1 - IMPROVE_TOL):
+                continue
             res.expansions += 1
+            stall += 1
             new = self._expand(node)
             for i in new:
-                heapq.heappush(heap, (self.g[i] + self.H[i], pushed, i))
-                pushed += 1
-            done = any(self.H[i] <= prm["mindist"] for i in new) and self._try_connect()
+                heapq.heappush(heap, (self._f(i), self.pushed, i))
+                self.pushed += 1
+            if any(self.H[i] <= prm["mindist"] for i in new) and self._try_connect():
+                stall = 0
         res.nodes = len(self.states)
         res.tree = self.edges[1:]
         res.connect_s = self.connect_s
-        res.search_s = perf_counter() - t0 - self.connect_s
-        res.connect_attempts = len(self.tried)
-        if done:
+        res.search_s = perf_counter() - self.t0 - self.connect_s
+        res.connect_attempts = self._attempts()
+        if math.isfinite(self.best):
+            res.status, res.cause = EXACT, "connected"
+            res.reason = (f"{res.reason}; {len(res.progress) - 1} shorter paths after the first, "
+                          f"then {ended}")
             return res
         failed = (f"; connections failed ({', '.join(sorted(set(self.failures)))})"
                   if self.failures else "")
@@ -216,30 +312,48 @@ class _Search:
         res.reason = f"{ended}; closest node {self.H[closest]:.2f} m from the goal{failed}"
         return res
 
+    def _refine(self) -> list:
+        """Halve the pruning cells and queue every node again; returns the new heap."""
+        self.level += 1
+        self.cell_xy /= 2
+        self.cell_heading /= 2
+        self.seen = {self._cell(s) for s in self.states}
+        heap = []
+        for i in range(len(self.states)):
+            heap.append((self._f(i), self.pushed, i))
+            self.pushed += 1
+        heapq.heapify(heap)
+        return heap
+
     def _expand(self, node) -> list[int]:
         """Shoot from `node` towards the arc and the random points; add every valid, new-cell
-        end as a child; return the new node ids."""
+        end (or the collision-free first part of a shooting, if long enough) as a child;
+        return the new node ids."""
         prm, state = self.prm, self.states[node]
         points = np.vstack([
             point_selector(state, prm["arc_radius"], prm["n_arc"], prm["delta_max"]),
             random_points(self.rng, self.goal, prm["n_random"], prm["random_spread"])])
         shots = self.f.shooter.shoot(state, points, self.goal)
-        # Python floats: the same values, at a fraction of the cost of NumPy scalars.
-        ends, g, H, steer = (shots.states[:, -1, :3].tolist(), shots.g.tolist(),
-                             shots.H.tolist(), shots.steer.tolist())
+        last = shots.free - 1  # the last row kept of each shooting
+        keep = np.flatnonzero(last >= max(1, shots.states.shape[1] // PREFIX_FRACTION))
+        ends = shots.states[keep, last[keep]]
+        rest = self._rest(ends)
+        H = np.hypot(*(ends[:, :2] - self.goal[:2]).T)
         new = []
-        for k in np.flatnonzero(shots.valid).tolist():
-            cell = self._cell(ends[k])
+        for j, k in enumerate(keep.tolist()):
+            end = ends[j]
+            cell = self._cell(end.tolist())
             if cell in self.seen:
                 continue
             self.seen.add(cell)
             new.append(len(self.states))
-            self.states.append(shots.states[k, -1])
+            self.states.append(end)
             self.parent.append(node)
-            self.g.append(self.g[node] + g[k])
-            self.H.append(H[k])
-            self.edges.append(shots.states[k])
-            self.steers.append(steer[k])
+            self.g.append(self.g[node] + float(shots.travelled[k, last[k]]))
+            self.H.append(float(H[j]))
+            self.rest.append(float(rest[j]))
+            self.edges.append(shots.states[k, :last[k] + 1])
+            self.steers.append(float(shots.steer[k]))
         return new
 
     def _dubins_length(self, node) -> float:
@@ -252,27 +366,61 @@ class _Search:
             self.dubins[node] = sum(q for _, q in paths[0]) if paths else math.inf
         return self.dubins[node]
 
+    def _attempts(self) -> int:
+        """Connection attempts that called the OCP."""
+        return len(self.tried) - len(self.cheap)
+
+    def _dubins_free(self, node) -> bool:
+        """Whether any Dubins path from the node to the goal is collision-free."""
+        radius = self.f.wheelbase / math.tan(self.prm["delta_max"])
+        start = self.states[node][:3]
+        for segs in dubins_paths(start, self.goal[:3], radius):
+            poses = dubins_poses(start, segs, radius, DUBINS_SPACING)
+            if first_collision(self.f.omap, self.f.footprint, poses[None])[0] < 0:
+                return True
+        return False
+
     def _try_connect(self) -> bool:
-        """Connect from the untried nodes within connect_radius of the goal, shortest Dubins
-        path first, within the attempts left."""
-        near = [i for i, d in enumerate(self.H)
-                if d <= self.prm["connect_radius"] and i not in self.tried]
-        for i in sorted(near, key=lambda j: (self._dubins_length(j), j)):
-            if len(self.tried) >= self.prm["connect_tries"]:
-                return False
+        """Connect from the untried nodes within connect_radius of the goal that could shorten
+        the best path, shortest g + Dubins first, within the attempts left; True if the best
+        path became shorter."""
+        limit = self.best * (1 - IMPROVE_TOL)
+        near = [i for i, d in enumerate(self.H) if d <= self.prm["connect_radius"]
+                and i not in self.tried and self.g[i] + d < limit]
+        improved = False
+        for i in sorted(near, key=lambda j: (self.g[j] + self._dubins_length(j), j)):
+            if self._attempts() >= self.prm["connect_tries"] or \
+                    not self._budget_left(self.result):
+                break
+            # The shortest Dubins path bounds any forward path of the car from below.
+            if self.g[i] + self._dubins_length(i) >= self.best * (1 - IMPROVE_TOL):
+                continue
             self.tried.add(i)
+            if not self._dubins_free(i):
+                # The OCP starts from this path and ignores obstacles: it would collide too.
+                self.cheap.add(i)
+                self.failures.append("every Dubins path collides")
+                continue
             t0 = perf_counter()
             conn, why = self.f._connect(self.states[i], self.goal, self.goal_speed)
             self.connect_s += perf_counter() - t0
-            if not why:
-                self._set_path(i)
-                res = self.result
-                res.status, res.connection, res.cause = EXACT, conn, "connected"
+            if why:
+                self.failures.append(why)
+                continue
+            length = self.g[i] + float(np.hypot(*np.diff(conn.states[:, :2], axis=0).T).sum())
+            if length >= self.best * (1 - IMPROVE_TOL):
+                continue
+            res = self.result
+            if not math.isfinite(self.best):
+                res.first_solution_s = perf_counter() - self.t0
                 res.reason = (f"connected to the goal from a node {self.H[i]:.2f} m away "
-                              f"(attempt {len(self.tried)})")
-                return True
-            self.failures.append(why)
-        return False
+                              f"(attempt {self._attempts()})")
+            self.best, improved = length, True
+            self._set_path(i)
+            res.connection, res.cause = conn, "connected"
+            res.solution_s = perf_counter() - self.t0
+            res.progress.append((res.solution_s, length))
+        return improved
 
     def _set_path(self, node):
         edges, steers = [], []

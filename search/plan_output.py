@@ -82,6 +82,11 @@ def plan_record(result: PlanResult, scenario: Scenario, config, vehicle: dict, s
             "warmup_s": warmup_s,
             "path_length_m": result.path_length() if len(rows) else None,
             "connect_tf_s": conn.tf if conn is not None else None,
+            # Anytime: when the first exact path and the one returned (the shortest) were found,
+            # [s] from the search's start, and the length of each shorter path on the way.
+            "first_solution_s": result.first_solution_s,
+            "solution_s": result.solution_s,
+            "progress": [{"t_s": t, "length_m": length} for t, length in result.progress],
             "seed": seed,
             "method": config.method,
             "h": config.h,

@@ -40,13 +40,20 @@ PARAMS = {p.name: p for p in (
     Param("mindist", 6.0, 0.5, 100.0, "m", "a node this close to the goal triggers a connection"),
     Param("connect_radius", 12.0, 0.5, 200.0, "m",
           "tree nodes this close to the goal are connection candidates, shortest Dubins first"),
+    Param("h_weight", 2.0, 1.0, 10.0, "1",
+          "w in the search order f = g + w H (1: the paper's sum; above 1 finds a first path "
+          "sooner, which the improvement then shortens)"),
     Param("cell_xy", 2.0, 0.05, 20.0, "m", "position cell of duplicate pruning"),
     Param("cell_heading", math.pi / 4, 0.01, math.pi, "rad", "heading cell of duplicate pruning"),
     Param("margin", 0.1, 0.0, 5.0, "m",
           "footprint inflation on every side: covers integration error and cell rounding"),
-    Param("max_expansions", 5000, 1, 10_000_000, "1", "budget of expansions"),
-    Param("max_seconds", 20.0, 0.001, 3600.0, "s", "budget of wall time, search and connections"),
-    Param("connect_tries", 8, 1, 1000, "1", "connection attempts before giving up"),
+    Param("max_expansions", 10_000_000, 1, 10_000_000, "1",
+          "budget of expansions (the default is no limit: max_seconds bounds the plan)"),
+    Param("max_seconds", 10.0, 0.001, 3600.0, "s", "budget of wall time, search and connections"),
+    Param("connect_tries", 64, 1, 10_000, "1", "connection attempts before giving up"),
+    Param("improve_expansions", 300, 0, 10_000_000, "1",
+          "after the first exact path, expansions without a shorter one before the plan ends "
+          "(0: stop at the first, as the paper)"),
     Param("connect_N", 50, 5, 1000, "1", "input intervals of the connection OCP"),
 )}
 

@@ -18,6 +18,8 @@ class Shots(NamedTuple):
     g: np.ndarray       # (B,) [m] distance travelled along each shooting
     H: np.ndarray       # (B,) [m] distance from each end to the destination
     valid: np.ndarray   # (B,) bool: finite and collision-free; invalid ones cost infinity
+    free: np.ndarray    # (B,) int: leading rows that are finite and collision-free (N+1 if valid)
+    travelled: np.ndarray  # (B, N+1) [m] distance along each shooting up to each row
 
 
 def pure_pursuit(state, points, wheelbase, delta_max) -> np.ndarray:
@@ -63,8 +65,13 @@ class Shooter:
         # first_collision treats non-finite poses as collisions, so it needs no branch either.
         with np.errstate(invalid="ignore", over="ignore"):
             step = states[:, 1:, :2] - states[:, :-1, :2]
-            g = np.hypot(step[..., 0], step[..., 1]).sum(axis=1)
+            travelled = np.zeros(states.shape[:2])
+            np.cumsum(np.hypot(step[..., 0], step[..., 1]), axis=1, out=travelled[:, 1:])
             H = np.hypot(*(states[:, -1, :2] - destination[:2]).T)
-            hit = first_collision(self.omap, self.footprint, states) >= 0
-        valid = np.isfinite(states).all(axis=(1, 2)) & ~hit
-        return Shots(states, steer, g, H, valid)
+            first = first_collision(self.omap, self.footprint, states)
+        rows = states.shape[1]
+        finite = np.isfinite(states).all(axis=2)
+        free = np.minimum(np.where(first >= 0, first, rows),
+                          np.where(finite.all(axis=1), rows, np.argmin(finite, axis=1)))
+        valid = free == rows
+        return Shots(states, steer, travelled[:, -1], H, valid, free, travelled)

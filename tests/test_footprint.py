@@ -175,8 +175,9 @@ def test_blown_up_states_and_extra_columns():
 
 
 def per_disc_check(omap, footprint, poses):
-    """The check without any screen: every disc's clearance against its radius."""
-    return np.any(omap.clearance(footprint.disc_centres(poses)) <= footprint.radius, axis=-1)
+    """The check without any screen or bound: every disc against the cells around it."""
+    centres = footprint.disc_centres(poses)
+    return np.any(omap.disc_hits(centres[..., 0], centres[..., 1], footprint.radius), axis=-1)
 
 
 def poses_over(omap, footprint, rng, n=20000):

@@ -54,6 +54,27 @@ def test_clearance_on_a_random_grid_never_exceeds_the_brute_force_distance():
     assert not np.any(omap.is_free(xy[truth <= 0]))
 
 
+@pytest.mark.parametrize("res", [3.0, 1.5, 0.5])
+def test_disc_hits_is_the_brute_force_distance_within_the_radius(res):
+    # Coarse cells, where the lattice bound is loosest: a 1.2 m disc in a 3 m door.
+    rng = np.random.default_rng(11)
+    occupied = rng.random((14, 12)) < 0.25
+    origin = (2.0, -1.0)
+    omap = from_array(occupied, res, origin)
+    xmin, xmax, ymin, ymax = omap.bounds()
+    xy = rng.uniform([xmin - 2, ymin - 2], [xmax + 2, ymax + 2], (6000, 2))
+    truth = np.where(
+        (xy[:, 0] < xmin) | (xy[:, 0] > xmax) | (xy[:, 1] < ymin) | (xy[:, 1] > ymax), 0.0,
+        true_clearance(occupied, res, origin, xy))
+    hits = omap.disc_hits(xy[:, 0], xy[:, 1], 1.2)
+    assert np.array_equal(hits, truth <= 1.2)
+    # Where the exact answer differs from the lattice bound's, the bound was too cautious.
+    bound = omap.clearance(xy) <= 1.2
+    assert np.all(bound >= hits)
+    assert res < 1.5 or np.any(bound & ~hits)
+    assert omap.disc_hits(np.array([np.nan, 1e300]), np.array([0.0, 0.0]), 1.2).all()
+
+
 def test_the_border_and_everything_off_the_map_are_obstacles():
     omap = from_array(np.zeros((10, 10), bool), 1.0)
     assert omap.bounds() == (0.0, 10.0, 0.0, 10.0)

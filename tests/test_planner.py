@@ -65,12 +65,12 @@ def dense_check(scenario, result):
     p = model.params(scenario.vehicle, scenario.speed)
     # Sample the footprint at a quarter cell and the motion so finely that no point of the car
     # moves more than a quarter cell between poses (speed plus rotation of the far corner).
-    spacing = scenario.omap.resolution / 4
-    n_steps = len(result.path_edges[0]) - 1
-    duration = n_steps * result.h
-    ts = np.linspace(0.0, duration, int(np.ceil(duration * scenario.speed * 4 / spacing)) + 1)
+    spacing = min(scenario.omap.resolution / 4, 0.1)
     collisions, joint_gap, previous_end = 0, 0.0, result.path_edges[0][0]
     for edge, steer in zip(result.path_edges, result.path_steers):
+        # An edge may be the collision-free first part of a shooting: its own duration.
+        duration = (len(edge) - 1) * result.h
+        ts = np.linspace(0.0, duration, int(np.ceil(duration * scenario.speed * 4 / spacing)) + 1)
         ref = reference(model.rhs, edge[0], np.array([steer]), p, ts, rtol=1e-10, atol=1e-10)
         xs = np.asarray(ref.x)
         assert bool(ref.success)
