@@ -1,10 +1,12 @@
 """`stepzoo plan`: plan a built-in scenario, a scenario file, or a query on a map file with the
 tree planner into plan.json, plan.png and map.npy; `--all` or a batch of scenarios (on a Dask
 cluster with --scheduler) adds a summary table. Outputs are written after planning, atomically."""
+import argparse
 import csv
 import io
 import json
 import sys
+import textwrap
 from dataclasses import replace
 
 from stepzoo.errors import UsageError
@@ -16,7 +18,19 @@ SUMMARY_COLUMNS = ["scenario", "status", "expansions", "nodes", "search_s", "con
                    "path_length_m", "connect_tf_s"]
 
 
+def settings_help() -> str:
+    """The planner settings as `--help` lists them: a config's [planner] table sets them."""
+    from stepzoo.search.planner_config import PARAMS
+    lines = ["planner settings (a config TOML's [planner] table; name = default [unit] range):"]
+    for prm in PARAMS.values():
+        lines.append(f"  {prm.name} = {prm.default:g} [{prm.unit}] in [{prm.lo:g}, {prm.hi:g}]")
+        lines += [f"      {line}" for line in textwrap.wrap(prm.doc, 80)]
+    return "\n".join(lines)
+
+
 def add_arguments(p):
+    p.formatter_class = argparse.RawDescriptionHelpFormatter
+    p.epilog = settings_help()
     p.add_argument("scenario", nargs="*", metavar="SCENARIO",
                    help="a built-in scenario name or a scenario .toml file; several are a "
                    "batch, written like --all")
@@ -32,6 +46,9 @@ def add_arguments(p):
     p.add_argument("--speed", type=float, metavar="VX", help="constant speed of the tree [m/s]")
     p.add_argument("--config", metavar="FILE", help="planner config TOML from `stepzoo tune` "
                    "(default: the shipped search/tuned_default.toml)")
+    p.add_argument("--reverse", action="store_true", help="reverse gear: the tree and the "
+                   "connection may drive backwards, each change of direction costing cusp_cost "
+                   "(default: forward only, as the paper; also `reverse = 1` in [planner])")
     p.add_argument("--seed", type=int, default=0, help="seed of the random points (default 0)")
     p.add_argument("--out", required=True, metavar="DIR", help="output folder")
     p.add_argument("--format", choices=["text", "json"], default="text",
@@ -96,10 +113,12 @@ def _summary_row(record):
 
 def main(args) -> int:
     from stepzoo.search.pathfinder import BAD_ENDPOINT
-    from stepzoo.search.planner_config import load_config
+    from stepzoo.search.planner_config import load_config, with_params
     check("seed", "--seed", args.seed)
     out = check_kind(args.out, "plan")
     config = load_config(args.config)
+    if args.reverse:
+        config = with_params(config, reverse=1)
     scenarios = _scenarios(args)
     for s in scenarios:
         if tuple(s.start) == tuple(s.goal):

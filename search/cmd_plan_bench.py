@@ -2,6 +2,7 @@
 SEED..SEED+N-1) in one process, one warmed-up planner per map, into a tidy table (runs.parquet
 and runs.csv, one row per run) and OMPL benchmark logs (ompl/<query>.log), which OMPL's
 `ompl_benchmark_statistics ompl/*.log -d bench.db` turns into a Planner Arena database."""
+import argparse
 import json
 import platform
 import socket
@@ -19,6 +20,9 @@ SUMMARY_COLUMNS = ["runs", "exact", "exact_rate", "median_time_s", "median_first
 
 
 def add_arguments(p):
+    from stepzoo.search.cmd_plan import settings_help
+    p.formatter_class = argparse.RawDescriptionHelpFormatter
+    p.epilog = settings_help()
     p.add_argument("queries", metavar="QUERIES", help="JSON list of queries {map (relative to "
                    "the file), cell_size [m/cell], start, goal [x, y, yaw], id}")
     p.add_argument("--runs", type=int, default=1, help="runs per query, seeds SEED.. (default 1)")
@@ -27,6 +31,9 @@ def add_arguments(p):
                    help="constant speed of the tree [m/s] (default 5)")
     p.add_argument("--config", metavar="FILE", help="planner config TOML (default: the "
                    "shipped search/tuned_default.toml); its [planner] table sets the budget")
+    p.add_argument("--reverse", action="store_true", help="reverse gear: the tree and the "
+                   "connection may drive backwards, each change of direction costing cusp_cost "
+                   "(default: forward only, as the paper; also `reverse = 1` in [planner])")
     p.add_argument("--out", required=True, metavar="DIR", help="output folder")
     p.add_argument("--format", choices=["text", "json"], default="text",
                    help="what is printed: a summary table, or JSON")
@@ -114,7 +121,7 @@ def main(args) -> int:
 
     import pandas as pd
 
-    from stepzoo.search.planner_config import load_config
+    from stepzoo.search.planner_config import load_config, with_params
     from stepzoo.search.queries import load_queries
     from stepzoo.search.scenarios import speed
     if args.runs < 1 or args.seed < 0:
@@ -124,6 +131,8 @@ def main(args) -> int:
         raise UsageError(f"--out {out} exists and is not a folder; give a folder")
     vx = speed(args.speed, "--speed")
     config = load_config(args.config)
+    if args.reverse:
+        config = with_params(config, reverse=1)
     queries = load_queries(args.queries)
     for q in queries:
         if not q.map_path.is_file():

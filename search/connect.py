@@ -288,12 +288,12 @@ def _solve(prob, p, lo, hi, tf_range, tf_g, u_g):
 
 def connect(start, goal, *, L, m, bounds=None, N=50, shooting=DEFAULT_SHOOTING,
             method=DEFAULT_METHOD, goal_speed=None, v_max=25.0, delta_max=pi / 4,
-            a_max=A_MAX, tf_bounds=None) -> Connection:
+            a_max=A_MAX, tf_bounds=None, v_min=0.0) -> Connection:
     """Minimum-time connection from `start` [X, Y, theta, v] to `goal` [X, Y, theta]
     ([m, m, rad, m/s]), N piecewise-constant input intervals of dt = t_f/N.
 
     L [m] wheelbase, m [kg] mass; bounds (Xmin, Xmax, Ymin, Ymax) [m] or None; goal_speed
-    [m/s] or None (free); 0 <= v <= v_max [m/s], |delta| <= delta_max [rad],
+    [m/s] or None (free); v_min <= v <= v_max [m/s] (v_min < 0 lets the car reverse), |delta| <= delta_max [rad],
     |F| <= m a_max [N]; tf_bounds (lo, hi) [s], default TF_BOUNDS. The paper leaves F
     free, which makes minimum time degenerate (t_f -> 0 with unbounded force), hence a_max.
 
@@ -325,7 +325,7 @@ def connect(start, goal, *, L, m, bounds=None, N=50, shooting=DEFAULT_SHOOTING,
             continue
         tried.add(winding)
         p = np.r_[x0, goal_local[:2], theta_g, L, m, delta_max, a_max, v_goal]
-        lo = np.array([box[0], box[2], min(start[2], theta_g) - THETA_MARGIN, 0.0])
+        lo = np.array([box[0], box[2], min(start[2], theta_g) - THETA_MARGIN, v_min])
         hi = np.array([box[1], box[3], max(start[2], theta_g) + THETA_MARGIN, v_max])
         success, status, tf, states, inputs = _solve(
             prob, p, lo, hi, (tf_lo, tf_hi), min(max(tf_g, tf_lo), tf_hi), u_g)

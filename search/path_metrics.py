@@ -23,8 +23,6 @@ def path_metrics(rows, omap: OccupancyMap, footprint: Footprint) -> dict:
         return dict.fromkeys(NAMES)
     step = np.diff(rows[:, 1:3], axis=0)
     ds = np.hypot(step[:, 0], step[:, 1])
-    along = step[:, 0] * np.cos(rows[:-1, 3]) + step[:, 1] * np.sin(rows[:-1, 3])
-    direction = np.sign(along[ds > 1e-9])
     turn = np.remainder(np.diff(rows[:, 3]) + np.pi, 2 * np.pi) - np.pi
     moving = ds > 1e-9
     kappa = np.abs(turn[moving]) / ds[moving]
@@ -33,12 +31,22 @@ def path_metrics(rows, omap: OccupancyMap, footprint: Footprint) -> dict:
         centres.shape[:-1]).min(axis=-1) - footprint.radius
     length = float(ds.sum())
     return {"length_m": length,
-            "cusps": int(np.count_nonzero(direction[1:] != direction[:-1])),
+            "cusps": cusps(rows),
             "clearance_min_m": float(clearance.min()),
             "clearance_mean_m": float(clearance.mean()),
             "curvature_max": float(kappa.max()) if kappa.size else 0.0,
             "curvature_mean": float((kappa * ds[moving]).sum() / length) if length else 0.0,
             "smoothness": float((kappa ** 2 * ds[moving]).sum())}
+
+
+def cusps(rows) -> int:
+    """Changes of the direction of travel (forwards: along the heading) along path rows
+    (K, 4) [t, X, Y, psi]."""
+    rows = np.asarray(rows, float)
+    step = np.diff(rows[:, 1:3], axis=0)
+    along = step[:, 0] * np.cos(rows[:-1, 3]) + step[:, 1] * np.sin(rows[:-1, 3])
+    direction = np.sign(along[np.hypot(step[:, 0], step[:, 1]) > 1e-9])
+    return int(np.count_nonzero(direction[1:] != direction[:-1]))
 
 
 def distance_to_obstacles(omap: OccupancyMap, xy) -> np.ndarray:

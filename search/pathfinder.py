@@ -87,12 +87,20 @@ class PathFinder:
                                config.h, config.n_steps, prm["n_arc"] + prm["n_random"],
                                prm["delta_max"])
         self._components = None
+        # Reverse gear: a second shooter drives backwards from every node, towards an arc
+        # behind it and the random points.
+        self.back_shooter = Shooter(
+            omap, self.footprint, self.vehicle["name"], self.vx, config.method, config.h,
+            config.n_steps, prm["n_arc"] + prm["n_random"], prm["delta_max"],
+            reverse=True) if prm["reverse"] else None
 
     def warm_up(self, goal_speed_fixed=False) -> float:
         """Compile the driver and build the OCP once, so timed plans measure planning [s]."""
         t0 = perf_counter()
         batch = self.shooter.batch
         self.shooter.integrate(np.zeros((batch, 5)), np.zeros(batch))
+        if self.back_shooter is not None:
+            self.back_shooter.integrate(np.zeros((batch, 5)), np.zeros(batch))
         self._connect(np.array([0.0, 0.0, 0.0, 0.0, 0.0]), np.array([8.0, 2.0, 0.0]),
                       1.0 if goal_speed_fixed else None, bounds=(-50.0, 50.0, -50.0, 50.0))
         return perf_counter() - t0
@@ -177,12 +185,15 @@ class PathFinder:
         rows, cols = self._components.shape
         return min(max(row, 0), rows - 1), min(max(col, 0), cols - 1)
 
-    def _connect(self, node, goal, goal_speed, bounds=None) -> tuple[Connection, str]:
-        """Connection from a node state (5,) to the goal pose; (connection, '' or why not)."""
+    def _connect(self, node, goal, goal_speed, bounds=None, direction=1) -> tuple[Connection, str]:
+        """Connection from a node state (5,), reached driving `direction` (+1 forwards, -1
+        backwards), to the goal pose; (connection, '' or why not). With reverse gear the OCP
+        lets the speed go down to -vx."""
         prm = self.config.params
-        conn = connect([node[0], node[1], node[2], self.vx], goal, L=self.wheelbase,
+        conn = connect([node[0], node[1], node[2], direction * self.vx], goal, L=self.wheelbase,
                        m=self.vehicle["m"], bounds=bounds or self.omap.bounds(),
-                       N=prm["connect_N"], goal_speed=goal_speed, delta_max=prm["delta_max"])
+                       N=prm["connect_N"], goal_speed=goal_speed, delta_max=prm["delta_max"],
+                       v_min=-self.vx if prm["reverse"] else 0.0)
         if not conn.success:
             return conn, f"IPOPT: {conn.status}"
         if first_collision(self.omap, self.footprint, conn.states[None, :, :3])[0] >= 0:
@@ -213,7 +224,8 @@ class _Search:
         self.H = [float(np.hypot(*(start[:2] - goal[:2])))]
         self.rest = [float(self._rest(start[None])[0])]
         self.edges, self.steers = [None], [0.0]
-        self.seen = {self._cell(root)}
+        self.direction = [0]  # +1 forwards, -1 backwards, 0 the start (either way)
+        self.seen = {self._cell(root, 0)}
         self.tried: set[int] = set()
         self.cheap: set[int] = set()  # tried nodes whose every Dubins path collides: no OCP
         self.dubins: dict[int, float] = {}
@@ -222,11 +234,13 @@ class _Search:
         self.best = math.inf
         self.t0 = perf_counter()
 
-    def _cell(self, state) -> tuple[int, int, int]:
-        """Pruning cell of a state: position cells of cell_xy, heading cells of cell_heading."""
+    def _cell(self, state, direction) -> tuple[int, int, int, int]:
+        """Pruning cell of a state: position cells of cell_xy, heading cells of cell_heading,
+        and with reverse gear the direction it was reached in (as Hybrid A*)."""
         heading = state[2] % (2 * math.pi)
         return (math.floor(state[0] / self.cell_xy), math.floor(state[1] / self.cell_xy),
-                math.floor(heading / self.cell_heading))
+                math.floor(heading / self.cell_heading),
+                direction if self.prm["reverse"] else 0)
 
     def _rest(self, xy) -> np.ndarray:
         """(K,) [m] geodesic lattice distance from points (K, 2+) to the goal (inf: none)."""
@@ -317,7 +331,7 @@ class _Search:
         self.level += 1
         self.cell_xy /= 2
         self.cell_heading /= 2
-        self.seen = {self._cell(s) for s in self.states}
+        self.seen = {self._cell(s, d) for s, d in zip(self.states, self.direction)}
         heap = []
         for i in range(len(self.states)):
             heap.append((self._f(i), self.pushed, i))
@@ -326,34 +340,48 @@ class _Search:
         return heap
 
     def _expand(self, node) -> list[int]:
-        """Shoot from `node` towards the arc and the random points; add every valid, new-cell
+        """Shoot from `node` towards the arc and the random points (and, with reverse gear,
+        backwards towards an arc behind it and the same points); add every valid, new-cell
         end (or the collision-free first part of a shooting, if long enough) as a child;
         return the new node ids."""
         prm, state = self.prm, self.states[node]
-        points = np.vstack([
-            point_selector(state, prm["arc_radius"], prm["n_arc"], prm["delta_max"]),
-            random_points(self.rng, self.goal, prm["n_random"], prm["random_spread"])])
-        shots = self.f.shooter.shoot(state, points, self.goal)
+        randoms = random_points(self.rng, self.goal, prm["n_random"], prm["random_spread"])
+        new = []
+        gears = [(1, self.f.shooter)]
+        if self.f.back_shooter is not None:
+            gears.append((-1, self.f.back_shooter))
+        for direction, shooter in gears:
+            ahead = np.r_[state[:2], state[2] + (0.0 if direction > 0 else math.pi)]
+            points = np.vstack([point_selector(ahead, prm["arc_radius"], prm["n_arc"],
+                                               prm["delta_max"]), randoms])
+            new += self._add(node, direction, shooter.shoot(state, points, self.goal))
+        return new
+
+    def _add(self, node, direction, shots) -> list[int]:
+        """Add the kept shootings of `shots`, driven in `direction`, as children of `node`."""
         last = shots.free - 1  # the last row kept of each shooting
         keep = np.flatnonzero(last >= max(1, shots.states.shape[1] // PREFIX_FRACTION))
         ends = shots.states[keep, last[keep]]
         rest = self._rest(ends)
         H = np.hypot(*(ends[:, :2] - self.goal[:2]).T)
+        # A change of direction costs cusp_cost [m] on top of the distance driven.
+        cusp = self.prm["cusp_cost"] if self.direction[node] == -direction else 0.0
         new = []
         for j, k in enumerate(keep.tolist()):
             end = ends[j]
-            cell = self._cell(end.tolist())
+            cell = self._cell(end.tolist(), direction)
             if cell in self.seen:
                 continue
             self.seen.add(cell)
             new.append(len(self.states))
             self.states.append(end)
             self.parent.append(node)
-            self.g.append(self.g[node] + float(shots.travelled[k, last[k]]))
+            self.g.append(self.g[node] + float(shots.travelled[k, last[k]]) + cusp)
             self.H.append(float(H[j]))
             self.rest.append(float(rest[j]))
             self.edges.append(shots.states[k, :last[k] + 1])
             self.steers.append(float(shots.steer[k]))
+            self.direction.append(direction)
         return new
 
     def _dubins_length(self, node) -> float:
@@ -373,11 +401,15 @@ class _Search:
     def _dubins_free(self, node) -> bool:
         """Whether any Dubins path from the node to the goal is collision-free."""
         radius = self.f.wheelbase / math.tan(self.prm["delta_max"])
-        start = self.states[node][:3]
-        for segs in dubins_paths(start, self.goal[:3], radius):
-            poses = dubins_poses(start, segs, radius, DUBINS_SPACING)
-            if first_collision(self.f.omap, self.f.footprint, poses[None])[0] < 0:
-                return True
+        # Backwards, the footprint (symmetric about its centre) sweeps what it sweeps driving
+        # forwards between the poses turned round.
+        flips = (0.0, math.pi) if self.prm["reverse"] else (0.0,)
+        for flip in flips:
+            start = self.states[node][:3] + (0.0, 0.0, flip)
+            for segs in dubins_paths(start, self.goal[:3] + (0.0, 0.0, flip), radius):
+                poses = dubins_poses(start, segs, radius, DUBINS_SPACING)
+                if first_collision(self.f.omap, self.f.footprint, poses[None])[0] < 0:
+                    return True
         return False
 
     def _try_connect(self) -> bool:
@@ -393,7 +425,8 @@ class _Search:
                     not self._budget_left(self.result):
                 break
             # The shortest Dubins path bounds any forward path of the car from below.
-            if self.g[i] + self._dubins_length(i) >= self.best * (1 - IMPROVE_TOL):
+            rest = self.H[i] if self.prm["reverse"] else self._dubins_length(i)
+            if self.g[i] + rest >= self.best * (1 - IMPROVE_TOL):
                 continue
             self.tried.add(i)
             if not self._dubins_free(i):
@@ -402,7 +435,8 @@ class _Search:
                 self.failures.append("every Dubins path collides")
                 continue
             t0 = perf_counter()
-            conn, why = self.f._connect(self.states[i], self.goal, self.goal_speed)
+            conn, why = self.f._connect(self.states[i], self.goal, self.goal_speed,
+                                        direction=self.direction[i] or 1)
             self.connect_s += perf_counter() - t0
             if why:
                 self.failures.append(why)

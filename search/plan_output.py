@@ -12,6 +12,7 @@ from matplotlib.collections import LineCollection
 from matplotlib.figure import Figure
 
 from stepzoo.output import atomic_write
+from stepzoo.search.path_metrics import cusps
 from stepzoo.search.pathfinder import PlanResult
 from stepzoo.search.scenarios import Scenario
 
@@ -87,6 +88,7 @@ def plan_record(result: PlanResult, scenario: Scenario, config, vehicle: dict, s
             "first_solution_s": result.first_solution_s,
             "solution_s": result.solution_s,
             "progress": [{"t_s": t, "length_m": length} for t, length in result.progress],
+            "cusps": cusps(rows),
             "seed": seed,
             "method": config.method,
             "h": config.h,

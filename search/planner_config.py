@@ -43,17 +43,23 @@ PARAMS = {p.name: p for p in (
     Param("h_weight", 2.0, 1.0, 10.0, "1",
           "w in the search order f = g + w H (1: the paper's sum; above 1 finds a first path "
           "sooner, which the improvement then shortens)"),
-    Param("cell_xy", 2.0, 0.05, 20.0, "m", "position cell of duplicate pruning"),
-    Param("cell_heading", math.pi / 4, 0.01, math.pi, "rad", "heading cell of duplicate pruning"),
+    Param("cell_xy", 1.0, 0.05, 20.0, "m", "position cell of duplicate pruning"),
+    Param("cell_heading", math.pi / 8, 0.01, math.pi, "rad", "heading cell of duplicate pruning"),
     Param("margin", 0.1, 0.0, 5.0, "m",
           "footprint inflation on every side: covers integration error and cell rounding"),
-    Param("max_expansions", 10_000_000, 1, 10_000_000, "1",
-          "budget of expansions (the default is no limit: max_seconds bounds the plan)"),
+    Param("max_expansions", 1_000_000, 1, 10_000_000, "1",
+          "budget of expansions (the default is far beyond what max_seconds allows: the time "
+          "bounds the plan)"),
     Param("max_seconds", 10.0, 0.001, 3600.0, "s", "budget of wall time, search and connections"),
     Param("connect_tries", 64, 1, 10_000, "1", "connection attempts before giving up"),
     Param("improve_expansions", 300, 0, 10_000_000, "1",
           "after the first exact path, expansions without a shorter one before the plan ends "
           "(0: stop at the first, as the paper)"),
+    Param("reverse", 0, 0, 1, "1",
+          "1: reverse gear (expansions backwards too, the connection may reverse); 0: forward "
+          "only, as the paper"),
+    Param("cusp_cost", 5.0, 0.0, 1000.0, "m",
+          "added to the cost g at each change of direction (with reverse = 1)"),
     Param("connect_N", 50, 5, 1000, "1", "input intervals of the connection OCP"),
 )}
 
@@ -78,6 +84,8 @@ def check_param(name: str, value):
     if name not in PARAMS:
         raise UsageError(f"unknown planner parameter {name!r}; known: {', '.join(PARAMS)}")
     spec = PARAMS[name]
+    if spec.lo == 0 and spec.hi == 1 and spec.integer and isinstance(value, bool):
+        value = int(value)  # a switch: `reverse = true` reads as 1
     ok_type = isinstance(value, int) if spec.integer else isinstance(value, (int, float))
     if isinstance(value, bool) or not ok_type or not (spec.lo <= value <= spec.hi):
         kind = "a whole number" if spec.integer else "a number"
@@ -102,6 +110,13 @@ def make_config(method="rk4", h=0.02, provenance="built-in defaults", source="",
     check_budget(f"the planner at h = {h:g} s", config.n_steps + 1, batch, 5,
                  calls=params["max_expansions"])
     return config
+
+
+def with_params(config: PlannerConfig, **overrides) -> PlannerConfig:
+    """`config` with params overridden by name (validated), e.g. from command-line flags."""
+    params = dict(config.params)
+    params.update({k: check_param(k, v) for k, v in overrides.items()})
+    return PlannerConfig(config.method, config.h, params, config.provenance, config.source)
 
 
 def load_config(path=None) -> PlannerConfig:

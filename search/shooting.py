@@ -35,16 +35,21 @@ def pure_pursuit(state, points, wheelbase, delta_max) -> np.ndarray:
 
 class Shooter:
     """Integrates B shootings of n_steps steps of h [s] from one node with `method_name`, on
-    the reduced dynamic bicycle (paper eq. 4) at constant speed vx [m/s]."""
+    the reduced dynamic bicycle (paper eq. 4) at constant speed vx [m/s]; `reverse`: backwards
+    at vx on the kinematic bicycle (the tyre model of eq. 4 holds for forward travel only; at
+    parking speeds the car rolls without slip), the lateral states vy, r reported as 0."""
 
     def __init__(self, omap: OccupancyMap, footprint: Footprint, vehicle: str, vx: float,
-                 method_name: str, h: float, n_steps: int, batch: int, delta_max: float):
-        self.model = dynamics.model("dynamic5")
+                 method_name: str, h: float, n_steps: int, batch: int, delta_max: float,
+                 reverse: bool = False):
+        self.reverse = reverse
+        self.model = dynamics.model("kinematic" if reverse else "dynamic5")
         self.omap, self.footprint = omap, footprint
         self.method = method(method_name)
         self.h, self.n_steps, self.batch, self.delta_max = h, n_steps, batch, delta_max
         p = self.model.params(vehicle, vx)
         self.wheelbase = p["Lf"] + p["Lr"]
+        self.vx = float(vx)
         # Every leaf batched once: the driver then sees the same shapes at every expansion and
         # compiles once per (method, batch, n_steps).
         self.p = {k: jnp.full((batch,), float(v)) for k, v in p.items()}
@@ -53,13 +58,28 @@ class Shooter:
         """(B, 5) states and (B,) steers -> (B, N+1, 5) trajectories."""
         # NumPy arguments go straight into the jitted driver; jnp conversions here would each
         # be a separate dispatch, costing more than the integration itself.
-        traj = integrate_batch(self.method, self.model.rhs, np.asarray(x0, float),
-                               np.asarray(steer, float)[:, None], self.p, self.h, self.n_steps)
-        return np.asarray(traj.x)
+        x0, steer = np.asarray(x0, float), np.asarray(steer, float)
+        if not self.reverse:
+            traj = integrate_batch(self.method, self.model.rhs, x0, steer[:, None], self.p,
+                                   self.h, self.n_steps)
+            return np.asarray(traj.x)
+        start = np.column_stack([x0[:, :3], np.full(len(x0), -self.vx)])  # [X, Y, theta, v]
+        inputs = np.column_stack([steer, np.zeros(len(steer))])            # [delta, F = 0]
+        x = np.asarray(integrate_batch(self.method, self.model.rhs, start, inputs, self.p,
+                                       self.h, self.n_steps).x)
+        out = np.zeros((*x.shape[:2], 5))
+        out[..., :3] = x[..., :3]
+        return out
 
     def shoot(self, state, points, destination) -> Shots:
         """Shoot from `state` (5,) towards each of `points` (B, 2) [m]."""
-        steer = pure_pursuit(state, points, self.wheelbase, self.delta_max)
+        if self.reverse:
+            # Backwards, the car follows the circle of curvature -tan(delta)/L relative to
+            # its direction of travel psi + pi: pure pursuit on the flipped pose, negated.
+            flipped = np.r_[state[:2], state[2] + np.pi]
+            steer = -pure_pursuit(flipped, points, self.wheelbase, self.delta_max)
+        else:
+            steer = pure_pursuit(state, points, self.wheelbase, self.delta_max)
         states = self.integrate(state[None].repeat(self.batch, axis=0), steer)
         # A blown-up shooting is a result (an invalid one), so its overflow warnings are noise;
         # first_collision treats non-finite poses as collisions, so it needs no branch either.

@@ -287,3 +287,53 @@ def test_every_shared_map_loads_and_a_free_query_plans(path):
     start, goal = free_query(omap)
     result = PathFinder(omap, CONFIG, None, 5.0).plan(start, goal)
     assert result.status == "exact", result.reason
+
+
+# --- reverse gear, narrow passages, the street queries ----------------------------------------
+
+def facing_wall_map():
+    """A 30 x 20 m yard; the start 0.6 m from the east wall, facing it."""
+    occupied = np.zeros((40, 60), bool)
+    occupied[:, -2:] = occupied[:, :2] = occupied[:2] = occupied[-2:] = True
+    return from_array(occupied, 0.5)
+
+
+def test_a_start_facing_a_wall_needs_reverse_gear_and_reports_its_cusps():
+    from stepzoo.search.path_metrics import cusps
+    from stepzoo.search.plan_output import path_rows
+    omap = facing_wall_map()
+    start, goal = (26.0, 10.0, 0.0), (8.0, 10.0, np.pi)
+    forward = PathFinder(omap, make_config(max_seconds=2.0), None, 2.0).plan(start, goal)
+    assert forward.status != "exact"
+    config = make_config(reverse=1)
+    result = PathFinder(omap, config, None, 2.0).plan(start, goal)
+    assert result.status == "exact", result.reason
+    rows = path_rows(result)
+    assert cusps(rows) >= 1
+    # The path rows (at most 5 cm apart) never put the car on an obstacle cell.
+    vehicle = dynamics.vehicle(None)
+    assert not footprint_hits(omap, vehicle, rows[:, 1:4], 0.1).any()
+    # Backwards edges are driven backwards: the first one moves against the heading.
+    first = result.path_edges[0]
+    assert np.cos(first[0, 2]) * (first[-1, 0] - first[0, 0]) < 0
+
+
+def test_reverse_is_a_setting_that_reads_true_as_one():
+    from stepzoo.search.planner_config import PARAMS, check_param
+    assert PARAMS["reverse"].default == 0 and check_param("reverse", True) == 1
+
+
+@pytest.mark.parametrize("qid", ["Berlin_1_256-01", "Boston_0_256-03", "den312d-02",
+                                 "room-64-64-8-01"])
+def test_street_queries_plan_exact_paths_that_the_dense_check_accepts(qid):
+    from stepzoo.search.queries import STREET_QUERIES, load_queries
+    from stepzoo.search.scenarios import custom_scenario
+    query = next(q for q in load_queries(STREET_QUERIES) if q.id == qid)
+    scenario = custom_scenario(query.map_path, query.cell_size, query.start, query.goal, 5.0)
+    result = finder_for(scenario).plan(scenario.start, scenario.goal)
+    assert result.status == "exact", result.reason
+    assert result.first_solution_s <= result.solution_s
+    assert [length for _, length in result.progress] == sorted(
+        (length for _, length in result.progress), reverse=True)
+    collisions, joint_gap, miss = dense_check(scenario, result)
+    assert (collisions, joint_gap < 1e-3, miss < 1e-3) == (0, True, True)
