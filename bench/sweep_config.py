@@ -16,7 +16,8 @@ from stepzoo.validate import problem, read_toml
 
 TOP = {"name", "model", "vehicle", "horizon", "methods", "envelope", "steps", "reference", "limits",
        "stability", "chunks", "trajectories"}
-MAX_GRID = 10_000       # values of one grid: more is a typo, and would be allocated first
+MAX_GRID = 10_000       # values of one grid, or points of an envelope: more is a typo, and
+                        # would be allocated before any estimate of the work
 SECTIONS = {
     "envelope": {"vx", "delta", "x0"},
     "steps": {"h"},
@@ -123,6 +124,9 @@ def validate(raw: dict, source: str = "config") -> SweepConfig:
     env = sections["envelope"]
     vx = check.grid("envelope.vx", env.get("vx"), "m/s", "speed", log=False)
     delta = check.grid("envelope.delta", env.get("delta"), "rad", "steer", log=False)
+    if len(vx) * len(delta) > MAX_GRID:
+        bad.append(f"{source}: the envelope has {len(vx)} x {len(delta)} operating points; at "
+                   f"most {MAX_GRID}")
     x0 = env.get("x0", [0.0] * 5)
     if not (isinstance(x0, list) and len(x0) == 5 and all(_is_num(v) for v in x0)):
         bad.append(f"{source}: envelope.x0 must be 5 finite numbers [X, Y, psi, vy, r]")

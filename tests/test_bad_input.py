@@ -142,6 +142,17 @@ def test_a_sweep_config_out_of_range_or_too_large_is_refused_before_any_work(
     assert not out.exists()
 
 
+def test_an_envelope_of_too_many_points_is_refused_before_they_are_made(tmp_path, capsys):
+    config_with(tmp_path, "envelope", "delta", [0.1, 0.3])
+    config = tmp_path / "wide.toml"
+    config.write_text((tmp_path / "bad.toml").read_text().replace(
+        "[envelope]", "[envelope]\nvx = { min = 1.0, max = 100.0, num = 10000 }").replace(
+        "vx = [\n    20.0,\n]\n", ""))
+    # --max-steps 1: were the points let through, the work estimate would stop the sweep.
+    assert "10000 x 2 operating points; at most 10000" in refused(
+        capsys, "sweep", config, "--out", tmp_path / "out", "--max-steps", "1")
+
+
 def test_plan_refuses_speeds_poses_maps_and_steps_out_of_range(tmp_path, capsys):
     out = tmp_path / "out"
     query = ["--map", BERLIN, "--cell-size", "1.5", "--goal", "213.75,16.5,-1.68"]
