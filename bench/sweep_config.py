@@ -15,7 +15,7 @@ from stepzoo.errors import UsageError
 from stepzoo.validate import problem, read_toml
 
 TOP = {"name", "model", "vehicle", "horizon", "methods", "envelope", "steps", "reference", "limits",
-       "stability", "chunks", "trajectories"}
+       "stability", "chunks", "trajectories", "timing"}
 MAX_GRID = 10_000       # values of one grid, or points of an envelope: more is a typo, and
                         # would be allocated before any estimate of the work
 SECTIONS = {
@@ -26,7 +26,9 @@ SECTIONS = {
     "chunks": {"points"},
     "trajectories": {"vx", "delta", "fractions", "past_limit"},
     "limits": {"memory_gib", "steps"},
+    "timing": {"rounds"},
 }
+DEFAULT_ROUNDS = 5     # timed repeats of each accuracy run, after its compilation
 
 
 @dataclass(frozen=True)
@@ -57,6 +59,7 @@ class SweepConfig:
     # [limits]: what the sweep may allocate [GiB] and integrate (they decide no result)
     max_memory_gib: float | None = field(default=None, compare=False)
     max_steps: float | None = field(default=None, compare=False)
+    timing_rounds: int = DEFAULT_ROUNDS    # timed repeats of each accuracy run
 
     @property
     def points(self) -> list[tuple[float, float]]:
@@ -178,6 +181,8 @@ def validate(raw: dict, source: str = "config") -> SweepConfig:
     for key, value in zip(("limits.memory_gib", "limits.steps"), limits):
         if value is not None and not (_is_num(value) and value > 0):
             bad.append(f"{source}: {key} must be a number > 0, got {value!r}")
+    rounds = check.ranged("rounds", "timing.rounds",
+                          sections["timing"].get("rounds", DEFAULT_ROUNDS))
     name = raw.get("name", Path(source).stem)
     if not isinstance(name, str):
         bad.append(f"{source}: name must be a string")
@@ -188,7 +193,7 @@ def validate(raw: dict, source: str = "config") -> SweepConfig:
                        float(rtol), float(atol), int(steps), float(growth), float(perturbation),
                        float(h_probe_max), float(rel_tol), int(per_chunk),
                        (float(tvx), float(tdelta)), tuple(float(f) for f in fractions),
-                       float(past), source, *limits)
+                       float(past), source, *limits, timing_rounds=int(rounds))
 
 
 def _is_num(v) -> bool:

@@ -5,12 +5,15 @@ from __future__ import annotations
 
 import json
 import sys
+import time
 from pathlib import Path
 
+from stepzoo import environment
 from stepzoo.bench.tune import DEFAULT_MARGIN
-from stepzoo.reports import figures, tables
+from stepzoo.reports import figures, interactive, tables
 from stepzoo.reports.html import write_report
-from stepzoo.reports.load import load_plans, load_sweep, load_tuned
+from stepzoo.reports.load import load_manifest, load_plans, load_sweep, load_tuned
+from stepzoo.reports.provenance import environment_table, public_path
 from stepzoo.results_folder import check_kind, writing
 
 # Used for the summary table's cost column when no tuned config gives them.
@@ -43,14 +46,18 @@ def resolve(results, tuned=None, plans=None):
     return sweep, tuned, plans
 
 
-def _facts(sweep, tuned, tuned_path, plan_list, plans_dir) -> list:
-    facts = [("sweep folder", str(sweep.folder)),
+def _facts(sweep, tuned, tuned_path, plan_list, plans_dir, out) -> list:
+    facts = [("sweep folder", public_path(sweep.folder, out)),
              ("sweep config sha256", sweep.manifest.get("config_sha256", "not recorded"))]
     timing = sweep.manifest.get("timing")
     if isinstance(timing, dict) and isinstance(timing.get("total_s"), (int, float)):
         facts.append(("sweep computing time", f"{timing['total_s']:.1f} s"))
+    rounds = sweep.manifest.get("timing_rounds")
+    facts.append(("timing", f"each run timed in {rounds} rounds after compilation; figures "
+                  "use the fastest, the tables' hover and Figure 5 give the spread"
+                  if rounds else "each run timed once (a sweep of an older stepzoo)"))
     if tuned:
-        facts += [("tuned config", str(tuned_path)),
+        facts += [("tuned config", public_path(tuned_path, out)),
                   ("tuned choice", f"{tuned['method']} at h = {tuned['h']:g} s"),
                   ("why", tuned.get("why", "not stated"))]
         made_from = tuned.get("sweep_config_sha256")
@@ -60,26 +67,60 @@ def _facts(sweep, tuned, tuned_path, plan_list, plans_dir) -> list:
                           f"(config sha256 {made_from})"))
     else:
         facts.append(("tuned config", "none given"))
-    facts.append(("plans", f"{len(plan_list)} from {plans_dir}" if plan_list else "none given"))
+    facts.append(("plans", f"{len(plan_list)} from {public_path(plans_dir, out)}" if plan_list
+                  else "none given"))
     return facts
 
 
-def build(results, out, tuned_path=None, plans_dir=None):
-    """Load every input, draw the figures, write the report; returns (index, summary, shown)."""
+def _progress(on: bool):
+    """say(line): one line to stderr, or nothing when progress is off."""
+    def say(line):
+        if on:
+            sys.stderr.write(f"stepzoo report: {line}\n")
+            sys.stderr.flush()
+    return say
+
+
+def build(results, out, tuned_path=None, plans_dir=None, progress=False):
+    """Load every input, draw the figures (static and interactive), write the report and its
+    manifest.json; returns (index, summary, shown). `progress`: a line per stage to stderr."""
+    started = environment.now()
+    say = _progress(progress)
     sweep_dir, tuned_path, plans_dir = resolve(results, tuned_path, plans_dir)
     out = check_kind(out, "report")
+    t0 = time.perf_counter()
     sweep = load_sweep(sweep_dir)
     tuned = load_tuned(tuned_path) if tuned_path is not None else None
     plan_list = load_plans(plans_dir) if plans_dir is not None else []
+    say(f"read the sweep ({len(sweep.runs)} runs), "
+        + (f"{len(plan_list)} plan(s)" if plan_list else "no plans") + (", the tuned config"
+                                                                        if tuned else "")
+        + f" in {time.perf_counter() - t0:.1f} s")
     with writing(out, "report"):
-        return _draw(sweep, tuned, tuned_path, plan_list, plans_dir, out)
+        return _draw(sweep, tuned, tuned_path, plan_list, plans_dir, out, started, say)
 
 
-def _draw(sweep, tuned, tuned_path, plan_list, plans_dir, out):
-    shown = [figures.yaw_rate(sweep, out), figures.xy_paths(sweep, out),
-             figures.stability_regions(sweep, tuned, out), figures.error_vs_step(sweep, out),
-             figures.work_precision(sweep, tuned, out),
-             figures.stable_step_vs_speed(sweep, out), figures.plans(plan_list, out)]
+def _draw(sweep, tuned, tuned_path, plan_list, plans_dir, out, started, say):
+    # (static figure, its interactive plots), drawn in the report's order.
+    draw = [(lambda: figures.yaw_rate(sweep, out), lambda: interactive.yaw_rate(sweep, tuned)),
+            (lambda: figures.xy_paths(sweep, out), lambda: interactive.xy_paths(sweep, tuned)),
+            (lambda: figures.stability_regions(sweep, tuned, out),
+             lambda: interactive.stability_regions(sweep, tuned)),
+            (lambda: figures.error_vs_step(sweep, out),
+             lambda: interactive.error_vs_step(sweep, tuned)),
+            (lambda: figures.work_precision(sweep, tuned, out),
+             lambda: interactive.work_precision(sweep, tuned)),
+            (lambda: figures.stable_step_vs_speed(sweep, out),
+             lambda: interactive.stable_step_vs_speed(sweep, tuned)),
+            (lambda: figures.plans(plan_list, out), lambda: interactive.plans(plan_list))]
+    shown, plots = [], {}
+    for static, live in draw:
+        t0 = time.perf_counter()
+        fig = static()
+        plots[fig.number] = interactive.divs(live(), f"plot{fig.number}")
+        shown.append(fig)
+        say(f"[{len(shown)}/{len(draw)}] Figure {fig.number}, {fig.title.lower()}: "
+            f"{len(fig.images)} image(s) in {time.perf_counter() - t0:.1f} s")
     pos_tol = float(tuned["pos_tol_m"]) if tuned else DEFAULT_POS_TOL_M
     margin = float(tuned.get("margin", DEFAULT_MARGIN)) if tuned else DEFAULT_MARGIN
     summary = tables.Table(
@@ -88,19 +129,35 @@ def _draw(sweep, tuned, tuned_path, plan_list, plans_dir, out):
         f"the envelope and their worst ratio; then the largest swept step stable everywhere, "
         f"at most {1 - margin:g} of the measured limit, with worst position error <= "
         f"{pos_tol:g} m{'' if tuned else ' (defaults: no tuned config given)'}, and its "
-        f"cost.", tables.method_summary(sweep, pos_tol, margin), tables.METHOD_COLUMNS)
+        f"cost (wall time: the fastest of the timed rounds).",
+        tables.method_summary(sweep, pos_tol, margin), tables.METHOD_COLUMNS)
     decision = tables.Table(
         "Tuning decision", "The (method, h) that `stepzoo tune` chose (rank 1) and its "
         "runners-up, with their cost per simulated second and the reason each lost."
         if tuned else "No tuned config was given.",
         tables.tuning_rows(tuned) if tuned else [], tables.TUNING_COLUMNS)
-    facts = _facts(sweep, tuned, tuned_path, plan_list, plans_dir)
-    index, md = write_report(out, "stepzoo report", facts, [decision, summary], shown)
+    facts = _facts(sweep, tuned, tuned_path, plan_list, plans_dir, out)
+    own = environment.provenance("report", started, environment.now())
+    manifests = {"sweep": sweep.manifest}
+    if plans_dir is not None:
+        manifests["plans"] = load_manifest(plans_dir)
+    manifests["this report"] = own
+    appendix = [environment_table(manifests, out)]
+    index, md = write_report(out, "stepzoo report", facts, [decision, summary], shown, plots,
+                             interactive.plotly_js(), appendix)
+    environment.write_manifest(out, "report", started, {
+        "sweep": public_path(sweep.folder, out),
+        "tuned": public_path(tuned_path, out) if tuned_path is not None else None,
+        "plans": public_path(plans_dir, out) if plans_dir is not None else None,
+        "files": ["index.html", "summary.md", *[n for f in shown for n, _ in f.images]]})
+    say(f"wrote {index} ({index.stat().st_size / 2 ** 20:.1f} MiB, figures inline) and "
+        f"{md.name}")
     return index, md, shown
 
 
 def main(args) -> int:
-    index, md, shown = build(args.results, args.out, args.tuned, args.plans)
+    index, md, shown = build(args.results, args.out, args.tuned, args.plans,
+                             progress=getattr(args, "progress", True))
     if args.format == "json":
         files = [name for s in shown for name, _ in s.images]
         sys.stdout.write(json.dumps({"index": str(index), "summary": str(md),

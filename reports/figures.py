@@ -411,9 +411,10 @@ def _plan_caption(plan) -> str:
             + (f" ({rec['reason']})" if rec.get("reason") else "")
             + f"; {st.get('method', '?')} at h = {num('h', 's', '{:.4g}')}, seed "
             f"{st.get('seed', '?')};"
-            f" {num('expansions', 'expansions', '{}')}, {num('nodes', 'nodes', '{}')}; search "
-            f"{num('search_s', 's')}, connection {num('connect_s', 's')}; path "
-            f"{num('path_length_m', 'm')}, connection time {num('connect_tf_s', 's')}.")
+            f" {num('expansions', 'expansions', '{}')}, {num('nodes', 'nodes', '{}')}; tree "
+            f"search time {num('search_s', 's')}, connection solve time "
+            f"{num('connect_s', 's')}; path length {num('path_length_m', 'm')}, connection "
+            f"manoeuvre duration {num('connect_tf_s', 's')}.")
 
 
 def plans(plan_list, out_dir: Path) -> Shown:

@@ -149,3 +149,17 @@ def load_plans(folder) -> list[Plan]:
         raise UsageError(f"plans folder {folder} holds no plan.json (nor do its subfolders); "
                          "give a folder written by `stepzoo plan`")
     return [_load_plan(p) for p in subs]
+
+
+def load_manifest(folder) -> dict | None:
+    """A results folder's manifest.json, or None when it has none (an older stepzoo's plans);
+    a damaged one is a UsageError naming it."""
+    path = Path(folder) / "manifest.json"
+    if not path.is_file():
+        return None
+    try:
+        manifest = json.loads(path.read_text())
+    except (UnicodeDecodeError, json.JSONDecodeError) as err:
+        raise UsageError(f"{path} is damaged ({err}); rerun the command that wrote "
+                         f"{folder}") from None
+    return manifest if isinstance(manifest, dict) else None

@@ -88,6 +88,8 @@ RANGES = {
     "position": Range("a coordinate", -1e6, 1e6, "m", "a map of 1000 km at most"),
     "heading": Range("a heading", -2 * math.pi, 2 * math.pi, "rad", "one turn either way"),
     "cell": Range("a cell size", 1e-3, 100.0, "m/cell", "a millimetre to 100 m per cell"),
+    "rounds": Range("a number of timed rounds", 1, 1000, "", "repeats of each timed run; "
+                    "a thousand is minutes of timing alone", whole=True),
 }
 
 

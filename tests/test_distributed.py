@@ -23,7 +23,8 @@ from stepzoo.bench.sweep_config import load  # noqa: E402
 CONFIGS = Path(__file__).resolve().parents[1] / "bench" / "configs"
 RESULTS = ("runs", "limits", "eigenvalues", "trajectories", "summary")
 # Wall-clock measurements, not results: they differ between any two runs of one config.
-TIMED = ["time_per_step_s"]
+TIMED = ["time_per_step_s", "time_per_step_median_s", "time_per_step_max_s",
+         "time_per_step_iqr_s"]
 
 
 class Stop(Exception):

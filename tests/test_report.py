@@ -3,7 +3,9 @@ contracts, the page is self-contained (parses, no network address, every image a
 exists, Figures 1-7 present), the tables compute what they claim, and a missing or damaged
 input is one line naming it, exit 2."""
 import json
+import re
 from html.parser import HTMLParser
+from pathlib import Path
 
 import numpy as np
 import pandas as pd
@@ -134,15 +136,26 @@ class _Page(HTMLParser):
 
 
 def check_report(out, n_plans=1):
-    """Assert the report in `out` is a self-contained page with Figures 1-7; return its text."""
+    """Assert the report in `out` is a self-contained page with Figures 1-7, each interactive
+    with a static copy, plotly.js inlined once, the environment appendix, and no path of
+    this machine; return its text."""
     text = (out / "index.html").read_text()
     page = _Page()
     page.feed(text)
     page.close()
     assert text.lstrip().startswith("<!DOCTYPE html>") and text.rstrip().endswith("</html>")
-    assert "http://" not in text and "https://" not in text
+    assert '<meta name="viewport" content="width=device-width' in text
+    # The library's own text names websites (licences, map styles it never loads here): the
+    # page around it must name none, and nothing may load from one (browser test).
+    head, js, rest = re.split(r'<script id="plotly-js">|</script>\n</head>', text, maxsplit=2)
+    assert "Plotly" in js and text.count('<script id="plotly-js">') == 1
+    assert "http://" not in head + rest and "https://" not in head + rest
+    assert str(out.parent) not in text and str(Path.home()) + "/" not in text
     assert not [r for r in page.refs if r.startswith("//") or ":" in r.split("#")[0]]
     assert {f"fig{i}" for i in range(1, 8)} <= page.ids
+    assert {f"plot{i}-1" for i in range(1, 7)} <= page.ids
+    assert {f"plot7-{i + 1}" for i in range(n_plans)} <= page.ids
+    assert "appendix" in page.ids and "float precision" in rest
     assert len(page.imgs) == 6 + n_plans
     for src in page.imgs:
         assert (out / src).is_file(), src

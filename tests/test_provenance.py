@@ -1,0 +1,93 @@
+"""Reproducible results: every manifest.json records the environment (machine, OS, Python,
+library versions, JAX backend, devices and precision, stepzoo's version, the command line,
+start and end), and each accuracy run is timed in repeated rounds summarised as minimum,
+median, largest and interquartile range."""
+import dataclasses
+import json
+from datetime import datetime
+from importlib.metadata import version
+from pathlib import Path
+
+import jax
+import numpy as np
+import pandas as pd
+import pytest
+
+from stepzoo.bench.cli import main as stepzoo
+from stepzoo.bench.sweep import run_sweep
+from stepzoo.bench.sweep_config import load
+from stepzoo.bench.timing import per_step
+
+CONFIGS = Path(__file__).resolve().parents[1] / "bench" / "configs"
+
+
+def check_provenance(manifest: dict, written_by: str):
+    """The environment keys every manifest carries, checked against this very process."""
+    assert manifest["written_by"] == written_by
+    assert isinstance(manifest["command_line"], str) and manifest["command_line"]
+    started = datetime.fromisoformat(manifest["started"])
+    assert started <= datetime.fromisoformat(manifest["finished"])
+    env = manifest["environment"]
+    machine = env["machine"]
+    assert machine["cores"] >= 1 and machine["memory_gib"] > 0 and machine["cpu"]
+    assert machine["system"] and machine["python_version"].count(".") == 2
+    for name in ("jax", "jaxlib", "numpy", "casadi"):
+        assert env["packages"][name] == version(name)
+    assert env["jax"]["backend"] == jax.default_backend()
+    assert len(env["jax"]["devices"]) == jax.device_count() >= 1
+    assert env["jax"]["float"] == "float64"          # the tests run in float64 (conftest)
+    assert env["stepzoo"]["version"] == version("stepzoo")
+    commit = env["stepzoo"]["commit"]
+    assert commit is None or len(commit) == 40
+
+
+def test_timing_summary_of_known_rounds():
+    row = per_step([0.3, 0.1, 0.2, 0.5, 0.4], steps=10)
+    assert row["time_per_step_s"] == pytest.approx(0.01)          # the minimum
+    assert row["time_per_step_median_s"] == pytest.approx(0.03)
+    assert row["time_per_step_max_s"] == pytest.approx(0.05)
+    assert row["time_per_step_iqr_s"] == pytest.approx(0.02)      # 0.4 - 0.2, per 10 steps
+    assert row["timing_rounds"] == 5
+
+
+@pytest.fixture(scope="module")
+def small_sweep(tmp_path_factory):
+    cfg = dataclasses.replace(load(CONFIGS / "small.toml"), methods=("euler",),
+                              timing_rounds=3)
+    out = tmp_path_factory.mktemp("sweep")
+    run_sweep(cfg, out, progress=False)
+    return cfg, out
+
+
+def test_sweep_times_every_run_in_the_configured_rounds(small_sweep):
+    cfg, out = small_sweep
+    runs = pd.read_parquet(out / "runs.parquet")
+    assert (runs["timing_rounds"] == 3).all()
+    lo, mid, hi = (runs[c].to_numpy() for c in ("time_per_step_s", "time_per_step_median_s",
+                                                 "time_per_step_max_s"))
+    assert np.all(lo > 0) and np.all(lo <= mid) and np.all(mid <= hi)
+    assert np.all((runs["time_per_step_iqr_s"] >= 0) & (runs["time_per_step_iqr_s"] <= hi - lo))
+
+
+def test_sweep_manifest_records_the_environment_and_keeps_its_keys(small_sweep):
+    cfg, out = small_sweep
+    manifest = json.loads((out / "manifest.json").read_text())
+    check_provenance(manifest, "sweep")
+    assert manifest["complete"] and manifest["config_sha256"] == cfg.sha256
+    assert manifest["timing_rounds"] == 3
+    assert datetime.fromisoformat(manifest["created"]) <= \
+        datetime.fromisoformat(manifest["started"])
+    for key in ("config_name", "updated", "methods", "chunks", "n_chunks", "timing",
+                "blowup_rule", "stability", "order_fit", "trajectory_point", "horizon_s",
+                "vehicle", "model", "stepzoo_version"):
+        assert key in manifest, key
+
+
+@pytest.mark.parametrize("rounds", ["0", "2.5", "true", "5000"])
+def test_timing_rounds_out_of_range_is_one_line(tmp_path, capsys, rounds):
+    path = tmp_path / "bad.toml"
+    path.write_text((CONFIGS / "small.toml").read_text() + f"\n[timing]\nrounds = {rounds}\n")
+    assert stepzoo(["sweep", str(path), "--out", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "timing.rounds" in err
+    assert not (tmp_path / "out").exists()
