@@ -191,9 +191,9 @@ def xy_paths(sweep, out_dir: Path) -> Shown:
     return Shown(2, "X-Y paths", caption, [(name, "")])
 
 
-def stability_regions(sweep, tuned, out_dir: Path) -> Shown:
-    """Figure 3: each method's stability region with h*lambda of the envelope at the tuned h."""
-    names = [m for m in method_order(sweep.summary["method"]) if m in METHODS]
+def scaled_eigenvalues(sweep, tuned):
+    """(h [s] or None, h*lambda of every distinct eigenvalue of the envelope and its
+    conjugate, the (Re, Im) view that holds them and the regions' interesting part)."""
     eig = sweep.eigenvalues
     lam = eig["lam_re"].to_numpy() + 1j * eig["lam_im"].to_numpy()
     # Regions are symmetric: show both halves, each distinct eigenvalue once.
@@ -202,7 +202,13 @@ def stability_regions(sweep, tuned, out_dir: Path) -> Shown:
     z = h * lam if h else np.zeros(0, complex)
     reach = max(4.0, 1.1 * float(np.max(-z.real, initial=0.0)))
     tall = max(3.5, 1.1 * float(np.max(np.abs(z.imag), initial=0.0)))
-    re, im = (-reach, 1.5), (-tall, tall)
+    return h, z, (-reach, 1.5), (-tall, tall)
+
+
+def stability_regions(sweep, tuned, out_dir: Path) -> Shown:
+    """Figure 3: each method's stability region with h*lambda of the envelope at the tuned h."""
+    names = [m for m in method_order(sweep.summary["method"]) if m in METHODS]
+    h, z, re, im = scaled_eigenvalues(sweep, tuned)
     fig, axes = _panels(len(names), sharex=True, sharey=True)
     outside_by = {}
     for ax, name in zip(axes, names):
@@ -315,9 +321,10 @@ def work_precision(sweep, tuned, out_dir: Path) -> Shown:
     fig.legend(handles, labels, loc="outside right center", fontsize=8)
     name = _save(fig, out_dir, "fig5_work_precision.png")
     caption = ("Work-precision: worst position error over the envelope against cost, one line "
-               "per method, one point per step size (stable at every operating point). Left: "
-               "right-hand-side evaluations per simulated second; right: measured wall time "
-               "per simulated second. Lower-left is better; the cheapest method at a given "
+               "per method, one point per step size (stable at every operating point), against "
+               "two costs: right-hand-side evaluations per simulated second, and measured wall "
+               "time per simulated second (the fastest of the sweep's timed rounds; the "
+               "interactive figure's bars reach the median round). Lower-left is better; the cheapest method at a given "
                "error is the leftmost line at that height"
                + (", and the tuned choice (star) is the cheapest point under the tolerance "
                   "(dotted) within the stability margin." if tuned else "."))

@@ -105,7 +105,7 @@ def _run(args, out: Path, steps, say) -> int:
         say(f"[{i}/{total}] {name} done in {time.perf_counter() - t0:.1f} s")
     say(f"[{total}/{total}] report: stepzoo report {out} --out {out / 'report'}")
     index, _, _ = cmd_report.build(out / "sweep", out / "report", out / "tuned.toml",
-                                   out / "plans")
+                                   out / "plans", progress=args.progress)
     say(f"done in {time.perf_counter() - started:.1f} s")
     if args.format == "json":
         sys.stdout.write(json.dumps({"sweep": str(out / "sweep"),
