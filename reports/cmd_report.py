@@ -157,7 +157,7 @@ def _draw(sweep, tuned, tuned_path, plan_list, plans_dir, out, started, say):
 
 def main(args) -> int:
     index, md, shown = build(args.results, args.out, args.tuned, args.plans,
-                             progress=getattr(args, "progress", True))
+                             progress=args.progress)
     if args.format == "json":
         files = [name for s in shown for name, _ in s.images]
         sys.stdout.write(json.dumps({"index": str(index), "summary": str(md),
