@@ -119,7 +119,7 @@ def _draw(sweep, tuned, tuned_path, plan_list, plans_dir, out, started, say):
         fig = static()
         plots[fig.number] = interactive.divs(live(), f"plot{fig.number}")
         shown.append(fig)
-        say(f"[{len(shown)}/{len(draw)}] Figure {fig.number}, {fig.title.lower()}: "
+        say(f"[{len(shown)}/{len(draw)}] Figure {fig.number}. {fig.title}: "
             f"{len(fig.images)} image(s) in {time.perf_counter() - t0:.1f} s")
     pos_tol = float(tuned["pos_tol_m"]) if tuned else DEFAULT_POS_TOL_M
     margin = float(tuned.get("margin", DEFAULT_MARGIN)) if tuned else DEFAULT_MARGIN

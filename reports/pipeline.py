@@ -10,7 +10,7 @@ import sys
 import time
 from pathlib import Path
 
-from stepzoo import bench
+from stepzoo import bench, environment
 from stepzoo.bench.tune import DEFAULT_MARGIN
 from stepzoo.errors import UsageError
 from stepzoo.results_folder import check_kind, writing
@@ -84,7 +84,8 @@ def _run(args, out: Path, steps, say) -> int:
     budget = [x for flag, value in (("--max-memory", args.max_memory),
                                     ("--max-steps", args.max_steps))
               if value is not None for x in (flag, repr(value))]
-    started = time.perf_counter()
+    started, began = time.perf_counter(), environment.now()
+    took = {}
     for i, (name, argv) in enumerate(steps, 1):
         say(f"[{i}/{total}] {name}: stepzoo {' '.join(argv)}")
         t0 = time.perf_counter()
@@ -102,10 +103,16 @@ def _run(args, out: Path, steps, say) -> int:
         elif code:
             say(f"stopped: `stepzoo {name}` failed (exit {code}); see its message above")
             return code
-        say(f"[{i}/{total}] {name} done in {time.perf_counter() - t0:.1f} s")
+        took[name] = round(time.perf_counter() - t0, 3)
+        say(f"[{i}/{total}] {name} done in {took[name]:.1f} s")
     say(f"[{total}/{total}] report: stepzoo report {out} --out {out / 'report'}")
     index, _, _ = cmd_report.build(out / "sweep", out / "report", out / "tuned.toml",
                                    out / "plans", progress=args.progress)
+    took["report"] = round(time.perf_counter() - started - sum(took.values()), 3)
+    environment.write_manifest(out, "run", began, {
+        "stages": [name for name, _ in steps] + ["report"], "stage_s": took,
+        "sweep": "sweep", "tuned": "tuned.toml", "plans": "plans",
+        "report": "report/index.html"})
     say(f"done in {time.perf_counter() - started:.1f} s")
     if args.format == "json":
         sys.stdout.write(json.dumps({"sweep": str(out / "sweep"),

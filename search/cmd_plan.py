@@ -7,8 +7,10 @@ import io
 import json
 import sys
 import textwrap
+import time
 from dataclasses import replace
 
+from stepzoo import environment
 from stepzoo.errors import UsageError
 from stepzoo.output import atomic_write, text_table, to_json
 from stepzoo.results_folder import check_kind, writing
@@ -115,6 +117,7 @@ def main(args) -> int:
     from stepzoo.search.pathfinder import BAD_ENDPOINT
     from stepzoo.search.planner_config import load_config, with_params
     check("seed", "--seed", args.seed)
+    started = environment.now()
     out = check_kind(args.out, "plan")
     config = load_config(args.config)
     if args.reverse:
@@ -125,7 +128,8 @@ def main(args) -> int:
             raise UsageError(f"{s.name}: the start is the goal ({', '.join(map(str, s.start))}); "
                              "nothing to plan, give a goal elsewhere")
     if args.scheduler is None:
-        records = [plan_scenario(s, config, args.seed) for s in scenarios]
+        records = [_plan_one(s, config, args.seed, f"[{i}/{len(scenarios)}]", args.progress)
+                   for i, s in enumerate(scenarios, 1)]
     else:
         from stepzoo.bench.distributed import connect, gather_in_order
         with connect(args.scheduler) as client:
@@ -135,7 +139,29 @@ def main(args) -> int:
             # The poses are the user's input: no plan is written for a pose that cannot be.
             raise UsageError(f"{record['reason']}; choose a pose in free space on the map")
     with writing(out, "plan"):
-        return _write(args, out, records, scenarios)
+        status = _write(args, out, records, scenarios)
+        environment.write_manifest(out, "plan", started, {
+            "scenarios": [r["scenario"] for r in records], "seed": args.seed,
+            "config": config.source, "method": config.method, "h": config.h,
+            "statuses": {r["scenario"]: r["status"] for r in records}})
+    return status
+
+
+def _plan_one(scenario, config, seed, count: str, progress: bool) -> dict:
+    """plan_scenario, with a line on stderr when it starts and when it is done."""
+    if progress:
+        sys.stderr.write(f"stepzoo plan: {count} {scenario.name}: planning\n")
+        sys.stderr.flush()
+    t0 = time.perf_counter()
+    record = plan_scenario(scenario, config, seed)
+    if progress:
+        st = record["stats"]
+        sys.stderr.write(f"stepzoo plan: {count} {scenario.name}: {record['status']} in "
+                         f"{time.perf_counter() - t0:.1f} s (warm-up {st['warmup_s']:.2f} s, "
+                         f"tree search time {st['search_s']:.3f} s, connection solve time "
+                         f"{st['connect_s']:.3f} s)\n")
+        sys.stderr.flush()
+    return record
 
 
 def _write(args, out, records, scenarios) -> int:

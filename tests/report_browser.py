@@ -3,7 +3,7 @@
 recorded, so a page that needs one is caught. The browser test uses it, and so does the
 README's screenshot:
 
-    python tests/report_browser.py results/report/index.html docs/report.png [WIDTH]
+    python tests/report_browser.py results/report/index.html docs/report.png [SECTION_ID]
 """
 from __future__ import annotations
 
@@ -89,14 +89,14 @@ def visit(index, width: int = 1280, height: int = 900):
             browser.close()
 
 
-def screenshot(index, png, width: int = 1000, height: int = 1400):
-    """The top of the report, down to its first interactive figure, as a PNG."""
+def screenshot(index, png, section: str = "fig5", width: int = 900, height: int = 1000):
+    """The window scrolled to the element `section` (an id, default Figure 5), as a PNG."""
     with visit(index, width, height) as seen:
-        seen.page.evaluate("document.getElementById('fig1').scrollIntoView()")
+        seen.page.evaluate(f"document.getElementById({section!r}).scrollIntoView()")
         seen.page.screenshot(path=str(png))
 
 
 if __name__ == "__main__":
     if len(sys.argv) not in (3, 4):
         sys.exit(__doc__.split("\n\n")[1])
-    screenshot(sys.argv[1], sys.argv[2], *(int(a) for a in sys.argv[3:]))
+    screenshot(*sys.argv[1:])

@@ -89,3 +89,20 @@ def test_a_second_run_reuses_the_finished_sweep(ran):
     assert again.returncode == 0, again.stderr[-2000:]
     assert json.loads((out / "sweep" / "manifest.json").read_text())["created"] == created
     assert again.stdout.strip().splitlines()[-1] == str(out / "report" / "index.html")
+
+
+def test_every_results_folder_of_a_run_records_its_environment_and_progress(ran):
+    from test_provenance import check_provenance
+    out, proc = ran
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    for folder, kind in ((out, "run"), (out / "sweep", "sweep"), (out / "plans", "plan"),
+                         (out / "report", "report")):
+        manifest = json.loads((folder / "manifest.json").read_text())
+        check_provenance(manifest, kind)
+        assert manifest["command_line"].startswith("python -m stepzoo run --config")
+    # A line per planned scenario and per figure, so no stage is silent for long.
+    names = builtin_names()
+    for i, name in enumerate(names, 1):
+        assert f"stepzoo plan: [{i}/{len(names)}] {name}: " in proc.stderr
+    for i in range(1, 8):
+        assert f"stepzoo report: [{i}/7] Figure {i}. " in proc.stderr

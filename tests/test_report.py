@@ -179,6 +179,18 @@ def test_report_from_a_sweep_and_one_plan_is_self_contained(tmp_path, capsys):
     assert "stability limit" in text               # a runner-up's reason reaches the table
 
 
+@pytest.mark.parametrize("flag", [[], ["--no-progress"], ["-q"]])
+def test_report_says_a_line_per_figure_unless_told_not_to(run_folder, tmp_path, capsys, flag):
+    assert stepzoo(["report", str(run_folder), "--out", str(tmp_path / "r"), *flag]) == 0
+    err = capsys.readouterr().err
+    lines = [ln for ln in err.splitlines() if ln.startswith("stepzoo report: [")]
+    if flag:
+        assert err == ""
+    else:
+        assert [ln.split(".")[0] for ln in lines] == [
+            f"stepzoo report: [{i}/7] Figure {i}" for i in range(1, 8)]
+
+
 def test_run_folder_supplies_tuned_config_and_plans(run_folder, tmp_path, capsys):
     out = tmp_path / "report"
     assert stepzoo(["report", str(run_folder), "--out", str(out), "--format", "json"]) == 0
