@@ -8,6 +8,7 @@ import numpy as np
 # The `runs` table's timing columns (time_per_step_s, the minimum, is the original one).
 COLUMNS = ("time_per_step_s", "time_per_step_median_s", "time_per_step_max_s",
            "time_per_step_iqr_s", "timing_rounds")
+MEASURED = COLUMNS[:-1]    # wall-clock columns: two runs of one config never agree on them
 
 
 def per_step(walls, steps: int) -> dict:

@@ -128,8 +128,10 @@ def main(args) -> int:
             raise UsageError(f"{s.name}: the start is the goal ({', '.join(map(str, s.start))}); "
                              "nothing to plan, give a goal elsewhere")
     if args.scheduler is None:
-        records = [_plan_one(s, config, args.seed, f"[{i}/{len(scenarios)}]", args.progress)
-                   for i, s in enumerate(scenarios, 1)]
+        # A line per plan of a batch; one plan's own result line follows at once.
+        batch = len(scenarios) > 1
+        records = [_plan_one(s, config, args.seed, f"[{i}/{len(scenarios)}]",
+                             args.progress and batch) for i, s in enumerate(scenarios, 1)]
     else:
         from stepzoo.bench.distributed import connect, gather_in_order
         with connect(args.scheduler) as client:
@@ -148,13 +150,12 @@ def main(args) -> int:
 
 
 def _plan_one(scenario, config, seed, count: str, progress: bool) -> dict:
-    """plan_scenario, with a line on stderr when it starts and when it is done."""
-    if progress:
-        sys.stderr.write(f"stepzoo plan: {count} {scenario.name}: planning\n")
-        sys.stderr.flush()
+    """plan_scenario, then a line on stderr saying how it went (none for a pose that cannot
+    be planned: that is the user's mistake, told in one line after the batch)."""
+    from stepzoo.search.pathfinder import BAD_ENDPOINT
     t0 = time.perf_counter()
     record = plan_scenario(scenario, config, seed)
-    if progress:
+    if progress and record["cause"] not in BAD_ENDPOINT:
         st = record["stats"]
         sys.stderr.write(f"stepzoo plan: {count} {scenario.name}: {record['status']} in "
                          f"{time.perf_counter() - t0:.1f} s (warm-up {st['warmup_s']:.2f} s, "
