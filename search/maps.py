@@ -24,6 +24,7 @@ SUBDIV = 2
 # Widest square of cells (a side) that OccupancyMap.disc_hits searches exactly: 9 x 9 covers a
 # car's disc (radius about 1.2 m) on cells of 0.3 m and up, where the lattice bound is loosest.
 EXACT_CELLS = 9
+_FRAME = EXACT_CELLS // 2 + 1
 
 _MOVINGAI_FREE = frozenset(".GS")
 _MOVINGAI_BLOCKED = frozenset("@OTW")
@@ -38,6 +39,7 @@ class OccupancyMap:
     resolution: float  # [m/cell]
     origin: tuple[float, float]  # world (x, y) [m] of the lower-left corner
     distance: np.ndarray = field(init=False, repr=False)  # [m] at lattice points, see SUBDIV
+    _framed: np.ndarray = field(init=False, repr=False)  # occupied, framed by _FRAME cells
 
     def __post_init__(self):
         occupied = np.array(self.occupied, dtype=bool)
@@ -56,6 +58,7 @@ class OccupancyMap:
         object.__setattr__(self, "resolution", resolution)
         object.__setattr__(self, "origin", origin)
         object.__setattr__(self, "distance", distance)
+        object.__setattr__(self, "_framed", np.pad(occupied, _FRAME, constant_values=True))
 
     def bounds(self) -> tuple[float, float, float, float]:
         """(xmin, xmax, ymin, ymax) [m] of the grid."""
@@ -111,17 +114,19 @@ class OccupancyMap:
         u, v = np.where(hit, 0.5, u), np.where(hit, 0.5, v)
         col, row = np.floor(u).astype(np.intp), np.floor(v).astype(np.intp)
         reach2 = (radius / self.resolution) ** 2
+        # The grid framed by obstacle cells (everything outside it is obstacle), flat.
+        framed = self._framed.ravel()
+        width = self._framed.shape[1]
+        base = (row + _FRAME) * width + col + _FRAME
+        gaps_v = []
+        for dr in range(-k, k + 1):
+            gap = np.maximum(np.maximum((row + dr) - v, v - (row + dr + 1)), 0.0)
+            gaps_v.append(gap * gap)
         for dc in range(-k, k + 1):
-            c = col + dc
-            gap_u = np.maximum(np.maximum(c - u, u - (c + 1)), 0.0)  # [cells] to the column
-            for dr in range(-k, k + 1):
-                r = row + dr
-                gap_v = np.maximum(np.maximum(r - v, v - (r + 1)), 0.0)
-                near = gap_u * gap_u + gap_v * gap_v <= reach2
-                inside = (r >= 0) & (r < rows) & (c >= 0) & (c < cols)
-                # Everything outside the grid is obstacle.
-                blocked = ~inside | self.occupied[np.clip(r, 0, rows - 1), np.clip(c, 0, cols - 1)]
-                hit |= near & blocked
+            gap_u = np.maximum(np.maximum((col + dc) - u, u - (col + dc + 1)), 0.0)
+            gap_u = gap_u * gap_u  # [cells^2] to the column
+            for dr, gap_v in zip(range(-k, k + 1), gaps_v):
+                hit |= (gap_u + gap_v <= reach2) & framed.take(base + (dr * width + dc))
         return hit
 
     def is_free(self, xy) -> np.ndarray:

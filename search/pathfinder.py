@@ -346,6 +346,10 @@ class _Search:
         return the new node ids."""
         prm, state = self.prm, self.states[node]
         randoms = random_points(self.rng, self.goal, prm["n_random"], prm["random_spread"])
+        if len(randoms):
+            # One point leads along the geodesic instead: through the doors and round the
+            # corners the lattice path takes, where the arc and the goal's disc rarely aim.
+            randoms[0] = self._guide(state)
         new = []
         gears = [(1, self.f.shooter)]
         if self.f.back_shooter is not None:
@@ -356,6 +360,24 @@ class _Search:
                                                prm["delta_max"]), randoms])
             new += self._add(node, direction, shooter.shoot(state, points, self.goal))
         return new
+
+    def _guide(self, state) -> np.ndarray:
+        """[m] the lattice point arc_radius down the geodesic from the state's (steepest
+        descent), or where the descent stops."""
+        omap = self.f.omap
+        step = omap.resolution / SUBDIV
+        col, row = omap.nearest_lattice((state[0] - omap.origin[0]) / step,
+                                        (state[1] - omap.origin[1]) / step)
+        row, col = int(row), int(col)
+        field = self.geodesic
+        for _ in range(max(1, round(self.prm["arc_radius"] / step))):
+            r0, c0 = max(row - 1, 0), max(col - 1, 0)
+            window = field[r0:row + 2, c0:col + 2]
+            k = int(np.argmin(window))
+            if not window.flat[k] < field[row, col]:
+                break
+            row, col = r0 + k // window.shape[1], c0 + k % window.shape[1]
+        return np.array([col, row]) * step + omap.origin
 
     def _add(self, node, direction, shots) -> list[int]:
         """Add the kept shootings of `shots`, driven in `direction`, as children of `node`."""
