@@ -27,7 +27,8 @@ def main(args) -> int:
         manifest = run_sweep(cfg, args.out, resume=args.resume, overwrite=args.overwrite,
                              progress=args.progress)
     else:
-        from stepzoo.bench.distributed import connect, sweep_runner
+        from stepzoo.bench.distributed import sweep_runner
+        from stepzoo.distributed import connect
         with connect(args.scheduler) as client:
             manifest = run_sweep(cfg, args.out, resume=args.resume, overwrite=args.overwrite,
                                  progress=args.progress, runner=sweep_runner(client))

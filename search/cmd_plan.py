@@ -133,7 +133,7 @@ def main(args) -> int:
         records = [_plan_one(s, config, args.seed, f"[{i}/{len(scenarios)}]",
                              args.progress and batch) for i, s in enumerate(scenarios, 1)]
     else:
-        from stepzoo.bench.distributed import connect, gather_in_order
+        from stepzoo.distributed import connect, gather_in_order
         with connect(args.scheduler) as client:
             records = gather_in_order(client, plan_scenario, scenarios, config, args.seed)
     for record in records:

@@ -15,6 +15,7 @@ import pytest
 
 pytest.importorskip("dask.distributed")
 
+from stepzoo import distributed as cluster  # noqa: E402
 from stepzoo.bench import distributed  # noqa: E402
 from stepzoo.bench.cli import main as stepzoo  # noqa: E402
 from stepzoo.bench.sweep import chunk_ids, run_sweep  # noqa: E402
@@ -67,7 +68,7 @@ def in_process(cfg, tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def client():
-    with distributed.connect("local:2") as c:
+    with cluster.connect("local:2") as c:
         yield c
 
 
@@ -160,7 +161,7 @@ def _closed_port() -> int:
 
 def test_a_scheduler_that_does_not_answer_is_one_line_exit_2_and_no_table(cfg, tmp_path,
                                                                           capsys, monkeypatch):
-    monkeypatch.setattr(distributed, "CONNECT_TIMEOUT_S", 2.0)
+    monkeypatch.setattr(cluster, "CONNECT_TIMEOUT_S", 2.0)
     address = f"tcp://127.0.0.1:{_closed_port()}"
     out = tmp_path / "out"
     assert stepzoo(["sweep", str(cfg.source), "--out", str(out), "--scheduler", address]) == 2

@@ -36,7 +36,7 @@ def sweep(config: Path, flags: list[str]) -> dict:
 def task_overhead(workers: int = 2) -> dict:
     """Dask's cost per task [s] on a LocalCluster: the median round trip of one no-op task at
     a time, the wall time per task of NOOPS submitted at once, and the cluster's start."""
-    from stepzoo.bench.distributed import connect
+    from stepzoo.distributed import connect
     started = time.perf_counter()
     with connect(f"local:{workers}") as client:
         startup = time.perf_counter() - started
