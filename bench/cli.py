@@ -12,7 +12,7 @@ import signal
 import sys
 from pathlib import Path
 
-from stepzoo import __version__
+from stepzoo import __version__, validate
 from stepzoo.errors import NoAnswer, UsageError
 
 COMMANDS = {
@@ -146,32 +146,60 @@ def main(argv=None) -> int:
     if args.command in LONG:
         args.progress = not (args.no_progress or args.quiet)
     configure_jax(args.platform)
+    stdout, budget = sys.stdout, validate.BUDGET
+    sys.stdout = _Stdout(stdout)
     try:
         if args.command in INTEGRATE:
             _set_budget(args.max_memory, args.max_steps)
         code = importlib.import_module(COMMANDS[args.command][0]).main(args) or 0
         sys.stdout.flush()             # a full stdout fails here, not in a traceback at exit
         return code
+    except StdoutError as err:
+        _silence_stdout(stdout)
+        return _fail(args.command, f"cannot write the output to stdout: {err.strerror}")
     except NoAnswer as err:
         sys.stderr.write(f"stepzoo {args.command}: no answer: {err}\n")
         return 1
     except UsageError as err:
         return _fail(args.command, str(err))
     except OSError as err:
-        if err.filename is None:
-            # Every file this package writes names itself in its errors (output.atomic_write):
-            # a nameless write error is stdout's.
-            _silence_stdout()
-            return _fail(args.command, f"cannot write the output to stdout: {err.strerror}")
         return _fail(args.command, os_message(err))
     except KeyboardInterrupt:
         hint = RESUME.get(args.command)
         sys.stderr.write(f"stepzoo {args.command}: interrupted{'; ' + hint if hint else ''}\n")
         return INTERRUPTED
+    finally:
+        sys.stdout, validate.BUDGET = stdout, budget     # main() may be called again
+
+
+class StdoutError(OSError):
+    """Writing the command's output to stdout failed (a full disk, a closed pipe)."""
+
+
+class _Stdout:
+    """The command's stdout, whose write errors say they are stdout's: an OSError from a
+    file write, or from a library reading a file, may name no file either."""
+
+    def __init__(self, stream):
+        self._stream = stream
+
+    def write(self, text):
+        try:
+            return self._stream.write(text)
+        except OSError as err:
+            raise StdoutError(err.errno, err.strerror) from None
+
+    def flush(self):
+        try:
+            self._stream.flush()
+        except OSError as err:
+            raise StdoutError(err.errno, err.strerror) from None
+
+    def __getattr__(self, name):
+        return getattr(self._stream, name)
 
 
 def _set_budget(max_memory, max_steps):
-    from stepzoo import validate
     for flag, value in (("--max-memory", max_memory), ("--max-steps", max_steps)):
         if value is not None and not (value > 0 and value < float("inf")):
             raise UsageError(f"{flag} must be a number > 0, got {value!r}")
@@ -185,11 +213,11 @@ def os_message(err: OSError) -> str:
     return f"{text}; {hint}" if hint else text
 
 
-def _silence_stdout():
+def _silence_stdout(stream):
     """Point a failed stdout at /dev/null, or Python flushes it again at exit and prints a
-    traceback (the command's own stdout only: `stepzoo run` lends stderr to its stages)."""
-    if sys.stdout is sys.__stdout__:
-        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+    traceback (the process's own stdout only: `stepzoo run` lends stderr to its stages)."""
+    if stream is sys.__stdout__:
+        os.dup2(os.open(os.devnull, os.O_WRONLY), stream.fileno())
 
 
 def _fail(command: str, message: str) -> int:

@@ -55,6 +55,8 @@ def _read_table(path: Path) -> pd.DataFrame:
         if path.suffix == ".csv":
             return pd.read_csv(path)
         return pd.read_parquet(path)
+    except OSError:
+        raise                     # unreadable, not damaged: the command says which
     except Exception as err:  # pyarrow and pandas raise many types for one cause: bad bytes
         raise UsageError(f"{path} is damaged ({type(err).__name__}); rerun `stepzoo sweep` "
                          "into that folder") from None

@@ -246,7 +246,7 @@ needs_modes = pytest.mark.skipif(_modes_enforced() is not None,
 
 @needs_modes
 def test_unreadable_inputs_are_one_line(finished, tmp_path):
-    config, _, _ = finished
+    config, sweep, _ = finished
     secret = tmp_path / "secret.toml"
     shutil.copy(config, secret)
     secret.chmod(0)
@@ -265,6 +265,13 @@ def test_unreadable_inputs_are_one_line(finished, tmp_path):
                         "--out", tmp_path / "plan")
     assert code == 2 and "m.yaml" in one_line(err)
     assert not (tmp_path / "out").exists() and not (tmp_path / "plan").exists()
+    shutil.copytree(sweep, tmp_path / "sweep")
+    (tmp_path / "sweep" / "runs.parquet").chmod(0)
+    for argv in (["tune", tmp_path / "sweep", "--pos-tol", "10", "--out", tmp_path / "t.toml"],
+                 ["report", tmp_path / "sweep", "--out", tmp_path / "report"]):
+        code, err = as_user(*argv)
+        assert code == 2 and "Permission denied" in one_line(err), argv
+        assert "runs.parquet" in err, argv
 
 
 @needs_modes
