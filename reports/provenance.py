@@ -19,7 +19,7 @@ def public_path(path, base) -> str:
     rel = os.path.relpath(path, base)
     if Path(rel).parts[:MAX_UP + 1].count("..") <= MAX_UP:
         return rel
-    return "…/" + path.name
+    return ".../" + path.name
 
 
 def public_command(line: str, base) -> str:
@@ -27,7 +27,7 @@ def public_command(line: str, base) -> str:
     try:
         words = shlex.split(line)
     except ValueError:               # unbalanced quotes: not a command line we wrote
-        return "…"
+        return "..."
     out = []
     for word in words:
         flag, eq, value = word.partition("=") if word.startswith("-") else ("", "", word)

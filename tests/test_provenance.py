@@ -91,3 +91,13 @@ def test_timing_rounds_out_of_range_is_one_line(tmp_path, capsys, rounds):
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "timing.rounds" in err
     assert not (tmp_path / "out").exists()
+
+
+def test_the_page_shows_paths_near_the_report_relative_and_others_by_name(tmp_path):
+    from stepzoo.reports.provenance import public_command, public_path
+    report = tmp_path / "run" / "report"
+    assert public_path(tmp_path / "run" / "sweep", report) == "../sweep"
+    assert public_path(report, report) == "."
+    assert public_path("/home/alice/data/sweep", report) == ".../sweep"
+    line = f"stepzoo report /home/alice/data --out={report} --plans ../plans -q"
+    assert public_command(line, report) == "stepzoo report .../data --out=. --plans ../plans -q"
