@@ -126,10 +126,12 @@ def _dubins_words(alpha, beta, d):
 
 
 def _advance(pose, sign, length, radius):
-    """Pose [X, Y, theta] after driving `length` [m] on a turn of `sign` (0 straight)."""
+    """Pose [X, Y, theta] after driving `length` [m] on a turn of `sign` (0 straight); an
+    array of lengths (n,) gives poses (3, n)."""
     x, y, th = pose
     if sign == 0:
-        return np.array([x + length * np.cos(th), y + length * np.sin(th), th])
+        return np.stack(np.broadcast_arrays(x + length * np.cos(th), y + length * np.sin(th),
+                                            th))
     dth = sign * length / radius
     return np.array([x + sign * radius * (np.sin(th + dth) - np.sin(th)),
                      y + sign * radius * (np.cos(th) - np.cos(th + dth)), th + dth])
@@ -159,12 +161,14 @@ def dubins_paths(start, goal, radius):
 def dubins_poses(start, segs, radius, spacing) -> np.ndarray:
     """(K, 3) poses [X, Y, theta] along the path `segs` (from dubins_paths) from `start`,
     at most `spacing` [m] apart, both ends included."""
-    poses, pose = [np.asarray(start, float)], np.asarray(start, float)
+    pose = np.asarray(start, float)
+    poses = [pose[None]]
     for sign, length in segs:
         n = max(1, math.ceil(length / spacing))
-        poses += [_advance(pose, sign, length * k / n, radius) for k in range(1, n + 1)]
-        pose = poses[-1]
-    return np.array(poses)
+        # _advance is elementwise: an array of lengths gives (3, n) poses at once.
+        poses.append(_advance(pose, sign, length * np.arange(1, n + 1) / n, radius).T)
+        pose = poses[-1][-1]
+    return np.vstack(poses)
 
 
 def _fastest_profile(s_total, v0, a_max, v_max, v_goal):
