@@ -33,7 +33,7 @@ LONG = ("run", "sweep", "plan", "report")
 INTEGRATE = ("run", "simulate", "sweep", "plan")
 # A command that resumes where an interrupted call stopped, and how.
 RESUME = {"sweep": "resume with --resume (`stepzoo run`: run it again)",
-          "run": "resume by running the same command again (finished sweep chunks are kept)"}
+          "run": "resume: run it again, the same command (finished sweep chunks are kept)"}
 INTERRUPTED = 130          # the shell's status for a command ended by Ctrl-C (128 + SIGINT)
 EXIT_STATUSES = """exit status:
   0    success

@@ -17,34 +17,44 @@ def add_arguments(p):
     p.add_argument("--format", choices=["text", "json"], default="text")
 
 
-def main(args) -> int:
-    import pandas as pd
-
+def sweep(config, out, *, resume=False, overwrite=False, progress=True,
+          scheduler=None) -> dict:
+    """Run the sweep of the TOML file `config` into the folder `out` (on the Dask cluster at
+    `scheduler` if given) and return its manifest. `stepzoo sweep` and `stepzoo run` call it."""
     from stepzoo.bench.sweep import run_sweep
     from stepzoo.bench.sweep_config import load
-    cfg = load(args.config)
-    if args.scheduler is None:
-        manifest = run_sweep(cfg, args.out, resume=args.resume, overwrite=args.overwrite,
-                             progress=args.progress)
-    else:
-        from stepzoo.bench.distributed import sweep_runner
-        from stepzoo.distributed import connect
-        with connect(args.scheduler) as client:
-            manifest = run_sweep(cfg, args.out, resume=args.resume, overwrite=args.overwrite,
-                                 progress=args.progress, runner=sweep_runner(client))
-    if args.format == "json":
-        print(to_json({"out": str(args.out), "config_sha256": manifest["config_sha256"],
+    cfg = load(config)
+    if scheduler is None:
+        return run_sweep(cfg, out, resume=resume, overwrite=overwrite, progress=progress)
+    from stepzoo.bench.distributed import sweep_runner
+    from stepzoo.distributed import connect
+    with connect(scheduler) as client:
+        return run_sweep(cfg, out, resume=resume, overwrite=overwrite, progress=progress,
+                         runner=sweep_runner(client))
+
+
+def show(manifest: dict, out, fmt: str = "text") -> None:
+    """Print what a sweep into `out` did: the summary table and timing, or JSON."""
+    import pandas as pd
+    if fmt == "json":
+        print(to_json({"out": str(out), "config_sha256": manifest["config_sha256"],
                        "timing": manifest["timing"]}))
-        return 0
+        return
     t = manifest["timing"]
-    summary = pd.read_csv(f"{args.out}/summary.csv").to_dict("records")
+    summary = pd.read_csv(f"{out}/summary.csv").to_dict("records")
     sys.stdout.write(text_table(summary, ["method", "order_declared", "order_fit_median",
                                           "h_pred_min", "h_meas_min", "worst_ratio"]) + "\n")
     compile_s = ", ".join(f"{k} {v:.2f}" for k, v in t["compile_s"].items())
-    print(f"wrote {args.out}: runs.parquet, limits.parquet/csv, summary.parquet/csv, "
+    print(f"wrote {out}: runs.parquet, limits.parquet/csv, summary.parquet/csv, "
           "eigenvalues.parquet, trajectories.parquet, manifest.json")
     print(f"timing [s]: total {t['total_s']:.1f} (this call {t['wall_s']:.1f}); compile "
           f"{sum(t['compile_s'].values()):.1f} ({compile_s}); reference {t['reference_s']:.1f}; "
           f"integration {t['integration_s']:.1f}; stability {t['stability_s']:.1f}; "
           f"metrics {t['metrics_s']:.1f}")
+
+
+def main(args) -> int:
+    manifest = sweep(args.config, args.out, resume=args.resume, overwrite=args.overwrite,
+                     progress=args.progress, scheduler=args.scheduler)
+    show(manifest, args.out, args.format)
     return 0

@@ -19,19 +19,33 @@ def add_arguments(p):
     p.add_argument("--format", choices=["text", "json"], default="text")
 
 
-def main(args) -> int:
-    from stepzoo.bench.tune import tune, write
-    out = Path(args.out)
+def tune(results, pos_tol: float, margin: float, out) -> dict:
+    """Choose (method, h) from the sweep folder `results` (position tolerance `pos_tol` [m],
+    stability margin `margin`, a fraction) and write it as a planner config to the file
+    `out`; returns the choice. `stepzoo tune` and `stepzoo run` call it."""
+    from stepzoo.bench.tune import tune as choose
+    from stepzoo.bench.tune import write
+    out = Path(out)
     if out.is_dir():
         raise UsageError(f"--out {out} is a folder; give a file name such as tuned.toml")
-    tuned = tune(args.results, args.pos_tol, args.margin)
+    tuned = choose(results, pos_tol, margin)
     write(tuned, out)
-    if args.format == "json":
+    return tuned
+
+
+def show(tuned: dict, out, fmt: str = "text") -> None:
+    """Print the choice, its runners-up and where it was written, or JSON."""
+    if fmt == "json":
         print(to_json({"out": str(out), **tuned}))
-        return 0
+        return
     print(f"chose {tuned['method']} at h = {tuned['h']:g} s: {tuned['why']}")
     rows = [{"method": r["method"], "h": r.get("h"), "evals_per_s": r.get("cost_evals_per_s"),
              "reason": r["reason"]} for r in tuned["runners_up"]]
     sys.stdout.write(text_table(rows, ["method", "h", "evals_per_s", "reason"]) + "\n")
     print(f"wrote {out}")
+
+
+def main(args) -> int:
+    tuned = tune(args.results, args.pos_tol, args.margin, args.out)
+    show(tuned, args.out, args.format)
     return 0

@@ -1,6 +1,6 @@
-"""`stepzoo run`: the whole pipeline into one folder by calling the other commands in turn:
-sweep -> tune -> plan the built-in scenarios with the tuned step -> report. Progress goes to
-stderr (with each command's own output); stdout ends with the report's path."""
+"""`stepzoo run`: the whole pipeline into one folder, through the functions the other
+commands call: sweep -> tune -> plan the built-in scenarios with the tuned step -> report.
+Progress goes to stderr (with each stage's own output); stdout ends with the report's path."""
 from __future__ import annotations
 
 import contextlib
@@ -9,10 +9,11 @@ import os
 import sys
 import time
 from pathlib import Path
+from typing import NamedTuple
 
 from stepzoo import bench, environment
 from stepzoo.bench.tune import DEFAULT_MARGIN
-from stepzoo.errors import UsageError
+from stepzoo.errors import NoAnswer, UsageError
 from stepzoo.results_folder import check_kind, writing
 from stepzoo.validate import check
 
@@ -49,75 +50,103 @@ def config_path(given) -> Path:
     return path
 
 
-def stages(args, out: Path) -> list[tuple[str, list[str]]]:
-    """(name, `stepzoo` argv) of each command the pipeline runs before the report."""
+class Run(NamedTuple):
+    """What `run` wrote into its folder."""
+    sweep: Path     # the sweep's results folder
+    tuned: Path     # the tuned planner config
+    plans: Path     # a plan folder per built-in scenario and their summary
+    report: Path    # the report's index.html
+    exact: bool     # every plan reached its goal exactly
+
+
+def stages(out: Path, config: Path, pos_tol: float, margin: float, seed: int,
+           progress: bool) -> list:
+    """(name, the equivalent `stepzoo` argv, call) of each stage before the report."""
+    from stepzoo.bench import cmd_sweep, cmd_tune
+    from stepzoo.search import cmd_plan
+    from stepzoo.search.scenarios import builtin_names, load_scenario
+    sweep, tuned, plans = out / "sweep", out / "tuned.toml", out / "plans"
+
+    def plan():
+        records = cmd_plan.plan([load_scenario(n) for n in builtin_names()], plans, tuned, seed,
+                                batch=True, progress=progress)
+        cmd_plan.show(records, plans, True)
+        return cmd_plan.status(records)
+
     return [
-        # --resume: a rerun reuses a finished sweep of the same config and completes an
+        # resume: a rerun reuses a finished sweep of the same config and completes an
         # interrupted one; a different config is refused by the sweep with its own line.
-        ("sweep", ["sweep", str(config_path(args.config)), "--out", str(out / "sweep"),
-                   "--resume"]),
-        ("tune", ["tune", str(out / "sweep"), "--pos-tol", repr(args.pos_tol),
-                  "--margin", repr(args.margin), "--out", str(out / "tuned.toml")]),
-        ("plan", ["plan", "--all", "--config", str(out / "tuned.toml"),
-                  "--seed", str(args.seed), "--out", str(out / "plans")]),
+        ("sweep", ["sweep", str(config), "--out", str(sweep), "--resume"],
+         lambda: cmd_sweep.show(cmd_sweep.sweep(config, sweep, resume=True, progress=progress),
+                                sweep)),
+        ("tune", ["tune", str(sweep), "--pos-tol", repr(pos_tol), "--margin", repr(margin),
+                  "--out", str(tuned)],
+         lambda: cmd_tune.show(cmd_tune.tune(sweep, pos_tol, margin, tuned), tuned)),
+        ("plan", ["plan", "--all", "--config", str(tuned), "--seed", str(seed),
+                  "--out", str(plans)], plan),
     ]
 
 
-def main(args) -> int:
+def run(out="results", config=None, pos_tol: float = 0.1, margin: float = DEFAULT_MARGIN,
+        seed: int = 0, *, progress: bool = True, quiet: bool = False) -> Run:
+    """The whole pipeline into the folder `out`: sweep the config file `config` (default: the
+    shipped envelope), tune under position tolerance `pos_tol` [m] and stability margin
+    `margin`, plan the built-in scenarios with planner seed `seed`, build the report.
+    Every argument is checked before the first stage starts. `progress`: progress bars and
+    a line per stage on stderr, with each stage's own tables; `quiet`: nothing but errors.
+    A stage's error is raised with the stage's name. `stepzoo run` calls it, e.g.
+    `run("results", "bench/configs/small.toml")`."""
     from stepzoo.bench.tune import check_arguments
-    say = (lambda line: None) if args.quiet else _say
-    # Every argument is checked before the first stage starts, not when its stage comes.
-    check_arguments(args.pos_tol, args.margin)
-    check("seed", "--seed", args.seed)
-    out = check_kind(args.out, "run")
-    steps = stages(args, out)
+    check_arguments(pos_tol, margin)
+    check("seed", "--seed", seed)
+    out = check_kind(out, "run")
+    steps = stages(out, config_path(config), pos_tol, margin, seed, progress and not quiet)
     with writing(out, "run"):
-        return _run(args, out, steps, say)
+        return _run(out, steps, progress and not quiet, quiet)
 
 
-def _run(args, out: Path, steps, say) -> int:
-    """Run the stages, then the report; 1 when a plan is not exact (the report is made)."""
-    from stepzoo.bench import cli
+def _run(out: Path, steps, progress: bool, quiet: bool) -> Run:
+    """Run the stages, then the report (made also when a plan is not exact)."""
     from stepzoo.reports import cmd_report
+    say = (lambda line: None) if quiet else _say
     total = len(steps) + 1
-    status = 0
-    budget = [x for flag, value in (("--max-memory", args.max_memory),
-                                    ("--max-steps", args.max_steps))
-              if value is not None for x in (flag, repr(value))]
+    exact = True
     started, began = time.perf_counter(), environment.now()
     took = {}
-    for i, (name, argv) in enumerate(steps, 1):
+    for i, (name, argv, call) in enumerate(steps, 1):
         say(f"[{i}/{total}] {name}: stepzoo {' '.join(argv)}")
         t0 = time.perf_counter()
-        # The commands' own tables are progress here: stdout is kept for the final path.
-        # -q: the stages print nothing either; else their progress follows the run's.
-        quiet = ["-q"] if args.quiet else [] if args.progress else ["--no-progress"]
-        with open(os.devnull, "w") as null, \
-                contextlib.redirect_stdout(null if args.quiet else sys.stderr):
-            code = cli.main(argv + quiet + budget if name in cli.INTEGRATE else argv)
-        if code == 1 and name == "plan":
-            status = 1
+        # The stages' own tables are progress here: stdout is kept for the final path.
+        try:
+            with open(os.devnull, "w") as null, \
+                    contextlib.redirect_stdout(null if quiet else sys.stderr):
+                code = call()
+        except (UsageError, NoAnswer) as err:
+            raise type(err)(f"stopped at {name}: {err}") from None
+        if code:
+            exact = False
             say("not every plan is exact; the report shows them")
-        elif code == cli.INTERRUPTED:
-            return code                   # the stage said so, and how to resume, in one line
-        elif code:
-            say(f"stopped: `stepzoo {name}` failed (exit {code}); see its message above")
-            return code
         took[name] = round(time.perf_counter() - t0, 3)
         say(f"[{i}/{total}] {name} done in {took[name]:.1f} s")
     say(f"[{total}/{total}] report: stepzoo report {out} --out {out / 'report'}")
     index, _, _ = cmd_report.build(out / "sweep", out / "report", out / "tuned.toml",
-                                   out / "plans", progress=args.progress)
+                                   out / "plans", progress=progress)
     took["report"] = round(time.perf_counter() - started - sum(took.values()), 3)
     environment.write_manifest(out, "run", began, {
-        "stages": [name for name, _ in steps] + ["report"], "stage_s": took,
+        "stages": [name for name, _, _ in steps] + ["report"], "stage_s": took,
         "sweep": "sweep", "tuned": "tuned.toml", "plans": "plans",
         "report": "report/index.html"})
     say(f"done in {time.perf_counter() - started:.1f} s")
+    return Run(out / "sweep", out / "tuned.toml", out / "plans", index, exact)
+
+
+def main(args) -> int:
+    done = run(args.out, args.config, args.pos_tol, args.margin, args.seed,
+               progress=args.progress, quiet=args.quiet)
     if args.format == "json":
-        sys.stdout.write(json.dumps({"sweep": str(out / "sweep"),
-                                     "tuned": str(out / "tuned.toml"),
-                                     "plans": str(out / "plans"), "report": str(index)}) + "\n")
+        sys.stdout.write(json.dumps({"sweep": str(done.sweep), "tuned": str(done.tuned),
+                                     "plans": str(done.plans), "report": str(done.report)})
+                         + "\n")
     else:
-        sys.stdout.write(f"{index}\n")
-    return status
+        sys.stdout.write(f"{done.report}\n")
+    return 0 if done.exact else 1

@@ -9,6 +9,7 @@ import sys
 import textwrap
 import time
 from dataclasses import replace
+from pathlib import Path
 
 from stepzoo import environment
 from stepzoo.errors import UsageError
@@ -113,40 +114,57 @@ def _summary_row(record):
             **{k: stats[k] for k in SUMMARY_COLUMNS[2:]}}
 
 
-def main(args) -> int:
+def plan(scenarios, out, config=None, seed: int = 0, *, reverse: bool = False,
+         scheduler=None, batch: bool | None = None, progress: bool = False) -> list[dict]:
+    """Plan each scenario with the planner config file `config` (default: the shipped one;
+    `reverse` allows reverse gear) and planner seed `seed`, and write the plans and a
+    manifest into the folder `out`; returns their records. On the Dask cluster at
+    `scheduler` if given; `progress`: a line per plan of a batch on stderr. A batch (default:
+    more than one scenario) writes a folder per scenario and summary.csv/json; a single plan
+    goes into `out` itself. `stepzoo plan` and `stepzoo run` call it, e.g.
+    `plan([load_scenario("street")], "plans")`."""
     from stepzoo.search.pathfinder import BAD_ENDPOINT
     from stepzoo.search.planner_config import load_config, with_params
-    check("seed", "--seed", args.seed)
+    check("seed", "--seed", seed)
     started = environment.now()
-    out = check_kind(args.out, "plan")
-    config = load_config(args.config)
-    if args.reverse:
+    out = check_kind(out, "plan")
+    config = load_config(config)
+    if reverse:
         config = with_params(config, reverse=1)
-    scenarios = _scenarios(args)
+    batch = len(scenarios) > 1 if batch is None else batch
     for s in scenarios:
         if tuple(s.start) == tuple(s.goal):
             raise UsageError(f"{s.name}: the start is the goal ({', '.join(map(str, s.start))}); "
                              "nothing to plan, give a goal elsewhere")
-    if args.scheduler is None:
+    if scheduler is None:
         # A line per plan of a batch; one plan's own result line follows at once.
-        batch = len(scenarios) > 1
-        records = [_plan_one(s, config, args.seed, f"[{i}/{len(scenarios)}]",
-                             args.progress and batch) for i, s in enumerate(scenarios, 1)]
+        records = [_plan_one(s, config, seed, f"[{i}/{len(scenarios)}]",
+                             progress and len(scenarios) > 1)
+                   for i, s in enumerate(scenarios, 1)]
     else:
         from stepzoo.distributed import connect, gather_in_order
-        with connect(args.scheduler) as client:
-            records = gather_in_order(client, plan_scenario, scenarios, config, args.seed)
+        with connect(scheduler) as client:
+            records = gather_in_order(client, plan_scenario, scenarios, config, seed)
     for record in records:
         if record["cause"] in BAD_ENDPOINT:
             # The poses are the user's input: no plan is written for a pose that cannot be.
             raise UsageError(f"{record['reason']}; choose a pose in free space on the map")
     with writing(out, "plan"):
-        status = _write(args, out, records, scenarios)
+        _write(out, records, scenarios, batch)
         environment.write_manifest(out, "plan", started, {
-            "scenarios": [r["scenario"] for r in records], "seed": args.seed,
+            "scenarios": [r["scenario"] for r in records], "seed": seed,
             "config": config.source, "method": config.method, "h": config.h,
             "statuses": {r["scenario"]: r["status"] for r in records}})
-    return status
+    return records
+
+
+def main(args) -> int:
+    scenarios = _scenarios(args)
+    batch = args.all or len(scenarios) > 1
+    records = plan(scenarios, args.out, args.config, args.seed, reverse=args.reverse,
+                   scheduler=args.scheduler, batch=batch, progress=args.progress)
+    show(records, args.out, batch, args.format)
+    return status(records)
 
 
 def _plan_one(scenario, config, seed, count: str, progress: bool) -> dict:
@@ -165,20 +183,12 @@ def _plan_one(scenario, config, seed, count: str, progress: bool) -> dict:
     return record
 
 
-def _write(args, out, records, scenarios) -> int:
-    """Write the plans (a batch: a folder each and the summary) and print them; the status."""
+def _write(out, records, scenarios, batch: bool) -> None:
+    """Write the plans: one into `out`, or a batch (a folder each and the summary)."""
     from stepzoo.search.plan_output import write_plan
-    if len(records) == 1 and not args.all:
-        path = write_plan(out, records[0], scenarios[0])
-        if args.format == "json":
-            sys.stdout.write(json.dumps(_summary_row(records[0])) + "\n")
-        else:
-            r = records[0]
-            sys.stdout.write(f"{r['scenario']}: {r['status']} ({r['reason']}); "
-                             f"{r['stats']['expansions']} expansions, search "
-                             f"{r['stats']['search_s']:.3f} s, connection "
-                             f"{r['stats']['connect_s']:.3f} s -> {path}\n")
-        return _status(records)
+    if not batch:
+        write_plan(out, records[0], scenarios[0])
+        return
     for record, scenario in zip(records, scenarios):
         write_plan(out / scenario.name, record, scenario)
     rows = [_summary_row(r) for r in records]
@@ -188,13 +198,29 @@ def _write(args, out, records, scenarios) -> int:
     writer.writerows(rows)
     atomic_write(out / "summary.csv", buf.getvalue())
     atomic_write(out / "summary.json", to_json(rows) + "\n")
-    if args.format == "json":
+
+
+def show(records: list[dict], out, batch: bool, fmt: str = "text") -> None:
+    """Print the plans written into `out`: a line (one plan) or the summary table of a
+    batch; or JSON."""
+    out = Path(out)
+    if not batch:
+        if fmt == "json":
+            sys.stdout.write(json.dumps(_summary_row(records[0])) + "\n")
+        else:
+            r = records[0]
+            sys.stdout.write(f"{r['scenario']}: {r['status']} ({r['reason']}); "
+                             f"{r['stats']['expansions']} expansions, search "
+                             f"{r['stats']['search_s']:.3f} s, connection "
+                             f"{r['stats']['connect_s']:.3f} s -> {out / 'plan.json'}\n")
+        return
+    rows = [_summary_row(r) for r in records]
+    if fmt == "json":
         sys.stdout.write(json.dumps(rows) + "\n")
     else:
         sys.stdout.write(text_table(rows, SUMMARY_COLUMNS) + f"\nwritten to {out}\n")
-    return _status(records)
 
 
-def _status(records) -> int:
+def status(records) -> int:
     """Exit status 1 when a plan is not exact: the planner ran, but reached no goal."""
     return 0 if all(r["status"] == "exact" for r in records) else 1

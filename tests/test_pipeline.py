@@ -106,3 +106,17 @@ def test_every_results_folder_of_a_run_records_its_environment_and_progress(ran)
         assert f"stepzoo plan: [{i}/{len(names)}] {name}: " in proc.stderr
     for i in range(1, 8):
         assert f"stepzoo report: [{i}/7] Figure {i}. " in proc.stderr
+
+
+def test_a_stage_that_finds_nothing_is_one_line_naming_it_and_keeps_what_was_written(ran,
+                                                                                      capsys):
+    # Last: it runs in the shared folder. The finished sweep is reused; no (method, h)
+    # meets a tolerance of a nanometre, so tune finds no answer (exit 1).
+    out, proc = ran
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    before = (out / "tuned.toml").read_text()
+    assert stepzoo(["run", "--config", str(SMALL), "--out", str(out), "--pos-tol", "1e-9",
+                    "-q"]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("stepzoo run: no answer: stopped at tune: "), err
+    assert (out / "tuned.toml").read_text() == before
