@@ -32,7 +32,7 @@ LONG = ("run", "sweep", "plan", "report")
 # Commands that integrate: they estimate their memory and work first (--max-memory/-steps).
 INTEGRATE = ("run", "simulate", "sweep", "plan")
 # A command that resumes where an interrupted call stopped, and how.
-RESUME = {"sweep": "resume with --resume (`stepzoo run`: run it again)",
+RESUME = {"sweep": "resume with --resume",
           "run": "resume: run it again, the same command (finished sweep chunks are kept)"}
 INTERRUPTED = 130          # the shell's status for a command ended by Ctrl-C (128 + SIGINT)
 EXIT_STATUSES = """exit status:

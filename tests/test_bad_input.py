@@ -256,19 +256,19 @@ def test_unreadable_inputs_are_one_line(finished, tmp_path):
     np.save(grid, np.zeros((40, 40), bool))
     grid.chmod(0)
     code, err = as_user("plan", "--map", grid, "--cell-size", "1", "--start", "5,5,0",
-                        "--goal", "30,30,0", "--out", tmp_path / "plan")
+                        "--goal", "30,30,0", "--out", tmp_path / "plan", "-q")
     assert code == 2 and "grid.npy" in one_line(err)
     yaml = tmp_path / "m.yaml"
     yaml.write_text("image: grid.png\nresolution: 1\norigin: [0, 0, 0]\n")
     yaml.chmod(0)
     code, err = as_user("plan", "--map", yaml, "--start", "5,5,0", "--goal", "30,30,0",
-                        "--out", tmp_path / "plan")
+                        "--out", tmp_path / "plan", "-q")
     assert code == 2 and "m.yaml" in one_line(err)
     assert not (tmp_path / "out").exists() and not (tmp_path / "plan").exists()
     shutil.copytree(sweep, tmp_path / "sweep")
     (tmp_path / "sweep" / "runs.parquet").chmod(0)
     for argv in (["tune", tmp_path / "sweep", "--pos-tol", "10", "--out", tmp_path / "t.toml"],
-                 ["report", tmp_path / "sweep", "--out", tmp_path / "report"]):
+                 ["report", tmp_path / "sweep", "--out", tmp_path / "report", "-q"]):
         code, err = as_user(*argv)
         assert code == 2 and "Permission denied" in one_line(err), argv
         assert "runs.parquet" in err, argv
@@ -287,8 +287,8 @@ def test_a_read_only_output_folder_is_one_line_and_keeps_what_it_holds(finished,
         for argv in (["sweep", config, "--out", tmp_path / "sweep", "--resume"],
                      ["tune", tmp_path / "sweep", "--pos-tol", "10", "--out",
                       tmp_path / "tuned.toml"],
-                     ["report", tmp_path / "sweep", "--out", tmp_path / "report"],
-                     ["plan", "street", "--out", tmp_path / "plans"]):
+                     ["report", tmp_path / "sweep", "--out", tmp_path / "report", "-q"],
+                     ["plan", "street", "--out", tmp_path / "plans", "-q"]):
             code, err = as_user(*argv)
             assert code == 2 and "Permission denied" in one_line(err), argv
     finally:
@@ -325,9 +325,9 @@ find {disk}/sweep {disk}/tuned.toml -type f ! -name .stepzoo.lock | sort | xargs
 echo $? > {tmp_path}/sweep.rc
 {py} tune {disk}/sweep --pos-tol 10 --out {disk}/tuned.toml 2> {tmp_path}/tune.err
 echo $? > {tmp_path}/tune.rc
-{py} report {disk}/sweep --out {disk}/report 2> {tmp_path}/report.err
+{py} report {disk}/sweep --out {disk}/report -q 2> {tmp_path}/report.err
 echo $? > {tmp_path}/report.rc
-{py} plan street --out {disk}/plans 2> {tmp_path}/plan.err
+{py} plan street --out {disk}/plans -q 2> {tmp_path}/plan.err
 echo $? > {tmp_path}/plan.rc
 find {disk}/sweep {disk}/tuned.toml -type f ! -name .stepzoo.lock | sort | xargs sha256sum > {tmp_path}/after
 """
