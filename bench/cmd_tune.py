@@ -1,11 +1,10 @@
 """`stepzoo tune RESULTS --pos-tol M --out tuned.toml`: the cheapest (method, h) of a sweep that
 is stable with a margin and meets a position tolerance everywhere, as a planner config."""
 import sys
-from pathlib import Path
 
 from stepzoo.bench.tune import DEFAULT_MARGIN
-from stepzoo.errors import UsageError
 from stepzoo.output import text_table, to_json
+from stepzoo.results_folder import check_file_target
 
 
 def add_arguments(p):
@@ -25,9 +24,7 @@ def tune(results, pos_tol: float, margin: float, out) -> dict:
     `out`; returns the choice. `stepzoo tune` and `stepzoo run` call it."""
     from stepzoo.bench.tune import tune as choose
     from stepzoo.bench.tune import write
-    out = Path(out)
-    if out.is_dir():
-        raise UsageError(f"--out {out} is a folder; give a file name such as tuned.toml")
+    out = check_file_target(out)          # before the work, not only when writing
     tuned = choose(results, pos_tol, margin)
     write(tuned, out)
     return tuned
