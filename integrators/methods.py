@@ -1,12 +1,13 @@
 """The zoo: each method is data (a tableau or multistep coefficients) plus metadata, and a
 registry by name. Adding a method is one `_register` line."""
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import jax.numpy as jnp
 import numpy as np
 
 from stepzoo.integrators import steps
 from stepzoo.integrators.multistep import LinearMultistep, adams_bashforth, adams_moulton, bdf
+from stepzoo.integrators.newton import NewtonOptions
 from stepzoo.integrators.tableau import ButcherTableau
 
 S3 = np.sqrt(3.0)
@@ -16,13 +17,22 @@ S3 = np.sqrt(3.0)
 class Method:
     """A fixed-step method. `scheme` is a ButcherTableau or a LinearMultistep. Multistep
     methods take their first k-1 steps with `starter` (a one-step method of order >= theirs).
-    Hashable by identity, so a Method can be a static argument of `jax.jit`."""
+    Hashable by identity, so a Method can be a static argument of `jax.jit`. `newton` holds
+    the tolerances and iteration limit of an implicit method's nonlinear solves."""
     name: str
     family: str
     order: int
     scheme: object
     reference: str
     starter: "Method | None" = None
+    newton: NewtonOptions = NewtonOptions()
+
+    def with_newton(self, **options) -> "Method":
+        """This method (and its starter) with other Newton options (fields of NewtonOptions).
+        Each call makes a new Method, hence a new compilation: make it once and reuse it."""
+        opts = replace(self.newton, **options)
+        starter = self.starter.with_newton(**options) if self.starter is not None else None
+        return replace(self, newton=opts, starter=starter)
 
     @property
     def is_multistep(self) -> bool:
@@ -55,15 +65,16 @@ class Method:
         return self.scheme.evals_per_step if self.scheme.explicit else self.scheme.stages
 
     def init_state(self, y0):
-        return {"evals": jnp.zeros((), y0.dtype)}
+        """Evaluations spent, and whether every nonlinear solve so far converged."""
+        return {"evals": jnp.zeros((), y0.dtype), "converged": jnp.asarray(True)}
 
     def step(self, fun, t, y, h, state):
         """One step from (t, y): returns (y_next, state)."""
         if self.is_multistep:
-            return steps.multistep_step(self.scheme, fun, t, y, h, state)
+            return steps.multistep_step(self.scheme, self.newton, fun, t, y, h, state)
         if self.scheme.explicit:
             return steps.explicit_rk_step(self.scheme, fun, t, y, h, state)
-        return steps.implicit_rk_step(self.scheme, fun, t, y, h, state)
+        return steps.implicit_rk_step(self.scheme, self.newton, fun, t, y, h, state)
 
     def start(self, fun, t0, y0, h):
         """Starting values: (ys of steps 1..n_start, state ready for `step` at step n_start)."""
@@ -76,7 +87,8 @@ class Method:
             ys.append(y)
         hist = jnp.stack(ys)
         fs = jnp.stack([fun(t0 + i * h, yi) for i, yi in enumerate(ys)])
-        state = dict(state, ys=hist, fs=fs, evals=sub["evals"] + len(ys))
+        state = dict(state, ys=hist, fs=fs, evals=sub["evals"] + len(ys),
+                     converged=sub["converged"])
         return hist[1:], state
 
 

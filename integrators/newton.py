@@ -1,26 +1,106 @@
-"""Newton's method with the exact Jacobian (forward-mode AD) for the implicit methods' stage
-equations: stops when the update is below tolerance or after a bounded number of iterations."""
+"""Simplified Newton iteration for the stage equations of the implicit methods (Hairer &
+Wanner, Solving ODEs II, IV.8, as in RADAU5): the caller factorises the iteration matrix once
+per step and every iteration reuses it. A solve reports whether it converged: the rate of
+convergence theta_k = |dz_k| / |dz_{k-1}| estimates the error left after an increment as
+theta/(1 - theta) |dz_k|; the solve stops when that estimate and the residual are both within
+tolerance, and gives up early when the iteration diverges (theta >= 1) or cannot reach the
+tolerance within the iteration limit at its current rate."""
+from dataclasses import dataclass
+
 import jax
 import jax.numpy as jnp
 from jax import lax
-
-NEWTON_TOL = 1e-12     # relative update size at which Newton stops
-NEWTON_MAX_ITER = 8    # bound on iterations per step
+from jax.scipy.linalg import lu_factor, lu_solve
 
 
-def newton_solve(residual, z0, scale):
-    """Solve residual(z) = 0 from z0 (flat vector); `scale` sets the relative tolerance
-    (|dz| <= tol * (1 + scale)). Returns (z, iterations)."""
-    jac = jax.jacfwd(residual)
+@dataclass(frozen=True)
+class NewtonOptions:
+    """Tolerances of one nonlinear solve, on the components weighted by atol + rtol |y|:
+    the estimated error of the stage values must be at most 1, and the residual at most
+    `res_tol` times 1 + |h A (x) J| (the residual of an iterate is the iteration matrix times
+    its error, so it is measured against that matrix's size). At most `max_iter` simplified
+    iterations, then, where they fail, at most `max_iter_full` of the full-Newton retry (0:
+    none)."""
+    rtol: float = 1e-10
+    atol: float = 1e-10
+    res_tol: float = 1e-6
+    max_iter: int = 10
+    max_iter_full: int = 40
 
-    def cond(state):
-        _, k, err = state
-        return (k < NEWTON_MAX_ITER) & (err > NEWTON_TOL * (1.0 + scale))
+    def __post_init__(self):
+        if not (self.rtol >= 0 and self.atol >= 0 and self.rtol + self.atol > 0):
+            raise ValueError(f"Newton tolerances must be >= 0, not both 0: rtol={self.rtol!r}, "
+                             f"atol={self.atol!r}")
+        if not (self.res_tol > 0 and int(self.max_iter) == self.max_iter >= 1
+                and int(self.max_iter_full) == self.max_iter_full >= 0):
+            raise ValueError(f"need res_tol > 0 and integers max_iter >= 1, max_iter_full >= 0:"
+                             f" res_tol={self.res_tol!r}, max_iter={self.max_iter!r}, "
+                             f"max_iter_full={self.max_iter_full!r}")
 
-    def body(state):
-        z, k, _ = state
-        dz = jnp.linalg.solve(jac(z), residual(z))
-        return z - dz, k + 1, jnp.max(jnp.abs(dz))
 
-    z, k, _ = lax.while_loop(cond, body, (z0, jnp.asarray(0), jnp.asarray(jnp.inf, z0.dtype)))
-    return z, k
+# Increments this many ulps of the iterate are round-off: the iteration has converged as far
+# as the arithmetic allows, whatever the rate estimate says (it is noise at that level).
+ROUND_OFF_ULPS = 8
+
+
+def factorised(mat):
+    """(solve, 1 + |mat - I|_inf): the LU factors of an iteration matrix, applied by `solve`,
+    and the size against which a residual is judged."""
+    lu = lu_factor(mat)
+    size = 1.0 + jnp.max(jnp.sum(jnp.abs(mat - jnp.eye(mat.shape[0], dtype=mat.dtype)), axis=1))
+    return (lambda r: lu_solve(lu, r)), size
+
+
+def _iterate(residual, solver, z0, y_scale, opts, fresh, done0):
+    """One Newton iteration loop from z0, skipped where `done0`; `solver(z)` gives (solve,
+    size) of the iteration matrix, made once from z0 or, with `fresh`, anew at every iterate.
+    Returns (z, iterations, converged)."""
+    w = opts.atol + opts.rtol * y_scale
+    eps = jnp.finfo(z0.dtype).eps
+    fixed = None if fresh else solver(z0)
+    limit = opts.max_iter_full if fresh else opts.max_iter
+
+    def cond(st):
+        _, k, _, done, _ = st
+        return (~done) & (k < limit)
+
+    def body(st):
+        z, k, prev, _, _ = st
+        solve, size = solver(z) if fresh else fixed
+        r = residual(z)
+        dz = solve(r)
+        n = jnp.max(jnp.abs(dz) / w)
+        res = jnp.max(jnp.abs(r) / w) / size
+        finite = jnp.isfinite(n) & jnp.isfinite(res)
+        theta = n / prev
+        later = k >= 1
+        noise = jnp.all(jnp.abs(dz) <= ROUND_OFF_ULPS * eps * (jnp.abs(z) + y_scale))
+        settled = noise | (later & (theta < 1) & (theta / (1 - theta) * n <= 1))
+        ok = finite & settled & (noise | (res <= opts.res_tol))
+        # Iterations left after this one at the current rate cannot reach the tolerance.
+        # Full Newton converges faster than linearly once close: no such forecast for it.
+        hopeless = later & ((theta >= 1) |
+                            (theta ** (limit - 1 - k) / (1 - theta) * n > 1))
+        hopeless = hopeless & (not fresh)
+        done = ok | ~finite | (hopeless & ~noise)
+        return z - dz, k + 1, n, done, ok
+
+    init = (z0, jnp.asarray(0), jnp.asarray(jnp.inf, z0.dtype), done0, jnp.asarray(False))
+    z, k, _, _, ok = lax.while_loop(cond, body, init)
+    return z, k, ok
+
+
+def newton_solve(residual, solver, z0, y_scale, opts: NewtonOptions):
+    """Solve residual(z) = 0 (z flat) from z0: the simplified iteration with `solver(z0)`
+    (solve, size): `solve(r)` applies the factorised iteration matrix's inverse, `size` is
+    1 + |h A (x) J|. Where it fails (a Jacobian from the step's start can be too far from
+    the solution's, as at Robertson's first step) the solve is retried from z0 with full
+    Newton, the exact Jacobian of the residual refactorised at every iterate; the retry
+    costs nothing when every trajectory of a batch converged. `y_scale` is |y| tiled like
+    z. Returns (z, simplified iterations, full iterations, converged)."""
+    z1, k1, ok1 = _iterate(residual, solver, z0, y_scale, opts, False, jnp.asarray(False))
+    # Not lax.cond: under vmap it would run the retry for every trajectory; a loop that
+    # starts done is skipped unless some trajectory of the batch needs it.
+    exact = lambda z: factorised(jax.jacfwd(residual)(z))
+    z2, k2, ok2 = _iterate(residual, exact, jnp.where(ok1, z1, z0), y_scale, opts, True, ok1)
+    return jnp.where(ok1, z1, z2), k1, k2, ok1 | ok2

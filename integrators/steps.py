@@ -1,11 +1,15 @@
-"""The one generic step of each family: explicit RK, implicit RK (Newton on all stages) and
-linear multistep (explicit or implicit). `fun(t, y)` is the right-hand side with inputs and
-parameters already bound; every step returns (y_next, state) and counts its evaluations
-in state["evals"] (implicit: residual and Jacobian evaluations of Newton included)."""
+"""The one generic step of each family: explicit RK, implicit RK (simplified Newton: one
+Jacobian and one factorisation per step) and linear multistep (explicit or implicit).
+`fun(t, y)` is the right-hand side with inputs and parameters already bound; every step
+returns (y_next, state) and counts its evaluations in state["evals"] (implicit: the Jacobian
+counts as d evaluations, one per column). An implicit step whose solve fails returns NaN and
+clears state["converged"]; a step from a state that has already blown up (the method's own
+instability) is no solver failure."""
+import jax
 import jax.numpy as jnp
 import numpy as np
 
-from stepzoo.integrators.newton import newton_solve
+from stepzoo.integrators.newton import factorised, newton_solve
 
 
 def explicit_rk_step(tab, fun, t, y, h, state):
@@ -23,10 +27,31 @@ def explicit_rk_step(tab, fun, t, y, h, state):
     return y + h * incr, dict(state, evals=state["evals"] + tab.evals_per_step)
 
 
-def implicit_rk_step(tab, fun, t, y, h, state):
-    """One step of any tableau: Newton on the stage increments Z_i = h sum_j a_ij f(Y_j)."""
-    s, d = tab.stages, y.shape[0]
-    a = jnp.asarray(tab.a)
+def jacobian(fun, t, y):
+    """df/dy at (t, y) by forward mode: d evaluations' worth of work."""
+    return jax.jacfwd(lambda v: fun(t, v))(y)
+
+
+def _finish(y, y_next, ok, state, evals):
+    """NaN after a failed solve. The flag is cleared only by a failure from a state below
+    finfo.max^(1/4) (1e77 in float64): beyond it the method has already blown up, and its
+    right-hand side's arithmetic overflows whatever the solver does."""
+    failed = ~ok & jnp.all(jnp.abs(y) < jnp.finfo(y.dtype).max ** 0.25)
+    y_next = jnp.where(ok, y_next, jnp.nan)
+    return y_next, dict(state, evals=evals, converged=state["converged"] & ~failed)
+
+
+def implicit_rk_step(tab, opts, fun, t, y, h, state):
+    """One step of an implicit tableau. A diagonally implicit one (a_ij = 0 for j > i) solves
+    its stages one by one, each with I - h a_ii J (one factorisation per distinct a_ii);
+    any other solves all stages at once with I - h A (x) J."""
+    d = y.shape[0]
+    jac = jacobian(fun, t, y)
+    eye = jnp.eye(d, dtype=y.dtype)
+    if tab.diagonally_implicit:
+        return _dirk_step(tab, opts, fun, t, y, h, state, jac, eye)
+    s = tab.stages
+    a = jnp.asarray(tab.a, y.dtype)
 
     def stage_f(z):
         zz = z.reshape(s, d)
@@ -35,21 +60,51 @@ def implicit_rk_step(tab, fun, t, y, h, state):
     def residual(z):
         return z - h * (a @ stage_f(z)).reshape(-1)
 
-    z, iters = newton_solve(residual, jnp.zeros(s * d, y.dtype), jnp.max(jnp.abs(y)))
+    solver = lambda z: factorised(jnp.eye(s * d, dtype=y.dtype) - h * jnp.kron(a, jac))
+    z, k1, k2, ok = newton_solve(residual, solver, jnp.zeros(s * d, y.dtype),
+                                 jnp.tile(jnp.abs(y), s), opts)
     zz = z.reshape(s, d)
+    evals = state["evals"] + d + k1 * s + k2 * (s + s * d)
     if np.linalg.matrix_rank(tab.a) == s:
         # y + h b^T F = y + b^T A^-1 Z: no evaluation of f, whose h*lambda-sized values
         # would cancel badly on stiff problems.
-        y_next = y + jnp.asarray(np.linalg.solve(tab.a.T, tab.b)) @ zz
-        extra = 0
+        y_next = y + jnp.asarray(np.linalg.solve(tab.a.T, tab.b), y.dtype) @ zz
     else:
-        y_next = y + h * (jnp.asarray(tab.b) @ stage_f(z))
-        extra = s
-    evals = state["evals"] + iters * (s + s * d) + extra
-    return y_next, dict(state, evals=evals)
+        y_next = y + h * (jnp.asarray(tab.b, y.dtype) @ stage_f(z))
+        evals = evals + s
+    return _finish(y, y_next, ok, state, evals)
 
 
-def multistep_step(lmm, fun, t, y, h, state):
+def _dirk_step(tab, opts, fun, t, y, h, state, jac, eye):
+    """Stages in order: Y_i = y + h sum_{j<i} a_ij k_j + z_i with z_i = h a_ii f(Y_i); the
+    slope k_i = z_i / (h a_ii) costs no evaluation."""
+    ks, ok, evals = [], jnp.asarray(True), state["evals"] + y.shape[0]
+    solvers = {}        # one factorisation per distinct diagonal entry
+    for i in range(tab.stages):
+        known = y
+        for j in range(i):
+            if tab.a[i, j] != 0.0:
+                known = known + (h * tab.a[i, j]) * ks[j]
+        ti, gii = t + tab.c[i] * h, tab.a[i, i]
+        if gii == 0.0:
+            ks.append(fun(ti, known))
+            evals = evals + 1
+            continue
+        if gii not in solvers:
+            solvers[gii] = factorised(eye - (h * gii) * jac)
+        z, k1, k2, ok_i = newton_solve(lambda z: z - (h * gii) * fun(ti, known + z),
+                                       lambda _, f=solvers[gii]: f, jnp.zeros_like(y),
+                                       jnp.abs(y), opts)
+        ks.append(z / (h * gii))
+        ok, evals = ok & ok_i, evals + k1 + k2 * (1 + y.shape[0])
+    if tab.stiffly_accurate:
+        y_next = known + z          # the last stage is the solution: no cancellation
+    else:
+        y_next = y + h * sum(tab.b[i] * ks[i] for i in range(tab.stages) if tab.b[i] != 0.0)
+    return _finish(y, y_next, ok, state, evals)
+
+
+def multistep_step(lmm, opts, fun, t, y, h, state):
     """One step of sum_j alpha_j y_{n+j} = h sum_j beta_j f_{n+j}; state holds the last k
     values `ys` and slopes `fs`, oldest first; t is the time of the newest."""
     k = lmm.steps
@@ -59,13 +114,15 @@ def multistep_step(lmm, fun, t, y, h, state):
     t_next = t + h
     evals = state["evals"] + 1.0
     if lmm.explicit:
-        y_next = known
+        y_next, state = known, dict(state, evals=evals)
     else:
         bk = lmm.beta[k]
-        y_next, iters = newton_solve(lambda v: v - h * bk * fun(t_next, v) - known,
-                                     ys[-1], jnp.max(jnp.abs(y)))
-        evals = evals + iters * (1 + y.shape[0])
+        d = y.shape[0]
+        fixed = factorised(jnp.eye(d, dtype=y.dtype) - (h * bk) * jacobian(fun, t, y))
+        y_next, k1, k2, ok = newton_solve(lambda v: v - (h * bk) * fun(t_next, v) - known,
+                                          lambda _: fixed, ys[-1], jnp.abs(y), opts)
+        y_next, state = _finish(y, y_next, ok, state, evals + d + k1 + k2 * (1 + d))
     f_next = fun(t_next, y_next)
     ys = jnp.concatenate([ys[1:], y_next[None]])
     fs = jnp.concatenate([fs[1:], f_next[None]])
-    return y_next, dict(state, ys=ys, fs=fs, evals=evals)
+    return y_next, dict(state, ys=ys, fs=fs)

@@ -11,6 +11,8 @@ class ButcherTableau:
     b: np.ndarray
     c: np.ndarray
     explicit: bool = field(init=False)
+    diagonally_implicit: bool = field(init=False)
+    stiffly_accurate: bool = field(init=False)
     needed: tuple = field(init=False)
 
     def __post_init__(self):
@@ -26,6 +28,9 @@ class ButcherTableau:
         object.__setattr__(self, "b", b)
         object.__setattr__(self, "c", c)
         object.__setattr__(self, "explicit", bool(np.all(np.triu(a) == 0)))
+        object.__setattr__(self, "diagonally_implicit", bool(np.all(np.triu(a, 1) == 0)))
+        # b is the last row of a: the last stage is the step's result (no cancellation).
+        object.__setattr__(self, "stiffly_accurate", bool(np.array_equal(a[-1], b)))
         # A stage is needed if its weight is non-zero or a needed later stage reads it; the
         # FSAL stage of Dormand-Prince (weight 0, read by nobody) is dropped by this rule.
         need = b != 0

@@ -1,0 +1,97 @@
+"""Implicit solves never lie: a run either solves its stage equations (and then lands where
+the method's equations, solved to round-off, land) or says it did not (converged False, NaN
+from the failed step on)."""
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from scipy.integrate import solve_ivp
+
+from stepzoo.integrators import integrate, integrate_batch, method
+
+
+def robertson(t, y, u, p):
+    """Robertson's chemical kinetics (Hairer & Wanner II, IV.1): stiffness ratio ~1e11."""
+    return jnp.array([-0.04 * y[0] + 1e4 * y[1] * y[2],
+                      0.04 * y[0] - 1e4 * y[1] * y[2] - 3e7 * y[1] ** 2,
+                      3e7 * y[1] ** 2])
+
+
+Y0 = jnp.array([1.0, 0.0, 0.0])
+
+
+@pytest.fixture(scope="module")
+def robertson_at_40():
+    jac = jax.jit(jax.jacfwd(lambda y: robertson(0.0, y, None, None)))
+    sol = solve_ivp(lambda t, y: np.asarray(robertson(t, jnp.asarray(y), None, None)), (0, 40),
+                    np.asarray(Y0), method="Radau", rtol=1e-12, atol=1e-16,
+                    jac=lambda t, y: np.asarray(jac(jnp.asarray(y))))
+    return sol.y[:, -1]
+
+
+# (method, h, bound on max|x - ref| / max|ref| at t = 40: the method's own error there)
+CASES = [("trapezoidal", 0.1, 2e-2), ("gauss_legendre4", 4.0, 1e-4)]
+
+
+@pytest.mark.parametrize("name, h, bound", CASES)
+def test_robertson_either_converges_to_the_method_s_solution_or_says_it_did_not(
+        robertson_at_40, name, h, bound):
+    n = int(round(40 / h))
+    tr = integrate(method(name), robertson, Y0, jnp.zeros(1), {}, h, n)
+    x = np.asarray(tr.x)
+    if bool(tr.converged):
+        assert np.all(np.isfinite(x))
+        err = np.max(np.abs(x[-1] - robertson_at_40)) / np.max(np.abs(robertson_at_40))
+        assert err <= bound, err
+        # The same equations solved to round-off give the same trajectory: the flag is true.
+        tight = method(name).with_newton(rtol=1e-14, atol=1e-14, max_iter_full=100)
+        exact = integrate(tight, robertson, Y0, jnp.zeros(1), {}, h, n)
+        assert bool(exact.converged)
+        np.testing.assert_allclose(x, np.asarray(exact.x), rtol=0, atol=1e-8)
+    else:
+        first = np.argmax(np.isnan(x).any(axis=1))
+        assert first > 0 and np.all(np.isnan(x[first:]))
+
+
+@pytest.mark.parametrize("name", ["trapezoidal", "gauss_legendre4", "bdf2"])
+def test_a_solve_that_cannot_converge_is_flagged_and_nan(name):
+    # Two simplified iterations from Robertson's start, with no full-Newton retry, cannot
+    # reach the tolerance: the first step fails, and so does the run.
+    m = method(name).with_newton(max_iter=2, max_iter_full=0)
+    tr = integrate(m, robertson, Y0, jnp.zeros(1), {}, 0.1, 20)
+    assert not bool(tr.converged)
+    assert np.all(np.isnan(np.asarray(tr.x[m.n_start + 1:])))
+
+
+def test_batch_flags_each_trajectory():
+    # At y3 = 0 nothing couples y2 back; from a start with y2 already near equilibrium the
+    # simplified iteration converges; from (1, 0, 0) it needs the retry, here forbidden.
+    m = method("backward_euler").with_newton(max_iter_full=0)
+    x0 = jnp.array([[1.0, 0.0, 0.0], [0.9999, 3.6e-5, 6.4e-5]] * 20)
+    tr = integrate_batch(m, robertson, x0, jnp.zeros((40, 1)), {}, 0.1, 5)
+    assert tr.converged.shape == (40,)
+    ok = np.asarray(tr.converged)
+    assert not ok[0] and ok[1] and np.all(ok[::2] == ok[0]) and np.all(ok[1::2] == ok[1])
+    assert np.all(np.isfinite(np.asarray(tr.x[1::2])))
+    assert np.all(np.isnan(np.asarray(tr.x[::2, 1:])))
+
+
+def test_explicit_methods_always_converge_even_when_they_blow_up():
+    f = lambda t, y, u, p: -1e4 * y
+    tr = integrate(method("rk4"), f, jnp.array([1.0]), jnp.zeros(1), {}, 0.1, 50)
+    assert bool(tr.converged) and not np.all(np.isfinite(np.asarray(tr.x)))
+
+
+def test_an_implicit_method_s_own_blow_up_is_not_a_solver_failure():
+    # am3's region is bounded (real interval -6): at h lambda = -1e3 it grows by 1.7 a step to overflow,
+    # each linear solve being exact.
+    f = lambda t, y, u, p: -1e4 * y
+    tr = integrate(method("am3"), f, jnp.array([1.0]), jnp.zeros(1), {}, 0.1, 1500)
+    assert bool(tr.converged) and not np.all(np.isfinite(np.asarray(tr.x)))
+
+
+def test_newton_options_are_checked():
+    with pytest.raises(ValueError, match="max_iter"):
+        method("trapezoidal").with_newton(max_iter=0)
+    with pytest.raises(ValueError, match="tolerances"):
+        method("trapezoidal").with_newton(rtol=0.0, atol=0.0)
