@@ -29,6 +29,15 @@ class LinearMultistep:
     def explicit(self) -> bool:
         return self.beta[-1] == 0.0
 
+    @property
+    def predictor(self) -> np.ndarray:
+        """Weights on the last k values (oldest first) of the polynomial through them,
+        evaluated one step ahead: the Newton start of an implicit step, as in DASSL and VODE
+        (no slope in it, so a stiff component does not throw it off)."""
+        k = self.steps
+        return np.array([P.polyval(float(k), _lagrange(np.arange(k, dtype=float), j))
+                         for j in range(k)])
+
 
 def _lagrange(nodes, i):
     """Coefficients (low to high) of the Lagrange basis polynomial of node i."""

@@ -120,7 +120,9 @@ def multistep_step(lmm, opts, fun, t, y, h, state):
         d = y.shape[0]
         fixed = factorised(jnp.eye(d, dtype=y.dtype) - (h * bk) * jacobian(fun, t, y))
         y_next, k1, k2, ok = newton_solve(lambda v: v - (h * bk) * fun(t_next, v) - known,
-                                          lambda _: fixed, ys[-1], jnp.abs(y), opts)
+                                          lambda _: fixed,
+                                          jnp.tensordot(jnp.asarray(lmm.predictor), ys, 1),
+                                          jnp.abs(y), opts)
         y_next, state = _finish(y, y_next, ok, state, evals + d + k1 + k2 * (1 + d))
     f_next = fun(t_next, y_next)
     ys = jnp.concatenate([ys[1:], y_next[None]])
