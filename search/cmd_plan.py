@@ -108,6 +108,14 @@ def plan_scenario(scenario, config, seed):
     return plan_record(result, scenario, config, finder.vehicle, seed, warmup_s)
 
 
+def _plan_on_worker(scenario, config, seed):
+    """plan_scenario in a Dask worker process, which plans in float64 as the `stepzoo`
+    command does (a worker starts with JAX's default float32)."""
+    import jax
+    jax.config.update("jax_enable_x64", True)
+    return plan_scenario(scenario, config, seed)
+
+
 def _summary_row(record):
     stats = record["stats"]
     return {"scenario": record["scenario"], "status": record["status"],
@@ -144,7 +152,7 @@ def plan(scenarios, out, config=None, seed: int = 0, *, reverse: bool = False,
     else:
         from stepzoo.distributed import connect, gather_in_order
         with connect(scheduler) as client:
-            records = gather_in_order(client, plan_scenario, scenarios, config, seed)
+            records = gather_in_order(client, _plan_on_worker, scenarios, config, seed)
     for record in records:
         if record["cause"] in BAD_ENDPOINT:
             # The poses are the user's input: no plan is written for a pose that cannot be.

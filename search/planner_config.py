@@ -50,7 +50,7 @@ PARAMS = {p.name: p for p in (
     Param("max_expansions", 1_000_000, 1, 10_000_000, "1",
           "budget of expansions (the default is far beyond what max_seconds allows: the time "
           "bounds the plan)"),
-    Param("max_seconds", 10.0, 0.001, 3600.0, "s", "budget of wall time, search and connections"),
+    Param("max_seconds", 20.0, 0.001, 3600.0, "s", "budget of wall time, search and connections"),
     Param("connect_tries", 64, 1, 10_000, "1", "connection attempts before giving up"),
     Param("improve_expansions", 300, 0, 10_000_000, "1",
           "after the first exact path, expansions without a shorter one before the plan ends "

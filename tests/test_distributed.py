@@ -147,7 +147,9 @@ def test_a_batch_of_scenarios_plans_on_the_cluster_as_it_does_here(client, tmp_p
         here, there = (json.loads((tmp_path / m / folder / "plan.json").read_text())
                        for m in ("here", "cluster"))
         for record in (here, there):
-            record["stats"] = {k: v for k, v in record["stats"].items() if not k.endswith("_s")}
+            # Times differ between runs: the *_s keys and the anytime progress (t_s, length).
+            record["stats"] = {k: v for k, v in record["stats"].items()
+                               if not k.endswith("_s") and k != "progress"}
         assert here == there and here["status"] == "exact"
     assert (tmp_path / "cluster" / "summary.csv").is_file()
 
