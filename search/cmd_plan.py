@@ -21,6 +21,11 @@ SUMMARY_COLUMNS = ["scenario", "status", "expansions", "nodes", "search_s", "con
                    "path_length_m", "connect_tf_s"]
 
 
+REVERSE_HELP = ("reverse gear: the tree and the connection may drive backwards, each change "
+                "of direction costing cusp_cost (default: forward only, as the paper; also "
+                "`reverse = 1` in [planner])")
+
+
 def settings_help() -> str:
     """The planner settings as `--help` lists them: a config's [planner] table sets them."""
     from stepzoo.search.planner_config import PARAMS
@@ -49,9 +54,7 @@ def add_arguments(p):
     p.add_argument("--speed", type=float, metavar="VX", help="constant speed of the tree [m/s]")
     p.add_argument("--config", metavar="FILE", help="planner config TOML from `stepzoo tune` "
                    "(default: the shipped search/tuned_default.toml)")
-    p.add_argument("--reverse", action="store_true", help="reverse gear: the tree and the "
-                   "connection may drive backwards, each change of direction costing cusp_cost "
-                   "(default: forward only, as the paper; also `reverse = 1` in [planner])")
+    p.add_argument("--reverse", action="store_true", help=REVERSE_HELP)
     p.add_argument("--seed", type=int, default=0, help="seed of the random points (default 0)")
     p.add_argument("--out", required=True, metavar="DIR", help="output folder")
     p.add_argument("--format", choices=["text", "json"], default="text",

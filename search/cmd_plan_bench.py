@@ -20,7 +20,7 @@ SUMMARY_COLUMNS = ["runs", "exact", "exact_rate", "median_time_s", "median_first
 
 
 def add_arguments(p):
-    from stepzoo.search.cmd_plan import settings_help
+    from stepzoo.search.cmd_plan import REVERSE_HELP, settings_help
     p.formatter_class = argparse.RawDescriptionHelpFormatter
     p.epilog = settings_help()
     p.add_argument("queries", metavar="QUERIES", help="JSON list of queries {map (relative to "
@@ -31,16 +31,15 @@ def add_arguments(p):
                    help="constant speed of the tree [m/s] (default 5)")
     p.add_argument("--config", metavar="FILE", help="planner config TOML (default: the "
                    "shipped search/tuned_default.toml); its [planner] table sets the budget")
-    p.add_argument("--reverse", action="store_true", help="reverse gear: the tree and the "
-                   "connection may drive backwards, each change of direction costing cusp_cost "
-                   "(default: forward only, as the paper; also `reverse = 1` in [planner])")
+    p.add_argument("--reverse", action="store_true", help=REVERSE_HELP)
     p.add_argument("--out", required=True, metavar="DIR", help="output folder")
     p.add_argument("--format", choices=["text", "json"], default="text",
                    help="what is printed: a summary table, or JSON")
 
 
 def bench_rows(queries, config, runs, seed, speed):
-    """(rows, progress): one dict per run of every query, and each run's (time, length)."""
+    """One dict per run of every query: the table's row, its `progress` a JSON list of the
+    (time [s], length [m]) of each shorter path."""
     from stepzoo.search.path_metrics import path_metrics
     from stepzoo.search.pathfinder import PathFinder
     from stepzoo.search.plan_output import path_rows
