@@ -1,4 +1,5 @@
-"""`stepzoo methods`: the zoo as a table, with each method's stability intervals."""
+"""`stepzoo methods`: the zoo as a table, with each method's stability intervals, whether it
+is A- and L-stable, and its damping of infinitely stiff modes |R(-inf)| (null: unbounded)."""
 import sys
 
 from stepzoo.output import text_table, to_json
@@ -10,7 +11,7 @@ def add_arguments(p):
 
 
 def rows() -> list[dict]:
-    from stepzoo.integrators.stability import stability_intervals
+    from stepzoo.integrators.stability import a_stable, l_stable, stability_intervals, stiff_decay
     out = []
     for m in METHODS.values():
         row = describe(m)
@@ -18,6 +19,9 @@ def rows() -> list[dict]:
         real, imag = stability_intervals(m)
         row["real_interval"] = None if real == float("inf") else round(real, 9)
         row["imag_interval"] = None if imag == float("inf") else round(imag, 9)
+        row["a_stable"], row["l_stable"] = a_stable(m), l_stable(m)
+        decay = stiff_decay(m)
+        row["stiff_decay"] = None if decay == float("inf") else round(decay, 9)
         out.append(row)
     return out
 
@@ -28,6 +32,6 @@ def main(args) -> int:
         print(to_json(table))
     else:
         cols = ["name", "family", "order", "stages", "steps", "implicit", "rhs_evals_per_step",
-                "real_interval", "imag_interval"]
+                "real_interval", "imag_interval", "a_stable", "l_stable", "stiff_decay"]
         sys.stdout.write(text_table(table, cols) + "\n")
     return 0

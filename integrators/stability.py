@@ -140,6 +140,41 @@ def max_stable_step(m: Method, eigenvalues) -> float:
     return h
 
 
+def stiff_decay(m: Method) -> float:
+    """|R(-inf)|, the damping of infinitely stiff modes: 1 - b^T A^-1 1 for an implicit
+    tableau with invertible A, the limit along the negative axis otherwise; for an implicit
+    multistep method the largest root of sigma. inf for explicit methods."""
+    if not m.implicit:
+        return float("inf")
+    if m.is_multistep:
+        roots = np.roots(m.scheme.beta[::-1])
+        return float(np.abs(roots).max()) if roots.size else 0.0
+    tab = m.scheme
+    if np.linalg.matrix_rank(tab.a) == tab.stages:
+        return float(abs(1.0 - tab.b @ np.linalg.solve(tab.a, np.ones(tab.stages))))
+    return float(amplification_theory(m, np.array([-1e12]))[0])
+
+
+def a_stable(m: Method) -> bool:
+    """Whether the whole left half-plane is stable. Tableau: its poles 1/eig(A) lie in the
+    right half-plane (so R is analytic on the left) and |R(iy)| <= 1 along the imaginary
+    axis, which by the maximum principle suffices. Multistep: no ray of the left half-plane
+    ever leaves the root-condition region."""
+    if not m.implicit:
+        return False
+    if m.is_multistep:
+        rays = np.linspace(np.pi / 2, np.pi, 9)
+        return all(bool(np.isinf(ray_exit(m, float(th)))) for th in rays)
+    eig = np.linalg.eigvals(m.scheme.a)
+    poles_right = bool(np.all(eig[np.abs(eig) > 1e-12].real > 0))
+    return poles_right and bool(np.isinf(ray_exit(m, np.pi / 2)))
+
+
+def l_stable(m: Method) -> bool:
+    """A-stable with |R(-inf)| = 0 (to 1e-9)."""
+    return a_stable(m) and stiff_decay(m) <= 1e-9
+
+
 def region_grid(m: Method, re=(-6.0, 2.0), im=(-4.0, 4.0), n=401, route="theory"):
     """(re axis, im axis, amplification on the grid) for plots; stable where <= 1."""
     x, y = np.linspace(*re, n), np.linspace(*im, n)

@@ -9,7 +9,8 @@ import pytest
 
 from stepzoo.bench.cli import main as stepzoo
 from stepzoo.integrators import METHODS, integrate, method
-from stepzoo.integrators.stability import max_stable_step, region_grid, stability_intervals
+from stepzoo.integrators.stability import (amplification_empirical, max_stable_step, region_grid,
+                                           stability_intervals)
 
 # Published (real, imaginary) intervals: Hairer & Wanner II; Butcher 2016; nodepy; the exact
 # polynomial |R(iy)|^2 - 1 for Heun, RK6 (leading term +y^8/786: tangent, interval 0) and
@@ -88,3 +89,35 @@ def test_stability_command_json(capsys):
     assert len(out["eigenvalues"]) == 2 and out["methods"]["trapezoidal"]["max_stable_step"] is None
     re = out["eigenvalues"][0][0]
     assert re < 0 and out["methods"]["euler"]["max_stable_step"] > 0
+
+
+# (A-stable, L-stable, |R(-inf)|): Hairer & Wanner II, IV.3 and V.1; am3's and am4's are the
+# largest roots of sigma, 5z^2 + 8z - 1 and 9z^3 + 19z^2 - 5z + 1.
+STIFF = {"backward_euler": (True, True, 0.0), "trapezoidal": (True, False, 1.0),
+         "gauss_legendre4": (True, False, 1.0), "radau_iia3": (True, True, 0.0),
+         "bdf2": (True, True, 0.0), "am3": (False, False, (8 + math.sqrt(84)) / 10),
+         "am4": (False, False, 2.36579), "rk4": (False, False, None), "ab2": (False, False, None)}
+
+
+@pytest.mark.parametrize("name", list(STIFF))
+def test_methods_json_gives_a_and_l_stability_and_stiff_decay(methods_json, name):
+    a, l, decay = STIFF[name]
+    row = methods_json[name]
+    assert (row["a_stable"], row["l_stable"]) == (a, l)
+    assert (row["stiff_decay"] is None) if decay is None else \
+        row["stiff_decay"] == pytest.approx(decay, abs=1e-4)
+
+
+@pytest.mark.parametrize("name", [n for n in METHODS if METHODS[n].implicit])
+def test_a_and_l_stability_hold_numerically_with_the_method_s_own_step(methods_json, name):
+    """|amplification(iy)| <= 1 on a dense imaginary grid, and small at -1e6, measured by
+    stepping y' = z y: the flags agree with what the step does."""
+    y = np.concatenate([np.linspace(0.0, 50.0, 2001), np.geomspace(50.0, 1e6, 400)])
+    on_axis = amplification_empirical(METHODS[name], 1j * y)
+    far = amplification_empirical(METHODS[name], np.array([-1e6]))[0]
+    row = methods_json[name]
+    assert row["a_stable"] == bool(np.all(on_axis <= 1 + 1e-12) and far <= 1 + 1e-12)
+    if row["l_stable"]:
+        assert far <= 1e-3      # BDF2: roots shrink like |z|^(-1/2)
+    else:
+        assert far >= 0.5 or not row["a_stable"]
