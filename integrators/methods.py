@@ -11,6 +11,10 @@ from stepzoo.integrators.newton import NewtonOptions
 from stepzoo.integrators.tableau import ButcherTableau
 
 S3 = np.sqrt(3.0)
+S6 = np.sqrt(6.0)
+# Kvaerno's 3(2) ESDIRK diagonal: the root of 6g^3 - 18g^2 + 9g - 1 in (0.3, 0.5), which makes
+# the stiffly accurate order-3 method L-stable.
+G = float(next(r.real for r in np.roots([6, -18, 9, -1]) if 0.3 < r.real < 0.5))
 
 
 @dataclass(frozen=True, eq=False)
@@ -124,6 +128,16 @@ TABLEAUS = {
     "trapezoidal": _rk([[0, 0], [1 / 2, 1 / 2]], [1 / 2, 1 / 2]),
     "gauss_legendre4": _rk([[1 / 4, 1 / 4 - S3 / 6], [1 / 4 + S3 / 6, 1 / 4]], [1 / 2, 1 / 2]),
     "radau_iia3": _rk([[5 / 12, -1 / 12], [3 / 4, 1 / 4]], [3 / 4, 1 / 4]),
+    "radau_iia5": _rk([[(88 - 7 * S6) / 360, (296 - 169 * S6) / 1800, (-2 + 3 * S6) / 225],
+                       [(296 + 169 * S6) / 1800, (88 + 7 * S6) / 360, (-2 - 3 * S6) / 225],
+                       [(16 - S6) / 36, (16 + S6) / 36, 1 / 9]],
+                      [(16 - S6) / 36, (16 + S6) / 36, 1 / 9]),
+    "kvaerno3": _rk([[0, 0, 0, 0], [G, G, 0, 0],
+                     [(-4 * G ** 2 + 6 * G - 1) / (4 * G), (1 - 2 * G) / (4 * G), G, 0],
+                     [(6 * G - 1) / (12 * G), -1 / ((24 * G - 12) * G),
+                      (-6 * G ** 2 + 6 * G - 1) / (6 * G - 3), G]],
+                    [(6 * G - 1) / (12 * G), -1 / ((24 * G - 12) * G),
+                     (-6 * G ** 2 + 6 * G - 1) / (6 * G - 3), G]),
 }
 # Embedded fourth-order weights of Dormand-Prince 5(4), for the adaptive reference's error.
 DOPRI5_B4 = np.array([5179 / 57600, 0, 7571 / 16695, 393 / 640, -92097 / 339200,
@@ -152,6 +166,10 @@ _register("gauss_legendre4", "implicit RK", 4, TABLEAUS["gauss_legendre4"],
           "Butcher 1964; 2-stage Gauss-Legendre collocation, A-stable, symplectic")
 _register("radau_iia3", "implicit RK", 3, TABLEAUS["radau_iia3"],
           "Ehle 1969; 2-stage Radau IIA, A- and L-stable")
+_register("radau_iia5", "implicit RK", 5, TABLEAUS["radau_iia5"],
+          "Ehle 1969; 3-stage Radau IIA (RADAU5's method), A- and L-stable")
+_register("kvaerno3", "implicit RK", 3, TABLEAUS["kvaerno3"],
+          "Kvaerno 2004; 4-stage ESDIRK 3(2), stiffly accurate, A- and L-stable")
 _rk4 = METHODS["rk4"]
 for _k in (2, 3, 4):
     _register(f"ab{_k}", "Adams-Bashforth", _k, adams_bashforth(_k),

@@ -22,6 +22,7 @@ PUBLISHED = {
     "ab4": (0.3, 0.4300), "am3": (6.0, 0.0), "am4": (3.0, 0.0),
     "backward_euler": (None, None), "trapezoidal": (None, None),
     "gauss_legendre4": (None, None), "radau_iia3": (None, None), "bdf2": (None, None),
+    "radau_iia5": (None, None), "kvaerno3": (None, None),
 }
 
 
@@ -95,6 +96,7 @@ def test_stability_command_json(capsys):
 # largest roots of sigma, 5z^2 + 8z - 1 and 9z^3 + 19z^2 - 5z + 1.
 STIFF = {"backward_euler": (True, True, 0.0), "trapezoidal": (True, False, 1.0),
          "gauss_legendre4": (True, False, 1.0), "radau_iia3": (True, True, 0.0),
+         "radau_iia5": (True, True, 0.0), "kvaerno3": (True, True, 0.0),
          "bdf2": (True, True, 0.0), "am3": (False, False, (8 + math.sqrt(84)) / 10),
          "am4": (False, False, 2.36579), "rk4": (False, False, None), "ab2": (False, False, None)}
 
