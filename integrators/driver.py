@@ -20,6 +20,8 @@ import numpy as np
 from jax import lax
 from jax.sharding import Mesh, PartitionSpec
 
+from stepzoo.integrators import arguments
+
 BLOCK = 32
 # Trajectories per chunk. Measured at batch 4000 on one core, with each loop compiled whole
 # (see dynamics/__init__.py), in trajectory-steps/s: rk4 with fast_trig 1.4e7 / 1.8e7 /
@@ -53,7 +55,9 @@ class Trajectory(NamedTuple):
 
 
 def _bound(f, u, p):
-    return lambda t, y: f(t, y, u, p)
+    # In the state's dtype: parameters or constants of another float type in f must not
+    # change the type of the carried state.
+    return lambda t, y: jnp.asarray(f(t, y, u, p), y.dtype)
 
 
 def _scan(start, step, x0, h, n_start, n_steps, t0, max_steps):
@@ -195,17 +199,56 @@ _jitted = {(fn, dyn): jax.jit(fn, static_argnames=_DYNAMIC if dyn else _STATIC)
            for fn in (_integrate, _batch) for dyn in (False, True)}
 
 
-def integrate(method, f, x0, u, p, h, n_steps, t0=0.0, max_steps=None) -> Trajectory:
+def integrate(method, f, x0, u=None, p=None, h=None, n_steps=None, t0=0.0,
+              max_steps=None) -> Trajectory:
     """Integrate dx/dt = f(t, x, u, p) from (t0, x0) with `n_steps` steps of size h [s].
 
-    `n_steps` is a Python int (compiled in), or, with `max_steps` a Python int bound, a
-    run-time integer: then one compilation serves every step count up to max_steps."""
+    `method` is a zoo name (see METHODS) or a Method. x0 is a state vector (any array-like;
+    a number is a one-state system, whose trajectory x then has shape (N+1,)); the work is
+    in x0's float dtype. `u` (inputs) and `p` (parameters, any pytree) are passed to f
+    unchanged (default None). `n_steps` is a Python int (compiled in), or, with
+    `max_steps` a Python int bound, a run-time integer: then one compilation serves every
+    step count up to max_steps. Bad arguments raise ValueError or TypeError naming them.
+
+    >>> import jax.numpy as jnp
+    >>> vdp = lambda t, x, u, p: jnp.stack([x[1], p * (1 - x[0] ** 2) * x[1] - x[0]])
+    >>> traj = integrate("rk4", vdp, [2.0, 0.0], p=1.0, h=0.01, n_steps=1000)
+    >>> traj.x.shape
+    (1001, 2)
+    """
+    method, f, x0, scalar = _arguments(method, f, x0, h, n_steps, t0, max_steps, None)
     fn = _jitted[(_integrate, max_steps is not None)]
-    return fn(method, f, x0, u, p, h, n_steps, t0, max_steps)
+    traj = fn(method, f, x0, u, p, h, n_steps, t0, max_steps)
+    return traj._replace(x=traj.x[..., 0]) if scalar else traj
 
 
-def integrate_batch(method, f, x0, u, p, h, n_steps, t0=0.0, max_steps=None) -> Trajectory:
-    """`integrate` vmapped over the leading axis of x0, u and every leaf of p, and of h when
-    h is an array (one step size per trajectory); t0 and the step count are shared."""
+def integrate_batch(method, f, x0, u=None, p=None, h=None, n_steps=None, t0=0.0,
+                    max_steps=None) -> Trajectory:
+    """`integrate` vmapped over the leading axis of x0 (shape (B, d), or (B,) for one-state
+    systems) and of u and p: a leaf of u or p whose leading axis has length B is one value
+    per trajectory, any other leaf (a number, say) is shared by the whole batch. h is a
+    number or one step size per trajectory (shape (B,)); t0 and the step count are shared.
+
+    >>> import jax.numpy as jnp, numpy as np
+    >>> vdp = lambda t, x, u, p: jnp.stack([x[1], p * (1 - x[0] ** 2) * x[1] - x[0]])
+    >>> x0 = np.array([[2.0, 0.0], [1.0, 0.0], [0.5, 0.0]])
+    >>> integrate_batch("rk4", vdp, x0, p=1.0, h=0.01, n_steps=1000).x.shape
+    (3, 1001, 2)
+    """
+    method, f, x0, scalar = _arguments(method, f, x0, h, n_steps, t0, max_steps, True)
+    u, p = arguments.shared(u, x0.shape[0]), arguments.shared(p, x0.shape[0])
     fn = _jitted[(_batch, max_steps is not None)]
-    return fn(method, f, x0, u, p, h, n_steps, t0, max_steps)
+    traj = fn(method, f, x0, u, p, h, n_steps, t0, max_steps)
+    return traj._replace(x=traj.x[..., 0]) if scalar else traj
+
+
+def _arguments(method, f, x0, h, n_steps, t0, max_steps, batched):
+    """(Method, f, x0 with a state axis, whether the caller's state is a scalar), each
+    argument checked; a scalar state's f is seen through a 1-vector."""
+    method = arguments.resolve_method(method)
+    arguments.check_rhs(f)
+    x0, scalar = arguments.state(x0, bool(batched))
+    arguments.check_step(h, x0.shape[0] if batched else None)
+    arguments.check_steps(n_steps, max_steps)
+    arguments.check_time("t0", t0)
+    return method, arguments.scalar_rhs(f) if scalar else f, x0, scalar

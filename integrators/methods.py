@@ -96,9 +96,12 @@ class Method:
         return hist[1:], state
 
 
-def _rk(a, b, c=None):
-    a = np.array(a, dtype=float)
-    return ButcherTableau(a, np.array(b, dtype=float), a.sum(axis=1) if c is None else np.array(c))
+def _rk(a, b, c=None, b_hat=None):
+    """A tableau from its rows, weights, nodes (default: row sums) and, for an embedded
+    pair, the lower-order weights b_hat (kept as error weights b - b_hat)."""
+    a, b = np.array(a, dtype=float), np.array(b, dtype=float)
+    return ButcherTableau(a, b, a.sum(axis=1) if c is None else np.array(c),
+                          None if b_hat is None else b - np.array(b_hat, dtype=float))
 
 
 TABLEAUS = {
@@ -123,7 +126,10 @@ TABLEAUS = {
                    [19372 / 6561, -25360 / 2187, 64448 / 6561, -212 / 729, 0, 0, 0],
                    [9017 / 3168, -355 / 33, 46732 / 5247, 49 / 176, -5103 / 18656, 0, 0],
                    [35 / 384, 0, 500 / 1113, 125 / 192, -2187 / 6784, 11 / 84, 0]],
-                  [35 / 384, 0, 500 / 1113, 125 / 192, -2187 / 6784, 11 / 84, 0]),
+                  [35 / 384, 0, 500 / 1113, 125 / 192, -2187 / 6784, 11 / 84, 0],
+                  # Embedded fourth-order weights, for the adaptive reference's error.
+                  b_hat=[5179 / 57600, 0, 7571 / 16695, 393 / 640, -92097 / 339200,
+                         187 / 2100, 1 / 40]),
     "backward_euler": _rk([[1]], [1]),
     "trapezoidal": _rk([[0, 0], [1 / 2, 1 / 2]], [1 / 2, 1 / 2]),
     "gauss_legendre4": _rk([[1 / 4, 1 / 4 - S3 / 6], [1 / 4 + S3 / 6, 1 / 4]], [1 / 2, 1 / 2]),
@@ -139,9 +145,6 @@ TABLEAUS = {
                     [(6 * G - 1) / (12 * G), -1 / ((24 * G - 12) * G),
                      (-6 * G ** 2 + 6 * G - 1) / (6 * G - 3), G]),
 }
-# Embedded fourth-order weights of Dormand-Prince 5(4), for the adaptive reference's error.
-DOPRI5_B4 = np.array([5179 / 57600, 0, 7571 / 16695, 393 / 640, -92097 / 339200,
-                      187 / 2100, 1 / 40])
 
 METHODS: dict[str, Method] = {}
 

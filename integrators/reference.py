@@ -9,13 +9,14 @@ from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 from jax import lax
 
-from stepzoo.integrators.methods import DOPRI5_B4, TABLEAUS
+from stepzoo.integrators import arguments
+from stepzoo.integrators.methods import TABLEAUS
+from stepzoo.integrators.steps import rk_slopes, weighted
 
 _TAB = TABLEAUS["dopri5"]
-_A, _B5, _C = _TAB.a, _TAB.b, _TAB.c
-_E = _B5 - DOPRI5_B4
 SAFETY, FAC_MIN, FAC_MAX = 0.9, 0.2, 10.0
 K_I, K_P = 0.7 / 5, 0.4 / 5
 
@@ -31,13 +32,8 @@ class Reference(NamedTuple):
 
 def _dp_step(fun, t, y, f0, h):
     """One Dormand-Prince step with FSAL slope f0: (y5, error vector, slope at the end)."""
-    k = [f0]
-    for i in range(1, 7):
-        yi = y + h * sum(_A[i, j] * k[j] for j in range(i) if _A[i, j] != 0.0)
-        k.append(fun(t + _C[i] * h, yi))
-    y5 = y + h * sum(_B5[i] * k[i] for i in range(7) if _B5[i] != 0.0)
-    err = h * sum(_E[i] * k[i] for i in range(7) if _E[i] != 0.0)
-    return y5, err, k[6]
+    k = rk_slopes(_TAB.a, _TAB.c, fun, t, y, h, k0=f0)
+    return y + h * weighted(_TAB.b, k), h * weighted(_TAB.e, k), k[-1]
 
 
 def _initial_step(fun, t0, y0, f0, rtol, atol):
@@ -53,11 +49,40 @@ def _initial_step(fun, t0, y0, f0, rtol, atol):
     return jnp.minimum(100 * h0, h1)
 
 
-@partial(jax.jit, static_argnames=("f", "max_steps"))
-def reference(f, x0, u, p, ts, rtol=1e-10, atol=1e-12, max_steps=100_000) -> Reference:
+def reference(f, x0, u=None, p=None, ts=None, rtol=1e-10, atol=1e-12,
+              max_steps=100_000) -> Reference:
     """Solve dx/dt = f(t, x, u, p) from (ts[0], x0) and return x at every time of `ts`
-    (sorted, non-decreasing [s]) to the tolerances rtol, atol."""
-    fun = lambda t, y: f(t, y, u, p)
+    (sorted, non-decreasing [s]) to the tolerances rtol, atol, in x0's float dtype (the
+    default rtol needs float64). Arguments as for `integrate`; bad ones raise ValueError or
+    TypeError naming them.
+
+    >>> import jax.numpy as jnp
+import numpy as np
+    >>> vdp = lambda t, x, u, p: jnp.stack([x[1], p * (1 - x[0] ** 2) * x[1] - x[0]])
+    >>> ref = reference(vdp, [2.0, 0.0], p=1.0, ts=jnp.linspace(0.0, 10.0, 11), rtol=1e-6)
+    >>> bool(ref.success), ref.x.shape
+    (True, (11, 2))
+    """
+    arguments.check_rhs(f)
+    x0, scalar = arguments.state(x0, batched=False)
+    if ts is None or np.ndim(ts) != 1 or np.shape(ts)[0] == 0:
+        raise ValueError("ts must be a 1-D array of output times [s], the first the start")
+    if not isinstance(ts, jax.core.Tracer):
+        times = np.asarray(ts, float)
+        if not (np.all(np.isfinite(times)) and np.all(np.diff(times) >= 0)):
+            raise ValueError("ts must be finite, non-decreasing times [s]")
+    arguments.check_tolerance(rtol, atol, x0.dtype)
+    if not (isinstance(max_steps, int) and max_steps >= 1):
+        raise ValueError(f"max_steps must be a whole number >= 1, got {max_steps!r}")
+    ref = _reference(arguments.scalar_rhs(f) if scalar else f, x0, u, p, ts, rtol, atol,
+                     max_steps)
+    return ref._replace(x=ref.x[..., 0]) if scalar else ref
+
+
+@partial(jax.jit, static_argnames=("f", "max_steps"))
+def _reference(f, x0, u, p, ts, rtol, atol, max_steps) -> Reference:
+    """The compiled solve of `reference`, its arguments checked."""
+    fun = lambda t, y: jnp.asarray(f(t, y, u, p), y.dtype)
     ts = jnp.asarray(ts, x0.dtype)
     n_out = ts.shape[0]
     f0 = fun(ts[0], x0)

@@ -12,19 +12,36 @@ import numpy as np
 from stepzoo.integrators.newton import factorised, newton_solve
 
 
+def rk_slopes(a, c, fun, t, y, h, needed=None, k0=None) -> list:
+    """Slopes k_i = fun(t + c_i h, y + h sum_j a_ij k_j) of an explicit tableau (a, c), in
+    plain arithmetic with Python-float coefficients, so that JAX arrays of any float dtype
+    and CasADi symbols alike go through. Stages not `needed` are None; `k0` is a known first
+    slope (first same as last)."""
+    k = []
+    for i in range(len(c)):
+        if needed is not None and not needed[i]:
+            k.append(None)
+        elif i == 0 and k0 is not None:
+            k.append(k0)
+        else:
+            yi = y
+            for j in range(i):
+                if a[i][j] != 0.0:
+                    yi = yi + (h * float(a[i][j])) * k[j]
+            k.append(fun(t + float(c[i]) * h, yi))
+    return k
+
+
+def weighted(weights, k):
+    """sum_i w_i k_i over the non-zero weights, in plain arithmetic like `rk_slopes`."""
+    terms = [float(w) * ki for w, ki in zip(weights, k) if w != 0.0]
+    return sum(terms[1:], terms[0])
+
+
 def explicit_rk_step(tab, fun, t, y, h, state):
     """One step of an explicit tableau, evaluating only the stages it needs."""
-    k = [None] * tab.stages
-    for i in range(tab.stages):
-        if not tab.needed[i]:
-            continue
-        yi = y
-        for j in range(i):
-            if tab.a[i, j] != 0.0:
-                yi = yi + (h * tab.a[i, j]) * k[j]
-        k[i] = fun(t + tab.c[i] * h, yi)
-    incr = sum(tab.b[i] * k[i] for i in range(tab.stages) if tab.b[i] != 0.0)
-    return y + h * incr, dict(state, evals=state["evals"] + tab.evals_per_step)
+    k = rk_slopes(tab.a, tab.c, fun, t, y, h, tab.needed)
+    return y + h * weighted(tab.b, k), dict(state, evals=state["evals"] + tab.evals_per_step)
 
 
 def jacobian(fun, t, y):
@@ -55,7 +72,7 @@ def implicit_rk_step(tab, opts, fun, t, y, h, state):
 
     def stage_f(z):
         zz = z.reshape(s, d)
-        return jnp.stack([fun(t + tab.c[i] * h, y + zz[i]) for i in range(s)])
+        return jnp.stack([fun(t + float(tab.c[i]) * h, y + zz[i]) for i in range(s)])
 
     def residual(z):
         return z - h * (a @ stage_f(z)).reshape(-1)
@@ -84,8 +101,8 @@ def _dirk_step(tab, opts, fun, t, y, h, state, jac, eye):
         known = y
         for j in range(i):
             if tab.a[i, j] != 0.0:
-                known = known + (h * tab.a[i, j]) * ks[j]
-        ti, gii = t + tab.c[i] * h, tab.a[i, i]
+                known = known + (h * float(tab.a[i, j])) * ks[j]
+        ti, gii = t + float(tab.c[i]) * h, float(tab.a[i, i])
         if gii == 0.0:
             ks.append(fun(ti, known))
             evals = evals + 1
@@ -100,7 +117,7 @@ def _dirk_step(tab, opts, fun, t, y, h, state, jac, eye):
     if tab.stiffly_accurate:
         y_next = known + z          # the last stage is the solution: no cancellation
     else:
-        y_next = y + h * sum(tab.b[i] * ks[i] for i in range(tab.stages) if tab.b[i] != 0.0)
+        y_next = y + h * weighted(tab.b, ks)
     return _finish(y, y_next, ok, state, evals)
 
 
@@ -109,19 +126,19 @@ def multistep_step(lmm, opts, fun, t, y, h, state):
     values `ys` and slopes `fs`, oldest first; t is the time of the newest."""
     k = lmm.steps
     ys, fs = state["ys"], state["fs"]
-    known = -jnp.tensordot(jnp.asarray(lmm.alpha[:k]), ys, 1) \
-        + h * jnp.tensordot(jnp.asarray(lmm.beta[:k]), fs, 1)
+    known = -jnp.tensordot(jnp.asarray(lmm.alpha[:k], y.dtype), ys, 1) \
+        + h * jnp.tensordot(jnp.asarray(lmm.beta[:k], y.dtype), fs, 1)
     t_next = t + h
     evals = state["evals"] + 1.0
     if lmm.explicit:
         y_next, state = known, dict(state, evals=evals)
     else:
-        bk = lmm.beta[k]
+        bk = float(lmm.beta[k])
         d = y.shape[0]
         fixed = factorised(jnp.eye(d, dtype=y.dtype) - (h * bk) * jacobian(fun, t, y))
         y_next, k1, k2, ok = newton_solve(lambda v: v - (h * bk) * fun(t_next, v) - known,
                                           lambda _: fixed,
-                                          jnp.tensordot(jnp.asarray(lmm.predictor), ys, 1),
+                                          jnp.tensordot(jnp.asarray(lmm.predictor, y.dtype), ys, 1),
                                           jnp.abs(y), opts)
         y_next, state = _finish(y, y_next, ok, state, evals + d + k1 + k2 * (1 + d))
     f_next = fun(t_next, y_next)

@@ -1,5 +1,6 @@
-"""Butcher tableaus as validated data: rows sum to c, weights sum to one; explicitness and
-the stages actually needed by the step are derived, not declared."""
+"""Butcher tableaus as validated data: rows sum to c, weights sum to one, embedded error
+weights (if any) sum to zero; explicitness and the stages actually needed by the step are
+derived, not declared."""
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -10,6 +11,7 @@ class ButcherTableau:
     a: np.ndarray
     b: np.ndarray
     c: np.ndarray
+    e: np.ndarray | None = None   # error weights b - b_hat of an embedded pair, or None
     explicit: bool = field(init=False)
     diagonally_implicit: bool = field(init=False)
     stiffly_accurate: bool = field(init=False)
@@ -24,6 +26,11 @@ class ButcherTableau:
             raise ValueError(f"weights sum to {b.sum()!r}, not 1")
         if not np.allclose(a.sum(axis=1), c, atol=1e-14):
             raise ValueError("row sums of a differ from c")
+        if self.e is not None:
+            e = np.asarray(self.e, dtype=float)
+            if e.shape != (s,) or not np.isclose(e.sum(), 0.0, atol=1e-14):
+                raise ValueError(f"error weights must be {s} numbers summing to 0, got {e!r}")
+            object.__setattr__(self, "e", e)
         object.__setattr__(self, "a", a)
         object.__setattr__(self, "b", b)
         object.__setattr__(self, "c", c)

@@ -15,6 +15,7 @@ import numpy as np
 from stepzoo.dynamics.kinematic import kinematic_bicycle, kinematic_terms
 from stepzoo.integrators import integrate, method as zoo_method
 from stepzoo.integrators.methods import TABLEAUS
+from stepzoo.integrators.steps import rk_slopes, weighted
 
 # Measured on 40 seeded problems (3-30 m, arbitrary headings, start speed 0-10 m/s, N=50,
 # rk4, 2-core CPU, before the IPOPT options below): in a 120 m box, multiple shooting solved
@@ -60,11 +61,8 @@ def step_function(method: str) -> ca.Function:
         raise ValueError(f"method {method!r} is implicit; the connection needs an explicit one")
     x, u = ca.SX.sym("x", 4), ca.SX.sym("u", 2)
     h, L, m = ca.SX.sym("h"), ca.SX.sym("L"), ca.SX.sym("m")
-    f = lambda y: ca.vertcat(*kinematic_terms(y, u, L, m, ca.cos, ca.sin, ca.tan))
-    k = []
-    for i in range(tab.stages):
-        k.append(f(x + h * sum((tab.a[i, j] * k[j] for j in range(i) if tab.a[i, j]), 0)))
-    x_next = x + h * sum((tab.b[i] * k[i] for i in range(tab.stages) if tab.b[i]), 0)
+    f = lambda t, y: ca.vertcat(*kinematic_terms(y, u, L, m, ca.cos, ca.sin, ca.tan))
+    x_next = x + h * weighted(tab.b, rk_slopes(tab.a, tab.c, f, 0.0, x, h, tab.needed))
     return ca.Function(f"step_{method}", [x, u, h, L, m], [x_next])
 
 

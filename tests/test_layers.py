@@ -1,0 +1,84 @@
+"""The library is a library: importing any stepzoo module leaves JAX's configuration and
+XLA_FLAGS as they were, and no module imports a layer above its own (the order of
+/work/shared/DESIGN.md: shared plumbing, dynamics, integrators, then bench and search as
+siblings, reports, and the command line on top)."""
+import ast
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+PACKAGES = {"stepzoo": "stepzoo", "dynamics": "stepzoo.dynamics",
+            "integrators": "stepzoo.integrators", "bench": "stepzoo.bench",
+            "search": "stepzoo.search", "reports": "stepzoo.reports"}
+# Layer of each package; the command line (cli, cmd_*, pipeline, __main__) is above all.
+LAYER = {"stepzoo": 0, "stepzoo.dynamics": 1, "stepzoo.integrators": 2, "stepzoo.bench": 3,
+         "stepzoo.search": 3, "stepzoo.reports": 4}
+COMMAND_LINE = 5
+
+IMPORT_ALL = """
+import importlib, json, os, pkgutil
+import jax
+def settings():
+    return [jax.config.jax_enable_x64, jax.config.jax_platforms, os.environ.get("XLA_FLAGS")]
+before = settings()
+names = []
+for package in %r:
+    pkg = importlib.import_module(package)
+    for info in pkgutil.iter_modules(pkg.__path__, package + "."):
+        if not info.ispkg and info.name != "stepzoo.__main__":
+            importlib.import_module(info.name)
+            names.append(info.name)
+print(json.dumps({"before": before, "after": settings(), "names": names}))
+"""
+
+
+def test_importing_every_module_changes_no_jax_setting_nor_xla_flags(tmp_path):
+    env = {k: v for k, v in os.environ.items() if not k.startswith("JAX_")}
+    env["XLA_FLAGS"] = "--xla_cpu_enable_fast_math=false"
+    proc = subprocess.run([sys.executable, "-c", IMPORT_ALL % list(PACKAGES.values())],
+                          capture_output=True, text=True, cwd=tmp_path, env=env, timeout=300)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    seen = json.loads(proc.stdout.strip().splitlines()[-1])
+    assert seen["before"] == [False, None, "--xla_cpu_enable_fast_math=false"], seen["before"]
+    assert seen["after"] == seen["before"]
+    assert {"stepzoo.integrators.driver", "stepzoo.bench.cli", "stepzoo.search.connect",
+            "stepzoo.reports.pipeline", "stepzoo.dynamics.models"} <= set(seen["names"])
+
+
+def _module_layer(folder: str, path: Path) -> tuple[str, int]:
+    package = PACKAGES[folder]
+    name = f"{package}.{path.stem}"
+    command_line = path.stem in ("cli", "pipeline", "__main__") or path.stem.startswith("cmd_")
+    return name, COMMAND_LINE if command_line else LAYER[package]
+
+
+def _imported(tree: ast.AST) -> set[str]:
+    """Every stepzoo package a module imports (at any depth of its code)."""
+    found = set()
+    for node in ast.walk(tree):
+        names = []
+        if isinstance(node, ast.Import):
+            names = [a.name for a in node.names]
+        elif isinstance(node, ast.ImportFrom) and node.module:
+            names = [node.module] + [f"{node.module}.{a.name}" for a in node.names]
+        for name in names:
+            parts = name.split(".")
+            if parts[0] == "stepzoo":
+                found.add(".".join(parts[:2]) if ".".join(parts[:2]) in LAYER else "stepzoo")
+    return found
+
+
+def test_no_module_imports_a_layer_above_its_own():
+    wrong = []
+    for folder in PACKAGES:
+        for path in sorted((ROOT / folder).glob("*.py")):
+            name, own = _module_layer(folder, path)
+            for package in _imported(ast.parse(path.read_text())):
+                layer = LAYER[package]
+                sibling = own == layer == 3 and package != PACKAGES[folder]
+                if layer > own or sibling:
+                    wrong.append(f"{name} (layer {own}) imports {package} (layer {layer})")
+    assert not wrong, "\n".join(wrong)
