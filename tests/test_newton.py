@@ -116,3 +116,18 @@ def test_stiff_methods_observe_their_order_on_a_stiff_linear_problem(name):
         errs.append(np.max(np.abs(np.asarray(tr.x[-1]) - exact)))
     slope = np.polyfit(np.log(hs), np.log(errs), 1)[0]
     assert abs(slope - method(name).order) <= 0.2, (name, slope, errs)
+
+
+@pytest.mark.parametrize("name", ["radau_iia5", "kvaerno3"])
+def test_stiff_methods_observe_their_order_on_detest_a2(name):
+    """DETEST A2 (Hull, Enright, Fellen & Sedgwick 1972): y' = -y^3/2, y(0) = 1, exact
+    y = 1/sqrt(1 + t) on [0, 20]; slope of log error against log h within 0.2 of the order."""
+    f = lambda t, y, u, p: -0.5 * y ** 3
+    hs = np.array([0.5, 0.25, 0.125])
+    errs = []
+    for h in hs:
+        tr = integrate(method(name), f, jnp.ones(1), jnp.zeros(1), {}, h, int(round(20 / h)))
+        assert bool(tr.converged)
+        errs.append(abs(float(tr.x[-1, 0]) - 1 / np.sqrt(21.0)))
+    slope = np.polyfit(np.log(hs), np.log(errs), 1)[0]
+    assert abs(slope - method(name).order) <= 0.2, (name, slope, errs)
