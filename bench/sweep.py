@@ -16,8 +16,8 @@ import numpy as np
 import pandas as pd
 
 from stepzoo import environment
-from stepzoo.bench import metrics, sweep_folder
-from stepzoo.bench.timing import COLUMNS as TIMING_COLUMNS, per_step
+from stepzoo.bench import frozen, metrics, schema, sweep_folder
+from stepzoo.bench.timing import per_step
 from stepzoo.errors import UsageError
 from stepzoo.output import atomic_write, to_json, write_file
 from stepzoo.results_folder import writing
@@ -25,14 +25,9 @@ from stepzoo.bench.sweep_config import SweepConfig, check_workload
 
 REF_WINDOW = 64        # output times per reference call: its cost per step grows with them
 TRAJ_SAMPLES = 200     # reference samples of the figure trajectory
-TABLES = ("runs", "limits", "eigenvalues", "trajectories", "timing")
-SORT = {"runs": ["method", "h", "point"], "limits": ["method", "point"],
-        "eigenvalues": ["point", "lam_re", "lam_im"], "trajectories": ["method", "h", "t"],
-        "timing": ["chunk"]}
-STATES = ("X", "Y", "psi", "vy", "r")
-RUN_COLUMNS = ["method", "h", "point", "vx", "delta", "stable", "blowup_t",
-               *[f"err_{s}" for s in STATES], "err_pos", "err_final", "evals_per_s",
-               *TIMING_COLUMNS, "n_steps", "ref_ok"]
+ALONG_SAMPLES = 50     # reference samples whose Jacobians predict the stable step (divides
+                       # TRAJ_SAMPLES: the figure trajectory's prediction reuses the shape)
+PROBES = 8             # candidate steps per lane in one stability call
 
 
 # ---- chunks -----------------------------------------------------------------------------
@@ -71,260 +66,360 @@ def _batched_reference(f, rtol, atol):
                             in_axes=(0, 0, 0, None)))
 
 
+def _tile(a, k: int):
+    """Each lane's row repeated k times in a row: (B, ...) -> (B k, ...)."""
+    return np.repeat(np.asarray(a), k, axis=0)
+
+
 class _Work:
     """One block of operating points as a fixed-size batch of lanes (the last block is padded
     by repeating its last point, so every block of a method shares one compilation)."""
 
     def __init__(self, cfg: SweepConfig, block: int, ref_cache: dict):
-        from stepzoo import dynamics
-        from stepzoo.dynamics.linear import lateral_matrix
         self.cfg, self.block, self.ref_cache = cfg, block, ref_cache
-        self.model = dynamics.model(cfg.model)
+        self.spec = cfg.spec
         pts = cfg.points
         size = min(cfg.points_per_chunk, len(pts))
         first = block * cfg.points_per_chunk
         self.ids = list(range(first, min(first + size, len(pts))))
         self.n_real = len(self.ids)
-        lanes = self.ids + [self.ids[-1]] * (size - self.n_real)
-        self.vx = np.array([pts[i][0] for i in lanes])
-        self.delta = np.array([pts[i][1] for i in lanes])
-        self.phys = dynamics.physical(cfg.vehicle)
-        mats = [lateral_matrix(v, d, self.phys) for v, d in zip(self.vx, self.delta)]
-        self.A = np.array([np.asarray(a) for a, _ in mats])
-        self.b = np.array([np.asarray(b) for _, b in mats])
+        self.lanes = self.ids + [self.ids[-1]] * (size - self.n_real)
+        self.values = np.array([pts[i] for i in self.lanes], float).reshape(size, -1)
+        self.x0, self.u, self.p = self.spec.arrays([pts[i] for i in self.lanes])
         self.max_steps = max(round(cfg.horizon / cfg.hs[0]), cfg.stab_steps)
         self.timing = dict(compile_s=0.0, ref_compile_s=0.0, reference_s=0.0,
                            integration_s=0.0, stability_s=0.0, metrics_s=0.0)
 
-    # -- batched calls ---------------------------------------------------------------------
-    def _arrays(self, vx, delta):
-        import jax.numpy as jnp
-        ps = [self.model.params(self.cfg.vehicle, v) for v in vx]
-        p = {k: jnp.asarray([q[k] for q in ps]) for k in ps[0]}
-        return p, jnp.asarray(delta)[:, None]
+    def point_columns(self) -> dict:
+        return {var: self.values[:, j] for j, var in enumerate(self.spec.variables)}
 
-    def integrate(self, meth, x0, h, n, vx=None, delta=None):
-        """(x (B, n+1, 5), evals (B,), wall s) of n steps of h (scalar or (B,)) [s]."""
+    # -- batched calls ---------------------------------------------------------------------
+    def integrate(self, meth, x0, u, p, h, n):
+        """(x (B, n+1, d), evals (B,), converged (B,), wall s) of n steps of h [s]."""
         import jax.numpy as jnp
         from stepzoo.integrators import integrate_batch
-        vx = self.vx if vx is None else vx
-        p, u = self._arrays(vx, self.delta if delta is None else delta)
-        hb = jnp.broadcast_to(jnp.asarray(h, float), (len(vx),))
+        hb = jnp.broadcast_to(jnp.asarray(h, float), (len(x0),))
         t0 = time.perf_counter()
-        tr = integrate_batch(meth, self.model.rhs, jnp.asarray(x0), u, p, hb, jnp.asarray(n),
+        tr = integrate_batch(meth, self.spec.rhs, jnp.asarray(x0), jnp.asarray(u),
+                             {k: jnp.asarray(v) for k, v in p.items()}, hb, jnp.asarray(n),
                              max_steps=self.max_steps)
         x = np.asarray(tr.x.block_until_ready())[:, : n + 1]
-        return x, np.asarray(tr.evals), time.perf_counter() - t0
+        converged = np.asarray(getattr(tr, "converged", np.ones(len(x0), bool)), bool)
+        return x, np.asarray(tr.evals), converged, time.perf_counter() - t0
 
-    def compile(self, meth):
-        """Compile (or find compiled) the method's batched driver; charged to compile_s."""
-        self.timing["compile_s"] += self.integrate(meth, self.x0_accuracy(), self.cfg.hs[0], 1)[2]
-
-    def reference(self, h, n, vx=None, delta=None):
-        """(B, n+1, 5): the reference at t = k h, k = 0..n, in windows of REF_WINDOW steps."""
+    def reference(self, h, n, x0=None, u=None, p=None):
+        """((B, n+1, d) the reference at t = k h, k = 0..n, in windows of REF_WINDOW steps,
+        ok (B,)); the block's lanes unless x0, u, p are given."""
         import jax.numpy as jnp
         cfg = self.cfg
-        vx = self.vx if vx is None else vx
-        fn = _batched_reference(self.model.rhs, cfg.rtol, cfg.atol)
-        p, u = self._arrays(vx, self.delta if delta is None else delta)
+        x0, u, p = (self.x0, self.u, self.p) if x0 is None else (x0, u, p)
+        fn = _batched_reference(self.spec.rhs, cfg.rtol, cfg.atol)
+        uj, pj = jnp.asarray(u), {k: jnp.asarray(v) for k, v in p.items()}
         if "compiled" not in self.ref_cache:
             t0 = time.perf_counter()
-            fn(jnp.asarray(self.x0_accuracy()), u, p, jnp.zeros(REF_WINDOW + 1)).x \
-                .block_until_ready()
+            fn(jnp.asarray(x0), uj, pj, jnp.zeros(REF_WINDOW + 1)).x.block_until_ready()
             self.timing["ref_compile_s"] += time.perf_counter() - t0
             self.ref_cache["compiled"] = True
         t0 = time.perf_counter()
         ts = h * np.arange(n + 1)
-        out = np.empty((len(vx), n + 1, 5))
-        out[:, 0] = self.x0_accuracy()
-        ok = np.ones(len(vx), bool)
+        out = np.empty((len(x0), n + 1, len(self.spec.states)))
+        out[:, 0] = x0
+        ok = np.ones(len(x0), bool)
         for j in range(0, n, REF_WINDOW):
             window = ts[j: j + REF_WINDOW + 1]
             padded = np.concatenate([window, np.full(REF_WINDOW + 1 - len(window), window[-1])])
-            ref = fn(jnp.asarray(out[:, j]), u, p, jnp.asarray(padded))
+            ref = fn(jnp.asarray(out[:, j]), uj, pj, jnp.asarray(padded))
             out[:, j: j + len(window)] = np.asarray(ref.x)[:, : len(window)]
             ok &= np.asarray(ref.success)
         self.timing["reference_s"] += time.perf_counter() - t0
         return out, ok
 
-    def x0_accuracy(self):
-        return np.tile(np.asarray(self.cfg.x0, float), (len(self.vx), 1))
+    def _cached(self, key, make):
+        key = (key, self.block)
+        if key not in self.ref_cache:
+            self.ref_cache[key] = make()
+        return self.ref_cache[key]
 
-    def x0_stability(self):
-        x0 = self.x0_accuracy()
-        x0[:, 3:5] = [metrics.perturbed_lateral(A, b, self.cfg.perturbation)
-                      for A, b in zip(self.A, self.b)]
-        return x0
+    # -- prediction ------------------------------------------------------------------------
+    def along(self):
+        """(times (T,), reference states (B, T, d), eigenvalues (B, T, d), Jacobians) along
+        each lane's reference over the horizon: the frozen Jacobians that predict the step."""
+        def make():
+            dt = self.cfg.horizon / ALONG_SAMPLES
+            ts = dt * np.arange(ALONG_SAMPLES + 1)
+            xs, _ = self.reference(dt, ALONG_SAMPLES)
+            t0 = time.perf_counter()
+            jac = frozen.jacobians(self.spec.rhs, ts, xs, self.u, self.p)
+            self.timing["metrics_s"] += time.perf_counter() - t0
+            return ts, xs, frozen.eigenvalues(jac), jac
+        return self._cached("along", make)
 
-    def stable(self, meth, h):
-        """(stable (B,), blow-up time [s] or NaN) of the stability runs at step(s) h."""
+    def perturbation(self) -> np.ndarray:
+        """(B, d) initial deviation of the stability runs: the same amount of each eigenmode
+        of the Jacobian at the initial state that bounds a step (each mode scaled to size 1
+        in the error norm), the sum scaled to `perturbation`; every error state alike when
+        no mode bounds one."""
+        jac = self.along()[3]
+        out = np.zeros_like(self.x0)
+        for b in range(len(self.x0)):
+            w, V = np.linalg.eig(jac[b, 0])
+            keep = frozen.constraining(w)
+            d = np.zeros(len(w))
+            for j in np.where(keep)[0]:
+                size = self.spec.scaled(V[:, j].real) + self.spec.scaled(V[:, j].imag)
+                if np.isfinite(size) and size > 0:
+                    d += V[:, j].real / size
+            size = self.spec.scaled(d)
+            if not (np.isfinite(size) and size > 0):
+                d = np.zeros(len(w))
+                d[self.spec.error_index] = self.spec.error_scales
+                size = 1.0
+            out[b] = self.cfg.perturbation * d / size
+        return out
+
+    @property
+    def delta(self) -> np.ndarray:
+        return self._cached("perturbation", self.perturbation)
+
+    # -- stability -------------------------------------------------------------------------
+    def stable(self, meth, H):
+        """(stable, blow-up time [s] or NaN, converged), each (B, K), of the stability runs
+        at steps H (B, K) [s]: a run from the initial state plus the perturbation against a
+        run from the initial state with the same method and step. It blows up at the first
+        step where their scaled distance is not finite or exceeds `growth` times its start;
+        a run whose nonlinear solves failed is never stable."""
+        H = np.asarray(H, float)
+        B, K = H.shape
+        x0 = np.concatenate([_tile(self.x0 + self.delta, K), _tile(self.x0, K)])
+        u = np.concatenate([_tile(self.u, K)] * 2)
+        p = {k: np.concatenate([_tile(v, K)] * 2) for k, v in self.p.items()}
+        h = np.concatenate([H.ravel(), H.ravel()])
+        x, _, conv, wall = self.integrate(meth, x0, u, p, h, self.cfg.stab_steps)
         t0 = time.perf_counter()
-        h = np.broadcast_to(np.asarray(h, float), (len(self.vx),))
-        x, _, _ = self.integrate(meth, self.x0_stability(), h, self.cfg.stab_steps)
-        frames = [metrics.modal_frame(A, b) for A, b in zip(self.A, self.b)]
-        eq = np.array([f[0] for f in frames])
-        Vinv = np.array([f[2] for f in frames])
-        k = metrics.blowup_steps(x[:, :, 3:5], eq, Vinv, self.cfg.growth)
-        self.timing["stability_s"] += time.perf_counter() - t0
-        return k < 0, np.where(k < 0, np.nan, k * h)
+        with np.errstate(invalid="ignore", over="ignore"):
+            dev = self.spec.scaled(x[: B * K] - x[B * K:])
+            blown = ~(dev <= self.cfg.growth * dev[:, :1])
+        k = np.where(blown.any(axis=1), np.argmax(blown, axis=1), -1).reshape(B, K)
+        conv = (conv[: B * K] & conv[B * K:]).reshape(B, K)
+        self.timing["stability_s"] += wall + time.perf_counter() - t0
+        return (k < 0) & conv, np.where(k < 0, np.nan, k * H), conv
+
+    def probe(self, meth, hs):
+        """`stable` for candidate steps hs (B, any count), PROBES per call (one shape)."""
+        hs = np.asarray(hs, float)
+        outs = []
+        for j in range(0, hs.shape[1], PROBES):
+            part = hs[:, j: j + PROBES]
+            pad = np.concatenate([part, np.repeat(part[:, -1:], PROBES - part.shape[1], 1)], 1)
+            outs.append([a[:, : part.shape[1]] for a in self.stable(meth, pad)])
+        return [np.concatenate(a, axis=1) for a in zip(*outs)]
+
+    def measured_limits(self, meth, grid_ok, grid_conv):
+        """(largest stable step [s], cause) per lane: bracketed by the grid (extended by
+        doubling up to h_probe_max, or halving below it), then narrowed PROBES steps at a
+        time. inf: nothing failed up to h_probe_max; 0: unstable even at the smallest probe.
+        The cause says what failed just above the limit: 'unstable', 'solver failed' or
+        'none'."""
+        cfg, hs = self.cfg, np.asarray(self.cfg.hs)
+        B = len(self.x0)
+        lo, hi = np.full(B, np.nan), np.full(B, np.nan)
+        cause = np.full(B, "none", object)
+        bad = ~grid_ok
+        first = np.argmax(bad, axis=1)
+        inner = bad.any(axis=1) & (first > 0)
+        lo[inner], hi[inner] = hs[first[inner] - 1], hs[first[inner]]
+        cause[inner] = np.where(grid_conv[inner, first[inner]], "unstable", "solver failed")
+
+        up = [hs[-1] * 2.0 ** k for k in range(1, 64) if hs[-1] * 2.0 ** k < cfg.h_probe_max]
+        rising = np.isnan(lo) & grid_ok[:, -1]
+        if rising.any():
+            ladder = np.array([*up, cfg.h_probe_max])
+            ok, _, conv = self.probe(meth, np.tile(ladder, (B, 1)))
+            for b in np.where(rising)[0]:
+                fails = np.where(~ok[b])[0]
+                if len(fails):
+                    j = fails[0]
+                    lo[b], hi[b] = ladder[j - 1] if j else hs[-1], ladder[j]
+                    cause[b] = "unstable" if conv[b, j] else "solver failed"
+                else:
+                    lo[b] = hi[b] = np.inf
+        falling = np.isnan(lo)
+        if falling.any():
+            ladder = hs[0] / 2.0 ** np.arange(1, 11)
+            ok, _, conv = self.probe(meth, np.tile(ladder, (B, 1)))
+            for b in np.where(falling)[0]:
+                fine = np.where(ok[b])[0]
+                cause[b] = "unstable" if grid_conv[b, 0] else "solver failed"
+                if len(fine):
+                    j = fine[0]
+                    lo[b], hi[b] = ladder[j], ladder[j - 1] if j else hs[0]
+                else:
+                    lo[b] = hi[b] = 0.0
+        busy = np.isfinite(hi) & (hi > lo * (1 + cfg.rel_tol))
+        while busy.any():
+            frac = np.arange(1, PROBES + 1) / (PROBES + 1)
+            safe_lo, safe_hi = np.where(busy, lo, 1.0), np.where(busy, hi, 1.0)
+            cand = safe_lo[:, None] * (safe_hi / safe_lo)[:, None] ** frac[None, :]
+            ok, _, conv = self.stable(meth, cand)
+            for b in np.where(busy)[0]:
+                fails = np.where(~ok[b])[0]
+                if len(fails):
+                    j = fails[0]
+                    hi[b] = cand[b, j]
+                    cause[b] = "unstable" if conv[b, j] else "solver failed"
+                    if j:
+                        lo[b] = cand[b, j - 1]
+                else:
+                    lo[b] = cand[b, -1]
+            busy = np.isfinite(hi) & (hi > lo * (1 + cfg.rel_tol))
+        return lo, cause
 
     # -- chunks ------------------------------------------------------------------------------
     def reference_chunk(self) -> dict:
-        from stepzoo.dynamics.linear import lateral_eigenvalues
+        lam = self.along()[2]
         rows = []
-        for i in self.ids:
-            vx, delta = self.cfg.points[i]
-            ev = np.asarray(lateral_eigenvalues(vx, delta, self.phys))
-            for lam in sorted(ev, key=lambda z: (z.real, z.imag)):
-                rows.append(dict(point=i, vx=vx, delta=delta, lam_re=float(lam.real),
-                                 lam_im=float(lam.imag)))
+        for lane, i in enumerate(self.ids):
+            ev = lam[lane, 0]
+            keep = frozen.constraining(ev) | (np.abs(ev) > frozen.REL_ZERO
+                                              * np.nanmax(np.abs(ev), initial=0.0))
+            for z in sorted(ev[keep], key=lambda z: (z.real, z.imag)):
+                rows.append(dict(point=i, **{v: self.values[lane, j] for j, v in
+                                             enumerate(self.spec.variables)},
+                                 lam_re=float(z.real), lam_im=float(z.imag)))
         traj = pd.DataFrame()
         if self.block == 0:
-            tvx, tdelta = self.cfg.traj_point
+            t, ref = self.trajectory_reference()
+            traj = _trajectory_rows(self.spec, "reference", t[1] - t[0], t, ref, False)
+        return {"eigenvalues": pd.DataFrame(rows, columns=schema.eigen_columns(
+            self.spec.variables)), "trajectories": traj}
+
+    def trajectory_reference(self):
+        """(times (TRAJ_SAMPLES+1,), reference states) at the trajectory point."""
+        def make():
+            x0, u, p = self._traj_lanes()
             dt = self.cfg.horizon / TRAJ_SAMPLES
-            lanes = len(self.vx)
-            ref, _ = self.reference(dt, TRAJ_SAMPLES, np.full(lanes, tvx), np.full(lanes, tdelta))
-            traj = _trajectory_rows("reference", dt, dt * np.arange(TRAJ_SAMPLES + 1), ref[0],
-                                    False)
-        return {"eigenvalues": pd.DataFrame(rows), "trajectories": traj}
+            ref, _ = self.reference(dt, TRAJ_SAMPLES, x0, u, p)
+            return dt * np.arange(TRAJ_SAMPLES + 1), ref[0]
+        return self._cached("trajectory", make)
+
+    def _traj_lanes(self):
+        """The trajectory point in every lane (the batch keeps its compiled shape)."""
+        x0, u, p = self.spec.arrays([self.cfg.traj_point] * len(self.x0))
+        return x0, u, p
 
     def method_chunk(self, name: str) -> dict:
         from stepzoo.integrators import method
-        from stepzoo.integrators.stability import max_stable_step
         cfg, meth = self.cfg, method(name)
-        self.compile(meth)
-        runs = self._accuracy_runs(meth)
-        grid_stable = np.empty((len(cfg.hs), len(self.vx)), bool)
-        for j, h in enumerate(cfg.hs):
-            grid_stable[j], blowup_t = self.stable(meth, h)
-            runs[j]["stable"], runs[j]["blowup_t"] = grid_stable[j], blowup_t
-        h_meas = self.measured_limits(meth, grid_stable)
+        t0 = time.perf_counter()
+        self.integrate(meth, self.x0, self.u, self.p, cfg.hs[0], 1)
+        self.timing["compile_s"] += time.perf_counter() - t0
+        runs, err_scale = self._accuracy_runs(meth)
+        H = np.tile(np.asarray(cfg.hs), (len(self.x0), 1))
+        t0 = time.perf_counter()
+        self.stable(meth, H[:, :PROBES])          # compiles the stability calls' one shape
+        self.timing["compile_s"] += time.perf_counter() - t0
+        self.timing["stability_s"] = 0.0
+        grid_ok, blowup_t, grid_conv = self.probe(meth, H)
+        for j, col in enumerate(runs):
+            col["stable"], col["blowup_t"] = grid_ok[:, j], blowup_t[:, j]
+            col["converged"] = col["converged"] & grid_conv[:, j]
+            col["stable"] &= col["converged"]
+        h_meas, cause = self.measured_limits(meth, grid_ok, grid_conv)
 
         t0 = time.perf_counter()
+        columns = schema.run_columns(self.spec.variables, self.spec.states, self.spec.vehicle)
         runs_df = pd.concat([pd.DataFrame(r) for r in runs], ignore_index=True)
-        runs_df = runs_df.drop_duplicates(["h", "point"])[RUN_COLUMNS]   # padded lanes repeat
+        runs_df = runs_df.drop_duplicates(["h", "point"])[columns]   # padded lanes repeat
+        ts, xs, lam, _ = self.along()
         limits = []
         for lane, i in enumerate(self.ids):
             rows = runs_df[(runs_df["point"] == i) & runs_df["stable"]]
-            h_pred = max_stable_step(meth, np.linalg.eigvals(self.A[lane]))
+            h_pred, k, j = frozen.predicted_limit(meth, lam[lane])
+            bind = lam[lane, k, j] if k >= 0 else complex(np.nan, np.nan)
             limits.append(dict(
-                method=name, point=i, vx=self.vx[lane], delta=self.delta[lane], h_pred=h_pred,
-                h_meas=h_meas[lane], ratio=_ratio(h_meas[lane], h_pred),
+                method=name, point=i, **{v: self.values[lane, c] for c, v in
+                                         enumerate(self.spec.variables)},
+                h_pred=h_pred, h_meas=h_meas[lane], ratio=_ratio(h_meas[lane], h_pred),
                 order_declared=meth.order,
-                # Yaw-rate error: position errors stay pre-asymptotic down to round-off
-                # for methods with small leading error terms (dopri5).
-                order_fit=metrics.order_fit(rows["h"], rows["err_r"], cfg.rtol, cfg.atol,
-                                            self.r_scale[lane]),
-                h_probe_max=cfg.h_probe_max))
+                order_fit=metrics.order_fit(rows["h"], rows["err"], cfg.rtol, cfg.atol,
+                                            err_scale[lane]),
+                h_probe_max=cfg.h_probe_max, t_bind=ts[k] if k >= 0 else np.nan,
+                lam_re_bind=bind.real, lam_im_bind=bind.imag, limit_cause=cause[lane],
+                **{f"bind_{s}": xs[lane, k, c] if k >= 0 else np.nan
+                   for c, s in enumerate(self.spec.states)}))
         traj = self._trajectories(meth) if self.block == 0 else pd.DataFrame()
         self.timing["metrics_s"] += time.perf_counter() - t0
-        return {"runs": runs_df, "limits": pd.DataFrame(limits), "trajectories": traj}
+        limits_df = pd.DataFrame(limits, columns=schema.limit_columns(self.spec.variables,
+                                                                      self.spec.states))
+        return {"runs": runs_df, "limits": limits_df, "trajectories": traj}
 
-    def _accuracy_runs(self, meth) -> list[dict]:
-        """Per grid step, the columns of `runs` for every lane (stability columns to come)."""
-        cfg, out = self.cfg, []
-        self.r_scale = np.zeros(len(self.vx))      # [rad/s] largest reference yaw rate
+    def _accuracy_runs(self, meth) -> tuple[list[dict], np.ndarray]:
+        """Per grid step, the columns of `runs` for every lane (stability columns to come),
+        and per lane the largest scaled size of the reference's error states."""
+        cfg, spec, out = self.cfg, self.spec, []
+        scale = np.zeros(len(self.x0))
         for h in cfg.hs:
             n = round(cfg.horizon / h)
-            x, evals, wall = self.integrate(meth, self.x0_accuracy(), h, n)
-            # Compiled already (self.compile): every round times the computation alone.
-            walls = [wall] + [self.integrate(meth, self.x0_accuracy(), h, n)[2]
+            x, evals, conv, wall = self.integrate(meth, self.x0, self.u, self.p, h, n)
+            # Compiled already (method_chunk): every round times the computation alone.
+            walls = [wall] + [self.integrate(meth, self.x0, self.u, self.p, h, n)[3]
                               for _ in range(cfg.timing_rounds - 1)]
             self.timing["integration_s"] += sum(walls)
-            key = ("accuracy", self.block, h)
-            if key not in self.ref_cache:
-                self.ref_cache[key] = self.reference(h, n)
-            ref, ok = self.ref_cache[key]
-            self.r_scale = np.maximum(self.r_scale, np.abs(ref[:, :, 4]).max(axis=1))
+            ref, ok = self._cached(("accuracy", h), lambda: self.reference(h, n))
             t0 = time.perf_counter()
-            errs = [metrics.run_errors(x[k], ref[k]) for k in range(len(self.vx))]
-            col = {"method": meth.name, "h": h, "point": self.ids + [self.ids[-1]] * (
-                len(self.vx) - self.n_real), "vx": self.vx, "delta": self.delta}
-            for s, state in enumerate(STATES):
-                col[f"err_{state}"] = [e[0][s] for e in errs]
-            col["err_pos"] = [e[1] for e in errs]
-            col["err_final"] = [e[2] for e in errs]
+            scale = np.maximum(scale, spec.scaled(ref).max(axis=1))
+            col = {"method": meth.name, "h": h, "point": self.lanes, **self.point_columns()}
+            with np.errstate(invalid="ignore", over="ignore"):
+                d = np.abs(x - ref)
+            d = np.where(np.isfinite(d), d, np.inf)
+            for s, state in enumerate(spec.states):
+                col[f"err_{state}"] = d[:, :, s].max(axis=1)
+            if spec.vehicle:
+                pos = np.hypot(d[:, :, spec.states.index("X")], d[:, :, spec.states.index("Y")])
+                col["err_pos"], col["err_final"] = pos.max(axis=1), pos[:, -1]
+            with np.errstate(invalid="ignore", over="ignore"):
+                col["err"] = spec.scaled(x - ref).max(axis=1)
             col["evals_per_s"] = evals / (n * h)
-            col.update(per_step(walls, n * len(self.vx)))
+            col.update(per_step(walls, n * len(self.x0)))
             col["n_steps"] = n
             col["ref_ok"] = ok
+            col["converged"] = conv
+            col["evals"] = evals
             self.timing["metrics_s"] += time.perf_counter() - t0
             out.append(col)
-        return out
-
-    def measured_limits(self, meth, grid_stable) -> np.ndarray:
-        """Largest stable step [s] per lane: bracketed by the grid (extended by doubling up
-        to h_probe_max, or halving below the grid), then bisected. inf: no blow-up up to
-        h_probe_max; 0: unstable even at the smallest probe."""
-        cfg, hs = self.cfg, np.asarray(self.cfg.hs)
-        lanes = len(self.vx)
-        lo, hi = np.full(lanes, np.nan), np.full(lanes, np.nan)
-        for lane in range(lanes):
-            bad = np.where(~grid_stable[:, lane])[0]
-            if len(bad) and bad[0] > 0:
-                lo[lane], hi[lane] = hs[bad[0] - 1], hs[bad[0]]
-        up = [hs[-1] * 2.0 ** k for k in range(1, 64) if hs[-1] * 2.0 ** k < cfg.h_probe_max]
-        self._ladder(meth, lo, hi, grid_stable[-1], hs[-1], up + [cfg.h_probe_max], rising=True)
-        down = [hs[0] / 2.0 ** k for k in range(1, 11)]
-        self._ladder(meth, lo, hi, grid_stable[0], hs[0], down, rising=False)
-        lo = np.where(np.isnan(lo), np.inf, lo)        # never unstable: no finite limit found
-        bracketed = np.isfinite(hi)
-        found = metrics.bisect_limit(lambda h: self.stable(meth, h)[0],
-                                     np.where(bracketed, lo, 1.0), np.where(bracketed, hi, 1.0),
-                                     cfg.rel_tol)
-        return np.where(bracketed, found, lo)
-
-    def _ladder(self, meth, lo, hi, last_ok, last_h, probes, rising):
-        """Probe beyond one end of the grid for lanes the grid did not bracket there."""
-        need = np.isnan(lo) & (last_ok if rising else ~last_ok)
-        prev = np.full(len(lo), last_h)
-        for h in probes:
-            if not need.any():
-                return
-            ok, _ = self.stable(meth, h)
-            found = need & (~ok if rising else ok)
-            if rising:
-                lo[found], hi[found] = prev[found], h
-            else:
-                lo[found], hi[found] = h, prev[found]
-            need &= ~found
-            prev[:] = h
-        if not rising:
-            lo[need], hi[need] = 0.0, np.inf     # unstable at every probe: limit 0
-        else:
-            hi[need] = np.inf
+        return out, scale
 
     def _trajectories(self, meth) -> pd.DataFrame:
         """Figure runs at the trajectory point: fractions of the predicted limit (of the
-        largest grid step for A-stable methods) and one past it, from the accuracy x0."""
-        from stepzoo.dynamics.linear import lateral_eigenvalues
-        from stepzoo.integrators.stability import max_stable_step
+        largest grid step for A-stable methods) and one past it, from the initial state."""
         cfg = self.cfg
-        tvx, tdelta = cfg.traj_point
-        limit = max_stable_step(meth, np.asarray(
-            lateral_eigenvalues(tvx, tdelta, self.phys)))
+        t, ref = self.trajectory_reference()
+        x0, u, p = self._traj_lanes()
+        every = TRAJ_SAMPLES // ALONG_SAMPLES
+        jac = frozen.jacobians(self.spec.rhs, t[::every], np.repeat(ref[None, ::every],
+                                                                      len(x0), 0), u, p)
+        limit, _, _ = frozen.predicted_limit(meth, frozen.eigenvalues(jac[0]))
         base = limit if math.isfinite(limit) else cfg.hs[-1]
         hs = [max(f * base, cfg.hs[0]) for f in cfg.traj_fractions]
         past = [False] * len(hs)
-        if math.isfinite(limit):
+        if math.isfinite(limit) and limit > 0:
             hs.append(cfg.traj_past_limit * limit)
             past.append(True)
-        frames, lanes = [], len(self.vx)
+        frames, lanes = [], len(self.x0)
         for start in range(0, len(hs), lanes):
             chunk = hs[start: start + lanes]
             h = np.array(chunk + [chunk[-1]] * (lanes - len(chunk)))
             n = min(self.max_steps, math.ceil(cfg.horizon / h.min() - 1e-9))
-            x, _, _ = self.integrate(meth, self.x0_accuracy(), h, n, np.full(lanes, tvx),
-                                     np.full(lanes, tdelta))
+            x, _, _, _ = self.integrate(meth, x0, u, p, h, n)
             for k, hk in enumerate(chunk):
                 keep = min(n, math.floor(cfg.horizon / hk + 1e-9)) + 1
-                frames.append(_trajectory_rows(meth.name, hk, hk * np.arange(keep),
+                frames.append(_trajectory_rows(self.spec, meth.name, hk, hk * np.arange(keep),
                                                x[k, :keep], past[start + k]))
         return pd.concat(frames, ignore_index=True)
 
 
-def _trajectory_rows(name, h, t, x, past_limit) -> pd.DataFrame:
-    df = pd.DataFrame(x, columns=list(STATES))
+def _trajectory_rows(spec, name, h, t, x, past_limit) -> pd.DataFrame:
+    df = pd.DataFrame(x, columns=list(spec.states))
     df.insert(0, "t", t)
     df.insert(0, "h", float(h))
     df.insert(0, "method", name)
@@ -335,7 +430,8 @@ def _trajectory_rows(name, h, t, x, past_limit) -> pd.DataFrame:
 def _ratio(meas, pred):
     if math.isinf(meas) and math.isinf(pred):
         return float("nan")                   # both unbounded: no ratio to speak of
-    return meas / pred
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return float(np.float64(meas) / pred)
 
 
 # ---- the results folder -----------------------------------------------------------------
@@ -391,9 +487,9 @@ def _fill(cfg, out: Path, resume, overwrite, progress, on_chunk, runner) -> dict
     problem = sweep_folder.table_problem(cfg, tables["runs"], tables["limits"])
     if problem:
         raise UsageError(f"{out}: the chunks do not add up: {problem}; tables not written")
-    for name in ("runs", "limits", "eigenvalues", "trajectories", "summary"):
+    for name in schema.PARQUET:
         atomic_write(out / f"{name}.parquet", _parquet(tables[name]))
-    for name in ("limits", "summary"):
+    for name in schema.CSV:
         atomic_write(out / f"{name}.csv", tables[name].to_csv(index=False))
     timing = _timing(tables["timing"], time.perf_counter() - t0, time.perf_counter() - started)
     return _write_manifest(cfg, out, created, ids, timing, complete=True)
@@ -419,18 +515,18 @@ def _parquet(df: pd.DataFrame) -> bytes:
 
 def assemble(cfg: SweepConfig, chunks: Path) -> dict:
     """The final tables: the chunks' tables concatenated and sorted, plus the summary."""
-    parts = {name: [] for name in TABLES}
+    parts = {name: [] for name in schema.CHUNK_TABLES}
     for cid in chunk_ids(cfg):
-        for name in TABLES:
+        for name in schema.CHUNK_TABLES:
             path = chunks / cid / f"{name}.parquet"
             if path.is_file():
                 df = pd.read_parquet(path)
                 if len(df):
                     parts[name].append(df)
     tables = {}
-    for name in TABLES:
+    for name in schema.CHUNK_TABLES:
         df = pd.concat(parts[name], ignore_index=True) if parts[name] else pd.DataFrame()
-        tables[name] = df.sort_values(SORT[name], kind="stable", ignore_index=True) \
+        tables[name] = df.sort_values(schema.SORT[name], kind="stable", ignore_index=True) \
             if len(df) else df
     tables["summary"] = summary(tables["runs"], tables["limits"])
     return tables
@@ -457,8 +553,9 @@ def summary(runs: pd.DataFrame, limits: pd.DataFrame) -> pd.DataFrame:
             h_meas_min=float(lim["h_meas"].min()), h_pred_min=float(lim["h_pred"].min()),
             worst_ratio=float(worst), implicit=m.implicit,
             evals_per_step=float((r["evals_per_s"] * r["h"]).median()),
-            points=int(lim["point"].nunique())))
-    return pd.DataFrame(rows)
+            points=int(lim["point"].nunique()),
+            solver_failures=int((~r["converged"]).sum()) if "converged" in r else 0))
+    return pd.DataFrame(rows, columns=schema.SUMMARY)
 
 
 def _timing(per_chunk: pd.DataFrame, assemble_s: float, wall_s: float) -> dict:
@@ -489,12 +586,15 @@ def _write_manifest(cfg, out: Path, created, done, timing, complete) -> dict:
         "stability": {"steps": cfg.stab_steps, "growth": cfg.growth,
                       "perturbation": cfg.perturbation, "h_probe_max_s": cfg.h_probe_max,
                       "bisection_rel_tol": cfg.rel_tol},
-        "order_fit": (f"slope of log err_r on log h over the {metrics.ORDER_POINTS} finest "
-                      f"stable steps with {metrics.FLOOR_FACTOR:g} * (atol + rtol * max|r|) "
-                      f"< err_r < {metrics.ERR_CEIL:g} rad/s; NaN where fewer than 3 qualify "
-                      "(a run from rest at zero steer has no error)"),
-        "trajectory_point": {"vx": cfg.traj_point[0], "delta": cfg.traj_point[1]},
+        "order_fit": (f"slope of log err on log h over the {metrics.ORDER_POINTS} finest "
+                      f"stable steps with {metrics.FLOOR_FACTOR:g} * (atol + rtol * max|x|) "
+                      f"< err < {metrics.ERR_CEIL:g} (err and |x|: the error states over "
+                      "their scales); NaN where fewer than 3 qualify (a run that stays at "
+                      "rest has no error)"),
+        "prediction": frozen.RULE,
+        "trajectory_point": dict(zip(cfg.spec.variables, cfg.traj_point)),
         "horizon_s": cfg.horizon, "vehicle": cfg.vehicle, "model": cfg.model,
+        "model_spec": schema.model_record(cfg.spec),
         "stepzoo_version": ver, "timing_rounds": cfg.timing_rounds,
         **environment.provenance("sweep", created[1], environment.now() if complete else None),
     }

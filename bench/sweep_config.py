@@ -6,54 +6,55 @@ from __future__ import annotations
 import hashlib
 import json
 import math
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass, field, fields
 from pathlib import Path
 
 import numpy as np
 
+from stepzoo.bench.model_spec import (BICYCLE_ERROR_STATES, ModelSpec, builtin, check_rhs, is_num,
+                                      load_function, name_list)
 from stepzoo.errors import UsageError
 from stepzoo.validate import problem, read_toml
 
-TOP = {"name", "model", "vehicle", "horizon", "methods", "envelope", "steps", "reference", "limits",
-       "stability", "chunks", "trajectories", "timing"}
+TOP = {"name", "model", "vehicle", "horizon", "methods", "params", "initial", "envelope",
+       "error", "steps", "reference", "limits", "stability", "chunks", "trajectories", "timing"}
 MAX_GRID = 10_000       # values of one grid, or points of an envelope: more is a typo, and
                         # would be allocated before any estimate of the work
 SECTIONS = {
-    "envelope": {"vx", "delta", "x0"},
     "steps": {"h"},
     "reference": {"rtol", "atol"},
     "stability": {"steps", "growth", "perturbation", "h_probe_max", "rel_tol"},
     "chunks": {"points"},
-    "trajectories": {"vx", "delta", "fractions", "past_limit"},
+    "error": {"states", "scales"},
     "limits": {"memory_gib", "steps"},
     "timing": {"rounds"},
 }
 DEFAULT_ROUNDS = 5     # timed repeats of each accuracy run, after its compilation
+MODEL_KEYS = {"rhs", "path", "states", "inputs"}
 
 
 @dataclass(frozen=True)
 class SweepConfig:
     """A validated sweep. Step sizes are snapped to horizon/n (whole steps, each run ends at
-    the horizon) and sorted; the operating points are every (vx, delta), vx-major."""
+    the horizon) and sorted; the operating points are every combination of the envelope's
+    values (`spec.points`, the first variable slowest)."""
     name: str
-    model: str
+    model: str                     # built-in name, or "module:function" of a user's model
     vehicle: str
     horizon: float                 # [s] of the accuracy runs
     methods: tuple
-    vx: tuple                      # [m/s]
-    delta: tuple                   # [rad]
-    x0: tuple                      # initial state of the accuracy runs
+    spec: ModelSpec
     hs: tuple                      # [s], ascending
     rtol: float
     atol: float
     stab_steps: int                # steps of one stability run
-    growth: float                  # blow-up threshold on the modal deviation
-    perturbation: float            # modal amplitude of the stability runs' initial deviation
+    growth: float                  # blow-up threshold on the scaled deviation
+    perturbation: float            # scaled size of the stability runs' initial deviation
     h_probe_max: float             # [s] largest step probed for a blow-up
     rel_tol: float                 # bisection stops when h_hi / h_lo - 1 <= rel_tol
     points_per_chunk: int
-    traj_point: tuple              # (vx [m/s], delta [rad]) of the sample trajectories
-    traj_fractions: tuple          # sample steps, as fractions of the measured limit
+    traj_point: tuple              # one value per envelope variable: the sample trajectories'
+    traj_fractions: tuple          # sample steps, as fractions of the predicted limit
     traj_past_limit: float         # the sample past the limit, as a multiple of it
     source: str = field(default="", compare=False)
     # [limits]: what the sweep may allocate [GiB] and integrate (they decide no result)
@@ -62,14 +63,18 @@ class SweepConfig:
     timing_rounds: int = DEFAULT_ROUNDS    # timed repeats of each accuracy run
 
     @property
-    def points(self) -> list[tuple[float, float]]:
-        return [(v, d) for v in self.vx for d in self.delta]
+    def points(self) -> list[tuple]:
+        return self.spec.points
+
+    def values(self, var: str) -> tuple:
+        """The envelope's values of one variable."""
+        return dict(self.spec.envelope)[var]
 
     def canonical(self) -> dict:
         """Everything that decides the results (not the file's path or layout)."""
-        d = asdict(self)
-        for key in ("source", "max_memory_gib", "max_steps"):
-            d.pop(key)
+        d = {f.name: getattr(self, f.name) for f in fields(self) if f.name not in
+             ("source", "spec", "max_memory_gib", "max_steps")}
+        d["spec"] = self.spec.canonical()
         return d
 
     @property
@@ -85,7 +90,6 @@ def load(path) -> SweepConfig:
 
 
 def validate(raw: dict, source: str = "config") -> SweepConfig:
-    from stepzoo import dynamics
     from stepzoo.integrators import METHODS
     bad: list[str] = []
     check = _Checker(bad, source)
@@ -93,23 +97,17 @@ def validate(raw: dict, source: str = "config") -> SweepConfig:
     for key in sorted(set(raw) - TOP):
         bad.append(f"{source}: unknown key {key!r}; known: {', '.join(sorted(TOP))}")
     sections = {}
-    for sec, keys in SECTIONS.items():
+    for sec in (*SECTIONS, "params", "initial", "envelope", "trajectories"):
         table = raw.get(sec, {})
         if not isinstance(table, dict):
             bad.append(f"{source}: [{sec}] must be a table")
             table = {}
-        for key in sorted(set(table) - keys):
-            bad.append(f"{source}: unknown key {sec}.{key}; known: {', '.join(sorted(keys))}")
+        for key in sorted(set(table) - SECTIONS.get(sec, set(table))):
+            bad.append(f"{source}: unknown key {sec}.{key}; known: "
+                       f"{', '.join(sorted(SECTIONS[sec]))}")
         sections[sec] = table
 
-    model_name = raw.get("model", "dynamic5")
-    if model_name != "dynamic5":
-        bad.append(f"{source}: model {model_name!r} is not supported by the sweep; use "
-                   "\"dynamic5\" (its lateral dynamics are linear, so limits can be predicted)")
-    vehicle = raw.get("vehicle", dynamics.default_vehicle())
-    if vehicle not in dynamics.vehicle_names():
-        bad.append(f"{source}: unknown vehicle {vehicle!r}; known: "
-                   f"{', '.join(dynamics.vehicle_names())}")
+    spec, vehicle = model_spec(raw, sections, source, bad, check)
 
     horizon = check.ranged("horizon", "horizon", raw.get("horizon"))
     methods = raw.get("methods", "all")
@@ -123,17 +121,6 @@ def validate(raw: dict, source: str = "config") -> SweepConfig:
             bad.append(f"{source}: unknown method {m!r} in methods; known: {', '.join(METHODS)}")
     if len(set(methods)) != len(methods):
         bad.append(f"{source}: methods lists a name twice; list each once")
-
-    env = sections["envelope"]
-    vx = check.grid("envelope.vx", env.get("vx"), "m/s", "speed", log=False)
-    delta = check.grid("envelope.delta", env.get("delta"), "rad", "steer", log=False)
-    if len(vx) * len(delta) > MAX_GRID:
-        bad.append(f"{source}: the envelope has {len(vx)} x {len(delta)} operating points; at "
-                   f"most {MAX_GRID}")
-    x0 = env.get("x0", [0.0] * 5)
-    if not (isinstance(x0, list) and len(x0) == 5 and all(_is_num(v) for v in x0)):
-        bad.append(f"{source}: envelope.x0 must be 5 finite numbers [X, Y, psi, vy, r]")
-        x0 = [0.0] * 5
 
     hs = check.grid("steps.h", sections["steps"].get("h"), "s", "step", log=True)
     if horizon and hs:
@@ -163,15 +150,22 @@ def validate(raw: dict, source: str = "config") -> SweepConfig:
         bad.append(f"{source}: chunks.points must be a whole number >= 1, got {per_chunk!r}")
 
     traj = sections["trajectories"]
-    tvx = traj.get("vx", vx[0] if vx else 1.0)
-    tdelta = traj.get("delta", delta[0] if delta else 0.0)
-    check.ranged("speed", "trajectories.vx", tvx)
-    check.ranged("steer", "trajectories.delta", tdelta)
+    variables = spec.variables if spec else ()
+    for key in sorted(set(traj) - {"fractions", "past_limit", *variables} if spec else ()):
+        bad.append(f"{source}: unknown key trajectories.{key}; known: fractions, past_limit "
+                   "and the envelope's variables")
+    traj_point = []
+    for var in variables:
+        value = traj.get(var, dict(spec.envelope)[var][0])
+        if not is_num(value):
+            bad.append(f"{source}: trajectories.{var} must be a number")
+            value = 0.0
+        traj_point.append(float(value))
     fractions = traj.get("fractions", [0.2, 0.5, 0.9])
     if not (isinstance(fractions, list) and fractions
-            and all(_is_num(f) and 0 < f <= 1 for f in fractions)):
+            and all(is_num(f) and 0 < f <= 1 for f in fractions)):
         bad.append(f"{source}: trajectories.fractions must be numbers in (0, 1] (of the "
-                   "measured largest stable step)")
+                   "predicted largest stable step)")
         fractions = [0.5]
     past = check.positive("trajectories.past_limit", traj.get("past_limit", 1.5), "")
     if past and past <= 1:
@@ -179,25 +173,127 @@ def validate(raw: dict, source: str = "config") -> SweepConfig:
 
     limits = [sections["limits"].get(key) for key in ("memory_gib", "steps")]
     for key, value in zip(("limits.memory_gib", "limits.steps"), limits):
-        if value is not None and not (_is_num(value) and value > 0):
+        if value is not None and not (is_num(value) and value > 0):
             bad.append(f"{source}: {key} must be a number > 0, got {value!r}")
     rounds = check.ranged("rounds", "timing.rounds",
                           sections["timing"].get("rounds", DEFAULT_ROUNDS))
     name = raw.get("name", Path(source).stem)
     if not isinstance(name, str):
         bad.append(f"{source}: name must be a string")
+    if not bad and spec is not None:
+        check_rhs(spec, source)
     if bad:
         raise UsageError("\n".join(bad))
-    return SweepConfig(str(name), model_name, vehicle, float(horizon), tuple(methods),
-                       tuple(vx), tuple(delta), tuple(float(v) for v in x0), tuple(hs),
-                       float(rtol), float(atol), int(steps), float(growth), float(perturbation),
-                       float(h_probe_max), float(rel_tol), int(per_chunk),
-                       (float(tvx), float(tdelta)), tuple(float(f) for f in fractions),
-                       float(past), source, *limits, timing_rounds=int(rounds))
+    return SweepConfig(str(name), spec.name, vehicle, float(horizon), tuple(methods), spec,
+                       tuple(hs), float(rtol), float(atol), int(steps), float(growth),
+                       float(perturbation), float(h_probe_max), float(rel_tol), int(per_chunk),
+                       tuple(traj_point), tuple(float(f) for f in fractions), float(past),
+                       source, *limits, timing_rounds=int(rounds or DEFAULT_ROUNDS))
 
 
-def _is_num(v) -> bool:
-    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+def model_spec(raw, sections, source, bad, check) -> tuple[ModelSpec | None, str]:
+    """(the config's model, the vehicle set name) from `model`, [params], [initial],
+    [envelope] and [error]; appends to `bad` and returns None for the model when wrong."""
+    from stepzoo import dynamics
+    before = len(bad)
+    model = raw.get("model", "dynamic5")
+    vehicle = raw.get("vehicle", dynamics.default_vehicle())
+    if vehicle not in dynamics.vehicle_names():
+        bad.append(f"{source}: unknown vehicle {vehicle!r}; known: "
+                   f"{', '.join(dynamics.vehicle_names())}")
+        vehicle = dynamics.default_vehicle()
+    sha = ""
+    if isinstance(model, str):
+        if model not in dynamics.MODELS:
+            bad.append(f"{source}: unknown model {model!r}; known: {', '.join(dynamics.MODELS)}"
+                       " (or a [model] table naming your own rhs = \"module:function\")")
+            return None, vehicle
+        name = model
+        rhs, states, inputs, params, initial, kinds = builtin(model, vehicle)
+    elif isinstance(model, dict):
+        for key in sorted(set(model) - MODEL_KEYS):
+            bad.append(f"{source}: unknown key model.{key}; known: "
+                       f"{', '.join(sorted(MODEL_KEYS))}")
+        name = model.get("rhs")
+        if not isinstance(name, str):
+            bad.append(f"{source}: model.rhs must be \"module:function\" (your f(t, x, u, p))")
+            return None, vehicle
+        states = name_list(model.get("states"), "states", source, bad)
+        inputs = name_list(model.get("inputs", []), "inputs", source, bad)
+        if not states:
+            bad.append(f"{source}: model.states must name at least one state")
+            return None, vehicle
+        folder = model.get("path", ".")
+        if not isinstance(folder, str):
+            bad.append(f"{source}: model.path must be a folder (relative to {source})")
+            return None, vehicle
+        try:
+            rhs, sha = load_function(name, Path(source).resolve().parent / folder, source)
+        except UsageError as err:
+            bad.append(str(err))
+            return None, vehicle
+        params, initial, kinds = {}, dict.fromkeys(states, 0.0), {}
+    else:
+        bad.append(f"{source}: model must be a built-in name or a [model] table")
+        return None, vehicle
+
+    for key, value in sections["params"].items():
+        if not is_num(value):
+            bad.append(f"{source}: params.{key} must be a finite number, got {value!r}")
+        params[key] = value
+    envelope_raw = dict(sections["envelope"])
+    legacy_x0 = envelope_raw.pop("x0", None)     # the bicycle configs' whole initial state
+    if legacy_x0 is not None:
+        if not (isinstance(legacy_x0, list) and len(legacy_x0) == len(states)
+                and all(is_num(v) for v in legacy_x0)):
+            bad.append(f"{source}: envelope.x0 must be {len(states)} finite numbers "
+                       f"[{', '.join(states)}]")
+        else:
+            initial.update(zip(states, legacy_x0))
+    for key, value in sections["initial"].items():
+        if key not in states:
+            bad.append(f"{source}: initial.{key} is not a state; states: {', '.join(states)}")
+        elif not is_num(value):
+            bad.append(f"{source}: initial.{key} must be a finite number, got {value!r}")
+        else:
+            initial[key] = value
+    known = set(states) | set(inputs) | set(params)
+    envelope = []
+    for var, value in envelope_raw.items():
+        if var not in known:
+            bad.append(f"{source}: envelope.{var} is not a parameter, input or state of "
+                       f"{name}; known: {', '.join(sorted(known))}")
+            continue
+        values = check.grid(f"envelope.{var}", value, "", kinds.get(var), log=False)
+        envelope.append((var, tuple(values)))
+    n_points = math.prod(len(vals) for _, vals in envelope)
+    if n_points > MAX_GRID:
+        bad.append(f"{source}: the envelope has "
+                   f"{' x '.join(str(len(v)) for _, v in envelope)} operating points; at most "
+                   f"{MAX_GRID}")
+    if not envelope and len(bad) == before:
+        bad.append(f"{source}: [envelope] names no variable; give at least one parameter, "
+                   "input or initial state with its values")
+    err = sections["error"]
+    error_states = err.get("states", list(BICYCLE_ERROR_STATES) if name == "dynamic5"
+                           else list(states))
+    if not (isinstance(error_states, list) and error_states
+            and all(s in states for s in error_states)):
+        bad.append(f"{source}: error.states must be a non-empty list of state names; "
+                   f"states: {', '.join(states)}")
+        error_states = list(states)
+    scales = err.get("scales", [1.0] * len(error_states))
+    if not (isinstance(scales, list) and len(scales) == len(error_states)
+            and all(is_num(s) and s > 0 for s in scales)):
+        bad.append(f"{source}: error.scales must be one number > 0 per error state "
+                   f"({len(error_states)})")
+        scales = [1.0] * len(error_states)
+    if len(bad) > before:
+        return None, vehicle
+    return ModelSpec(name, rhs, tuple(states), tuple(inputs),
+                     tuple((k, float(v)) for k, v in params.items()),
+                     tuple(float(initial[s]) for s in states), tuple(envelope),
+                     tuple(error_states), tuple(float(s) for s in scales), sha), vehicle
 
 
 class _Checker:
@@ -207,7 +303,7 @@ class _Checker:
         self.bad, self.source = bad, source
 
     def positive(self, key, value, unit):
-        if not (_is_num(value) and value > 0):
+        if not (is_num(value) and value > 0):
             units = f" [{unit}]" if unit else ""
             self.bad.append(f"{self.source}: {key} must be a number > 0{units}, got {value!r}")
             return None
@@ -222,32 +318,42 @@ class _Checker:
         return float(value)
 
     def grid(self, key, value, unit, kind, log):
-        """A list of numbers, or {min, max, num <= MAX_GRID} spaced linearly (log-spaced if
-        `log`), each in RANGES[kind]."""
-        spacing = "log-spaced" if log else "evenly spaced"
-        what = (f"{key} must be a list of numbers [{unit}] or {{min = ..., max = ..., "
-                f"num = ...}} ({spacing})")
+        """A list of numbers, {values = [...]}, or {min, max, num <= MAX_GRID} spaced linearly
+        (log-spaced if `log`, or if the table says log = true); each in RANGES[kind] when a
+        kind is given."""
+        spacing = "log-spaced" if log else "evenly spaced, or log = true"
+        units = f" [{unit}]" if unit else ""
+        what = (f"{key} must be a list of numbers{units}, {{values = [...]}} or "
+                f"{{min = ..., max = ..., num = ...}} ({spacing})")
+        if isinstance(value, dict) and set(value) == {"values"}:
+            value = value["values"]
         if isinstance(value, dict):
             lo, hi, num = value.get("min"), value.get("max"), value.get("num")
-            if set(value) != {"min", "max", "num"} or not (_is_num(lo) and _is_num(hi)) \
+            log = value.get("log", log)
+            if not set(value) - {"log"} == {"min", "max", "num"} \
+                    or not (is_num(lo) and is_num(hi)) or not isinstance(log, bool) \
                     or not (isinstance(num, int) and not isinstance(num, bool)
                             and 1 <= num <= MAX_GRID) or lo > hi:
                 self.bad.append(f"{self.source}: {what} with min <= max and 1 <= num <= "
                                 f"{MAX_GRID}, got {value!r}")
                 return []
-            if self.ranged(kind, f"{key}.min", lo) is None \
-                    or self.ranged(kind, f"{key}.max", hi) is None:
+            if kind and (self.ranged(kind, f"{key}.min", lo) is None
+                         or self.ranged(kind, f"{key}.max", hi) is None):
+                return []
+            if log and lo <= 0:
+                self.bad.append(f"{self.source}: {key}.min must be > 0 for log spacing, "
+                                f"got {lo!r}")
                 return []
             values = np.geomspace(lo, hi, num) if log else np.linspace(lo, hi, num)
             return [float(v) for v in values]
-        if not (isinstance(value, list) and value and all(_is_num(v) for v in value)):
+        if not (isinstance(value, list) and value and all(is_num(v) for v in value)):
             self.bad.append(f"{self.source}: {what}, got {value!r}")
             return []
         if len(value) > MAX_GRID:
             self.bad.append(f"{self.source}: {key} lists {len(value)} values; at most "
                             f"{MAX_GRID}")
             return []
-        if any(self.ranged(kind, f"every {key}", v) is None for v in value):
+        if kind and any(self.ranged(kind, f"every {key}", v) is None for v in value):
             return []
         if len(set(value)) != len(value):
             self.bad.append(f"{self.source}: {key} lists a value twice; list each once")
@@ -258,15 +364,17 @@ class _Checker:
 def check_workload(cfg: SweepConfig):
     """UsageError (the estimate and the limit) if the sweep would hold more trajectory memory
     or integrate more steps than allowed ([limits], --max-memory, --max-steps)."""
+    from stepzoo.bench.sweep import PROBES
     from stepzoo.validate import GIB, check_budget
     lanes = min(cfg.points_per_chunk, len(cfg.points))
     steps = max(round(cfg.horizon / cfg.hs[0]), cfg.stab_steps) + 1   # every call's length
     blocks = -(-len(cfg.points) // cfg.points_per_chunk)
-    # Per method and block: accuracy and stability runs at every step, the probes past the
-    # grid (doubling to h_probe_max, ten halvings) and the bisection to rel_tol.
-    probes = 2 * len(cfg.hs) + math.log2(cfg.h_probe_max / cfg.hs[-1]) + 10 \
-        + math.log2(1 / cfg.rel_tol) + 2
+    # Per method and block: accuracy runs at every step; stability calls of PROBES steps per
+    # lane, each a perturbed and an unperturbed run: the grid, the probes past it (doubling
+    # to h_probe_max, ten halvings) and the narrowing to rel_tol.
+    rounds = math.log(math.log(1.3) / math.log1p(cfg.rel_tol)) / math.log(PROBES + 1) + 1
+    calls = len(cfg.hs) / PROBES + 2 + math.ceil(rounds)
     memory = cfg.max_memory_gib and cfg.max_memory_gib * GIB
-    check_budget(f"the sweep {cfg.name!r}", steps, lanes, len(cfg.x0),
-                 calls=len(cfg.methods) * blocks * probes, memory=memory,
-                 max_steps=cfg.max_steps)
+    check_budget(f"the sweep {cfg.name!r}", steps, 2 * PROBES * lanes, len(cfg.spec.states),
+                 calls=len(cfg.methods) * blocks * (calls + len(cfg.hs) / (2 * PROBES)),
+                 memory=memory, max_steps=cfg.max_steps)

@@ -10,28 +10,37 @@ import numpy as np
 import pandas as pd
 import pytest
 
+from stepzoo import dynamics
+from stepzoo.bench import schema
 from stepzoo.bench.cli import main as stepzoo
+from stepzoo.bench.frozen import predicted_limit
 from stepzoo.bench.sweep import _Work, chunk_ids, compute_chunk, run_sweep
 from stepzoo.bench.sweep_config import load
-from stepzoo.bench.timing import MEASURED
+from stepzoo.dynamics.linear import lateral_matrix
 from stepzoo.integrators import METHODS, method
 from stepzoo.integrators.stability import max_stable_step
 
 CONFIGS = Path(__file__).resolve().parents[1] / "bench" / "configs"
 # Measured quantities: they differ between two runs of the same config.
-TIMED = {*MEASURED, "compile_s", "ref_compile_s", "reference_s", "integration_s",
-         "stability_s", "metrics_s", "total_s"}
+TIMED = schema.MEASURED
 FINITE_LIMIT = [n for n, m in METHODS.items() if not math.isinf(max_stable_step(m, [-1.0]))]
 A_STABLE = [n for n in METHODS if n not in FINITE_LIMIT]
 
 
+def _lateral(work):
+    """The closed-form lateral matrix A(vx, delta) of each lane: the oracle of the bicycle."""
+    phys = dynamics.physical(work.cfg.vehicle)
+    return [np.asarray(lateral_matrix(v, d, phys)[0]) for v, d in work.values]
+
+
 def _limits(cfg, name):
-    """(measured, predicted) largest stable step [s] at every point of block 0 of cfg."""
+    """(measured, predicted from the closed-form lateral matrix) largest stable step [s] at
+    every point of block 0 of cfg."""
     work = _Work(cfg, 0, {})
     m = method(name)
-    grid = np.array([work.stable(m, h)[0] for h in cfg.hs])
-    pred = np.array([max_stable_step(m, np.linalg.eigvals(A)) for A in work.A])
-    return work.measured_limits(m, grid)[: work.n_real], pred[: work.n_real]
+    ok, _, conv = work.probe(m, np.tile(np.asarray(cfg.hs), (len(work.x0), 1)))
+    pred = np.array([max_stable_step(m, np.linalg.eigvals(A)) for A in _lateral(work)])
+    return work.measured_limits(m, ok, conv)[0][: work.n_real], pred[: work.n_real]
 
 
 @pytest.fixture(scope="module")
@@ -64,11 +73,21 @@ def test_a_stable_methods_never_blow_up_in_the_envelope(envelope, name):
 
 def test_blowup_rule_flags_a_step_just_past_the_limit_and_not_just_below(envelope):
     work = _Work(envelope, 0, {})
-    pred = np.array([max_stable_step(method("rk4"), np.linalg.eigvals(A)) for A in work.A])
-    below, _ = work.stable(method("rk4"), 0.99 * pred)
-    above, t_blow = work.stable(method("rk4"), 1.02 * pred)
-    assert below.all() and not above.any()
-    assert np.all((t_blow > 0) & (t_blow <= envelope.stab_steps * 1.02 * pred))
+    pred = np.array([max_stable_step(method("rk4"), np.linalg.eigvals(A))
+                     for A in _lateral(work)])
+    ok, t_blow, _ = work.stable(method("rk4"), np.stack([0.99 * pred, 1.02 * pred], axis=1))
+    assert ok[:, 0].all() and not ok[:, 1].any()
+    assert np.all((t_blow[:, 1] > 0) & (t_blow[:, 1] <= envelope.stab_steps * 1.02 * pred))
+
+
+def test_predicted_limit_from_jacobians_equals_the_closed_form_lateral_one(envelope):
+    work = _Work(envelope, 0, {})
+    _, _, lam, _ = work.along()
+    for name in FINITE_LIMIT:
+        m = method(name)
+        for lane, A in enumerate(_lateral(work)):
+            h, _, _ = predicted_limit(m, lam[lane])
+            assert h == pytest.approx(max_stable_step(m, np.linalg.eigvals(A)), rel=1e-9)
 
 
 @pytest.fixture(scope="module")

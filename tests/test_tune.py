@@ -61,8 +61,8 @@ def test_tuned_step_holds_at_20_unseen_operating_points(tuned):
     _, t = tuned
     cfg = load(SMALL)
     rng = np.random.default_rng(20240601)
-    vx = rng.uniform(min(cfg.vx), max(cfg.vx), 20)
-    delta = rng.uniform(min(cfg.delta), max(cfg.delta), 20)
+    vx = rng.uniform(min(cfg.values("vx")), max(cfg.values("vx")), 20)
+    delta = rng.uniform(min(cfg.values("delta")), max(cfg.values("delta")), 20)
     seen = {(round(a, 9), round(b, 9)) for a, b in cfg.points}
     assert not any((round(a, 9), round(b, 9)) in seen for a, b in zip(vx, delta))
     model, meth, h = dynamics.model(cfg.model), method(t["method"]), t["h"]

@@ -1,0 +1,170 @@
+"""A model as the sweep sees it: a right-hand side f(t, x, u, p) with state, input and
+parameter names, fixed values, an initial state, an operating envelope over any parameter,
+input or initial state by name, and the states (with scales) that the error norm reads.
+
+A built-in model (`model = "dynamic5"`) and a user's own (`[model] rhs = "module:function"`)
+are read into the same `ModelSpec`; nothing downstream knows which it was."""
+from __future__ import annotations
+
+import hashlib
+import importlib
+import inspect
+import itertools
+import math
+import sys
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+from stepzoo.errors import UsageError
+
+# The built-in bicycle's error states: its lateral velocity and yaw rate. X, Y and psi
+# integrate them and drift even in exact runs, so they never count toward blow-up.
+BICYCLE_ERROR_STATES = ("vy", "r")
+
+
+@dataclass(frozen=True)
+class ModelSpec:
+    """Everything the sweep needs of a model; values in the model's own units."""
+    name: str                    # built-in name, or "module:function"
+    rhs: Callable = field(compare=False, repr=False)
+    states: tuple
+    inputs: tuple
+    params: tuple                # ((name, value), ...) fixed parameter values
+    initial: tuple               # initial state, one value per state
+    envelope: tuple              # ((variable, (values...)), ...) in the file's order
+    error_states: tuple
+    error_scales: tuple          # one positive scale per error state
+    source_sha256: str = ""      # of the user's module file, so a changed model is a new sweep
+
+    @property
+    def variables(self) -> tuple:
+        return tuple(v for v, _ in self.envelope)
+
+    def kind(self, var: str) -> str:
+        """'param', 'input' or 'initial': where an envelope variable lives."""
+        if var in dict(self.params):
+            return "param"
+        if var in self.inputs:
+            return "input"
+        return "initial"
+
+    @property
+    def points(self) -> list[tuple]:
+        """Every combination of the envelope's values, the first variable slowest."""
+        return list(itertools.product(*(vals for _, vals in self.envelope)))
+
+    @property
+    def vehicle(self) -> bool:
+        """A planar vehicle: its position (X, Y) gives the position error columns."""
+        return {"X", "Y"} <= set(self.states)
+
+    @property
+    def error_index(self) -> np.ndarray:
+        return np.array([self.states.index(s) for s in self.error_states])
+
+    def arrays(self, points) -> tuple[np.ndarray, np.ndarray, dict]:
+        """(x0 (B, n), u (B, m), p {name: (B,)}) of a list of operating points."""
+        n = len(points)
+        x0 = np.tile(np.asarray(self.initial, float), (n, 1))
+        u = np.zeros((n, len(self.inputs)))
+        p = {k: np.full(n, float(v)) for k, v in self.params}
+        for j, var in enumerate(self.variables):
+            col = np.array([pt[j] for pt in points], float)
+            kind = self.kind(var)
+            if kind == "param":
+                p[var] = col
+            elif kind == "input":
+                u[:, self.inputs.index(var)] = col
+            else:
+                x0[:, self.states.index(var)] = col
+        return x0, u, p
+
+    def scaled(self, dx) -> np.ndarray:
+        """max over error states of |dx_i| / scale_i along the last axis of dx (..., n)."""
+        with np.errstate(invalid="ignore", over="ignore"):
+            d = np.abs(np.asarray(dx)[..., self.error_index]) / np.asarray(self.error_scales)
+            return np.where(np.isfinite(d).all(axis=-1), d.max(axis=-1), np.inf)
+
+    def canonical(self) -> dict:
+        return {"name": self.name, "states": list(self.states), "inputs": list(self.inputs),
+                "params": dict(self.params), "initial": list(self.initial),
+                "envelope": {v: list(vals) for v, vals in self.envelope},
+                "error_states": list(self.error_states),
+                "error_scales": list(self.error_scales), "source_sha256": self.source_sha256}
+
+
+def is_num(v) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+
+
+def name_list(value, key, source, bad) -> tuple:
+    if not (isinstance(value, list) and all(isinstance(s, str) and s for s in value)):
+        bad.append(f"{source}: model.{key} must be a list of names (strings)")
+        return ()
+    if len(set(value)) != len(value):
+        bad.append(f"{source}: model.{key} lists a name twice; list each once")
+    return tuple(value)
+
+
+def builtin(name: str, vehicle: str):
+    """(rhs, states, inputs, params, initial {state: value}, {variable: RANGES kind}) of a
+    registered model with a vehicle set's parameters (a speed and a steer angle are checked
+    against their physical ranges)."""
+    from stepzoo import dynamics
+    m = dynamics.model(name)
+    params = dict(m.params(vehicle, 10.0))
+    x0, _ = m.from_rest(0.0, 0.0)
+    kinds = {k: v for k, v in (("vx", "speed"), ("delta", "steer"))
+             if k in params or k in m.inputs or k in m.states}
+    return (m.rhs, tuple(m.states), tuple(m.inputs), params,
+            dict(zip(m.states, (float(v) for v in x0))), kinds)
+
+
+def load_function(ref: str, folder: Path, source: str):
+    """(function, sha256 of its module file) for "module:function", importing the module with
+    `folder` first on the import path; UsageError (one line) when it cannot be had."""
+    module_name, _, func_name = ref.partition(":")
+    if not module_name or not func_name:
+        raise UsageError(f"{source}: model.rhs must be \"module:function\", got {ref!r}")
+    sys.path.insert(0, str(folder))
+    try:
+        module = importlib.import_module(module_name)
+    except ModuleNotFoundError as err:
+        raise UsageError(f"{source}: model.rhs names module {module_name!r}, which is not in "
+                         f"{folder} nor installed ({err}); set model.path to its folder") \
+            from None
+    except Exception as err:   # the user's module failing at import: say so in one line
+        raise UsageError(f"{source}: importing {module_name!r} failed: "
+                         f"{type(err).__name__}: {err}") from None
+    finally:
+        sys.path.remove(str(folder))
+    fn = getattr(module, func_name, None)
+    if not callable(fn):
+        raise UsageError(f"{source}: {module_name!r} has no function {func_name!r} (model.rhs "
+                         "names f(t, x, u, p) -> dx/dt)")
+    try:
+        text = Path(inspect.getfile(module)).read_bytes()
+    except (TypeError, OSError):
+        text = b""
+    return fn, hashlib.sha256(text).hexdigest()
+
+
+def check_rhs(spec: ModelSpec, source: str):
+    """Trace the right-hand side once: it must return one derivative per state."""
+    import jax
+    import jax.numpy as jnp
+    x0, u, p = spec.arrays(spec.points[:1])
+    args = (0.0, jnp.asarray(x0[0]), jnp.asarray(u[0]), {k: v[0] for k, v in p.items()})
+    try:
+        out = jax.eval_shape(spec.rhs, *args)
+    except Exception as err:   # any failure of the user's code while tracing
+        raise UsageError(f"{source}: model {spec.name} fails on the initial state: "
+                         f"{type(err).__name__}: {str(err).splitlines()[0] if str(err) else ''}"
+                         ) from None
+    shape = getattr(out, "shape", None)
+    if shape != (len(spec.states),):
+        raise UsageError(f"{source}: model {spec.name} returns shape {shape}, but model.states "
+                         f"names {len(spec.states)} states; return one derivative per state")

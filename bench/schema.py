@@ -1,0 +1,72 @@
+"""The sweep's tables, declared once: each table's columns (fixed ones, and those named after
+the model's envelope variables and states), sort keys and files. The sweep writes by it,
+tune and the report read by it; a column named here is a contract."""
+from __future__ import annotations
+
+from stepzoo.bench import timing
+
+# Tables of a chunk, and the files of the finished results folder.
+CHUNK_TABLES = ("runs", "limits", "eigenvalues", "trajectories", "timing")
+PARQUET = ("runs", "limits", "eigenvalues", "trajectories", "summary")
+CSV = ("limits", "summary")
+SORT = {"runs": ["method", "h", "point"], "limits": ["method", "point"],
+        "eigenvalues": ["point", "lam_re", "lam_im"], "trajectories": ["method", "h", "t"],
+        "timing": ["chunk"]}
+
+# `runs`: one row per (method, h, point). `stable`: no blow-up and every nonlinear solve
+# converged; `converged`: every solve of that step's runs converged (explicit: always);
+# `err` [scaled]: largest error over the run of the error states, each over its scale.
+RUN_STATUS = ["stable", "blowup_t"]
+VEHICLE_ERRORS = ["err_pos", "err_final"]          # [m], models with X and Y only
+RUN_TAIL = ["evals_per_s", *timing.COLUMNS, "n_steps", "ref_ok", "converged", "err", "evals"]
+# `limits`: one row per (method, point). h_pred [s] from the frozen-Jacobian eigenvalues
+# along the reference, binding at t_bind [s] on eigenvalue lam_bind; h_meas [s] by
+# bisection; limit_cause: what ended the stable range ("unstable", "solver failed", or
+# "none" when nothing failed up to h_probe_max).
+LIMIT_TAIL = ["h_pred", "h_meas", "ratio", "order_declared", "order_fit", "h_probe_max",
+              "t_bind", "lam_re_bind", "lam_im_bind", "limit_cause"]
+SUMMARY = ["method", "family", "order_declared", "order_fit_median", "order_fit_min",
+           "order_fit_max", "real_interval", "imag_interval", "h_meas_min", "h_pred_min",
+           "worst_ratio", "implicit", "evals_per_step", "points", "solver_failures"]
+EIGEN_TAIL = ["lam_re", "lam_im"]
+TIMING = ["chunk", "method", "compile_s", "ref_compile_s", "reference_s", "integration_s",
+          "stability_s", "metrics_s", "total_s"]
+
+# Measured wall times: they differ between two runs of the same config.
+MEASURED = {*timing.MEASURED, "compile_s", "ref_compile_s", "reference_s", "integration_s",
+            "stability_s", "metrics_s", "total_s"}
+
+# What a reader needs of a results folder, whatever the model: the report and tune check
+# these and read the rest (envelope variables, states) from the manifest's "model".
+REQUIRED = {
+    "runs": ["method", "h", "point", "stable", "evals_per_s", "time_per_step_s"],
+    "limits": ["method", "point", "h_pred", "h_meas"],
+    "summary": ["method", "family", "order_declared", "order_fit_median", "real_interval",
+                "imag_interval", "h_meas_min", "h_pred_min", "worst_ratio"],
+    "eigenvalues": ["point", "lam_re", "lam_im"],
+    "trajectories": ["method", "h", "t"],
+}
+
+
+def run_columns(variables, states, vehicle: bool) -> list[str]:
+    return ["method", "h", "point", *variables, *RUN_STATUS,
+            *[f"err_{s}" for s in states], *(VEHICLE_ERRORS if vehicle else []), *RUN_TAIL]
+
+
+def limit_columns(variables, states) -> list[str]:
+    return ["method", "point", *variables, *LIMIT_TAIL, *[f"bind_{s}" for s in states]]
+
+
+def eigen_columns(variables) -> list[str]:
+    return ["point", *variables, *EIGEN_TAIL]
+
+
+def trajectory_columns(states) -> list[str]:
+    return ["method", "h", "t", *states, "past_limit"]
+
+
+def model_record(spec) -> dict:
+    """The manifest's "model": what a reader needs to name axes and columns."""
+    return {"name": spec.name, "states": list(spec.states), "inputs": list(spec.inputs),
+            "variables": list(spec.variables), "error_states": list(spec.error_states),
+            "error_scales": list(spec.error_scales), "vehicle": spec.vehicle}
