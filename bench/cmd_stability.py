@@ -1,45 +1,129 @@
-"""`stepzoo stability`: eigenvalues of the linearised lateral dynamics at an operating point
-and, per method, the largest stable step they predict."""
+"""`stepzoo stability`: at one operating point of any model, the eigenvalues of df/dx at its
+initial state and, per method, the largest stable step they predict along the reference
+trajectory (frozen Jacobians), with where it binds. The model comes from a sweep config
+(CONFIG, the point by --at VAR=VALUE, else the config's trajectory point) or by name
+(--model, --tyre; a vehicle model at --vx and --delta)."""
 import math
 import sys
 
 import numpy as np
 
+from stepzoo.errors import UsageError
 from stepzoo.output import text_table, to_json
-from stepzoo.validate import check, lookup
+from stepzoo.validate import check
+
+DEFAULT_HORIZON_S = 2.0       # a vehicle model's accuracy horizon, as in the paper
 
 
 def add_arguments(p):
-    p.add_argument("--vx", type=float, required=True, help="longitudinal speed [m/s]")
-    p.add_argument("--delta", type=float, required=True, help="steer angle [rad]")
+    p.add_argument("config", metavar="CONFIG", nargs="?",
+                   help="a sweep TOML: its model and envelope (instead of --model)")
+    p.add_argument("--model", default=None, help="a built-in model (default dynamic5)")
+    p.add_argument("--tyre", default=None, help="tyre law of a dynamic bicycle: linear, "
+                   "pacejka or fiala")
+    p.add_argument("--vx", type=float, help="longitudinal speed [m/s] (vehicle models)")
+    p.add_argument("--delta", type=float, help="steer angle [rad] (vehicle models)")
+    p.add_argument("--at", action="append", default=[], metavar="VAR=VALUE",
+                   help="an envelope variable's value at the point (repeatable)")
     p.add_argument("--vehicle", default=None, help="vehicle set (default: the documented one)")
     p.add_argument("--format", choices=["text", "json"], default="text")
 
 
-def predict(vx: float, delta: float, vehicle=None) -> tuple[np.ndarray, dict]:
-    """(eigenvalues [1/s], {method: largest stable step [s] or inf})."""
+def config_from_args(args):
+    """The sweep config whose model and envelope the point is taken from."""
+    from stepzoo.bench.sweep_config import load, validate
+    if args.config:
+        if args.model or args.tyre or args.vehicle:
+            raise UsageError("give either CONFIG or --model/--tyre/--vehicle, not both")
+        return load(args.config)
     from stepzoo import dynamics
-    from stepzoo.dynamics.linear import lateral_eigenvalues
+    name = args.model or "dynamic5"
+    raw = {"model": name, "steps": {"h": [0.01]}}
+    for key in ("tyre", "vehicle"):
+        if getattr(args, key) is not None:
+            raw[key] = getattr(args, key)
+    m = dynamics.MODELS.get(name)
+    if m is None:
+        raise UsageError(f"unknown model {name!r}; known: {', '.join(dynamics.MODELS)}")
+    envelope = {}
+    if m.family == "vehicle":
+        if args.vx is None or args.delta is None:
+            raise UsageError(f"model {name} needs --vx M/S and --delta RAD (the operating "
+                             "point)")
+        vx, delta = check("speed", "--vx", args.vx), check("steer", "--delta", args.delta)
+        speed = "vx" if "vx" in m.states or "vx" in m.defaults else "v"
+        envelope = {speed: [vx], "delta": [delta]}
+        raw["horizon"] = DEFAULT_HORIZON_S
+    else:
+        if args.vx is not None or args.delta is not None:
+            raise UsageError(f"--vx and --delta are for vehicle models; {name} takes --at")
+        first = m.states[0]
+        envelope = {first: [float(m.x0[0])]}
+        raw["horizon"] = float(m.t_span[1] - m.t_span[0])
+    raw["envelope"] = envelope
+    return validate(raw, f"--model {name}")
+
+
+def at_point(cfg, assignments) -> tuple:
+    """The operating point: the trajectory point, with --at VAR=VALUE applied."""
+    point = dict(zip(cfg.spec.variables, cfg.traj_point))
+    for item in assignments:
+        var, eq, value = item.partition("=")
+        if not eq or var not in point:
+            raise UsageError(f"--at {item!r}: give VAR=VALUE with VAR one of the envelope's "
+                             f"variables ({', '.join(point)})")
+        try:
+            point[var] = float(value)
+        except ValueError:
+            raise UsageError(f"--at {item!r}: {value!r} is not a number") from None
+        if not math.isfinite(point[var]):
+            raise UsageError(f"--at {item!r}: the value must be finite")
+    return tuple(point.values())
+
+
+def predict(cfg, point) -> dict:
+    """Eigenvalues at the initial state and, per method, the predicted largest stable step
+    [s] along the reference over the config's horizon, where it binds (t [s], lambda)."""
+    import dataclasses
+
+    from stepzoo.bench import frozen
+    from stepzoo.bench.sweep import _Work
     from stepzoo.integrators import METHODS
-    from stepzoo.integrators.stability import max_stable_step
-    vx, delta = check("speed", "--vx", vx), check("steer", "--delta", delta)
-    lookup("vehicle", dynamics.vehicle, vehicle)
-    ev = np.asarray(lateral_eigenvalues(vx, delta, dynamics.physical(vehicle)))
-    return ev, {name: max_stable_step(m, ev) for name, m in METHODS.items()}
+    spec = dataclasses.replace(cfg.spec, envelope=tuple(
+        (var, (value,)) for var, value in zip(cfg.spec.variables, point)))
+    one = dataclasses.replace(cfg, spec=spec, points_per_chunk=1, traj_point=point)
+    ts, _, lam, _ = _Work(one, 0, {}).along()
+    ev = lam[0, 0]
+    ev = ev[np.abs(ev) > frozen.REL_ZERO * np.nanmax(np.abs(ev), initial=0.0)]
+    methods = {}
+    for name, m in METHODS.items():
+        h, k, j = frozen.predicted_limit(m, lam[0])
+        methods[name] = {"max_stable_step": None if math.isinf(h) else h,
+                         "t_bind": None if k < 0 else float(ts[k]),
+                         "lambda_bind": None if k < 0 else [float(lam[0, k, j].real),
+                                                            float(lam[0, k, j].imag)]}
+    return {"model": cfg.model, "point": dict(zip(cfg.spec.variables, point)),
+            "horizon_s": cfg.horizon,
+            "eigenvalues": [[float(e.real), float(e.imag)]
+                            for e in sorted(ev, key=lambda z: (z.real, z.imag))],
+            "methods": methods}
 
 
 def main(args) -> int:
-    ev, hmax = predict(args.vx, args.delta, args.vehicle)
+    cfg = config_from_args(args)
+    out = predict(cfg, at_point(cfg, args.at))
+    if "vx" in out["point"] and "delta" in out["point"]:
+        out = {"vx": out["point"]["vx"], "delta": out["point"]["delta"], **out}
     if args.format == "json":
-        out = {"vx": args.vx, "delta": args.delta,
-               "eigenvalues": [[float(e.real), float(e.imag)] for e in ev],
-               "methods": {k: {"max_stable_step": None if math.isinf(h) else h}
-                           for k, h in hmax.items()}}
         print(to_json(out))
-    else:
-        print("eigenvalues [1/s]: " + ", ".join(f"{e.real:.4g}{e.imag:+.4g}j" for e in ev))
-        rows = [{"method": k, "max_stable_step_s": None if math.isinf(h) else h}
-                for k, h in hmax.items()]
-        sys.stdout.write(text_table(rows, ["method", "max_stable_step_s"]) + "\n")
-        print("('-': A-stable, no step-size limit from stability)")
+        return 0
+    point = ", ".join(f"{k} = {v:g}" for k, v in out["point"].items())
+    print(f"{out['model']} at {point}")
+    print("eigenvalues of df/dx at the initial state [1/s]: "
+          + ", ".join(f"{re:.4g}{im:+.4g}j" for re, im in out["eigenvalues"]))
+    rows = [{"method": k, "max_stable_step_s": v["max_stable_step"], "binds_at_t_s": v["t_bind"]}
+            for k, v in out["methods"].items()]
+    sys.stdout.write(text_table(rows, ["method", "max_stable_step_s", "binds_at_t_s"]) + "\n")
+    print(f"(smallest over the reference trajectory on [0, {out['horizon_s']:g}] s; '-': no "
+          "limit, A-stable on these eigenvalues)")
     return 0

@@ -34,9 +34,12 @@ class ModelSpec:
     inputs: tuple
     params: tuple                # ((name, value), ...) fixed parameter values
     initial: tuple               # initial state, one value per state
+    u0: tuple                    # inputs, constant in time, one value per input
     envelope: tuple              # ((variable, (values...)), ...) in the file's order
     error_states: tuple
     error_scales: tuple          # one positive scale per error state
+    stiff: bool = False          # its reference needs an implicit solver
+    tyre: str | None = None      # the tyre law of a built-in dynamic bicycle
     source_sha256: str = ""      # of the user's module file, so a changed model is a new sweep
 
     @property
@@ -69,7 +72,7 @@ class ModelSpec:
         """(x0 (B, n), u (B, m), p {name: (B,)}) of a list of operating points."""
         n = len(points)
         x0 = np.tile(np.asarray(self.initial, float), (n, 1))
-        u = np.zeros((n, len(self.inputs)))
+        u = np.tile(np.asarray(self.u0, float), (n, 1))
         p = {k: np.full(n, float(v)) for k, v in self.params}
         for j, var in enumerate(self.variables):
             col = np.array([pt[j] for pt in points], float)
@@ -91,6 +94,7 @@ class ModelSpec:
     def canonical(self) -> dict:
         return {"name": self.name, "states": list(self.states), "inputs": list(self.inputs),
                 "params": dict(self.params), "initial": list(self.initial),
+                "inputs_values": list(self.u0), "stiff": self.stiff, "tyre": self.tyre,
                 "envelope": {v: list(vals) for v, vals in self.envelope},
                 "error_states": list(self.error_states),
                 "error_scales": list(self.error_scales), "source_sha256": self.source_sha256}
@@ -109,18 +113,18 @@ def name_list(value, key, source, bad) -> tuple:
     return tuple(value)
 
 
-def builtin(name: str, vehicle: str):
-    """(rhs, states, inputs, params, initial {state: value}, {variable: RANGES kind}) of a
-    registered model with a vehicle set's parameters (a speed and a steer angle are checked
-    against their physical ranges)."""
+def builtin(name: str, vehicle: str, tyre: str | None = None):
+    """(rhs, states, inputs, params, initial {name: value} of states and inputs, {variable:
+    RANGES kind}, stiff) of a registered model: a vehicle model with the named vehicle set
+    (and tyre law), any other with its own default problem. A speed and a steer angle are
+    checked against their physical ranges."""
     from stepzoo import dynamics
-    m = dynamics.model(name)
-    params = dict(m.params(vehicle, 10.0))
-    x0, _ = m.from_rest(0.0, 0.0)
+    m = dynamics.model(name, tyre=tyre)
+    params = dict(m.params(vehicle) if m.vehicle_params is not None else m.params())
+    initial = dict(zip(m.states, m.x0)) | dict(zip(m.inputs, m.u0))
     kinds = {k: v for k, v in (("vx", "speed"), ("delta", "steer"))
              if k in params or k in m.inputs or k in m.states}
-    return (m.rhs, tuple(m.states), tuple(m.inputs), params,
-            dict(zip(m.states, (float(v) for v in x0))), kinds)
+    return (m.rhs, tuple(m.states), tuple(m.inputs), params, initial, kinds, bool(m.stiff))
 
 
 def load_function(ref: str, folder: Path, source: str):

@@ -16,8 +16,9 @@ from stepzoo.bench.model_spec import (BICYCLE_ERROR_STATES, ModelSpec, builtin, 
 from stepzoo.errors import UsageError
 from stepzoo.validate import problem, read_toml
 
-TOP = {"name", "model", "vehicle", "horizon", "methods", "params", "initial", "envelope",
-       "error", "steps", "reference", "limits", "stability", "chunks", "trajectories", "timing"}
+TOP = {"name", "model", "tyre", "vehicle", "horizon", "methods", "params", "initial",
+       "envelope", "error", "steps", "reference", "limits", "stability", "chunks",
+       "trajectories", "timing"}
 MAX_GRID = 10_000       # values of one grid, or points of an envelope: more is a typo, and
                         # would be allocated before any estimate of the work
 SECTIONS = {
@@ -202,14 +203,22 @@ def model_spec(raw, sections, source, bad, check) -> tuple[ModelSpec | None, str
         bad.append(f"{source}: unknown vehicle {vehicle!r}; known: "
                    f"{', '.join(dynamics.vehicle_names())}")
         vehicle = dynamics.default_vehicle()
-    sha = ""
+    sha, tyre, stiff = "", raw.get("tyre"), False
+    if tyre is not None and not isinstance(model, str):
+        bad.append(f"{source}: tyre is an option of the built-in dynamic bicycles; your own "
+                   "model sets its tyres itself")
+        return None, vehicle
     if isinstance(model, str):
         if model not in dynamics.MODELS:
             bad.append(f"{source}: unknown model {model!r}; known: {', '.join(dynamics.MODELS)}"
                        " (or a [model] table naming your own rhs = \"module:function\")")
             return None, vehicle
         name = model
-        rhs, states, inputs, params, initial, kinds = builtin(model, vehicle)
+        try:
+            rhs, states, inputs, params, initial, kinds, stiff = builtin(model, vehicle, tyre)
+        except KeyError as err:
+            bad.append(f"{source}: {err.args[0]}")
+            return None, vehicle
     elif isinstance(model, dict):
         for key in sorted(set(model) - MODEL_KEYS):
             bad.append(f"{source}: unknown key model.{key}; known: "
@@ -232,7 +241,7 @@ def model_spec(raw, sections, source, bad, check) -> tuple[ModelSpec | None, str
         except UsageError as err:
             bad.append(str(err))
             return None, vehicle
-        params, initial, kinds = {}, dict.fromkeys(states, 0.0), {}
+        params, initial, kinds = {}, dict.fromkeys([*states, *inputs], 0.0), {}
     else:
         bad.append(f"{source}: model must be a built-in name or a [model] table")
         return None, vehicle
@@ -292,8 +301,10 @@ def model_spec(raw, sections, source, bad, check) -> tuple[ModelSpec | None, str
         return None, vehicle
     return ModelSpec(name, rhs, tuple(states), tuple(inputs),
                      tuple((k, float(v)) for k, v in params.items()),
-                     tuple(float(initial[s]) for s in states), tuple(envelope),
-                     tuple(error_states), tuple(float(s) for s in scales), sha), vehicle
+                     tuple(float(initial[s]) for s in states),
+                     tuple(float(initial[s]) for s in inputs), tuple(envelope),
+                     tuple(error_states), tuple(float(s) for s in scales), stiff,
+                     tyre if tyre is None else str(tyre), sha), vehicle
 
 
 class _Checker:
