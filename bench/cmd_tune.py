@@ -1,5 +1,5 @@
-"""`stepzoo tune RESULTS --pos-tol M --out tuned.toml`: the cheapest (method, h) of a sweep that
-is stable with a margin and meets a position tolerance everywhere, as a planner config."""
+"""`stepzoo tune RESULTS --tol E | --pos-tol M --out tuned.toml`: the cheapest (method, h) of a
+sweep that is stable with a margin and meets a tolerance everywhere, as a TOML config."""
 import sys
 
 from stepzoo.bench.tune import DEFAULT_MARGIN
@@ -9,8 +9,12 @@ from stepzoo.results_folder import check_file_target
 
 def add_arguments(p):
     p.add_argument("results", metavar="RESULTS", help="a folder written by `stepzoo sweep`")
-    p.add_argument("--pos-tol", type=float, required=True, metavar="METRES",
-                   help="largest position error allowed at every operating point [m]")
+    p.add_argument("--tol", type=float, metavar="E", help="largest error allowed at every "
+                   "operating point, in the config's error norm (the error states over their "
+                   "scales); any model")
+    p.add_argument("--pos-tol", type=float, metavar="METRES",
+                   help="largest position error allowed at every operating point [m]; vehicle "
+                   "models")
     p.add_argument("--margin", type=float, default=DEFAULT_MARGIN, metavar="FRACTION",
                    help="keep h <= (1 - margin) x the measured largest stable step (default "
                    f"{DEFAULT_MARGIN})")
@@ -18,14 +22,15 @@ def add_arguments(p):
     p.add_argument("--format", choices=["text", "json"], default="text")
 
 
-def tune(results, pos_tol: float, margin: float, out) -> dict:
-    """Choose (method, h) from the sweep folder `results` (position tolerance `pos_tol` [m],
-    stability margin `margin`, a fraction) and write it as a planner config to the file
-    `out`; returns the choice. `stepzoo tune` and `stepzoo run` call it."""
+def tune(results, pos_tol, margin: float, out, tol=None) -> dict:
+    """Choose (method, h) from the sweep folder `results` (a position tolerance `pos_tol` [m]
+    or a tolerance `tol` on the config's error norm, stability margin `margin`, a fraction)
+    and write it to the file `out`; returns the choice. `stepzoo tune` and `stepzoo run`
+    call it."""
     from stepzoo.bench.tune import tune as choose
     from stepzoo.bench.tune import write
     out = check_file_target(out)          # before the work, not only when writing
-    tuned = choose(results, pos_tol, margin)
+    tuned = choose(results, pos_tol, margin, tol)
     write(tuned, out)
     return tuned
 
@@ -43,6 +48,6 @@ def show(tuned: dict, out, fmt: str = "text") -> None:
 
 
 def main(args) -> int:
-    tuned = tune(args.results, args.pos_tol, args.margin, args.out)
+    tuned = tune(args.results, args.pos_tol, args.margin, args.out, args.tol)
     show(tuned, args.out, args.format)
     return 0

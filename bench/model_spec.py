@@ -41,6 +41,7 @@ class ModelSpec:
     stiff: bool = False          # its reference needs an implicit solver
     tyre: str | None = None      # the tyre law of a built-in dynamic bicycle
     source_sha256: str = ""      # of the user's module file, so a changed model is a new sweep
+    folder: str = field(default="", compare=False)    # absolute folder of a user's module
 
     @property
     def variables(self) -> tuple:
@@ -146,9 +147,12 @@ def load_function(ref: str, folder: Path, source: str):
     finally:
         sys.path.remove(str(folder))
     fn = getattr(module, func_name, None)
-    if not callable(fn):
+    if fn is None:
         raise UsageError(f"{source}: {module_name!r} has no function {func_name!r} (model.rhs "
                          "names f(t, x, u, p) -> dx/dt)")
+    if not callable(fn):
+        raise UsageError(f"{source}: {module_name}.{func_name} is {type(fn).__name__!r}, not a "
+                         "function f(t, x, u, p) -> dx/dt")
     try:
         text = Path(inspect.getfile(module)).read_bytes()
     except (TypeError, OSError):
@@ -165,9 +169,10 @@ def check_rhs(spec: ModelSpec, source: str):
     try:
         out = jax.eval_shape(spec.rhs, *args)
     except Exception as err:   # any failure of the user's code while tracing
-        raise UsageError(f"{source}: model {spec.name} fails on the initial state: "
-                         f"{type(err).__name__}: {str(err).splitlines()[0] if str(err) else ''}"
-                         ) from None
+        first = str(err).splitlines()[0] if str(err) else ""
+        raise UsageError(f"{source}: model {spec.name} fails on its initial state of "
+                         f"{len(spec.states)} states (model.states): {type(err).__name__}: "
+                         f"{first}") from None
     shape = getattr(out, "shape", None)
     if shape != (len(spec.states),):
         raise UsageError(f"{source}: model {spec.name} returns shape {shape}, but model.states "

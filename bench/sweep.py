@@ -481,9 +481,7 @@ def _fill(cfg, out: Path, resume, overwrite, progress, on_chunk, runner) -> dict
     chunks.mkdir(parents=True, exist_ok=True)
     for stale in chunks.glob(".*.tmp*"):           # a chunk cut off while being written
         shutil.rmtree(stale, ignore_errors=True)
-    src = Path(cfg.source) if cfg.source else None
-    atomic_write(out / "config.toml", src.read_bytes() if src and src.is_file()
-                 else _as_toml(cfg.canonical()))
+    atomic_write(out / "config.toml", _config_copy(cfg))
     created = (old or {}).get("created") or datetime.now(timezone.utc).isoformat(
         timespec="seconds")
     created = (created, environment.now())      # the first call's start, and this call's
@@ -635,6 +633,23 @@ def _finite(obj):
     if isinstance(obj, float) and not math.isfinite(obj):
         return None
     return obj
+
+
+def _config_copy(cfg) -> bytes:
+    """The config file as the folder keeps it: the user's own bytes, but with a user model's
+    folder made absolute, so the copy still finds the module (tune and report reload it)."""
+    import tomllib
+
+    import tomli_w
+    src = Path(cfg.source) if cfg.source else None
+    if not (src and src.is_file()):
+        return _as_toml(cfg.canonical()).encode()
+    if not cfg.spec.folder:
+        return src.read_bytes()
+    raw = tomllib.loads(src.read_text())
+    raw["model"]["path"] = cfg.spec.folder
+    return (f"# {src.name} as swept, its model.path made absolute\n"
+            + tomli_w.dumps(raw)).encode()
 
 
 def _as_toml(d: dict) -> str:

@@ -203,7 +203,7 @@ def model_spec(raw, sections, source, bad, check) -> tuple[ModelSpec | None, str
         bad.append(f"{source}: unknown vehicle {vehicle!r}; known: "
                    f"{', '.join(dynamics.vehicle_names())}")
         vehicle = dynamics.default_vehicle()
-    sha, tyre, stiff = "", raw.get("tyre"), False
+    sha, tyre, stiff, folder = "", raw.get("tyre"), False, ""
     if tyre is not None and not isinstance(model, str):
         bad.append(f"{source}: tyre is an option of the built-in dynamic bicycles; your own "
                    "model sets its tyres itself")
@@ -236,8 +236,9 @@ def model_spec(raw, sections, source, bad, check) -> tuple[ModelSpec | None, str
         if not isinstance(folder, str):
             bad.append(f"{source}: model.path must be a folder (relative to {source})")
             return None, vehicle
+        folder = str((Path(source).resolve().parent / folder).resolve())
         try:
-            rhs, sha = load_function(name, Path(source).resolve().parent / folder, source)
+            rhs, sha = load_function(name, Path(folder), source)
         except UsageError as err:
             bad.append(str(err))
             return None, vehicle
@@ -291,7 +292,9 @@ def model_spec(raw, sections, source, bad, check) -> tuple[ModelSpec | None, str
         bad.append(f"{source}: error.states must be a non-empty list of state names; "
                    f"states: {', '.join(states)}")
         error_states = list(states)
-    scales = err.get("scales", [1.0] * len(error_states))
+        scales = [1.0] * len(states)
+    else:
+        scales = err.get("scales", [1.0] * len(error_states))
     if not (isinstance(scales, list) and len(scales) == len(error_states)
             and all(is_num(s) and s > 0 for s in scales)):
         bad.append(f"{source}: error.scales must be one number > 0 per error state "
@@ -304,7 +307,8 @@ def model_spec(raw, sections, source, bad, check) -> tuple[ModelSpec | None, str
                      tuple(float(initial[s]) for s in states),
                      tuple(float(initial[s]) for s in inputs), tuple(envelope),
                      tuple(error_states), tuple(float(s) for s in scales), stiff,
-                     tyre if tyre is None else str(tyre), sha), vehicle
+                     tyre if tyre is None else str(tyre), sha,
+                     folder), vehicle
 
 
 class _Checker:

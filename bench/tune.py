@@ -1,10 +1,11 @@
 """Tuning: from a sweep's tables, the cheapest (method, h) that keeps a safety margin below
-the measured largest stable step and meets a position tolerance at every operating point of
-the envelope. Cost is right-hand-side evaluations per simulated second (median over points); ties
+the measured largest stable step and meets a tolerance at every operating point of the
+envelope: on the position error of a vehicle model, or on the config's error norm of any. Cost is right-hand-side evaluations per simulated second (median over points); ties
 go to the smaller worst-case error (measured time is noisy, so it is only a second view)."""
 from __future__ import annotations
 
 import json
+from dataclasses import dataclass
 from datetime import datetime, timezone
 from pathlib import Path
 
@@ -42,98 +43,135 @@ def load_results(folder) -> tuple[pd.DataFrame, pd.DataFrame, dict]:
     return runs, limits, manifest
 
 
-def candidates(runs: pd.DataFrame, limits: pd.DataFrame, pos_tol: float, margin: float):
-    """One row per (method, h): worst position error over the points, whether every point is
-    stable with the margin and within tolerance, and the two costs."""
+@dataclass(frozen=True)
+class Criterion:
+    """What the tolerance bounds: the worst position error [m] (--pos-tol, vehicle models)
+    or the config's error norm, the largest error state over its scale (--tol, any model)."""
+    column: str
+    tol: float
+    flag: str
+    unit: str
+    what: str
+
+    def show(self, value) -> str:
+        return f"{value:.3g}{' ' + self.unit if self.unit else ''}"
+
+
+def criterion(pos_tol=None, tol=None) -> Criterion:
+    """The criterion of the command's flags: exactly one of --pos-tol and --tol."""
+    if (pos_tol is None) == (tol is None):
+        raise UsageError("give one tolerance: --tol E (the config's error norm, any model) or "
+                         "--pos-tol M (position error, vehicle models)")
+    if pos_tol is not None:
+        return Criterion("err_pos", check("pos_tol", "--pos-tol", pos_tol), "--pos-tol", "m",
+                         "position error")
+    return Criterion("err", check("tol", "--tol", tol), "--tol", "", "error (error states "
+                     "over their scales)")
+
+
+def candidates(runs: pd.DataFrame, limits: pd.DataFrame, tol, margin: float,
+               column: str = "err_pos"):
+    """One row per (method, h): worst error (`column`) over the points, whether every point
+    is stable with the margin and within the tolerance, and the two costs."""
     df = runs.merge(limits[["method", "point", "h_meas"]], on=["method", "point"])
     df["in_margin"] = df["stable"] & (df["h"] <= (1.0 - margin) * df["h_meas"])
     df["time_per_s"] = df["time_per_step_s"] / df["h"]
     g = df.groupby(["method", "h"])
     table = pd.DataFrame({
         "in_margin": g["in_margin"].all(),
-        "err_pos": g["err_pos"].max(),
+        column: g[column].max(),
         "cost_evals_per_s": g["evals_per_s"].median(),
         "cost_time_per_s": g["time_per_s"].median(),
         "h_meas_min": g["h_meas"].min(),
         "points": g["point"].nunique(),
     }).reset_index()
-    table["ok"] = table["in_margin"] & np.isfinite(table["err_pos"]) \
-        & (table["err_pos"] <= pos_tol)
+    table["ok"] = table["in_margin"] & np.isfinite(table[column]) & (table[column] <= tol)
     return table
 
 
-def check_arguments(pos_tol: float, margin: float):
-    """UsageError unless the tolerance [m] and the margin (a fraction) are in range."""
-    check("pos_tol", "--pos-tol", pos_tol), check("margin", "--margin", margin)
+def check_arguments(pos_tol, margin: float, tol=None) -> Criterion:
+    """The criterion, or UsageError unless the tolerance and the margin are in range."""
+    crit = criterion(pos_tol, tol)
+    check("margin", "--margin", margin)
+    return crit
 
 
-def tune(folder, pos_tol: float, margin: float) -> dict:
-    """The tuned planner config as a dict (the TOML's content)."""
-    check_arguments(pos_tol, margin)
+def tune(folder, pos_tol, margin: float, tol=None) -> dict:
+    """The tuned config as a dict (the TOML's content): under --pos-tol (pos_tol [m]) or
+    --tol (tol, in the sweep's error norm)."""
+    crit = check_arguments(pos_tol, margin, tol)
     runs, limits, manifest = load_results(folder)
-    table = candidates(runs, limits, pos_tol, margin)
-    order = ["cost_evals_per_s", "err_pos", "method"]
-    ok = table[table["ok"]].sort_values(order, kind="stable")
+    col = crit.column
+    if col not in runs:
+        raise UsageError(f"{folder} has no {col} column: its model has no position (X, Y); "
+                         "tune it with --tol E, the config's error norm")
+    table = candidates(runs, limits, crit.tol, margin, col)
+    ok = table[table["ok"]].sort_values(["cost_evals_per_s", col, "method"], kind="stable")
     if ok.empty:
-        best = table[table["in_margin"]].sort_values("err_pos").head(1)
+        best = table[table["in_margin"]].sort_values(col).head(1)
         hint = (f"the smallest worst-case error within the margin is "
-                f"{best['err_pos'].iloc[0]:.3g} m ({best['method'].iloc[0]} at h = "
+                f"{crit.show(best[col].iloc[0])} ({best['method'].iloc[0]} at h = "
                 f"{best['h'].iloc[0]:g} s)" if len(best) else "no step is within the margin")
         raise NoAnswer(f"no (method, h) of {folder} is stable with margin {margin:g} and "
-                         f"within {pos_tol:g} m at every point: {hint}; loosen --pos-tol or "
-                         "sweep smaller steps")
+                       f"within {crit.show(crit.tol)} at every point: {hint}; loosen "
+                       f"{crit.flag} or sweep smaller steps")
     per_method = ok.groupby("method", sort=False).head(1)      # each method's cheapest step
     choice = per_method.iloc[0]
     n_points = int(choice["points"])
     why = (f"{choice['method']} at h = {choice['h']:g} s is the cheapest step that stays "
-           f"within {1 - margin:g} x the measured largest stable step and within {pos_tol:g} m "
-           f"at all {n_points} operating points: {choice['cost_evals_per_s']:.4g} RHS "
-           f"evaluations per simulated second, worst position error "
-           f"{choice['err_pos']:.3g} m")
-    runners = [_runner(r, choice) for _, r in per_method.iloc[1:].iterrows()]
+           f"within {1 - margin:g} x the measured largest stable step and within "
+           f"{crit.show(crit.tol)} at all {n_points} operating points: "
+           f"{choice['cost_evals_per_s']:.4g} RHS evaluations per simulated second, worst "
+           f"{crit.what} {crit.show(choice[col])}")
+    runners = [_runner(r, choice, crit) for _, r in per_method.iloc[1:].iterrows()]
     for name in sorted(set(table["method"]) - set(per_method["method"])):
-        runners.append(_infeasible(table[table["method"] == name], name, pos_tol, margin))
+        runners.append(_infeasible(table[table["method"] == name], name, crit, margin))
     sweep_name = manifest.get("config_name", "sweep")
+    variables = (manifest.get("model_spec") or {}).get("variables", ["vx", "delta"])
+    limit = {"pos_tol_m": float(crit.tol)} if col == "err_pos" else {"tol": float(crit.tol)}
+    worst = {"err_pos_max_m" if col == "err_pos" else "err_max": float(choice[col])}
     return {
         "method": str(choice["method"]),
         "h": float(choice["h"]),
         "why": why,
-        "pos_tol_m": float(pos_tol),
+        **limit,
         "margin": float(margin),
         "cost_evals_per_s": float(choice["cost_evals_per_s"]),
         "cost_time_per_s": float(choice["cost_time_per_s"]),
-        "err_pos_max_m": float(choice["err_pos"]),
+        **worst,
         "h_meas_min_s": float(choice["h_meas_min"]),
         "horizon_s": float(manifest.get("horizon_s", float("nan"))),
+        "model": str(manifest.get("model", "dynamic5")),
         "sweep_config_sha256": manifest["config_sha256"],
-        "provenance": (f"stepzoo tune {folder} --pos-tol {pos_tol:g} --margin {margin:g} at "
-                       f"{datetime.now(timezone.utc).isoformat(timespec='seconds')}, from the "
-                       f"sweep '{sweep_name}' created {manifest.get('created', '?')}"),
-        "envelope": {"vx": [float(runs["vx"].min()), float(runs["vx"].max())],
-                     "delta": [float(runs["delta"].min()), float(runs["delta"].max())],
-                     "points": n_points},
+        "provenance": (f"stepzoo tune {folder} {crit.flag} {crit.tol:g} --margin {margin:g} "
+                       f"at {datetime.now(timezone.utc).isoformat(timespec='seconds')}, from "
+                       f"the sweep '{sweep_name}' created {manifest.get('created', '?')}"),
+        "envelope": {**{v: [float(runs[v].min()), float(runs[v].max())] for v in variables
+                        if v in runs}, "points": n_points},
         "runners_up": runners,
     }
 
 
-def _runner(row, choice) -> dict:
+def _runner(row, choice, crit) -> dict:
     factor = row["cost_evals_per_s"] / choice["cost_evals_per_s"]
     return {"method": str(row["method"]), "h": float(row["h"]),
             "cost_evals_per_s": float(row["cost_evals_per_s"]),
             "cost_time_per_s": float(row["cost_time_per_s"]),
-            "reason": (f"qualifies at h = {row['h']:g} s (worst error {row['err_pos']:.3g} m) "
-                       f"but costs {factor:.3g} x the choice in RHS evaluations")}
+            "reason": (f"qualifies at h = {row['h']:g} s (worst error "
+                       f"{crit.show(row[crit.column])}) but costs {factor:.3g} x the choice in "
+                       "RHS evaluations")}
 
 
-def _infeasible(rows: pd.DataFrame, name: str, pos_tol: float, margin: float) -> dict:
+def _infeasible(rows: pd.DataFrame, name: str, crit, margin: float) -> dict:
     inside = rows[rows["in_margin"]]
     if inside.empty:
         reason = (f"every step tried is past {1 - margin:g} x its measured largest stable "
                   "step at some operating point")
     else:
-        best = inside.loc[inside["err_pos"].idxmin()]
-        reason = (f"no step qualifies: within the margin its smallest worst-case position "
-                  f"error is {best['err_pos']:.3g} m (h = {best['h']:g} s) > {pos_tol:g} m")
+        best = inside.loc[inside[crit.column].idxmin()]
+        reason = (f"no step qualifies: within the margin its smallest worst-case {crit.what} "
+                  f"is {crit.show(best[crit.column])} (h = {best['h']:g} s) > "
+                  f"{crit.show(crit.tol)}")
     return {"method": name, "reason": reason}
 
 

@@ -12,12 +12,13 @@ from stepzoo import environment
 from stepzoo.bench.tune import DEFAULT_MARGIN
 from stepzoo.reports import figures, interactive, tables
 from stepzoo.reports.html import write_report
-from stepzoo.reports.load import load_manifest, load_plans, load_sweep, load_tuned
+from stepzoo.reports.load import load_manifest, load_plans, load_sweep, load_tuned, tolerance
 from stepzoo.reports.provenance import environment_table, public_path
 from stepzoo.results_folder import check_kind, writing
 
 # Used for the summary table's cost column when no tuned config gives them.
 DEFAULT_POS_TOL_M = 0.1
+DEFAULT_TOL = 1e-3         # in the error norm, for a model without position
 
 
 def add_arguments(p):
@@ -121,16 +122,20 @@ def _draw(sweep, tuned, tuned_path, plan_list, plans_dir, out, started, say):
         shown.append(fig)
         say(f"[{len(shown)}/{len(draw)}] Figure {fig.number}. {fig.title}: "
             f"{len(fig.images)} image(s) in {time.perf_counter() - t0:.1f} s")
-    pos_tol = float(tuned["pos_tol_m"]) if tuned else DEFAULT_POS_TOL_M
+    view = sweep.view.with_tolerance(tuned)
+    tol = tolerance(tuned) or (DEFAULT_POS_TOL_M if view.error == "err_pos" else DEFAULT_TOL)
+    unit = f" {view.error_unit}" if view.error_unit else ""
     margin = float(tuned.get("margin", DEFAULT_MARGIN)) if tuned else DEFAULT_MARGIN
     summary = tables.Table(
         "Methods", f"Per method: declared and fitted order, stability intervals on the real "
         f"and imaginary axes, the smallest predicted and measured largest stable step over "
-        f"the envelope and their worst ratio; then the largest swept step stable everywhere, "
-        f"at most {1 - margin:g} of the measured limit, with worst position error <= "
-        f"{pos_tol:g} m{'' if tuned else ' (defaults: no tuned config given)'}, and its "
+        f"the envelope and their worst ratio, and how many runs had a nonlinear solve fail "
+        f"(never counted stable: a solver failure, not the method's instability); then the "
+        f"largest swept step stable everywhere, at most {1 - margin:g} of the measured limit, "
+        f"with worst {view.error_label} <= {tol:g}{unit}"
+        f"{'' if tuned else ' (defaults: no tuned config given)'}, and its "
         f"cost (wall time: the fastest of the timed rounds).",
-        tables.method_summary(sweep, pos_tol, margin), tables.METHOD_COLUMNS)
+        tables.method_summary(sweep, tol, margin, view.error), tables.METHOD_COLUMNS)
     decision = tables.Table(
         "Tuning decision", "The (method, h) that `stepzoo tune` chose (rank 1) and its "
         "runners-up, with their cost per simulated second and the reason each lost."

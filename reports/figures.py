@@ -18,6 +18,7 @@ from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
 
 from stepzoo.integrators import METHODS
+from stepzoo.reports.load import tolerance
 from stepzoo.output import atomic_write
 from stepzoo.integrators.stability import amplification_theory, region_grid
 
@@ -76,27 +77,29 @@ def method_order(names) -> list[str]:
     return [m for m in METHODS if m in names] + sorted(names - set(METHODS))
 
 
-def worst_case(runs: pd.DataFrame) -> pd.DataFrame:
-    """Per (method, h): the worst position [m] and yaw-rate [rad/s] errors over the envelope's
-    operating points and the median costs; only steps stable at every point (an unstable
-    point has no error)."""
+def worst_case(runs: pd.DataFrame, error: str = "err") -> pd.DataFrame:
+    """Per (method, h): `worst`, the largest `error` (a runs column: err_pos [m], or err, the
+    error norm) over the envelope's operating points, the largest error norm `err` (the one
+    orders are fitted on) and the median costs; only steps stable at every point (an
+    unstable point has no error)."""
     g = runs.groupby(["method", "h"])
     table = pd.DataFrame({
         "all_stable": g["stable"].all(),
-        "err_pos": g["err_pos"].max(),
-        "err_r": g["err_r"].max(),
+        "worst": g[error].max(),
+        "err": g["err"].max(),
         "evals_per_s": g["evals_per_s"].median(),
         "time_per_s": g["time_per_step_s"].median(),
     }).reset_index()
     table["time_per_s"] = table["time_per_s"] / table["h"]     # wall seconds per simulated s
-    ok = table["all_stable"] & np.isfinite(table["err_pos"]) & (table["err_pos"] > 0)
+    ok = table["all_stable"] & np.isfinite(table["worst"]) & (table["worst"] > 0)
     return table[ok].sort_values(["method", "h"])
 
 
 def _sample_runs(traj: pd.DataFrame):
     """(reference run, {method: [(h, run, past its stability limit)]}) of the trajectories."""
     ref = traj[traj["method"] == "reference"].sort_values("t")
-    bound = {c: BLOWUP_FACTOR * max(np.abs(ref[c]).max(), 1e-9) for c in ("vy", "r")}
+    states = [c for c in traj.columns if c not in ("method", "h", "t", "past_limit")]
+    bound = {c: BLOWUP_FACTOR * max(np.abs(ref[c]).max(), 1e-9) for c in states}
     runs = {}
     for (name, h), run in traj[traj["method"] != "reference"].groupby(["method", "h"]):
         run = run.sort_values("t")
@@ -105,7 +108,7 @@ def _sample_runs(traj: pd.DataFrame):
         if "past_limit" in run:
             past = bool(run["past_limit"].any())
         else:
-            past = (not np.isfinite(run[["vy", "r", "X", "Y"]].to_numpy()).all()
+            past = (not np.isfinite(run[states].to_numpy()).all()
                     or any(np.abs(run[c]).max() > bound[c] for c in bound))
         runs.setdefault(name, []).append((float(h), run, past))
     return ref, {m: runs[m] for m in method_order(runs)}
@@ -159,36 +162,66 @@ def _operating_point(sweep) -> str:
     point = sweep.manifest.get("trajectory_point") or sweep.manifest.get("paper_point")
     if isinstance(point, dict) and {"vx", "delta"} <= set(point):
         return f" at vx = {point['vx']:g} m/s, delta = {point['delta']:.3g} rad"
+    if isinstance(point, dict) and point:
+        return " at " + ", ".join(f"{k} = {v:.4g}" for k, v in point.items())
     return " at the paper's operating point"
 
 
+def state_label(view, state: str) -> str:
+    """An axis label: the bicycle's states with their units, any other by name."""
+    units = {"X": "m", "Y": "m", "psi": "rad", "vy": "m/s", "r": "rad/s", "t": "s"}
+    return f"{state} [{units[state]}]" if (view.vehicle or state == "t") and state in units \
+        else state
+
+
+def trajectory_title(view) -> str:
+    return "Yaw rate against time" if view.plot_state == "r" else \
+        f"{view.plot_state} against time"
+
+
 def yaw_rate(sweep, out_dir: Path) -> Shown:
-    """Figure 1: yaw rate r [rad/s] against time t [s], each method at several steps."""
-    fig, past = _trajectory_figure(sweep.trajectories, "t", "r", "t [s]", "r [rad/s]",
-                                   equal=False)
+    """Figure 1: the plotted state (the bicycle's yaw rate r [rad/s]) against time t [s],
+    each method at several steps."""
+    view = sweep.view
+    state = view.plot_state
+    fig, past = _trajectory_figure(sweep.trajectories, "t", state, "t [s]",
+                                   state_label(view, state), equal=False)
     name = _save(fig, out_dir, "fig1_yaw_rate.png")
-    caption = ("Yaw rate against time for each method at several fixed step sizes (coloured "
-               f"by step){_operating_point(sweep)}, over the adaptive Dormand-Prince "
-               "reference (black, dashed); the paper's Figure 2. A stable step follows the "
+    what = "Yaw rate" if state == "r" else f"The state {state} of {view.model}"
+    caption = (f"{what} against time for each method at several fixed step sizes (coloured "
+               f"by step){_operating_point(sweep)}, over the tight reference (black, "
+               "dashed); for the bicycle, the paper's Figure 2. A stable step follows the "
                "reference, and the gap grows with the step; red dotted runs are past the "
                "method's predicted stability limit: they oscillate with growing amplitude "
                "and leave the panel. "
                + (f"Past the limit: {', '.join(past)}." if past
                   else "No sampled run is past its limit (A-stable methods have none)."))
-    return Shown(1, "Yaw rate against time", caption, [(name, "")])
+    return Shown(1, trajectory_title(view), caption, [(name, "")])
+
+
+def plane_title(view) -> str:
+    return "X-Y paths" if view.vehicle else f"{view.plane[0]}-{view.plane[1]} phase plane"
 
 
 def xy_paths(sweep, out_dir: Path) -> Shown:
-    """Figure 2: X-Y path [m] of each method at several steps, with the reference."""
-    fig, past = _trajectory_figure(sweep.trajectories, "X", "Y", "X [m]", "Y [m]",
-                                   equal=True)
+    """Figure 2: the X-Y path [m] (or, for a model without position, the plane of two of its
+    states) of each method at several steps, with the reference."""
+    view = sweep.view
+    xs, ys = view.plane
+    fig, past = _trajectory_figure(sweep.trajectories, xs, ys, state_label(view, xs),
+                                   state_label(view, ys), equal=view.vehicle)
     name = _save(fig, out_dir, "fig2_xy_paths.png")
-    caption = ("The vehicle's path in the plane for the same runs as Figure 1; the paper's "
-               "Figure 3. The steady turn of the reference (black, dashed) is a circle; a "
-               "stable step stays on it, a coarse one drifts off it, and a run past the "
-               "stability limit (red, dotted) veers off. Past the limit: "
-               + (", ".join(past) or "none") + ".")
-    return Shown(2, "X-Y paths", caption, [(name, "")])
+    past_text = " Past the limit: " + (", ".join(past) or "none") + "."
+    if view.vehicle:
+        caption = ("The vehicle's path in the plane for the same runs as Figure 1; the "
+                   "paper's Figure 3. The steady turn of the reference (black, dashed) is a "
+                   "circle; a stable step stays on it, a coarse one drifts off it, and a run "
+                   "past the stability limit (red, dotted) veers off." + past_text)
+    else:
+        caption = (f"The same runs as Figure 1 in the plane of {xs} and {ys}: a stable step "
+                   "stays near the reference (black, dashed), a run past the stability limit "
+                   "(red, dotted) leaves it." + past_text)
+    return Shown(2, plane_title(view), caption, [(name, "")])
 
 
 def scaled_eigenvalues(sweep, tuned):
@@ -236,7 +269,8 @@ def stability_regions(sweep, tuned, out_dir: Path) -> Shown:
         safe = [n for n, k in outside_by.items() if k == 0]
         caption = (f"Stability region of each method (shaded: |R(z)| <= 1, or the root "
                    f"condition for multistep methods) with h*lambda for every eigenvalue of "
-                   f"the lateral dynamics over the sweep's envelope at the tuned step h = "
+                   f"df/dx at the initial state of each of the envelope's operating points at "
+                   f"the tuned step h = "
                    f"{h:g} s (blue dots inside, red crosses outside; the tuned method "
                    f"{tuned['method']} has a bold title). A method is stable at this step on "
                    f"the whole envelope when every point lies in its region: "
@@ -248,16 +282,19 @@ def stability_regions(sweep, tuned, out_dir: Path) -> Shown:
     return Shown(3, "Stability regions and h*lambda at the tuned step", caption, [(name, "")])
 
 
+ERROR_NORM = "worst error (error states over their scales)"
+
+
 def error_vs_step(sweep, out_dir: Path) -> Shown:
-    """Figure 4: worst yaw-rate error [rad/s] against h [s], log-log, with declared slopes."""
+    """Figure 4: worst error norm against h [s], log-log, with declared slopes."""
     table = worst_case(sweep.runs)
-    table = table[np.isfinite(table["err_r"]) & (table["err_r"] > 0)]
+    table = table[np.isfinite(table["err"]) & (table["err"] > 0)]
     names = method_order(table["method"])
     summary = sweep.summary.set_index("method")
     fig, axes = _panels(len(names), sharex=True, sharey=True)
     for ax, name in zip(axes, names):
         rows = table[table["method"] == name]
-        h, err = rows["h"].to_numpy(), rows["err_r"].to_numpy()
+        h, err = rows["h"].to_numpy(), rows["err"].to_numpy()
         ax.loglog(h, err, "o-", color="#1f77b4", ms=3, lw=1.0, label="measured")
         order = summary["order_declared"].get(name)
         if pd.notna(order) and len(h):
@@ -269,12 +306,14 @@ def error_vs_step(sweep, out_dir: Path) -> Shown:
         fit = float(summary["order_fit_median"].get(name, np.nan))
         ax.set_title(f"{name}" + (f" (fit {fit:.2f})" if np.isfinite(fit) else ""), fontsize=9)
         ax.set_xlabel("h [s]", fontsize=8)
-        ax.set_ylabel("worst yaw-rate error [rad/s]", fontsize=8)
+        ax.set_ylabel(ERROR_NORM, fontsize=8)
         ax.tick_params(which="both", labelsize=7)
         ax.legend(fontsize=6)
     name = _save(fig, out_dir, "fig4_error_vs_step.png")
-    caption = ("Worst yaw-rate error over the envelope (largest over its operating points, "
-               "against the reference; the error the sweep fits its orders on) against step "
+    errs = sweep.view.error_states
+    caption = ("Worst error over the envelope (largest over its operating points and the run "
+               f"of |error| / scale of the error states {', '.join(errs)}, against the "
+               "reference; the error the sweep fits its orders on) against step "
                "size, log-log, for every step stable at all points; the dashed line has the "
                "slope of the method's declared order, and the title gives the fitted order "
                "(median over points). In the asymptotic range the measured line is parallel "
@@ -289,9 +328,18 @@ def _styles(names):
     return {n: (cmap(i % 20), marks[i % len(marks)]) for i, n in enumerate(names)}
 
 
+def error_axis(view) -> str:
+    unit = f" [{view.error_unit}]" if view.error_unit else ""
+    return f"worst {view.error_label} over the envelope{unit}"
+
+
 def work_precision(sweep, tuned, out_dir: Path) -> Shown:
-    """Figure 5: worst error [m] against RHS evaluations and wall time per simulated second."""
-    table = worst_case(sweep.runs)
+    """Figure 5: worst error (position [m], or the error norm) against RHS evaluations and
+    wall time per simulated second."""
+    view = sweep.view.with_tolerance(tuned)
+    tol = tolerance(tuned)
+    unit = f" {view.error_unit}" if view.error_unit else ""
+    table = worst_case(sweep.runs, view.error)
     names = method_order(table["method"])
     style = _styles(names)
     fig = Figure(figsize=(12.5, 5.0), layout="constrained")
@@ -303,24 +351,24 @@ def work_precision(sweep, tuned, out_dir: Path) -> Shown:
         for name in names:
             rows = table[table["method"] == name]
             colour, mark = style[name]
-            ax.loglog(rows[col], rows["err_pos"], marker=mark, color=colour, ms=4, lw=1.0,
+            ax.loglog(rows[col], rows["worst"], marker=mark, color=colour, ms=4, lw=1.0,
                       label=name)
         if tuned:
-            ax.axhline(float(tuned["pos_tol_m"]), color="black", ls=":", lw=1.0)
+            ax.axhline(tol, color="black", ls=":", lw=1.0)
             pick = table[(table["method"] == tuned["method"])
                          & np.isclose(table["h"], float(tuned["h"]))]
-            ax.loglog(pick[col], pick["err_pos"], "*", color="black", ms=14, mfc="none")
+            ax.loglog(pick[col], pick["worst"], "*", color="black", ms=14, mfc="none")
         ax.set_xlabel(label)
         ax.grid(True, which="major", lw=0.3)
-    axes[0].set_ylabel("worst position error over the envelope [m]")
+    axes[0].set_ylabel(error_axis(view))
     handles, labels = axes[0].get_legend_handles_labels()
     if tuned:
         handles += [Line2D([], [], color="black", ls=":"),
                     Line2D([], [], marker="*", color="black", ls="", ms=12, mfc="none")]
-        labels += [f"tolerance {float(tuned['pos_tol_m']):g} m", "tuned choice"]
+        labels += [f"tolerance {tol:g}{unit}", "tuned choice"]
     fig.legend(handles, labels, loc="outside right center", fontsize=8)
     name = _save(fig, out_dir, "fig5_work_precision.png")
-    caption = ("Work-precision: worst position error over the envelope against cost, one line "
+    caption = (f"Work-precision: worst {view.error_label} over the envelope against cost, one line "
                "per method, one point per step size (stable at every operating point), against "
                "two costs: right-hand-side evaluations per simulated second, and measured wall "
                "time per simulated second (the fastest of the sweep's timed rounds; the "
@@ -331,11 +379,30 @@ def work_precision(sweep, tuned, out_dir: Path) -> Shown:
     return Shown(5, "Work-precision", caption, [(name, "")])
 
 
+def envelope_axes(view, limits):
+    """(x variable, colour variable or None, the colour variable's values)."""
+    xvar = view.variables[0]
+    cvar = view.variables[1] if len(view.variables) > 1 else None
+    values = sorted(limits[cvar].unique()) if cvar else [None]
+    return xvar, cvar, values
+
+
+def variable_label(var: str) -> str:
+    units = {"vx": "m/s", "v": "m/s", "delta": "rad"}
+    return f"{var} [{units[var]}]" if var in units else var
+
+
+def limit_title(view) -> str:
+    return f"Measured and predicted largest stable step against {view.variables[0]}"
+
+
 def stable_step_vs_speed(sweep, out_dir: Path) -> Shown:
-    """Figure 6: largest stable step [s] over vx [m/s], predicted (lines) and measured (dots)."""
+    """Figure 6: largest stable step [s] over the first envelope variable (the bicycle's vx
+    [m/s]), one line per value of the second; predicted (lines) and measured (dots)."""
     limits = sweep.limits
+    view = sweep.view
     names = method_order(limits["method"])
-    deltas = sorted(limits["delta"].unique())
+    xvar, cvar, deltas = envelope_axes(view, limits)
     colours = dict(zip(deltas, _shades(len(deltas))))
     h_tried = sweep.runs.groupby("method")["h"].max()
     fig, axes = _panels(len(names), sharex=True, sharey=True)
@@ -347,34 +414,36 @@ def stable_step_vs_speed(sweep, out_dir: Path) -> Shown:
             ax.text(0.5, 0.5, "no limit predicted\n(A-stable)", ha="center", va="center",
                     transform=ax.transAxes, fontsize=8)
         for delta in deltas:
-            sub = rows[rows["delta"] == delta].sort_values("vx")
+            sub = (rows if cvar is None else rows[rows[cvar] == delta]).sort_values(xvar)
             colour = colours[delta]
             finite = np.isfinite(sub["h_pred"])
-            ax.plot(sub["vx"][finite], sub["h_pred"][finite], "-", color=colour, lw=1.2,
-                    label=f"delta={delta:.3g} rad")
+            ax.plot(sub[xvar][finite], sub["h_pred"][finite], "-", color=colour, lw=1.2,
+                    label=f"{cvar}={delta:.3g}" if cvar else "predicted")
             meas = sub["h_meas"].to_numpy(dtype=float)
             ok = np.isfinite(meas) & (meas > 0)
-            ax.plot(sub["vx"][ok], meas[ok], "o", color=colour, ms=4, mfc="none")
+            ax.plot(sub[xvar][ok], meas[ok], "o", color=colour, ms=4, mfc="none")
             if (~ok).any() and name in h_tried:
                 # No blow-up at any tried step: the true limit lies above the largest one.
-                ax.plot(sub["vx"][~ok], np.full((~ok).sum(), h_tried[name]), "^",
+                ax.plot(sub[xvar][~ok], np.full((~ok).sum(), h_tried[name]), "^",
                         color=colour, ms=5)
         ax.set_yscale("log")
         ax.set_title(name, fontsize=9)
-        ax.set_xlabel("vx [m/s]", fontsize=8)
+        ax.set_xlabel(variable_label(xvar), fontsize=8)
         ax.set_ylabel("largest stable h [s]", fontsize=8)
         ax.tick_params(which="both", labelsize=7)
     if axes:
         axes[0].legend(fontsize=6)
     name = _save(fig, out_dir, "fig6_stable_step_vs_speed.png")
-    caption = ("Largest stable step against speed, per method and steer angle: lines are the "
-               "prediction from the eigenvalues and the stability region, circles the step "
-               "where the sweep measured blow-up; a triangle means no blow-up up to the "
-               "largest step tried. Circles on the lines confirm the linear theory; the limit "
-               "grows with speed because the eigenvalues scale like 1/vx, so the slowest "
-               "speed of the envelope sets the step."
+    bicycle = ("; the limit grows with speed because the eigenvalues scale like 1/vx, so the "
+               "slowest speed of the envelope sets the step" if xvar == "vx" else "")
+    caption = (f"Largest stable step against {xvar}, per method"
+               + (f" and {cvar}" if cvar else "") + ": lines are the "
+               "prediction from the eigenvalues of df/dx along the reference and the "
+               "stability region, circles the step where the sweep measured blow-up; a "
+               "triangle means no blow-up up to the largest step tried. Circles on the lines "
+               f"confirm the frozen-Jacobian theory{bicycle}."
                + (f" A-stable, no limit: {', '.join(unlimited)}." if unlimited else ""))
-    return Shown(6, "Measured and predicted largest stable step", caption, [(name, "")])
+    return Shown(6, limit_title(view), caption, [(name, "")])
 
 
 def _plan_png(plan, out_dir: Path) -> str:

@@ -17,8 +17,10 @@ from plotly.subplots import make_subplots
 
 from stepzoo.integrators import METHODS
 from stepzoo.integrators.stability import amplification_theory, region_grid
-from stepzoo.reports.figures import (_sample_runs, method_order, scaled_eigenvalues,
-                                     worst_case)
+from stepzoo.reports.figures import (ERROR_NORM, _sample_runs, envelope_axes, error_axis,
+                                     method_order, scaled_eigenvalues, state_label,
+                                     variable_label, worst_case)
+from stepzoo.reports.load import tolerance
 
 HEIGHT_PX = 460
 MAX_POINTS = 400          # points kept per trajectory trace: enough for the eye and the hover
@@ -77,13 +79,13 @@ def _shown_first(names, tuned) -> set:
     return set(list(names)[:3])
 
 
-def _trajectories(sweep, tuned, xcol, ycol, xunit, yunit, xname, yname, equal) -> go.Figure:
+def _trajectories(sweep, tuned, xcol, ycol, equal) -> go.Figure:
     ref, runs = _sample_runs(sweep.trajectories)
     colours = _colours(runs)
     shown = _shown_first(runs, tuned)
     fig = go.Figure()
-    hover = (f"%{{meta}}<br>{xname} = %{{x:.6g}} {xunit}<br>{yname} = %{{y:.6g}} {yunit}"
-             "<extra></extra>")
+    xlabel, ylabel = state_label(sweep.view, xcol), state_label(sweep.view, ycol)
+    hover = f"%{{meta}}<br>{xlabel} = %{{x:.6g}}<br>{ylabel} = %{{y:.6g}}<extra></extra>"
     ref_t = _thin(ref)
     fig.add_trace(go.Scatter(x=ref_t[xcol], y=ref_t[ycol], mode="lines", name="reference",
                              line=REFERENCE, meta="reference", hovertemplate=hover))
@@ -106,7 +108,7 @@ def _trajectories(sweep, tuned, xcol, ycol, xunit, yunit, xname, yname, equal) -
     pts = pts[np.isfinite(pts).all(axis=1)]
     lo, hi = pts.min(axis=0), pts.max(axis=0)
     pad = 0.05 * np.maximum(hi - lo, 1e-6)
-    _layout(fig, f"{xname} [{xunit}]", f"{yname} [{yunit}]", height=560)
+    _layout(fig, xlabel, ylabel, height=560)
     fig.update_xaxes(range=[lo[0] - pad[0], hi[0] + pad[0]])
     fig.update_yaxes(range=[lo[1] - pad[1], hi[1] + pad[1]])
     if equal:
@@ -115,13 +117,16 @@ def _trajectories(sweep, tuned, xcol, ycol, xunit, yunit, xname, yname, equal) -
 
 
 def yaw_rate(sweep, tuned=None) -> list:
-    """Figure 1: yaw rate [rad/s] against time [s] of every sampled run and the reference."""
-    return [_trajectories(sweep, tuned, "t", "r", "s", "rad/s", "t", "yaw rate r", False)]
+    """Figure 1: the plotted state (the bicycle's yaw rate [rad/s]) against time [s] of every
+    sampled run and the reference."""
+    return [_trajectories(sweep, tuned, "t", sweep.view.plot_state, False)]
 
 
 def xy_paths(sweep, tuned=None) -> list:
-    """Figure 2: the X-Y path [m] of every sampled run and the reference."""
-    return [_trajectories(sweep, tuned, "X", "Y", "m", "m", "X", "Y", True)]
+    """Figure 2: the X-Y path [m] (or two states' plane) of every sampled run and the
+    reference."""
+    xs, ys = sweep.view.plane
+    return [_trajectories(sweep, tuned, xs, ys, sweep.view.vehicle)]
 
 
 def _boundary(m, re, im) -> tuple[np.ndarray, np.ndarray]:
@@ -170,23 +175,23 @@ def stability_regions(sweep, tuned=None) -> list:
 
 
 def error_vs_step(sweep, tuned=None) -> list:
-    """Figure 4: worst yaw-rate error [rad/s] against h [s], log-log, declared slopes dashed."""
+    """Figure 4: worst error norm against h [s], log-log, declared slopes dashed."""
     table = worst_case(sweep.runs)
-    table = table[np.isfinite(table["err_r"]) & (table["err_r"] > 0)]
+    table = table[np.isfinite(table["err"]) & (table["err"] > 0)]
     names = method_order(table["method"])
     summary = sweep.summary.set_index("method")
     colours = _colours(names)
     fig = go.Figure()
     for name in names:
         rows = table[table["method"] == name]
-        h, err = rows["h"].to_numpy(), rows["err_r"].to_numpy()
+        h, err = rows["h"].to_numpy(), rows["err"].to_numpy()
         fit = summary["order_fit_median"].get(name, np.nan)
         label = name + (f" (fitted order {fit:.2f})" if pd.notna(fit) else "")
         fig.add_trace(go.Scatter(
             x=h, y=err, mode="lines+markers", name=label, legendgroup=name, meta=name,
             line=dict(color=colours[name]),
-            hovertemplate="%{meta}<br>h = %{x:.5g} s<br>worst yaw-rate error = %{y:.4g} "
-            "rad/s<extra></extra>"))
+            hovertemplate="%{meta}<br>h = %{x:.5g} s<br>worst error = %{y:.4g}"
+            "<extra></extra>"))
         order = summary["order_declared"].get(name)
         if pd.notna(order) and len(h):
             i = len(h) // 2
@@ -195,7 +200,7 @@ def error_vs_step(sweep, tuned=None) -> list:
                 x=hh, y=err[i] * (hh / h[i]) ** int(order), mode="lines", legendgroup=name,
                 showlegend=False, line=dict(color=colours[name], dash="dash", width=1),
                 hovertemplate=f"{name}: slope {int(order)} (declared order)<extra></extra>"))
-    _layout(fig, "step size h [s]", "worst yaw-rate error over the envelope [rad/s]",
+    _layout(fig, "step size h [s]", ERROR_NORM,
             logx=True, logy=True, height=560)
     return [fig]
 
@@ -213,9 +218,11 @@ def _timing_spread(runs: pd.DataFrame) -> pd.DataFrame:
 
 
 def work_precision(sweep, tuned=None) -> list:
-    """Figure 5: worst position error [m] against RHS evaluations and against the fastest
-    round's wall time per simulated second, bars reaching the median round."""
-    table = worst_case(sweep.runs).merge(_timing_spread(sweep.runs), on=["method", "h"],
+    """Figure 5: worst error (position [m], or the error norm) against RHS evaluations and
+    against the fastest round's wall time per simulated second, bars reaching the median
+    round."""
+    view = sweep.view.with_tolerance(tuned)
+    table = worst_case(sweep.runs, view.error).merge(_timing_spread(sweep.runs), on=["method", "h"],
                                          how="left")
     names = method_order(table["method"])
     colours = _colours(names)
@@ -228,31 +235,31 @@ def work_precision(sweep, tuned=None) -> list:
                                   rows["time_per_step_median_s"], rows["time_per_step_max_s"]])
         for row, col in ((1, "evals_per_s"), (2, "time_per_s")):
             fig.add_trace(go.Scatter(
-                x=rows[col], y=rows["err_pos"], mode="lines+markers", name=name,
+                x=rows[col], y=rows["worst"], mode="lines+markers", name=name,
                 legendgroup=name, showlegend=row == 1, line=dict(color=colours[name]),
                 meta=name, customdata=custom,
                 error_x=dict(type="data", array=spread, arrayminus=np.zeros(len(rows)),
                              visible=row == 2 and bool(np.isfinite(spread).any()),
                              thickness=1, width=0),
-                hovertemplate="%{meta}, h = %{customdata[0]:.5g} s<br>worst position error "
-                "= %{y:.4g} m<br>" + ("RHS evaluations per simulated s = %{x:.5g}" if row == 1
+                hovertemplate="%{meta}, h = %{customdata[0]:.5g} s<br>worst "
+                f"{view.error_label} = %{{y:.4g}} {view.error_unit}<br>" + ("RHS evaluations per simulated s = %{x:.5g}" if row == 1
                                        else "wall time per simulated s: fastest %{customdata[1]"
                                        ":.4g} s, median %{customdata[2]:.4g} s, slowest "
                                        "%{customdata[3]:.4g} s") + "<extra></extra>"),
                 row=row, col=1)
     if tuned:
-        tol = float(tuned["pos_tol_m"])
+        tol = tolerance(tuned)
         pick = table[(table["method"] == tuned["method"])
                      & np.isclose(table["h"], float(tuned["h"]))]
         for row, col in ((1, "evals_per_s"), (2, "time_per_s")):
             fig.add_hline(y=tol, line=dict(color="black", dash="dot", width=1), row=row, col=1)
             fig.add_trace(go.Scatter(
-                x=pick[col], y=pick["err_pos"], mode="markers", name="tuned choice",
+                x=pick[col], y=pick["worst"], mode="markers", name="tuned choice",
                 legendgroup="tuned", showlegend=row == 1,
                 marker=dict(symbol="star-open", size=16, color="black"),
                 hovertemplate=f"tuned: {tuned['method']} at h = {float(tuned['h']):g} s"
                 "<extra></extra>"), row=row, col=1)
-    _layout(fig, "", "worst position error [m]", logx=True, logy=True, height=820)
+    _layout(fig, "", error_axis(view), logx=True, logy=True, height=820)
     fig.update_xaxes(title_text="right-hand-side evaluations per simulated second", row=1,
                      col=1)
     fig.update_xaxes(title_text="wall time per simulated second, fastest round [s]", row=2,
@@ -262,39 +269,42 @@ def work_precision(sweep, tuned=None) -> list:
 
 
 def stable_step_vs_speed(sweep, tuned=None) -> list:
-    """Figure 6: largest stable step [s] against vx [m/s]: predicted lines, measured markers."""
+    """Figure 6: largest stable step [s] against the first envelope variable (the bicycle's
+    vx [m/s]), a dash per value of the second: predicted lines, measured markers."""
     limits = sweep.limits
     names = method_order(limits["method"])
     colours = _colours(names)
-    deltas = sorted(limits["delta"].unique())
+    xvar, cvar, deltas = envelope_axes(sweep.view, limits)
     fig = go.Figure()
     for name in names:
         rows = limits[limits["method"] == name]
         first = True
         for k, delta in enumerate(deltas):
-            sub = rows[rows["delta"] == delta].sort_values("vx")
+            sub = (rows if cvar is None else rows[rows[cvar] == delta]).sort_values(xvar)
             pred = sub["h_pred"].to_numpy(float)
             meas = sub["h_meas"].to_numpy(float)
-            custom = np.column_stack([np.full(len(sub), delta), pred, meas])
-            hover = ("%{meta}, delta = %{customdata[0]:.3g} rad, vx = %{x:.3g} m/s<br>"
+            custom = np.column_stack([np.full(len(sub), np.nan if delta is None else delta),
+                                      pred, meas])
+            hover = ("%{meta}" + (f", {cvar} = %{{customdata[0]:.3g}}" if cvar else "")
+                     + f", {xvar} = %{{x:.4g}}<br>"
                      "largest stable h: predicted %{customdata[1]:.4g} s, measured "
                      "%{customdata[2]:.4g} s<extra></extra>")
             ok = np.isfinite(pred)
             if ok.any():
                 fig.add_trace(go.Scatter(
-                    x=sub["vx"][ok], y=pred[ok], mode="lines", name=name, legendgroup=name,
+                    x=sub[xvar][ok], y=pred[ok], mode="lines", name=name, legendgroup=name,
                     showlegend=first, meta=name, customdata=custom[ok], hovertemplate=hover,
                     line=dict(color=colours[name], dash=DASHES[k % len(DASHES)], width=1.5)))
                 first = False
             found = np.isfinite(meas) & (meas > 0)
             if found.any():
                 fig.add_trace(go.Scatter(
-                    x=sub["vx"][found], y=meas[found], mode="markers", name=name,
+                    x=sub[xvar][found], y=meas[found], mode="markers", name=name,
                     legendgroup=name, showlegend=first, meta=name, customdata=custom[found],
                     hovertemplate=hover, marker=dict(color=colours[name], symbol="circle-open",
                                                      size=8)))
                 first = False
-    _layout(fig, "speed vx [m/s]", "largest stable step h [s]", logy=True, height=560)
+    _layout(fig, variable_label(xvar), "largest stable step h [s]", logy=True, height=560)
     return [fig]
 
 

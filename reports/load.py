@@ -11,22 +11,69 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from stepzoo.bench import schema
 from stepzoo.bench.sweep_folder import check_finished
 from stepzoo.errors import UsageError
 
-# Columns each sweep table must have; the figures and tables read nothing else.
-SWEEP_TABLES = {
-    "runs.parquet": ["method", "h", "point", "vx", "delta", "stable", "err_pos", "err_r",
-                     "evals_per_s", "time_per_step_s"],
-    "limits.parquet": ["method", "point", "vx", "delta", "h_pred", "h_meas"],
-    "summary.csv": ["method", "family", "order_declared", "order_fit_median", "real_interval",
-                    "imag_interval", "h_meas_min", "h_pred_min", "worst_ratio"],
-    "eigenvalues.parquet": ["point", "vx", "delta", "lam_re", "lam_im"],
-    "trajectories.parquet": ["method", "h", "t", "X", "Y", "psi", "vy", "r"],
-}
-TUNED_KEYS = ["method", "h", "pos_tol_m"]
+# Columns each sweep table must have, whatever the model (the schema's), plus those the
+# manifest's model names: its envelope variables and states (View).
+SWEEP_TABLES = {f"{name}.{'csv' if name == 'summary' else 'parquet'}": columns
+                for name, columns in schema.REQUIRED.items()}
+TUNED_KEYS = ["method", "h"]
+TOLERANCES = {"pos_tol_m": ("err_pos", "m", "position error"),
+              "tol": ("err", "", "error (error states over their scales)")}
+# A sweep written before models were data: the 5-state bicycle over (vx, delta).
+BICYCLE = {"name": "dynamic5", "states": ["X", "Y", "psi", "vy", "r"], "inputs": ["delta"],
+           "variables": ["vx", "delta"], "error_states": ["vy", "r"], "error_scales": [1, 1],
+           "vehicle": True}
 PLAN_KEYS = ["status", "path", "start", "goal", "tree", "map", "stats"]
 PLAN_MAP_KEYS = ["file", "resolution", "origin"]
+
+
+@dataclass(frozen=True)
+class View:
+    """How the report names and draws a sweep's model: Figure 1's state against time, Figure
+    2's plane, the error the work-precision and error figures plot (`error`, a runs column,
+    and its label), the envelope variables (x axis, then colour)."""
+    model: str
+    vehicle: bool
+    states: tuple
+    variables: tuple
+    error_states: tuple
+    plot_state: str
+    plane: tuple
+    error: str
+    error_unit: str
+    error_label: str
+
+    @staticmethod
+    def of(manifest: dict, runs: pd.DataFrame) -> "View":
+        spec = manifest.get("model_spec") or BICYCLE
+        states, errs = tuple(spec["states"]), tuple(spec["error_states"])
+        vehicle = bool(spec.get("vehicle")) and "err_pos" in runs
+        plot = "r" if vehicle and "r" in states else errs[0]
+        plane = ("X", "Y") if vehicle else (errs + tuple(s for s in states if s not in errs)
+                                            + errs)[:2]
+        column, unit, label = TOLERANCES["pos_tol_m" if vehicle else "tol"]
+        return View(str(spec.get("name", manifest.get("model", "?"))), vehicle, states,
+                    tuple(spec["variables"]), errs, plot, plane, column, unit, label)
+
+    def with_tolerance(self, tuned) -> "View":
+        """The view whose error axis is the one the tuned config's tolerance bounds."""
+        for key, (column, unit, label) in TOLERANCES.items():
+            if tuned and key in tuned:
+                return View(*[getattr(self, f) for f in ("model", "vehicle", "states",
+                              "variables", "error_states", "plot_state", "plane")],
+                            column, unit, label)
+        return self
+
+
+def tolerance(tuned) -> float | None:
+    """The tuned config's tolerance, in the unit of its error axis."""
+    for key in TOLERANCES:
+        if tuned and key in tuned:
+            return float(tuned[key])
+    return None
 
 
 @dataclass(frozen=True)
@@ -39,6 +86,10 @@ class Sweep:
     summary: pd.DataFrame
     eigenvalues: pd.DataFrame
     trajectories: pd.DataFrame
+
+    @property
+    def view(self) -> View:
+        return View.of(self.manifest, self.runs)
 
 
 @dataclass(frozen=True)
@@ -86,6 +137,15 @@ def load_sweep(folder) -> Sweep:
             raise UsageError(f"{folder / name} lacks column(s) {', '.join(lacking)}; it was "
                              "not written by this version of `stepzoo sweep`, rerun it")
         tables[name.split(".")[0]] = table
+    view = View.of(manifest, tables["runs"])
+    wanted = {"runs.parquet": [*view.variables, view.error, "err"],
+              "limits.parquet": list(view.variables),
+              "trajectories.parquet": list(view.states)}
+    for name, columns in wanted.items():
+        lacking = [c for c in columns if c not in tables[name.split(".")[0]].columns]
+        if lacking:
+            raise UsageError(f"{folder / name} lacks column(s) {', '.join(lacking)} that its "
+                             "manifest's model names; rerun `stepzoo sweep`")
     check_finished(folder, manifest, tables["runs"], tables["limits"])
     if tables["runs"].empty:
         raise UsageError(f"{folder / 'runs.parquet'} has no rows; rerun `stepzoo sweep`")
@@ -100,13 +160,15 @@ def load_tuned(path) -> dict:
     path = Path(path)
     if not path.is_file():
         raise UsageError(f"tuned config {path} does not exist; run `stepzoo tune SWEEP_DIR "
-                         f"--pos-tol M --out {path}` first")
+                         f"--tol E --out {path}` first")
     try:
         data = tomllib.loads(path.read_text())
     except (UnicodeDecodeError, tomllib.TOMLDecodeError) as err:
         raise UsageError(f"tuned config {path} is damaged ({err}); rerun `stepzoo tune`") \
             from None
     missing = [k for k in TUNED_KEYS if k not in data]
+    if not any(k in data for k in TOLERANCES):
+        missing.append(" or ".join(TOLERANCES))
     if missing:
         raise UsageError(f"tuned config {path} lacks {', '.join(missing)}; rerun `stepzoo tune`")
     return data

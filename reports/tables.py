@@ -26,6 +26,7 @@ METHOD_COLUMNS = [
     ("order_fit_median", "fitted order"), ("real_interval", "real interval"),
     ("imag_interval", "imag. interval"), ("h_pred_min", "h max predicted [s]"),
     ("h_meas_min", "h max measured [s]"), ("worst_ratio", "worst meas./pred."),
+    ("solver_failures", "runs with failed solves"),
     ("h_at_tol", "h at tolerance [s]"), ("evals_at_tol", "RHS evals per sim. s"),
     ("time_at_tol", "wall s per sim. s"),
 ]
@@ -36,11 +37,12 @@ TUNING_COLUMNS = [
 ]
 
 
-def method_summary(sweep, pos_tol: float, margin: float) -> list[dict]:
+def method_summary(sweep, tol: float, margin: float, error: str = "err_pos") -> list[dict]:
     """One row per method: the sweep's summary.csv plus the largest step [s] that is stable at
-    every operating point, keeps `margin` below the measured limit and has a worst position
-    error <= pos_tol [m], with its costs (None when no step qualifies)."""
-    table = worst_case(sweep.runs)
+    every operating point, keeps `margin` below the measured limit and has a worst error (the
+    runs column `error`: position [m], or the error norm) <= tol, with its costs (None when
+    no step qualifies)."""
+    table = worst_case(sweep.runs, error)
     summary = sweep.summary.set_index("method")
     rows = []
     for name in method_order(summary.index):
@@ -48,7 +50,7 @@ def method_summary(sweep, pos_tol: float, margin: float) -> list[dict]:
         row = {key: _plain(s[key]) for key, _ in METHOD_COLUMNS if key in s.index}
         row["method"] = name
         cap = (1.0 - margin) * float(s["h_meas_min"])
-        ok = table[(table["method"] == name) & (table["err_pos"] <= pos_tol)]
+        ok = table[(table["method"] == name) & (table["worst"] <= tol)]
         if math.isfinite(cap):
             ok = ok[ok["h"] <= cap]
         if len(ok):

@@ -82,6 +82,8 @@ RANGES = {
                      "bracket of the largest stable step", open_hi=True),
     "pos_tol": Range("a position tolerance", 1e-12, 1e4, "m", "float64 resolves positions "
                      "to about 1e-12 m over this horizon"),
+    "tol": Range("an error tolerance", 1e-14, 1e6, "", "in the sweep's error norm: the "
+                 "largest error state over its scale"),
     "margin": Range("a stability margin", 0.0, 1.0, "", "a fraction of the measured "
                     "largest stable step", open_hi=True),
     "seed": Range("a seed", 0, 2**32 - 1, "", "NumPy's seed range", whole=True),

@@ -2,6 +2,8 @@
 tied to a wall, a force F on the second. Linear, so its eigenvalues set every step limit."""
 import jax.numpy as jnp
 
+MASSES = 2
+
 
 def chain(t, x, u, p):
     """x = [x1, x2, v1, v2] [m, m, m/s, m/s], u = [F] [N]; p: k [N/m], c [N s/m], m [kg]."""

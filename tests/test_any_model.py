@@ -1,0 +1,138 @@
+"""A user's own model, in a folder of its own and named in a TOML, goes through the sweep,
+tune and report like a built-in: for a linear model the frozen-Jacobian prediction is exact
+(h_pred from eigenvalues computed independently by NumPy, h_meas within 3% of it for every
+explicit method); bad model configs are one line and exit status 2."""
+import dataclasses
+import json
+import math
+import tomllib
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from stepzoo.bench.cli import main as stepzoo
+from stepzoo.bench.sweep import compute_chunk
+from stepzoo.bench.sweep_config import load
+from stepzoo.integrators import METHODS, method
+from stepzoo.integrators.stability import max_stable_step
+
+CHAIN = Path(__file__).resolve().parent / "user_model" / "chain.toml"
+EXPLICIT = [n for n, m in METHODS.items() if not m.implicit]
+
+
+def chain_matrix(k, c, m):
+    """d/dt [x1, x2, v1, v2] = A [x1, x2, v1, v2] + b, written out by hand."""
+    return np.array([[0, 0, 1, 0], [0, 0, 0, 1],
+                     [-2 * k / m, k / m, -2 * c / m, c / m],
+                     [k / m, -k / m, c / m, -c / m]])
+
+
+@pytest.fixture(scope="module")
+def chain():
+    """The user's chain at its softest and stiffest spring, no force."""
+    cfg = load(CHAIN)
+    spec = dataclasses.replace(cfg.spec, envelope=(("k", (100.0, 1000.0)), ("F", (0.0,))))
+    return dataclasses.replace(cfg, spec=spec, methods=tuple(EXPLICIT),
+                               hs=(0.002, 0.008, 0.032), timing_rounds=1)
+
+
+@pytest.fixture(scope="module")
+def chain_limits(chain):
+    cache = {}
+    return pd.concat([compute_chunk(chain, f"{name}-b000", cache)["limits"]
+                      for name in chain.methods], ignore_index=True)
+
+
+@pytest.mark.parametrize("name", EXPLICIT)
+def test_linear_model_prediction_is_the_numpy_eigenvalues_limit(chain, chain_limits, name):
+    p = dict(chain.spec.params)
+    rows = chain_limits[chain_limits["method"] == name]
+    for _, row in rows.iterrows():
+        lam = np.linalg.eigvals(chain_matrix(row["k"], p["c"], p["m"]))
+        assert row["h_pred"] == pytest.approx(max_stable_step(method(name), lam), rel=1e-9)
+
+
+@pytest.mark.parametrize("name", EXPLICIT)
+def test_linear_model_measured_limit_within_3pct_of_predicted(chain_limits, name):
+    rows = chain_limits[chain_limits["method"] == name]
+    assert len(rows) == 2 and (rows["limit_cause"] == "unstable").all()
+    assert np.all(np.abs(rows["ratio"] - 1) <= 0.03), rows[["k", "ratio"]]
+
+
+def test_limit_binds_at_a_named_time_and_eigenvalue(chain_limits):
+    row = chain_limits.iloc[0]
+    assert row["t_bind"] >= 0 and math.isfinite(row["lam_re_bind"]) and row["lam_re_bind"] < 0
+    assert {"bind_x1", "bind_v2"} <= set(chain_limits.columns)
+
+
+@pytest.fixture(scope="module")
+def user_run(tmp_path_factory):
+    """`stepzoo sweep`, `tune --tol` and `report` on the user's model, as the README shows."""
+    folder = tmp_path_factory.mktemp("user")
+    text = CHAIN.read_text()
+    head, _, tail = text.partition("[model]")
+    cut = head.split("methods = ")[0] + 'methods = ["rk4", "trapezoidal"]\n\n[model]' + tail
+    cut = cut.replace("num = 8", "num = 4").replace("steps = 2000", "steps = 500")
+    config = folder / "config" / "chain.toml"
+    config.parent.mkdir()
+    config.write_text(cut.replace('path = "."', f'path = "{CHAIN.parent}"'))
+    out = folder / "sweep"
+    assert stepzoo(["sweep", str(config), "--out", str(out), "--no-progress"]) == 0
+    assert stepzoo(["tune", str(out), "--tol", "0.01", "--out", str(folder / "tuned.toml")]) == 0
+    return folder
+
+
+def test_user_sweep_names_its_columns_after_the_model(user_run):
+    runs = pd.read_parquet(user_run / "sweep" / "runs.parquet")
+    limits = pd.read_parquet(user_run / "sweep" / "limits.parquet")
+    traj = pd.read_parquet(user_run / "sweep" / "trajectories.parquet")
+    assert {"k", "F", "err_x1", "err_v2", "err", "converged"} <= set(runs.columns)
+    assert "err_pos" not in runs and {"k", "F", "h_pred", "h_meas"} <= set(limits.columns)
+    assert {"x1", "x2", "v1", "v2"} <= set(traj.columns)
+    manifest = json.loads((user_run / "sweep" / "manifest.json").read_text())
+    assert manifest["model"] == "springs:chain"
+    assert manifest["model_spec"]["variables"] == ["k", "F"]
+
+
+def test_user_tune_meets_the_error_norm_tolerance_everywhere(user_run):
+    tuned = tomllib.loads((user_run / "tuned.toml").read_text())
+    runs = pd.read_parquet(user_run / "sweep" / "runs.parquet")
+    mine = runs[(runs["method"] == tuned["method"]) & np.isclose(runs["h"], tuned["h"])]
+    assert tuned["tol"] == 0.01 and mine["stable"].all() and (mine["err"] <= 0.01).all()
+    assert set(tuned["envelope"]) == {"k", "F", "points"}
+    assert stepzoo(["tune", str(user_run / "sweep"), "--pos-tol", "0.01", "--out",
+                    str(user_run / "pos.toml")]) == 2
+
+
+def test_user_report_names_axes_after_the_envelope(user_run):
+    out = user_run / "report"
+    assert stepzoo(["report", str(user_run / "sweep"), "--tuned", str(user_run / "tuned.toml"),
+                    "--out", str(out)]) == 0
+    summary = (out / "summary.md").read_text()
+    assert "against k" in summary and "x1 against time" in summary
+
+
+BAD = [
+    ('rhs = "springs:chain"', 'rhs = "nowhere:chain"', "names module 'nowhere'"),
+    ('rhs = "springs:chain"', 'rhs = "springs:chains"', "has no function 'chains'"),
+    ('rhs = "springs:chain"', 'rhs = "springs:MASSES"', "springs.MASSES is 'int', not a"),
+    ('states = ["x1", "x2", "v1", "v2"]', 'states = ["x1", "x2", "v1"]', "fails on its initial state of 3 states"),
+    ('F = { values = [0.0, 1.0] }', 'G = { values = [0.0, 1.0] }', "envelope.G is not a"),
+    ('states = ["x1", "x2"]\nscales', 'states = ["x9"]\nscales', "error.states must be"),
+    ('[initial]\nx1 = 0.1', '[initial]\ny1 = 0.1', "initial.y1 is not a state"),
+    ('name = "chain"', 'name = "chain"\ntyre = "pacejka"', "tyre is an option"),
+]
+
+
+@pytest.mark.parametrize("old,new,message", BAD)
+def test_a_bad_model_config_is_one_line_and_exit_2(tmp_path, capsys, old, new, message):
+    text = CHAIN.read_text()
+    assert old in text
+    config = tmp_path / "chain.toml"
+    config.write_text(text.replace(old, new).replace('path = "."', f'path = "{CHAIN.parent}"'))
+    assert stepzoo(["sweep", str(config), "--out", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and message in err, err
+    assert not (tmp_path / "out").exists()
