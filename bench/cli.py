@@ -21,6 +21,7 @@ COMMANDS = {
     "simulate": ("stepzoo.bench.cmd_simulate", "one trajectory with one method (or the reference)"),
     "stability": ("stepzoo.bench.cmd_stability", "eigenvalues and predicted largest stable step"),
     "sweep": ("stepzoo.bench.cmd_sweep", "stability/accuracy sweep into a results folder"),
+    "verdict": ("stepzoo.bench.cmd_verdict", "where a fixed (method, h) is stable and accurate"),
     "tune": ("stepzoo.bench.cmd_tune", "choose (method, h) under a tolerance -> planner config"),
     "plan": ("stepzoo.search.cmd_plan", "plan a scenario (built-in, or map + start + goal)"),
     "plan-bench": ("stepzoo.search.cmd_plan_bench", "plan a file of queries N times: a table "

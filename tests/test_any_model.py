@@ -136,3 +136,22 @@ def test_a_bad_model_config_is_one_line_and_exit_2(tmp_path, capsys, old, new, m
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and message in err, err
     assert not (tmp_path / "out").exists()
+
+
+def test_verdict_names_the_region_past_the_predicted_limit(tmp_path, capsys):
+    """rk4 between its limits at the stiff and the soft spring: unstable exactly where the
+    spring is stiff, stable elsewhere."""
+    config = tmp_path / "chain.toml"
+    config.write_text(CHAIN.read_text().replace('path = "."', f'path = "{CHAIN.parent}"')
+                      .replace("steps = 2000", "steps = 500"))
+    p = dict(load(config).spec.params)
+    stiff, soft = (max_stable_step(method("rk4"), np.linalg.eigvals(chain_matrix(k, p["c"],
+                                                                              p["m"])))
+                   for k in (1000.0, 100.0))
+    h = 0.5 * (stiff + min(soft, 1.2 * stiff))
+    assert stepzoo(["verdict", str(config), "--method", "rk4", "--h", repr(float(h)), "--tol", "10",
+                    "--format", "json"]) == 0
+    v = json.loads(capsys.readouterr().out)["verdicts"][0]
+    assert v["points"] == 6 and v["stable"] == 4
+    assert v["unstable_where"].startswith("k = 1000") and v["worst_error"] is None
+    assert v["worst_at"]["k"] == 1000.0
