@@ -137,7 +137,11 @@ def load_sweep(folder) -> Sweep:
             raise UsageError(f"{folder / name} lacks column(s) {', '.join(lacking)}; it was "
                              "not written by this version of `stepzoo sweep`, rerun it")
         tables[name.split(".")[0]] = table
-    view = View.of(manifest, tables["runs"])
+    runs = tables["runs"]
+    if "model_spec" not in manifest and "err" not in runs and {"err_vy", "err_r"} <= set(runs):
+        # A bicycle sweep from before models were data: its error norm is max(|vy|, |r|).
+        runs["err"] = runs[["err_vy", "err_r"]].max(axis=1)
+    view = View.of(manifest, runs)
     wanted = {"runs.parquet": [*view.variables, view.error, "err"],
               "limits.parquet": list(view.variables),
               "trajectories.parquet": list(view.states)}

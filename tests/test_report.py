@@ -222,7 +222,7 @@ def test_regions_caption_names_the_methods_stable_at_the_tuned_step(tmp_path):
 
 def test_cost_at_tolerance_is_the_largest_safe_step_within_the_margin(tmp_path):
     sweep = load_sweep(write_sweep(tmp_path / "sweep"))
-    rows = {r["method"]: r for r in tables.method_summary(sweep, pos_tol=0.1, margin=0.2)}
+    rows = {r["method"]: r for r in tables.method_summary(sweep, tol=0.1, margin=0.2)}
     for name, (p, stages, c) in METHODS.items():
         cap = 0.8 * 1.01 * c / abs(lam_of(2.0))
         ok = [h for h in STEPS if err_of(name, h) <= 0.1 and h <= cap and h < c / abs(lam_of(2.0))]
