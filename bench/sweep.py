@@ -104,7 +104,7 @@ class _Work:
                              {k: jnp.asarray(v) for k, v in p.items()}, hb, jnp.asarray(n),
                              max_steps=self.max_steps)
         x = np.asarray(tr.x.block_until_ready())[:, : n + 1]
-        converged = np.asarray(getattr(tr, "converged", np.ones(len(x0), bool)), bool)
+        converged = np.asarray(tr.converged, bool)
         return x, np.asarray(tr.evals), converged, time.perf_counter() - t0
 
     def reference(self, h, n, x0=None, u=None, p=None):
