@@ -21,6 +21,7 @@ from jax import lax
 from jax.sharding import Mesh, PartitionSpec
 
 from stepzoo.integrators import arguments
+from stepzoo.integrators.fast_trig import flagged_trig
 
 BLOCK = 32
 # Trajectories per chunk. Measured at batch 4000 on one core, with each loop compiled whole
@@ -115,10 +116,11 @@ def _integrate(method, f, x0, u, p, h, n_steps, t0, max_steps):
     return Trajectory(ts, xs, state["evals"], state["converged"])
 
 
-def _chunk(method, f, x0, u, p, h, n_steps, t0, max_steps):
+def _chunk(method, f, x0, u, p, h, n_steps, t0, max_steps, libm):
     """A chunk with the batch last: x0 (d, C), u (nu, C), p leaves (..., C), h (C,) or ().
-    Returns xs (C, N+1, d), transposed while the chunk is in cache, evals (C,) and
-    converged (C,)."""
+    Returns xs (C, N+1, d), transposed while the chunk is in cache, evals (C,), converged
+    (C,), and whether a sin or cos argument reached the polynomials' bound (always False
+    with `libm`)."""
     h = jnp.asarray(h, x0.dtype)
     h_axis = -1 if jnp.ndim(h) else None
 
@@ -130,11 +132,30 @@ def _chunk(method, f, x0, u, p, h, n_steps, t0, max_steps):
 
     vstart = jax.vmap(start, in_axes=(None, -1, -1, -1, h_axis), out_axes=-1)
     vstep = jax.vmap(step, in_axes=(h_axis, -1, -1, -1, -1, h_axis), out_axes=-1)
+    # Unless `libm`: sin and cos as polynomials over the chunk's rows (rewritten after vmap),
+    # with a flag carried through the steps. Derived from y, so that it varies across devices
+    # under shard_map as the steps' flags do.
+    fstart, fstep = flagged_trig(vstart), flagged_trig(vstep)
+
+    def chunk_start(t, y):
+        if libm:
+            return vstart(t, y, u, p, h)
+        (ys, st), far = fstart(t, y, u, p, h)
+        none = jnp.zeros_like(y, bool).any()
+        return ys, dict(st, far=none if far is None else far | none)
+
+    def chunk_step(t, y, st):
+        if libm:
+            return vstep(t, y, st, u, p, h)
+        st = dict(st)
+        far = st.pop("far")
+        (y, st), more = fstep(t, y, st, u, p, h)
+        return y, dict(st, far=far if more is None else far | more)
+
     # A multistep start returns ys of shape (n_start, d, C) with the batch last as well.
-    xs, state = _scan(lambda t, y: vstart(t, y, u, p, h),
-                      lambda t, y, st: vstep(t, y, st, u, p, h),
-                      x0, h, method.n_start, n_steps, t0, max_steps)
-    return jnp.moveaxis(xs, -1, 0), state["evals"], state["converged"]
+    xs, state = _scan(chunk_start, chunk_step, x0, h, method.n_start, n_steps, t0, max_steps)
+    far = jnp.zeros_like(state["evals"], bool).any() if libm else state["far"]
+    return jnp.moveaxis(xs, -1, 0), state["evals"], state["converged"], far
 
 
 def _split(a, n_chunks, size):
@@ -146,16 +167,19 @@ def _split(a, n_chunks, size):
     return jnp.moveaxis(a.reshape((n_chunks, size) + a.shape[1:]), 1, -1)
 
 
-def _batch(method, f, x0, u, p, h, n_steps, t0, max_steps):
+def _batch(method, f, x0, u, p, h, n_steps, t0, max_steps, libm):
+    """(Trajectory, whether a chunk met a sin or cos argument beyond the polynomials' bound:
+    then the caller runs again with `libm`)."""
     x0 = jnp.asarray(x0)
     batch = x0.shape[0]
     one = lambda x, uu, pp, hh: _integrate(method, f, x, uu, pp, hh, n_steps, t0, max_steps)
     h_axis = 0 if jnp.ndim(h) else None
     if batch == 1:      # a vmap of one still cost 1.2x (rk4, 500 steps)
         first = jax.tree.map(lambda a: jnp.asarray(a)[0], (x0, u, p))
-        return jax.tree.map(lambda a: a[None], one(*first, h if h_axis is None else h[0]))
+        tr = jax.tree.map(lambda a: a[None], one(*first, h if h_axis is None else h[0]))
+        return tr, jnp.asarray(False)
     if batch < SMALL_BATCH:
-        return jax.vmap(one, in_axes=(0, 0, 0, h_axis))(x0, u, p, h)
+        return jax.vmap(one, in_axes=(0, 0, 0, h_axis))(x0, u, p, h), jnp.asarray(False)
     devices = jax.devices()
     # Implicit methods and run-time step counts stay on one device: shard_map refuses the
     # carry of their while loops (per-shard values mixed with shared ones), and with that
@@ -168,20 +192,21 @@ def _batch(method, f, x0, u, p, h, n_steps, t0, max_steps):
     h_chunks = _split(h, n_chunks, size) if jnp.ndim(h) else jnp.broadcast_to(h, (n_chunks,))
 
     def run(args, hs):
-        return lax.map(lambda a: _chunk(method, f, *a[0], a[1], n_steps, t0, max_steps),
+        return lax.map(lambda a: _chunk(method, f, *a[0], a[1], n_steps, t0, max_steps, libm),
                        (args, hs))
 
     if shards > 1:
         mesh = Mesh(np.array(devices[:shards]), ("chunks",))
         run = jax.shard_map(run, mesh=mesh, in_specs=PartitionSpec("chunks"),
                             out_specs=PartitionSpec("chunks"))
-    xs, evals, converged = run(args, h_chunks)
+    xs, evals, converged, far = run(args, h_chunks)
     # (chunks, C, N+1, d) -> (B, N+1, d): no copy, where one transpose of the whole output
     # cost 13% of the time at batch 2e4 (rk4, fast_trig, 500 steps).
     xs = xs.reshape((n_chunks * size,) + xs.shape[2:])[:batch]
     steps = jnp.arange(xs.shape[1])
     ts = t0 + (h[:, None] * steps if jnp.ndim(h) else jnp.broadcast_to(h * steps, xs.shape[:2]))
-    return Trajectory(ts, xs, evals.reshape(-1)[:batch], converged.reshape(-1)[:batch])
+    return (Trajectory(ts, xs, evals.reshape(-1)[:batch], converged.reshape(-1)[:batch]),
+            far.any())
 
 
 def use_all_cores() -> int:
@@ -195,7 +220,8 @@ def use_all_cores() -> int:
 
 _STATIC = ("method", "f", "n_steps", "max_steps")
 _DYNAMIC = ("method", "f", "max_steps")
-_jitted = {(fn, dyn): jax.jit(fn, static_argnames=_DYNAMIC if dyn else _STATIC)
+_jitted = {(fn, dyn): jax.jit(fn, static_argnames=(_DYNAMIC if dyn else _STATIC) +
+                              (("libm",) if fn is _batch else ()))
            for fn in (_integrate, _batch) for dyn in (False, True)}
 
 
@@ -229,6 +255,10 @@ def integrate_batch(method, f, x0, u=None, p=None, h=None, n_steps=None, t0=0.0,
     per trajectory, any other leaf (a number, say) is shared by the whole batch. h is a
     number or one step size per trajectory (shape (B,)); t0 and the step count are shared.
 
+    sin and cos run as vectorisable polynomials (see fast_trig); should an argument reach
+    their bound, the batch runs again with libm's, compiled only then (inside a trace, a
+    cond), so the result is libm's to a few ulp for every argument.
+
     >>> import jax.numpy as jnp, numpy as np
     >>> vdp = lambda t, x, u, p: jnp.stack([x[1], p * (1 - x[0] ** 2) * x[1] - x[0]])
     >>> x0 = np.array([[2.0, 0.0], [1.0, 0.0], [0.5, 0.0]])
@@ -238,7 +268,12 @@ def integrate_batch(method, f, x0, u=None, p=None, h=None, n_steps=None, t0=0.0,
     method, f, x0, scalar = _arguments(method, f, x0, h, n_steps, t0, max_steps, True)
     u, p = arguments.shared(u, x0.shape[0]), arguments.shared(p, x0.shape[0])
     fn = _jitted[(_batch, max_steps is not None)]
-    traj = fn(method, f, x0, u, p, h, n_steps, t0, max_steps)
+    traj, far = fn(method, f, x0, u, p, h, n_steps, t0, max_steps, libm=False)
+    exact = lambda: fn(method, f, x0, u, p, h, n_steps, t0, max_steps, libm=True)[0]
+    if isinstance(far, jax.core.Tracer):
+        traj = lax.cond(far, exact, lambda: traj)
+    elif far:
+        traj = exact()
     return traj._replace(x=traj.x[..., 0]) if scalar else traj
 
 

@@ -1,11 +1,16 @@
-"""Vectorisable sin and cos for a right-hand side: `fast_trig(f)` is f with every sin and cos
-computed by a range reduction and Taylor polynomials in plain multiply-adds, which XLA on
-CPU vectorises across a batch (its own sin and cos are scalar library calls, ~12 ns each).
-The reduction of sin(a) and cos(a) is the same expression, so XLA computes it once.
+"""Vectorisable sin and cos: a Cody-Waite range reduction and Taylor polynomials in plain
+multiply-adds, which XLA on CPU vectorises across a batch (its own sin and cos are scalar
+libm calls, ~12 ns each, in float64 and float32 alike). The reduction of sin(a) and cos(a) is
+the same expression, so XLA computes it once. Each dtype works in its own precision.
 
-Opt-in, for throughput: results agree with f to a few ulp per evaluation for |a| < 2**20 rad;
-beyond that the reduction loses digits, so the plain model stays the default."""
+The polynomials are within a few ulp of libm for |a| < `BOUND[dtype]`, and return NaN for NaN
+and inf as libm does; beyond the bound the reduction loses digits. `fast_trig(f)` uses them
+unguarded (opt-in). `flagged_trig(fn)` uses them and also says whether any finite argument
+reached the bound, so that the driver can redo that chunk with libm: exact for every
+argument, with no guard on the fast path but one flag."""
+from fractions import Fraction
 from functools import cache, wraps
+from math import factorial
 
 import jax
 import jax.extend.core as jcore
@@ -13,16 +18,26 @@ import jax.numpy as jnp
 import numpy as np
 from jax import lax
 
-# pi/2 split into three parts of 33 significant bits, so that k * part is exact for
-# |k| < 2**20 and the reduced argument keeps full precision.
-_HALF_PI = np.float64(np.pi / 2)
-_P1 = np.float64(1.57079632673412561417e+00)
-_P2 = np.float64(6.07710050630396597660e-11)
-_P3 = np.float64(2.02226624871116645580e-21)
-# Taylor terms up to r**17 (sin) and r**18 (cos): on |r| <= pi/4 the first omitted term is
-# below 1e-19, under half an ulp of the result.
-_SIN = [(-1.0) ** j / float(np.prod(np.arange(1, 2 * j + 2, dtype=float))) for j in range(9)]
-_COS = [(-1.0) ** j / float(np.prod(np.arange(1, 2 * j + 1, dtype=float))) for j in range(10)]
+_HALF_PI = Fraction("1.57079632679489661923132169163975144209858469968755291048747229615390820")
+# pi/2 as parts of `bits` significant bits then a full-precision tail: k * part is exact while
+# |k| < 2**(mantissa - bits), so a - k pi/2 keeps full precision for |a| < BOUND.
+_PARTS = {np.dtype(np.float64): (33, 2), np.dtype(np.float32): (12, 4)}
+BOUND = {np.dtype(np.float64): 2.0 ** 20, np.dtype(np.float32): 2.0 ** 12}   # [rad]
+# Taylor terms: on |r| <= pi/4 the first omitted one is under half an ulp of the result
+# (float64: r**19/19! < 1e-19; float32: r**13/13! < 1e-11).
+_TERMS = {np.dtype(np.float64): 9, np.dtype(np.float32): 6}
+
+
+def _parts(dtype):
+    bits, n = _PARTS[dtype]
+    parts, rest = [], _HALF_PI
+    for _ in range(n):
+        e = rest.numerator.bit_length() - rest.denominator.bit_length()
+        scale = Fraction(2) ** (bits - 1 - e)
+        part = Fraction(int(rest * scale)) / scale      # rest truncated to `bits` bits
+        parts.append(float(part))
+        rest -= part
+    return parts + [float(rest)]
 
 
 def _horner(coeffs, z):
@@ -33,30 +48,48 @@ def _horner(coeffs, z):
 
 
 def _reduced(a):
-    """(sin r, cos r, quadrant) with a = k pi/2 + r, |r| <= pi/4, quadrant = k mod 4."""
-    k = jnp.round(a / _HALF_PI)
-    r = ((a - k * _P1) - k * _P2) - k * _P3
+    """(sin r, cos r, quadrant) with a = k pi/2 + r, |r| <= pi/4, quadrant = k mod 4 (as a
+    float, exact for any integral k)."""
+    dt = np.dtype(a.dtype)
+    k = jnp.round(a * (2 / np.pi))
+    r = a
+    for part in _parts(dt):
+        r = r - k * part
     z = r * r
-    q = k.astype(jnp.int64) & 3
-    return r * _horner(_SIN, z), _horner(_COS, z), q
+    n = _TERMS[dt]
+    s = [(-1.0) ** j / factorial(2 * j + 1) for j in range(n)]
+    c = [(-1.0) ** j / factorial(2 * j) for j in range(n + 1)]
+    return r * _horner(s, z), _horner(c, z), k - 4 * jnp.floor(k * 0.25)
+
+
+def _sincos(a):
+    s, c, q = _reduced(a)
+    return (jnp.where(q == 0, s, jnp.where(q == 1, c, jnp.where(q == 2, -s, -c))),
+            jnp.where(q == 0, c, jnp.where(q == 1, -s, jnp.where(q == 2, -c, s))))
+
+
+def _vectorisable(a):
+    return np.dtype(jnp.result_type(a)) in BOUND
 
 
 def sin(a):
-    s, c, q = _reduced(a)
-    return jnp.where(q == 0, s, jnp.where(q == 1, c, jnp.where(q == 2, -s, -c)))
+    return _sincos(a)[0] if _vectorisable(a) else lax.sin(a)
 
 
 def cos(a):
-    s, c, q = _reduced(a)
-    return jnp.where(q == 0, c, jnp.where(q == 1, -s, jnp.where(q == 2, -c, s)))
+    return _sincos(a)[1] if _vectorisable(a) else lax.cos(a)
 
 
-_REPLACE = {lax.sin_p: sin, lax.cos_p: cos}
+def beyond_bound(a):
+    """Which finite elements of a have |a| >= BOUND."""
+    mag = jnp.abs(a)
+    return (mag >= BOUND[np.dtype(a.dtype)]) & (mag < jnp.inf)
 
 
-def _eval(jaxpr, consts, args):
-    """Evaluate a jaxpr with sin and cos replaced, recursing into nested jaxprs of jit."""
-    env = {}
+def _eval(jaxpr, consts, args, sincos):
+    """Evaluate a jaxpr with sin and cos computed by `sincos(a) -> (sin a, cos a)`, once per
+    argument, recursing into nested jaxprs of jit."""
+    env, shared = {}, {}
 
     def read(v):
         return v.val if isinstance(v, jcore.Literal) else env[v]
@@ -65,11 +98,13 @@ def _eval(jaxpr, consts, args):
     env.update(zip(jaxpr.invars, args))
     for eqn in jaxpr.eqns:
         ins = [read(v) for v in eqn.invars]
-        if eqn.primitive in _REPLACE:
-            outs = [_REPLACE[eqn.primitive](ins[0])]
+        if eqn.primitive in (lax.sin_p, lax.cos_p):
+            if id(ins[0]) not in shared:    # keeps ins[0] alive, so its id stays unique
+                shared[id(ins[0])] = (ins[0], sincos(ins[0]))
+            outs = [shared[id(ins[0])][1][eqn.primitive is lax.cos_p]]
         elif eqn.primitive.name in ("pjit", "jit"):
             inner = eqn.params["jaxpr"]
-            outs = _eval(inner.jaxpr, inner.consts, ins)
+            outs = _eval(inner.jaxpr, inner.consts, ins, sincos)
         else:
             outs = eqn.primitive.bind(*ins, **eqn.params)
             outs = outs if eqn.primitive.multiple_results else [outs]
@@ -77,13 +112,40 @@ def _eval(jaxpr, consts, args):
     return [read(v) for v in jaxpr.outvars]
 
 
+def _rewritten(f, args, sincos):
+    closed, shape = jax.make_jaxpr(f, return_shape=True)(*args)
+    outs = _eval(closed.jaxpr, closed.consts, jax.tree.leaves(args), sincos)
+    return jax.tree.unflatten(jax.tree.structure(shape), outs)
+
+
+def _vector_sincos(a):
+    return _sincos(a) if _vectorisable(a) else (lax.sin(a), lax.cos(a))
+
+
 @cache
 def fast_trig(f):
-    """f(t, x, u, p) with vectorisable sin and cos; cached, so the result is one static
-    function for `jax.jit` (the driver compiles once per f)."""
+    """f(t, x, u, p) with the unguarded vectorisable sin and cos; cached, so the result is one
+    static function for `jax.jit` (the driver compiles once per f)."""
     @wraps(f)
     def g(*args):
-        closed, shape = jax.make_jaxpr(f, return_shape=True)(*args)
-        outs = _eval(closed.jaxpr, closed.consts, jax.tree.leaves(args))
-        return jax.tree.unflatten(jax.tree.structure(shape), outs)
+        return _rewritten(f, args, _vector_sincos)
+    return g
+
+
+def flagged_trig(fn):
+    """fn with vectorisable sin and cos, returning (fn's value, whether any of their finite
+    arguments reached the bound, or None if fn has none). For a function of whole arrays
+    such as a batched step."""
+    @wraps(fn)
+    def g(*args):
+        far = []
+
+        def sincos(a):
+            if _vectorisable(a):
+                far.append(beyond_bound(a).ravel())
+            return _vector_sincos(a)
+
+        out = _rewritten(fn, args, sincos)
+        # One reduction for all calls: each one alone was a separate loop kernel on XLA:CPU.
+        return out, jnp.any(jnp.concatenate(far)) if far else None
     return g

@@ -5,6 +5,7 @@ import os
 import subprocess
 import sys
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
@@ -12,7 +13,7 @@ import pytest
 from stepzoo import dynamics
 from stepzoo.integrators import integrate, integrate_batch, method
 from stepzoo.integrators.driver import CHUNK, CHUNK_IMPLICIT, SHARE, SMALL_BATCH
-from stepzoo.integrators.fast_trig import cos, fast_trig, sin
+from stepzoo.integrators.fast_trig import BOUND, cos, fast_trig, flagged_trig, sin
 
 MODEL = dynamics.model("dynamic5")
 
@@ -62,12 +63,55 @@ def test_run_time_step_counts_and_step_sizes_per_trajectory(batch):
         np.testing.assert_allclose(tr.t[i, :38], one.t, rtol=1e-15)
 
 
-def test_fast_sin_cos_are_within_two_ulp_of_libm():
-    a = np.random.default_rng(2).uniform(-2.0 ** 20, 2.0 ** 20, 200_000)
-    a[:4] = [0.0, np.pi / 4, -np.pi / 2, 3 * np.pi / 4]
+@pytest.mark.parametrize("dtype, ulps", [(np.float64, 3), (np.float32, 3)])
+def test_polynomial_sin_cos_are_within_a_few_ulp_of_libm(dtype, ulps):
+    """Over the whole reduction range, and at the arguments nearest to multiples of pi/2,
+    where the reduction cancels most: in ulp of the result, against libm in float64."""
+    bound = BOUND[np.dtype(dtype)]
+    near = (np.arange(1, int(bound / (np.pi / 2))) * (np.pi / 2)).astype(dtype)
+    a = np.concatenate([np.random.default_rng(2).uniform(-bound, bound, 100_000).astype(dtype),
+                        near, np.nextafter(near, dtype(0)), np.nextafter(near, dtype(bound)),
+                        np.array([0.0, np.pi / 4, -np.pi / 2, 3 * np.pi / 4], dtype)])
     for fast, exact in ((sin, np.sin), (cos, np.cos)):
-        assert np.max(np.abs(np.asarray(fast(jnp.asarray(a))) - exact(a))) <= 2.3e-16
-    assert np.all(np.isnan(np.asarray(sin(jnp.array([np.inf, np.nan])))))
+        out = np.asarray(jax.jit(fast)(jnp.asarray(a)))
+        assert out.dtype == dtype
+        ref = exact(a.astype(np.float64))
+        assert np.max(np.abs(out - ref) / np.spacing(np.abs(ref).astype(dtype))) <= ulps
+        assert np.all(np.isnan(np.asarray(fast(jnp.array([np.inf, -np.inf, np.nan], dtype)))))
+
+
+def test_arguments_beyond_the_bound_are_flagged():
+    """The flag that sends a chunk to libm: set by a finite argument at or beyond the bound
+    only (NaN and inf give NaN from the polynomials, as from libm)."""
+    for dtype in (np.float64, np.float32):
+        bound = BOUND[np.dtype(dtype)]
+        value, far = flagged_trig(lambda a: jnp.sin(a) * jnp.cos(a))(jnp.array([1.0, 2.0], dtype))
+        assert not far and value.dtype == dtype
+        for beyond in (bound, -1e30, np.finfo(dtype).max):
+            assert flagged_trig(jnp.cos)(jnp.array([1.0, beyond], dtype))[1]
+        assert not flagged_trig(jnp.sin)(jnp.array([np.nan, np.inf, -np.inf], dtype))[1]
+    assert flagged_trig(jnp.exp)(jnp.ones(3))[1] is None
+
+
+@pytest.mark.parametrize("dtype, psi, tol", [(np.float64, [1e7, -3e300, np.nan, np.inf], 1e-12),
+                                             (np.float32, [1e5, -3e30, np.nan, 0.5], 1e-5)])
+def test_batches_equal_libm_for_every_heading(dtype, psi, tol):
+    """The default batched path against one trajectory at a time (libm's sin and cos), with
+    headings beyond the polynomials' bound, NaN and inf in one chunk, in the caller's dtype."""
+    batch = SMALL_BATCH + 3
+    x0, u, p, ps = envelope(batch, seed=5)
+    x0[1:1 + len(psi), 2] = psi
+    x0, u = x0.astype(dtype), u.astype(dtype)
+    cast = lambda q: {k: np.asarray(v, dtype) for k, v in q.items()}
+    tr = integrate_batch(method("rk4"), MODEL.rhs, x0, u, cast(p), 0.002, 40)
+    assert tr.x.dtype == dtype
+    for i in range(len(psi) + 2):
+        one = np.asarray(integrate(method("rk4"), MODEL.rhs, x0[i], u[i], cast(ps[i]), 0.002,
+                                   40).x)
+        got, ok = np.asarray(tr.x[i]), np.isfinite(one)
+        assert np.array_equal(got[~ok], one[~ok], equal_nan=True)
+        scale = np.abs(np.where(ok, one, 0.0)).max(axis=0)
+        assert np.all(np.abs(got[ok] - one[ok]) <= tol * np.broadcast_to(scale, one.shape)[ok])
 
 
 @pytest.mark.parametrize("name", ["rk4", "trapezoidal"])
