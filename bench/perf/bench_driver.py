@@ -12,6 +12,7 @@ from stepzoo.integrators.fast_trig import fast_trig
 BATCHES = (1, 100, 10_000, 100_000)
 ROUNDS = {1: 30, 100: 10, 10_000: 3, 100_000: 1}   # plus a warm-up round each
 METHODS = ("rk4", "dopri5", "ab4", "trapezoidal")
+INTERLEAVED = 3     # rounds of each in test_generic_vs_fast_trig
 
 
 def n_steps(name, batch):
@@ -42,6 +43,25 @@ def test_driver_fast_trig(benchmark, batch):
     # rk4 at batch 1e5 is the headline ratio: a second round against load spikes.
     benchmark.pedantic(_run(method("rk4"), fast_trig(MODEL.rhs), problem(batch), N_STEPS),
                        rounds=max(ROUNDS[batch], 2), warmup_rounds=1)
+
+
+def test_generic_vs_fast_trig(benchmark):
+    """rk4 at batch 1e5: the generic model (the driver's default path) against fast_trig, in
+    interleaved rounds so that load spikes hit both; the best round of each [s]."""
+    meth, args = method("rk4"), problem(100_000)
+    runs = {"generic": _run(meth, MODEL.rhs, args, N_STEPS),
+            "fast_trig": _run(meth, fast_trig(MODEL.rhs), args, N_STEPS)}
+    best = {}
+
+    def rounds():
+        for _ in range(INTERLEAVED):
+            for name, fn in runs.items():
+                best[name] = min(best.get(name, float("inf")), _min_time(fn, reps=1))
+
+    for fn in runs.values():
+        fn()
+    benchmark.pedantic(rounds, rounds=1)
+    benchmark.extra_info.update(kind="interleaved", method="rk4", batch=100_000, best_s=best)
 
 
 @pytest.mark.parametrize("name", METHODS)

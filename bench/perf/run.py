@@ -18,7 +18,8 @@ RESULTS = ROOT / "bench" / "results"
 WORSE = 0.20   # a figure this much worse than the previous run is named
 TARGETS = {"rk4_b1e5_vs_numba_fastmath": (">=", 0.7), "rk4_b1e5_vs_diffrax": (">=", 4.0),
            "rk4_b1_vs_numba_serial": (">=", 0.8), "sweep_vs_driver": ("<=", 1.5),
-           "plan_first_solution_s_median": ("<=", 0.1), "plan_connect_s_median": ("<=", 0.02)}
+           "plan_first_solution_s_median": ("<=", 0.1), "plan_connect_s_median": ("<=", 0.02),
+           "generic_vs_fast_trig_b1e5": (">=", 0.9)}
 LABEL = {1: "1", 100: "100", 10_000: "1e4", 100_000: "1e5"}
 
 
@@ -75,6 +76,9 @@ def figures_of(benchmarks: list[dict]) -> dict:
                 r["first_solution_s"] for r in rows.values() if r["first_solution_s"] is not None)
         elif kind == "plan_start_up":
             fig.update(info["figures"])
+        elif kind == "interleaved":
+            for name, s in info["best_s"].items():
+                fig[f"interleaved_{info['method']}_b{LABEL[info['batch']]}_{name}_s"] = s
         elif kind == "distributed":
             fig.update(info["figures"])
     return fig
@@ -99,6 +103,9 @@ def ratios_of(fig: dict) -> dict:
                                                "numpy_b1e5_steps_per_s")
         out[f"rk4_b1{tag}_vs_scipy_dop853"] = ratio(f"{drv}_b1_steps_per_s",
                                                     "scipy_dop853_b1_steps_per_s")
+    # Throughput of the generic model over fast_trig's: their times the other way round.
+    out["generic_vs_fast_trig_b1e5"] = ratio("interleaved_rk4_b1e5_fast_trig_s",
+                                             "interleaved_rk4_b1e5_generic_s")
     out["sweep_vs_driver"] = ratio("sweep_integration_s", "sweep_driver_replay_s")
     out["connect_single_vs_multiple"] = ratio("connect_single_s_median",
                                               "connect_multiple_s_median")
