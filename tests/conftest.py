@@ -1,11 +1,19 @@
-import jax
-import numpy as np
-import pytest
+import os
 
-from stepzoo import dynamics
+from stepzoo.bench.cli import _with_xla_option
 
-# The tests are a caller of the library like any other: they ask for float64 themselves
-# (the library changes no JAX setting; the `stepzoo` command turns float64 on at start-up).
+# The tests compute as the `stepzoo` command does, so that tables made in-process equal those
+# of a command run in a subprocess bit for bit: the same XLA option (it changes how loops are
+# compiled, hence the rounding), set before JAX starts, and float64. The library itself
+# changes no JAX setting; the tests ask for these as any caller would.
+os.environ["XLA_FLAGS"] = _with_xla_option(os.environ.get("XLA_FLAGS", ""))
+
+import jax  # noqa: E402
+import numpy as np  # noqa: E402
+import pytest  # noqa: E402
+
+from stepzoo import dynamics  # noqa: E402
+
 jax.config.update("jax_enable_x64", True)
 
 
