@@ -60,7 +60,7 @@ OS_HINTS = {errno.EACCES: "check its permissions", errno.EPERM: "check its permi
 XLA_OPTION = "xla_cpu_small_while_loop_byte_threshold=100000000"
 
 
-def _with_xla_option(flags: str) -> str:
+def with_xla_option(flags: str) -> str:
     """`flags` with XLA_OPTION merged into its --xla_backend_extra_options (unless set)."""
     if XLA_OPTION.split("=")[0] in flags:
         return flags
@@ -142,7 +142,7 @@ def main(argv=None) -> int:
     if chosen not in COMMANDS:
         chosen = None
     # Before any subcommand module is imported: XLA reads its flags when JAX starts.
-    os.environ["XLA_FLAGS"] = _with_xla_option(os.environ.get("XLA_FLAGS", ""))
+    os.environ["XLA_FLAGS"] = with_xla_option(os.environ.get("XLA_FLAGS", ""))
     args = build_parser(chosen).parse_args(argv)
     if args.command in LONG:
         args.progress = not (args.no_progress or args.quiet)

@@ -1,20 +1,50 @@
 import os
 
-from stepzoo.bench.cli import _with_xla_option
+from stepzoo.bench.cli import with_xla_option
 
 # The tests compute as the `stepzoo` command does, so that tables made in-process equal those
 # of a command run in a subprocess bit for bit: the same XLA option (it changes how loops are
 # compiled, hence the rounding), set before JAX starts, and float64. The library itself
 # changes no JAX setting; the tests ask for these as any caller would.
-os.environ["XLA_FLAGS"] = _with_xla_option(os.environ.get("XLA_FLAGS", ""))
+os.environ["XLA_FLAGS"] = with_xla_option(os.environ.get("XLA_FLAGS", ""))
 
 import jax  # noqa: E402
 import numpy as np  # noqa: E402
 import pytest  # noqa: E402
 
 from stepzoo import dynamics  # noqa: E402
+from stepzoo.bench.sweep import run_sweep  # noqa: E402
+from stepzoo.bench.sweep_config import load  # noqa: E402
 
 jax.config.update("jax_enable_x64", True)
+
+# The smallest sweep that still has several chunks: 2 methods x 2 points, a chunk per point.
+TINY_SWEEP = """name = "tiny"
+horizon = 0.5
+methods = ["euler", "heun"]
+[envelope]
+vx = [6.0, 20.0]
+delta = [0.3]
+[steps]
+h = [0.01, 0.05, 0.1]
+[stability]
+steps = 200
+[chunks]
+points = 1
+[trajectories]
+vx = 20.0
+delta = 0.3
+"""
+
+
+@pytest.fixture(scope="session")
+def tiny_sweep(tmp_path_factory):
+    """(config file, its finished sweep folder) of TINY_SWEEP; tests copy it, never change it."""
+    base = tmp_path_factory.mktemp("tiny")
+    path = base / "tiny.toml"
+    path.write_text(TINY_SWEEP)
+    run_sweep(load(path), base / "whole", progress=False)
+    return path, base / "whole"
 
 
 @pytest.fixture

@@ -13,8 +13,6 @@ import numpy as np
 import pytest
 
 from stepzoo.bench.cli import main as stepzoo
-from stepzoo.bench.sweep import run_sweep
-from stepzoo.bench.sweep_config import load
 from stepzoo.validate import RANGES
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -54,15 +52,12 @@ def digest(folder: Path) -> dict:
 
 
 @pytest.fixture(scope="module")
-def finished(tmp_path_factory):
+def finished(tiny_sweep, tmp_path_factory):
     """(config file, a finished sweep folder of it, a tuned config from it)."""
-    base = tmp_path_factory.mktemp("finished")
-    config = base / "tiny.toml"
-    config.write_text(TINY)
-    run_sweep(load(config), base / "sweep", progress=False)
-    assert stepzoo(["tune", str(base / "sweep"), "--pos-tol", "10", "--out",
-                    str(base / "tuned.toml")]) == 0
-    return config, base / "sweep", base / "tuned.toml"
+    config, sweep = tiny_sweep
+    tuned = tmp_path_factory.mktemp("finished") / "tuned.toml"
+    assert stepzoo(["tune", str(sweep), "--pos-tol", "10", "--out", str(tuned)]) == 0
+    return config, sweep, tuned
 
 
 SIMULATE = ["simulate", "--method", "rk4", "--h", "0.01", "--T", "1", "--vx", "10",

@@ -21,23 +21,6 @@ from stepzoo.errors import UsageError
 from stepzoo.results_folder import LOCK, writing
 
 ROOT = Path(__file__).resolve().parents[1]
-# The smallest sweep that still has several chunks: 2 methods x 2 points, a chunk per point.
-TINY = """name = "tiny"
-horizon = 0.5
-methods = ["euler", "heun"]
-[envelope]
-vx = [6.0, 20.0]
-delta = [0.3]
-[steps]
-h = [0.01, 0.05, 0.1]
-[stability]
-steps = 200
-[chunks]
-points = 1
-[trajectories]
-vx = 20.0
-delta = 0.3
-"""
 TABLES = ("runs", "limits", "eigenvalues", "trajectories", "summary")
 TIMED = schema.MEASURED
 
@@ -61,16 +44,6 @@ def tables(folder):
         df = pd.read_parquet(folder / f"{name}.parquet")
         out[name] = df.drop(columns=[c for c in df.columns if c in TIMED])
     return out
-
-
-@pytest.fixture(scope="module")
-def tiny(tmp_path_factory):
-    """(config file, its finished sweep folder)."""
-    base = tmp_path_factory.mktemp("tiny")
-    path = base / "tiny.toml"
-    path.write_text(TINY)
-    run_sweep(load(path), base / "whole", progress=False)
-    return path, base / "whole"
 
 
 def test_a_second_writer_is_refused_in_one_line_while_the_first_holds_the_folder(tmp_path):
@@ -100,11 +73,11 @@ def test_a_killed_writers_lock_is_taken_over(tmp_path):
         pass
 
 
-def test_racing_sweeps_leave_the_first_ones_tables_whole(tiny, tmp_path):
+def test_racing_sweeps_leave_the_first_ones_tables_whole(tiny_sweep, tmp_path):
     """While a sweep runs, an --overwrite and a --resume of the same folder are refused, and
     a second writer killed at once cannot touch it: the first ends with every table whole,
     equal to an undisturbed sweep's."""
-    path, whole = tiny
+    path, whole = tiny_sweep
     out = tmp_path / "out"
     seen = []
 
@@ -129,9 +102,9 @@ def test_racing_sweeps_leave_the_first_ones_tables_whole(tiny, tmp_path):
         pd.testing.assert_frame_equal(a[name], b[name], check_exact=True, obj=name)
 
 
-def test_an_interrupted_sweep_says_how_to_resume_and_resumes_to_the_same_tables(tiny,
+def test_an_interrupted_sweep_says_how_to_resume_and_resumes_to_the_same_tables(tiny_sweep,
                                                                               tmp_path):
-    path, whole = tiny
+    path, whole = tiny_sweep
     out = tmp_path / "out"
     proc = subprocess.Popen([sys.executable, "-m", "stepzoo", "sweep", str(path), "--out",
                              str(out), "--no-progress"], cwd=ROOT, stderr=subprocess.PIPE,
@@ -151,19 +124,19 @@ def test_an_interrupted_sweep_says_how_to_resume_and_resumes_to_the_same_tables(
         pd.testing.assert_frame_equal(a[name], b[name], check_exact=True, obj=name)
 
 
-def test_resume_with_overwrite_is_refused_and_writes_nothing(tiny, tmp_path):
-    path, _ = tiny
+def test_resume_with_overwrite_is_refused_and_writes_nothing(tiny_sweep, tmp_path):
+    path, _ = tiny_sweep
     code = stepzoo(["sweep", str(path), "--out", str(tmp_path / "out"), "--resume",
                     "--overwrite"])
     assert code == 2 and not (tmp_path / "out").exists()
 
 
-def test_a_sweep_that_lost_a_chunk_writes_no_tables(tiny, tmp_path):
+def test_a_sweep_that_lost_a_chunk_writes_no_tables(tiny_sweep, tmp_path):
     """A chunk removed behind the sweep's back (not by a stepzoo command: those wait for the
     lock) is found missing at assembly: no table is written and the manifest stays
     incomplete, so tune and report refuse the folder."""
     import shutil
-    path, _ = tiny
+    path, _ = tiny_sweep
     out = tmp_path / "out"
     lost = []
 
@@ -181,12 +154,12 @@ def test_a_sweep_that_lost_a_chunk_writes_no_tables(tiny, tmp_path):
 
 
 @pytest.mark.parametrize("command", ["tune", "report"])
-def test_tune_and_report_refuse_a_sweep_whose_tables_lack_rows(tiny, tmp_path, capsys,
+def test_tune_and_report_refuse_a_sweep_whose_tables_lack_rows(tiny_sweep, tmp_path, capsys,
                                                                command):
     """The issue's case: a manifest that says complete over tables that hold only some
     methods' runs."""
     import shutil
-    _, whole = tiny
+    _, whole = tiny_sweep
     cut = tmp_path / "cut"
     shutil.copytree(whole, cut)
     runs = pd.read_parquet(cut / "runs.parquet")
@@ -199,15 +172,15 @@ def test_tune_and_report_refuse_a_sweep_whose_tables_lack_rows(tiny, tmp_path, c
     assert not out.exists()
 
 
-def test_tune_accepts_the_whole_sweep(tiny, tmp_path):
-    _, whole = tiny
+def test_tune_accepts_the_whole_sweep(tiny_sweep, tmp_path):
+    _, whole = tiny_sweep
     assert stepzoo(["tune", str(whole), "--pos-tol", "1", "--out",
                     str(tmp_path / "t.toml")]) == 0
 
 
 @pytest.mark.parametrize("target", ["/dev/null", "folder", "link"])
-def test_tune_writes_only_a_regular_file(tiny, tmp_path, capsys, target):
-    _, whole = tiny
+def test_tune_writes_only_a_regular_file(tiny_sweep, tmp_path, capsys, target):
+    _, whole = tiny_sweep
     if target == "folder":
         (tmp_path / "folder").mkdir()
     if target == "link":
@@ -221,8 +194,8 @@ def test_tune_writes_only_a_regular_file(tiny, tmp_path, capsys, target):
     assert (after.st_ino, after.st_mode) == (before.st_ino, before.st_mode)
 
 
-def test_a_folder_of_another_commands_results_is_refused(tiny, tmp_path, capsys):
-    path, whole = tiny
+def test_a_folder_of_another_commands_results_is_refused(tiny_sweep, tmp_path, capsys):
+    path, whole = tiny_sweep
     plans = tmp_path / "plans"
     plans.mkdir()
     (plans / "plan.json").write_text("{}")
@@ -236,11 +209,11 @@ def test_a_folder_of_another_commands_results_is_refused(tiny, tmp_path, capsys)
     assert {p.name for p in whole.iterdir()} == before
 
 
-def test_a_killed_run_resumes_to_the_same_tables(tiny, tmp_path):
+def test_a_killed_run_resumes_to_the_same_tables(tiny_sweep, tmp_path):
     """`stepzoo run` killed in its sweep (its lock dies with it): the same command again
     finishes the sweep from the chunks on disk, to the tables of an undisturbed sweep."""
     import tomllib
-    path, whole = tiny
+    path, whole = tiny_sweep
     out = tmp_path / "results"
     argv = [sys.executable, "-m", "stepzoo", "run", "--config", str(path), "--out", str(out),
             "--pos-tol", "1", "-q"]
@@ -265,8 +238,8 @@ def test_a_killed_run_resumes_to_the_same_tables(tiny, tmp_path):
     assert (mine["method"], mine["h"]) == (theirs["method"], theirs["h"])
 
 
-def test_ctrl_c_stops_a_run_with_one_line_and_status_130(tiny, tmp_path):
-    path, _ = tiny
+def test_ctrl_c_stops_a_run_with_one_line_and_status_130(tiny_sweep, tmp_path):
+    path, _ = tiny_sweep
     out = tmp_path / "results"
     proc = subprocess.Popen([sys.executable, "-m", "stepzoo", "run", "--config", str(path),
                              "--out", str(out), "-q"], cwd=ROOT, stdout=subprocess.PIPE,
