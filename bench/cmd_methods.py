@@ -3,7 +3,6 @@ is A- and L-stable, and its damping of infinitely stiff modes |R(-inf)| (null: u
 import sys
 
 from stepzoo.output import text_table, to_json
-from stepzoo.integrators import METHODS, describe
 
 
 def add_arguments(p):
@@ -11,6 +10,7 @@ def add_arguments(p):
 
 
 def rows() -> list[dict]:
+    from stepzoo.integrators import METHODS, describe
     from stepzoo.integrators.stability import a_stable, l_stable, stability_intervals, stiff_decay
     out = []
     for m in METHODS.values():

@@ -2,9 +2,9 @@
 sweep that is stable with a margin and meets a tolerance everywhere, as a TOML config."""
 import sys
 
-from stepzoo.bench.tune import DEFAULT_MARGIN
 from stepzoo.output import text_table, to_json
 from stepzoo.results_folder import check_file_target
+from stepzoo.validate import DEFAULT_MARGIN
 
 
 def add_arguments(p):

@@ -16,12 +16,6 @@ from stepzoo.bench.sweep_folder import check_finished
 from stepzoo.errors import NoAnswer, UsageError
 from stepzoo.validate import check
 
-# The stability margin: h <= (1 - margin) x the measured largest stable step. 0.2, not less:
-# the limit is measured at the envelope's grid points only, and a step that close to it
-# leaves |R(h lambda)| near 1, so a perturbation decays over hundreds of steps.
-DEFAULT_MARGIN = 0.2
-
-
 def load_results(folder) -> tuple[pd.DataFrame, pd.DataFrame, dict]:
     """(runs, limits, manifest) of a finished sweep folder; UsageError if it is not one."""
     folder = Path(folder)

@@ -12,8 +12,10 @@ functions), D1-D5 (Kepler's equation), E1 (Bessel J_1/2), E4 and E5 (quadratures
 E2 and E3 have none; their truth is a tight reference solution."""
 import jax.numpy as jnp
 import numpy as np
-from scipy.linalg import expm
-from scipy.special import ellipj, i0, i1, k0, k1
+
+# SciPy (special functions, expm) is imported inside the closed forms that need it: every
+# command that imports the model registry (`stepzoo plan` among them) would otherwise pay
+# for scipy.linalg and scipy.special before its first step.
 
 T_SPAN = (0.0, 20.0)
 SOURCE = ("Hull, Enright, Fellen, Sedgwick, 'Comparing numerical methods for ordinary "
@@ -32,6 +34,7 @@ def _linear(A):
         return jnp.asarray(A, x.dtype) @ x
 
     def exact(ts, x0):
+        from scipy.linalg import expm
         return np.stack([expm(A * t) @ x0 for t in ts])
     return rhs, exact
 
@@ -90,6 +93,7 @@ def _b3(t, x, u, p):
 def _b3_exact(ts):
     """y1 = e^-t; y2 = w'/w with w'' = e^-t w, w = K1(2) I0(s) + I1(2) K0(s), s = 2 e^(-t/2)
     (so that y2(0) = 0); y3 = 1 - y1 - y2 (the sum is conserved)."""
+    from scipy.special import i0, i1, k0, k1
     s = 2 * np.exp(-ts / 2)
     y2 = -(s / 2) * (k1(2) * i1(s) - i1(2) * k1(s)) / (k1(2) * i0(s) + i1(2) * k0(s))
     y1 = np.exp(-ts)
@@ -113,6 +117,7 @@ def _b5(t, x, u, p):
 
 def _b5_exact(ts):
     """Jacobi elliptic functions (sn, cn, dn)(t | m = 0.51)."""
+    from scipy.special import ellipj
     sn, cn, dn, _ = ellipj(ts, 0.51)
     return np.column_stack([sn, cn, dn])
 

@@ -9,12 +9,8 @@ import time
 from pathlib import Path
 
 from stepzoo import environment
-from stepzoo.bench.tune import DEFAULT_MARGIN
-from stepzoo.reports import figures, interactive, tables
-from stepzoo.reports.html import write_report
-from stepzoo.reports.load import load_manifest, load_plans, load_sweep, load_tuned, tolerance
-from stepzoo.reports.provenance import environment_table, public_path
 from stepzoo.results_folder import check_kind, writing
+from stepzoo.validate import DEFAULT_MARGIN
 
 # Used for the summary table's cost column when no tuned config gives them.
 DEFAULT_POS_TOL_M = 0.1
@@ -48,6 +44,7 @@ def resolve(results, tuned=None, plans=None):
 
 
 def _facts(sweep, tuned, tuned_path, plan_list, plans_dir, out) -> list:
+    from stepzoo.reports.provenance import public_path
     facts = [("sweep folder", public_path(sweep.folder, out)),
              ("sweep config sha256", sweep.manifest.get("config_sha256", "not recorded"))]
     timing = sweep.manifest.get("timing")
@@ -85,6 +82,9 @@ def _progress(on: bool):
 def build(results, out, tuned_path=None, plans_dir=None, progress=False):
     """Load every input, draw the figures (static and interactive), write the report and its
     manifest.json; returns (index, summary, shown). `progress`: a line per stage to stderr."""
+    # Imported here, not with the module: pandas, matplotlib and plotly take seconds to
+    # import, which `stepzoo report --help` (and `stepzoo run` before its sweep) need not wait.
+    from stepzoo.reports.load import load_plans, load_sweep, load_tuned
     started = environment.now()
     say = _progress(progress)
     sweep_dir, tuned_path, plans_dir = resolve(results, tuned_path, plans_dir)
@@ -102,6 +102,10 @@ def build(results, out, tuned_path=None, plans_dir=None, progress=False):
 
 
 def _draw(sweep, tuned, tuned_path, plan_list, plans_dir, out, started, say):
+    from stepzoo.reports import figures, interactive, tables
+    from stepzoo.reports.html import write_report
+    from stepzoo.reports.load import load_manifest, tolerance
+    from stepzoo.reports.provenance import environment_table, public_path
     # (static figure, its interactive plots), drawn in the report's order.
     draw = [(lambda: figures.yaw_rate(sweep, out), lambda: interactive.yaw_rate(sweep, tuned)),
             (lambda: figures.xy_paths(sweep, out), lambda: interactive.xy_paths(sweep, tuned)),

@@ -12,10 +12,9 @@ from pathlib import Path
 from typing import NamedTuple
 
 from stepzoo import bench, environment
-from stepzoo.bench.tune import DEFAULT_MARGIN
 from stepzoo.errors import NoAnswer, UsageError
 from stepzoo.results_folder import check_kind, writing
-from stepzoo.validate import check
+from stepzoo.validate import DEFAULT_MARGIN, check
 
 # Package data of bench, beside its modules (a module's file, not the package's: an editable
 # install may make bench a namespace package, which has none).

@@ -59,6 +59,11 @@ class Range:
         return f"{self.what}: a {kind} in {left}{lo}, {hi}{right}{unit} ({self.why})"
 
 
+# The stability margin: h <= (1 - margin) x the measured largest stable step. 0.2, not less:
+# the limit is measured at the envelope's grid points only, and a step that close to it
+# leaves |R(h lambda)| near 1, so a perturbation decays over hundreds of steps.
+DEFAULT_MARGIN = 0.2
+
 # The one table of ranges every command checks its numbers against, so a value refused by
 # one command is refused by all, with the same words.
 RANGES = {

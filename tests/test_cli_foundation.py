@@ -115,3 +115,31 @@ def test_bad_tyre_or_model_gets_one_line_and_exit_2(args, needle):
     assert proc.returncode == 2 and proc.stdout == ""
     lines = proc.stderr.strip().splitlines()
     assert len(lines) == 1 and needle in lines[0], proc.stderr
+
+
+def test_compilation_cache_serves_a_repeat_and_recompiles_for_another_method(tmp_path, capsys):
+    """The command keeps its compiled programs in STEPZOO_CACHE_DIR: a repeated call compiles
+    nothing new and prints the same bits; h is data of the program, so another h with the same
+    step count reuses it and agrees with a fresh in-process run; another method compiles anew."""
+    import os
+    cache = tmp_path / "cache"
+    env = dict(os.environ, STEPZOO_CACHE_DIR=str(cache))
+
+    def simulate(method, h, T):
+        proc = subprocess.run([sys.executable, "-m", "stepzoo", "simulate", "--method", method,
+                               "--h", h, "--T", T, "--vx", "15", "--delta", "0.3"],
+                              capture_output=True, text=True, env=env, timeout=300)
+        assert proc.returncode == 0, proc.stderr[-2000:]
+        return proc.stdout, {p.name for p in cache.glob("*-cache")}
+
+    first, programs = simulate("rk4", "0.01", "1")
+    assert programs
+    again, programs_again = simulate("rk4", "0.01", "1")
+    assert (again, programs_again) == (first, programs)
+    other_h, programs_h = simulate("rk4", "0.02", "2")
+    assert programs_h == programs
+    assert stepzoo(["simulate", "--method", "rk4", "--h", "0.02", "--T", "2", "--vx", "15",
+                    "--delta", "0.3"]) == 0
+    assert other_h == capsys.readouterr().out != first
+    _, programs_heun = simulate("heun", "0.01", "1")
+    assert programs_heun > programs

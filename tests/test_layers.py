@@ -82,3 +82,41 @@ def test_no_module_imports_a_layer_above_its_own():
                 if layer > own or sibling:
                     wrong.append(f"{name} (layer {own}) imports {package} (layer {layer})")
     assert not wrong, "\n".join(wrong)
+
+
+# Libraries that take from a tenth of a second to seconds to import, and which commands need
+# only once they compute (JAX, SciPy, CasADi) or write tables and figures.
+HEAVY = ("jax", "scipy", "casadi", "pandas", "pyarrow", "matplotlib", "plotly", "dask",
+         "distributed")
+IMPORTED_AFTER = """
+import json, sys
+from stepzoo.bench.cli import main
+try:
+    main(sys.argv[1:])
+except SystemExit:
+    pass
+print(json.dumps(sorted({m.split(".")[0] for m in sys.modules} & set(%r))))
+"""
+
+
+def _heavy_imported(code: str, *args) -> list[str]:
+    proc = subprocess.run([sys.executable, "-c", code, *args], capture_output=True, text=True,
+                          timeout=300)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    return json.loads(proc.stdout.strip().splitlines()[-1])
+
+
+def test_help_of_every_command_imports_no_heavy_library():
+    from stepzoo.bench.cli import COMMANDS
+    code = IMPORTED_AFTER % (HEAVY,)
+    heavy = {name: _heavy_imported(code, name, "--help") for name in ["--help", *COMMANDS]}
+    assert heavy == {name: [] for name in heavy}
+
+
+def test_plan_imports_before_its_search_only_what_it_searches_with():
+    """The modules `stepzoo plan` runs before its search (the command, scenarios, config,
+    planner) import JAX, SciPy and CasADi, and no table or plotting library."""
+    code = ("import json, sys\n"
+            "from stepzoo.search import cmd_plan, pathfinder, planner_config, scenarios\n"
+            f"print(json.dumps(sorted({{m.split('.')[0] for m in sys.modules}} & set({HEAVY!r}))))")
+    assert _heavy_imported(code) == ["casadi", "jax", "scipy"]
