@@ -8,6 +8,7 @@ import numpy as np
 from stepzoo.integrators import steps
 from stepzoo.integrators.multistep import LinearMultistep, adams_bashforth, adams_moulton, bdf
 from stepzoo.integrators.newton import NewtonOptions
+from stepzoo.integrators.rosenbrock import Rosenbrock
 from stepzoo.integrators.tableau import ButcherTableau
 
 S3 = np.sqrt(3.0)
@@ -19,10 +20,11 @@ G = float(next(r.real for r in np.roots([6, -18, 9, -1]) if 0.3 < r.real < 0.5))
 
 @dataclass(frozen=True, eq=False)
 class Method:
-    """A fixed-step method. `scheme` is a ButcherTableau or a LinearMultistep. Multistep
-    methods take their first k-1 steps with `starter` (a one-step method of order >= theirs).
-    Hashable by identity, so a Method can be a static argument of `jax.jit`. `newton` holds
-    the tolerances and iteration limit of an implicit method's nonlinear solves."""
+    """A fixed-step method. `scheme` is a ButcherTableau, a Rosenbrock or a LinearMultistep.
+    Multistep methods take their first k-1 steps with `starter` (a one-step method of order
+    >= theirs). Hashable by identity, so a Method can be a static argument of `jax.jit`.
+    `newton` holds the tolerances and iteration limit of an implicit method's nonlinear
+    solves (Rosenbrock methods have none)."""
     name: str
     family: str
     order: int
@@ -41,6 +43,10 @@ class Method:
     @property
     def is_multistep(self) -> bool:
         return isinstance(self.scheme, LinearMultistep)
+
+    @property
+    def is_rosenbrock(self) -> bool:
+        return isinstance(self.scheme, Rosenbrock)
 
     @property
     def implicit(self) -> bool:
@@ -62,11 +68,14 @@ class Method:
 
     @property
     def rhs_evals_per_step(self) -> int:
-        """Explicit: exact. Implicit: evaluations of one Newton iteration without the
-        Jacobian (the measured count, with Newton iterations, comes from the driver)."""
+        """Explicit: exact. Rosenbrock: evaluations of f in one step, without the d + 1 of
+        its derivatives. Implicit: evaluations of one Newton iteration without the Jacobian
+        (the measured count, with Newton iterations, comes from the driver)."""
         if self.is_multistep:
             return 1
-        return self.scheme.evals_per_step if self.scheme.explicit else self.scheme.stages
+        if self.is_rosenbrock or self.scheme.explicit:
+            return self.scheme.evals_per_step
+        return self.scheme.stages
 
     def init_state(self, y0):
         """Evaluations spent, and whether every nonlinear solve so far converged."""
@@ -76,6 +85,8 @@ class Method:
         """One step from (t, y): returns (y_next, state)."""
         if self.is_multistep:
             return steps.multistep_step(self.scheme, self.newton, fun, t, y, h, state)
+        if self.is_rosenbrock:
+            return steps.rosenbrock_step(self.scheme, fun, t, y, h, state)
         if self.scheme.explicit:
             return steps.explicit_rk_step(self.scheme, fun, t, y, h, state)
         return steps.implicit_rk_step(self.scheme, self.newton, fun, t, y, h, state)
@@ -146,6 +157,24 @@ TABLEAUS = {
                      (-6 * G ** 2 + 6 * G - 1) / (6 * G - 3), G]),
 }
 
+# Rosenbrock coefficients in Hairer & Wanner's (alpha, gamma) form. An s-stage method of
+# order s has R(-inf) = L_s(1/gamma), L_s the Laguerre polynomial (HW IV.7): ROS2's gamma is a
+# root of L_2 (L-stable), ROS3P's gives sqrt(3) - 1. Rodas3's last stage is the solution
+# (stiffly accurate), hence R(-inf) = 0.
+G2 = 1 + 1 / np.sqrt(2.0)
+G3P = 1 / 2 + S3 / 6
+ROSENBROCK = {
+    "ros2": Rosenbrock([[0, 0], [1, 0]], [[G2, 0], [-2 * G2, G2]], [1 / 2, 1 / 2],
+                       b_hat=[1, 0]),
+    "ros3p": Rosenbrock([[0, 0, 0], [1, 0, 0], [1, 0, 0]],
+                        [[G3P, 0, 0], [-1, G3P, 0], [-G3P, -1 / 2 - S3 / 3, G3P]],
+                        [2 / 3, 0, 1 / 3], b_hat=[1 / 3, 1 / 3, 1 / 3]),
+    "rodas3": Rosenbrock([[0, 0, 0, 0], [0, 0, 0, 0], [1, 0, 0, 0], [3 / 4, -1 / 4, 1 / 2, 0]],
+                         [[1 / 2, 0, 0, 0], [1, 1 / 2, 0, 0], [-1 / 4, -1 / 4, 1 / 2, 0],
+                          [1 / 12, 1 / 12, -2 / 3, 1 / 2]],
+                         [5 / 6, -1 / 6, -1 / 6, 1 / 2], b_hat=[3 / 4, -1 / 4, 1 / 2, 0]),
+}
+
 METHODS: dict[str, Method] = {}
 
 
@@ -173,6 +202,13 @@ _register("radau_iia5", "implicit RK", 5, TABLEAUS["radau_iia5"],
           "Ehle 1969; 3-stage Radau IIA (RADAU5's method), A- and L-stable")
 _register("kvaerno3", "implicit RK", 3, TABLEAUS["kvaerno3"],
           "Kvaerno 2004; 4-stage ESDIRK 3(2), stiffly accurate, A- and L-stable")
+_register("ros2", "Rosenbrock", 2, ROSENBROCK["ros2"],
+          "Verwer, Spee, Blom & Hundsdorfer 1999; gamma = 1 + 1/sqrt(2), A- and L-stable")
+_register("ros3p", "Rosenbrock", 3, ROSENBROCK["ros3p"],
+          "Lang & Verwer 2001; no order reduction on parabolic problems, A-stable, "
+          "|R(-inf)| = sqrt(3) - 1")
+_register("rodas3", "Rosenbrock", 3, ROSENBROCK["rodas3"],
+          "Sandu et al. 1997; stiffly accurate, A- and L-stable")
 _rk4 = METHODS["rk4"]
 for _k in (2, 3, 4):
     _register(f"ab{_k}", "Adams-Bashforth", _k, adams_bashforth(_k),

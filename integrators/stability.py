@@ -1,6 +1,6 @@
 """Linear stability of the zoo on y' = lambda y, z = h*lambda, by two independent routes:
-theory (R(z) by the determinant formula; the root condition of rho(zeta) - z sigma(zeta))
-and experiment (the method's own JAX step applied to y' = z y, vmapped over a grid of z).
+theory (R(z) by the determinant formula, for a Rosenbrock method that of its underlying DIRK;
+the root condition of rho(zeta) - z sigma(zeta)) and experiment (the method's own JAX step applied to y' = z y, vmapped over a grid of z).
 
 Along a ray z = r e^{i theta} the interval is the first exit from the region, found by a
 dense scan and refined by bisection; A-stable methods never exit and give inf. A ray that
@@ -47,11 +47,17 @@ def multistep_roots_max(lmm, z):
     return np.abs(np.linalg.eigvals(comp)).max(axis=-1)
 
 
+def tableau(m: Method):
+    """The Butcher tableau whose R(z) is the one-step method's: its own, or a Rosenbrock
+    method's underlying DIRK (alpha + Gamma, b)."""
+    return m.scheme.tableau if m.is_rosenbrock else m.scheme
+
+
 def amplification_theory(m: Method, z):
     """|R(z)|, or the largest root modulus for a multistep method."""
     if m.is_multistep:
         return multistep_roots_max(m.scheme, z).reshape(np.shape(z))
-    return np.abs(stability_function(m.scheme, z))
+    return np.abs(stability_function(tableau(m), z))
 
 
 @cache
@@ -149,7 +155,7 @@ def stiff_decay(m: Method) -> float:
     if m.is_multistep:
         roots = np.roots(m.scheme.beta[::-1])
         return float(np.abs(roots).max()) if roots.size else 0.0
-    tab = m.scheme
+    tab = tableau(m)
     if np.linalg.matrix_rank(tab.a) == tab.stages:
         return float(abs(1.0 - tab.b @ np.linalg.solve(tab.a, np.ones(tab.stages))))
     return float(amplification_theory(m, np.array([-1e12]))[0])
@@ -165,7 +171,7 @@ def a_stable(m: Method) -> bool:
     if m.is_multistep:
         rays = np.linspace(np.pi / 2, np.pi, 9)
         return all(bool(np.isinf(ray_exit(m, float(th)))) for th in rays)
-    eig = np.linalg.eigvals(m.scheme.a)
+    eig = np.linalg.eigvals(tableau(m).a)
     poles_right = bool(np.all(eig[np.abs(eig) > 1e-12].real > 0))
     return poles_right and bool(np.isinf(ray_exit(m, np.pi / 2)))
 

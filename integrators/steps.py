@@ -1,5 +1,6 @@
 """The one generic step of each family: explicit RK, implicit RK (simplified Newton: one
-Jacobian and one factorisation per step) and linear multistep (explicit or implicit).
+Jacobian and one factorisation per step), Rosenbrock (one Jacobian, one factorisation and one
+linear solve per stage, no Newton) and linear multistep (explicit or implicit).
 `fun(t, y)` is the right-hand side with inputs and parameters already bound; every step
 returns (y_next, state) and counts its evaluations in state["evals"] (implicit: the Jacobian
 counts as d evaluations, one per column). An implicit step whose solve fails returns NaN and
@@ -119,6 +120,43 @@ def _dirk_step(tab, opts, fun, t, y, h, state, jac, eye):
     else:
         y_next = y + h * weighted(tab.b, ks)
     return _finish(y, y_next, ok, state, evals)
+
+
+def rosenbrock_step(ros, fun, t, y, h, state):
+    """One step of a Rosenbrock method, in its form without products with J (HW (7.25)):
+    (I - h gamma J) u_i = h gamma f(t + alpha_i h, y + sum_j a_ij u_j) + gamma sum_j c_ij u_j
+    + gamma gamma_i h^2 f_t, y_1 = y + sum_i m_i u_i. The derivatives [f_t, J] count d + 1
+    evaluations (one per column), each distinct stage argument one more. There is no
+    nonlinear solve, so `converged` stays as it is: a non-finite state is the method's own
+    result (its R(z) has a pole at z = 1/gamma, on the unstable side)."""
+    d = y.shape[0]
+    t = jnp.asarray(t, y.dtype)
+    # f(t, y), the first stage's value, comes with the derivatives' forward pass.
+    (f_t, jac), f0 = jax.jacfwd(lambda tt, yy: (fun(tt, yy),) * 2, argnums=(0, 1),
+                                has_aux=True)(t, y)
+    g = ros.gamma_diag
+    solve, _ = factorised(jnp.eye(d, dtype=y.dtype) - (h * g) * jac)
+    us, fs = [], []
+    for i in range(ros.stages):
+        if ros.same_as[i] < i:
+            fs.append(fs[ros.same_as[i]])
+        elif i == 0:
+            fs.append(f0)
+        else:
+            yi = y
+            for j in range(i):
+                if ros.a_u[i, j] != 0.0:
+                    yi = yi + float(ros.a_u[i, j]) * us[j]
+            fs.append(fun(t + float(ros.nodes[i]) * h, yi))
+        rhs = (h * g) * fs[i]
+        if ros.gamma_sums[i] != 0.0:
+            rhs = rhs + (g * float(ros.gamma_sums[i]) * h * h) * f_t
+        for j in range(i):
+            if ros.c_u[i, j] != 0.0:
+                rhs = rhs + (g * float(ros.c_u[i, j])) * us[j]
+        us.append(solve(rhs))
+    evals = state["evals"] + d + 1 + ros.evals_per_step
+    return y + weighted(ros.m_u, us), dict(state, evals=evals)
 
 
 def multistep_step(lmm, opts, fun, t, y, h, state):

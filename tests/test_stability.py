@@ -23,6 +23,7 @@ PUBLISHED = {
     "backward_euler": (None, None), "trapezoidal": (None, None),
     "gauss_legendre4": (None, None), "radau_iia3": (None, None), "bdf2": (None, None),
     "radau_iia5": (None, None), "kvaerno3": (None, None),
+    "ros2": (None, None), "ros3p": (None, None), "rodas3": (None, None),
 }
 
 
@@ -93,11 +94,14 @@ def test_stability_command_json(capsys):
 
 
 # (A-stable, L-stable, |R(-inf)|): Hairer & Wanner II, IV.3 and V.1; am3's and am4's are the
-# largest roots of sigma, 5z^2 + 8z - 1 and 9z^3 + 19z^2 - 5z + 1.
+# largest roots of sigma, 5z^2 + 8z - 1 and 9z^3 + 19z^2 - 5z + 1; ROS2, ROS3P and Rodas3:
+# Verwer et al. 1999, Lang & Verwer 2001 (|R(-inf)| = 0.73), Sandu et al. 1997.
 STIFF = {"backward_euler": (True, True, 0.0), "trapezoidal": (True, False, 1.0),
          "gauss_legendre4": (True, False, 1.0), "radau_iia3": (True, True, 0.0),
          "radau_iia5": (True, True, 0.0), "kvaerno3": (True, True, 0.0),
-         "bdf2": (True, True, 0.0), "am3": (False, False, (8 + math.sqrt(84)) / 10),
+         "bdf2": (True, True, 0.0), "ros2": (True, True, 0.0),
+         "ros3p": (True, False, math.sqrt(3) - 1), "rodas3": (True, True, 0.0),
+         "am3": (False, False, (8 + math.sqrt(84)) / 10),
          "am4": (False, False, 2.36579), "rk4": (False, False, None), "ab2": (False, False, None)}
 
 
