@@ -11,8 +11,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-import yaml
-from PIL import Image, UnidentifiedImageError
 from scipy.ndimage import distance_transform_edt
 
 # The distance field is sampled on a lattice SUBDIV times finer than the cells. Obstacles are
@@ -203,6 +201,9 @@ def _cell_size(path: Path, cell_size, resolution, required: bool):
 
 def _read_grey(path: Path) -> np.ndarray:
     """Image as float grey values 0..255, colour channels averaged (alpha ignored), as ROS does."""
+    # Pillow and PyYAML are imported by the readers of their formats: a scenario of
+    # rectangles, or a MovingAI map, needs neither.
+    from PIL import Image, UnidentifiedImageError
     try:
         with Image.open(path) as image:
             image.load()
@@ -213,6 +214,8 @@ def _read_grey(path: Path) -> np.ndarray:
                 pixels = np.asarray(image.convert("RGB"), dtype=float).mean(axis=-1)
     except (OSError, UnidentifiedImageError) as error:
         raise ValueError(f"cannot read map image {path}: {error}; give a PNG or PGM file") from None
+    except Image.DecompressionBombError as error:
+        raise ValueError(f"map image {path}: {error}; give a smaller image") from None
     return pixels
 
 
@@ -268,6 +271,7 @@ def _read_movingai(path: Path) -> np.ndarray:
 
 def _load_ros(path: Path, expected_resolution) -> OccupancyMap:
     """ROS map_server yaml + image; cells neither free nor occupied count as obstacles."""
+    import yaml
     try:
         meta = yaml.safe_load(path.read_text())
     except yaml.YAMLError as error:

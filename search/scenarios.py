@@ -9,7 +9,6 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-from PIL import Image
 
 from stepzoo import dynamics
 from stepzoo.errors import UsageError
@@ -94,8 +93,6 @@ def open_map(path: Path, cell_size=None) -> OccupancyMap:
         return load_map(path, cell_size=cell_size)
     except ValueError as err:
         raise UsageError(str(err)) from None
-    except Image.DecompressionBombError as err:
-        raise UsageError(f"map image {path}: {err}; give a smaller image") from None
 
 
 def rectangles_map(spec: dict, path: Path) -> OccupancyMap:

@@ -84,10 +84,11 @@ def test_no_module_imports_a_layer_above_its_own():
     assert not wrong, "\n".join(wrong)
 
 
-# Libraries that take from a tenth of a second to seconds to import, and which commands need
-# only once they compute (JAX, SciPy, CasADi) or write tables and figures.
-HEAVY = ("jax", "scipy", "casadi", "pandas", "pyarrow", "matplotlib", "plotly", "dask",
-         "distributed")
+# Libraries that take from a few hundredths of a second to seconds to import, and which
+# commands need only once they compute (JAX, SciPy, CasADi), read map files (Pillow, PyYAML)
+# or write tables and figures.
+HEAVY = ("jax", "scipy", "casadi", "PIL", "yaml", "pandas", "pyarrow", "matplotlib", "plotly",
+         "dask", "distributed")
 IMPORTED_AFTER = """
 import json, sys
 from stepzoo.bench.cli import main
