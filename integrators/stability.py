@@ -35,16 +35,19 @@ def stability_function(tab, z):
 
 
 def multistep_roots_max(lmm, z):
-    """Largest |zeta| over the roots of rho(zeta) - z sigma(zeta), for an array of z."""
+    """Largest |zeta| over the roots of rho(zeta) - z sigma(zeta), for an array of z; inf at
+    z = 1/beta_k of an implicit method, where the leading coefficient vanishes (a root goes
+    to infinity: the step divides by zero)."""
     z = np.asarray(z, dtype=complex).ravel()
     coeffs = lmm.alpha[None, :] - z[:, None] * lmm.beta[None, :]     # low to high degree
     lead = coeffs[:, -1:]
+    pole = lead[:, 0] == 0
     # Companion matrices of the monic polynomials, eigenvalues all at once.
     k = lmm.steps
     comp = np.zeros((len(z), k, k), dtype=complex)
     comp[:, 1:, :-1] = np.eye(k - 1)
-    comp[:, :, -1] = -coeffs[:, :-1] / lead
-    return np.abs(np.linalg.eigvals(comp)).max(axis=-1)
+    comp[:, :, -1] = -coeffs[:, :-1] / np.where(pole[:, None], 1.0, lead)
+    return np.where(pole, np.inf, np.abs(np.linalg.eigvals(comp)).max(axis=-1))
 
 
 def tableau(m: Method):

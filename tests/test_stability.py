@@ -85,6 +85,14 @@ def test_region_grid_marks_the_origin_side_stable():
     assert amp[40, -1] > 1.0                                  # z = +2 is outside
 
 
+def test_region_grid_through_bdf2_s_pole_is_unstable_there_not_an_error():
+    """z = 1/beta_2 = 1.5 zeroes BDF2's leading coefficient: a root at infinity. A report's
+    grid ends there (re up to 1.5, im through 0)."""
+    x, y, amp = region_grid(method("bdf2"), re=(-4.0, 1.5), im=(-1.0, 1.0), n=81)
+    assert np.isinf(amp[40, -1]) and np.isfinite(amp).sum() == amp.size - 1
+    assert amp[40, 0] < 1.0
+
+
 def test_stability_command_json(capsys):
     assert stepzoo(["stability", "--vx", "15", "--delta", "0.785", "--format", "json"]) == 0
     out = json.loads(capsys.readouterr().out)
