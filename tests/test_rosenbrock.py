@@ -152,6 +152,28 @@ def test_observed_order_on_detest_a3(name):
     assert abs(slope - method(name).order) <= 0.2, (name, slope, errs)
 
 
+def test_ros2_equals_verwer_s_own_form_on_robertson():
+    """ROS2 as Verwer et al. 1999 write it, (I - gamma h J) k1 = f(y), (I - gamma h J) k2 =
+    f(y + h k1) - 2 k1, y1 = y + 3/2 h k1 + 1/2 h k2, in NumPy: the same 20 steps on Robertson's
+    problem (nonlinear, stiff). From y2 = 0 the first Jacobian misses the stiff coupling, and
+    y2 goes negative at once: the method's own result, which both forms share."""
+    d = stiff.PROBLEMS["robertson"]
+    f = lambda t, y, u, p: d["rhs"](t, y, u, d["params"])
+    g, h, n = 1 + 1 / np.sqrt(2), 0.01, 20
+    fn = lambda y: np.asarray(f(0.0, jnp.asarray(y), None, None))
+    jac = jax.jit(jax.jacfwd(lambda y: f(0.0, y, None, None)))
+    y, want = np.array(d["x0"]), [np.array(d["x0"])]
+    for _ in range(n):
+        w = np.eye(3) - g * h * np.asarray(jac(jnp.asarray(y)))
+        k1 = np.linalg.solve(w, fn(y))
+        k2 = np.linalg.solve(w, fn(y + h * k1) - 2 * k1)
+        y = y + 1.5 * h * k1 + 0.5 * h * k2
+        want.append(y)
+    got = np.asarray(integrate("ros2", f, jnp.asarray(d["x0"]), h=h, n_steps=n).x)
+    np.testing.assert_allclose(got, np.array(want), rtol=1e-10, atol=1e-15)
+    assert got[1, 1] < 0
+
+
 def test_ros3p_keeps_its_order_on_a_stiff_forced_problem():
     """Lambert's x' = A x + g(t) (eigenvalues -1 and -1000), exact at t = 2, with h lambda from
     -50 to -12.5: ROS3P was built to show no order reduction there (Lang & Verwer 2001); its
