@@ -9,7 +9,8 @@ OMPL_STATUS = ("Unknown status", "Invalid start", "Invalid goal", "Unrecognized 
                "Infeasible")
 # Our causes (pathfinder.CAUSES) as OMPL statuses.
 STATUS_OF_CAUSE = {"start_off_map": 1, "start_in_collision": 1, "goal_off_map": 2,
-                   "goal_in_collision": 2, "walled_off": 9, "exhausted": 9, "budget": 5,
+                   "goal_in_collision": 2, "walled_off": 9, "start_boxed_in": 9,
+                   "goal_boxed_in": 9, "exhausted": 9, "budget": 5,
                    "connections_failed": 5, "connected": 6}
 # (column of the runs table, OMPL property name, SQL type). OMPL's own names where it has one.
 RUN_PROPERTIES = (

@@ -15,7 +15,9 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import dijkstra
 
 from stepzoo import dynamics
+from stepzoo.search.car_bounds import dubins_length
 from stepzoo.search.connect import Connection, connect, dubins_paths, dubins_poses
+from stepzoo.search.departure import boxed_in, turned
 from stepzoo.search.footprint import Footprint, first_collision, poses_collide
 from stepzoo.search.maps import SUBDIV, OccupancyMap
 from stepzoo.search.planner_config import PlannerConfig
@@ -30,7 +32,10 @@ DUBINS_SPACING = 0.5    # [m] between the poses of a Dubins path checked before 
 OCTILE_EXCESS = 1.0824  # the 8-connected lattice metric's largest ratio to Euclidean length
 # Why a plan ended. Bad endpoints are the caller's input: no search was run.
 BAD_ENDPOINT = ("start_off_map", "start_in_collision", "goal_off_map", "goal_in_collision")
-CAUSES = (*BAD_ENDPOINT, "walled_off", "exhausted", "budget", "connections_failed", "connected")
+# A boxed-in end is a true result for this car, not a bad input: no_path, no search run.
+BOXED_IN = ("start_boxed_in", "goal_boxed_in")
+CAUSES = (*BAD_ENDPOINT, "walled_off", *BOXED_IN, "exhausted", "budget", "connections_failed",
+          "connected")
 
 
 @dataclass
@@ -56,6 +61,10 @@ class PlanResult:
     first_solution_s: float | None = None  # [s] from the search's start to the first exact path
     solution_s: float | None = None        # [s] ... to the path returned (the shortest found)
     progress: list = field(default_factory=list)  # (time [s], length [m]) of each better path
+    # The budget that cut the search short: "max_seconds" (then the result depends on the
+    # machine's speed and load), "max_expansions", or None (it ended by itself: the same
+    # inputs and seed give the same plan anywhere).
+    budget_bound: str | None = None
 
     def path_length(self) -> float:
         """[m] along the tree edges and the connection."""
@@ -134,6 +143,25 @@ class PathFinder:
         if a == 0 or a != b:
             return "walled_off", ("goal walled off from the start: no corridor as wide as the "
                                   "vehicle joins them")
+        return self._check_boxed_in(start, goal)
+
+    def _check_boxed_in(self, start, goal) -> tuple[str, str]:
+        """(cause, reason) if, forward only, every way out of the start (or into the goal, the
+        way out of the goal turned round) collides at once; ('', '') otherwise. With reverse
+        gear nothing is claimed: short moves to and fro can turn a car round where neither
+        way is free for long."""
+        if self.config.params["reverse"]:
+            return "", ""
+        radius = self.wheelbase / math.tan(self.config.params["delta_max"])
+        gap = float(np.hypot(*(goal[:2] - start[:2])))
+        for name, pose, leave in (("start", start, "departure"), ("goal", turned(goal), "arrival")):
+            boxed, longest = boxed_in(self.omap, self.footprint, pose, radius)
+            # A path shorter than the proof's length could end before it collides.
+            if boxed and gap > longest:
+                return f"{name}_boxed_in", (
+                    f"{name} boxed in: no collision-free forward {leave} (every path of "
+                    f"curvature <= 1/{radius:.2f} m collides within {longest:.2f} m); "
+                    "try --reverse")
         return "", ""
 
     def _corridors(self) -> np.ndarray:
@@ -150,7 +178,22 @@ class PathFinder:
             self._components = label(room, structure=np.ones((3, 3)))[0]
         return self._components
 
-    def _geodesic(self, goal) -> np.ndarray:
+    def _guide_field(self, goal, geodesic) -> np.ndarray:
+        """[m] the search's guide: the geodesic over lattice points where the car's centre
+        has room on both sides (clearance >= half its width + margin) or near the goal (within
+        connect_radius), so the search is not led into alleys narrower than the car; points
+        off it rank after every point on it, by the plain geodesic."""
+        room = self.vehicle["width"] / 2 + self.config.params["margin"]
+        step = self.omap.resolution / SUBDIV
+        rows, cols = np.indices(self.omap.distance.shape)
+        near = np.hypot(cols * step + self.omap.origin[0] - goal[0],
+                        rows * step + self.omap.origin[1] - goal[1])
+        tight = self._geodesic(goal, (self.omap.distance >= room)
+                               | (near <= self.config.params["connect_radius"]))
+        finite = np.isfinite(tight)
+        return np.where(finite, tight, geodesic + (tight[finite].max() if finite.any() else 0))
+
+    def _geodesic(self, goal, allowed=None) -> np.ndarray:
         """[m] the shortest 8-connected path over free lattice points of the goal's corridor
         component from every lattice point to the goal's, the guide H of the search (Hybrid
         A*'s obstacle heuristic); a point just outside takes its best neighbour's value plus a
@@ -159,6 +202,8 @@ class PathFinder:
         step = self.omap.resolution / SUBDIV
         target = self._lattice(goal)
         mask = (labels == labels[target]) & (self.omap.distance > 0)
+        if allowed is not None:
+            mask &= allowed
         mask[target] = True
         index = np.full(mask.shape, -1)
         index[mask] = np.arange(mask.sum())
@@ -219,16 +264,19 @@ class _Search:
         self.cell_xy, self.cell_heading, self.level = (self.prm["cell_xy"],
                                                        self.prm["cell_heading"], 0)
         self.geodesic = finder._geodesic(goal)
+        self.guide_field = finder._guide_field(goal, self.geodesic)
         root = np.array([*start, 0.0, 0.0])
         self.states, self.parent, self.g = [root], [-1], [0.0]
         self.H = [float(np.hypot(*(start[:2] - goal[:2])))]
+        self.radius = finder.wheelbase / math.tan(self.prm["delta_max"])
         self.rest = [float(self._rest(start[None])[0])]
+        self.guide = [float(self._rest(start[None], self.guide_field)[0])]
+        self.dubins = [float(self._dubins(start[None])[0])]
         self.edges, self.steers = [None], [0.0]
         self.direction = [0]  # +1 forwards, -1 backwards, 0 the start (either way)
         self.seen = {self._cell(root, 0)}
         self.tried: set[int] = set()
         self.cheap: set[int] = set()  # tried nodes whose every Dubins path collides: no OCP
-        self.dubins: dict[int, float] = {}
         self.failures: list[str] = []
         self.connect_s = 0.0
         self.best = math.inf
@@ -242,27 +290,45 @@ class _Search:
                 math.floor(heading / self.cell_heading),
                 direction if self.prm["reverse"] else 0)
 
-    def _rest(self, xy) -> np.ndarray:
-        """(K,) [m] geodesic lattice distance from points (K, 2+) to the goal (inf: none)."""
+    def _rest(self, xy, field=None) -> np.ndarray:
+        """(K,) [m] the lattice field (default: the geodesic distance to the goal, inf: none)
+        at the lattice points nearest points (K, 2+)."""
         omap = self.f.omap
         step = omap.resolution / SUBDIV
         col, row = omap.nearest_lattice((xy[:, 0] - omap.origin[0]) / step,
                                         (xy[:, 1] - omap.origin[1]) / step)
-        return self.geodesic[row, col]
+        return (self.geodesic if field is None else field)[row, col]
+
+    def _dubins(self, poses) -> np.ndarray:
+        """(K,) [m] the shortest forward path of the car from poses (K, 3+) to the goal
+        ignoring obstacles (Dubins), a lower bound of the rest forwards; 0 (no bound) with
+        reverse gear."""
+        if self.prm["reverse"]:
+            return np.zeros(len(poses))
+        return dubins_length(poses, self.goal, self.radius)
 
     def _f(self, node) -> float:
-        """The search's order: g + w H, w = h_weight (above 1: greedier first solutions)."""
-        return self.g[node] + self.prm["h_weight"] * self.rest[node]
+        """The search's order: g + w H, w = h_weight (above 1: greedier first solutions), H the
+        larger of the guide geodesic (obstacles, no turning radius; _guide_field) and the Dubins
+        length (turning radius, no obstacles), as Hybrid A*: a node beside the goal but facing away ranks by
+        the loop it needs."""
+        return self.g[node] + self.prm["h_weight"] * max(self.guide[node], self.dubins[node])
 
     def _bound(self, node) -> float:
-        """[m] a lower bound of the length of any path through `node`: g plus the geodesic,
-        less the octile metric's excess (at most 8.3% over Euclidean) and two lattice steps."""
+        """[m] a lower bound of the length of any path through `node`: g plus the larger of the
+        Dubins length and the geodesic less the octile metric's excess (at most 8.3% over
+        Euclidean) and two lattice steps."""
         step = self.f.omap.resolution / SUBDIV
-        return self.g[node] + max(self.rest[node] / OCTILE_EXCESS - 2 * step, 0.0)
+        return self.g[node] + max(self.rest[node] / OCTILE_EXCESS - 2 * step, 0.0,
+                                  self.dubins[node])
 
     def _budget_left(self, res) -> bool:
-        return (res.expansions < self.prm["max_expansions"]
-                and perf_counter() - self.t0 < self.prm["max_seconds"])
+        """Whether both budgets allow more work; if not, records which one bound."""
+        if res.expansions >= self.prm["max_expansions"]:
+            res.budget_bound = "max_expansions"
+        elif perf_counter() - self.t0 >= self.prm["max_seconds"]:
+            res.budget_bound = "max_seconds"
+        return res.budget_bound is None
 
     def run(self) -> PlanResult:
         prm, res = self.prm, self.result
@@ -327,7 +393,8 @@ class _Search:
         return res
 
     def _refine(self) -> list:
-        """Halve the pruning cells and queue every node again; returns the new heap."""
+        """Halve the pruning cells and the least kept prefix and queue every node again;
+        returns the new heap."""
         self.level += 1
         self.cell_xy /= 2
         self.cell_heading /= 2
@@ -369,7 +436,7 @@ class _Search:
         col, row = omap.nearest_lattice((state[0] - omap.origin[0]) / step,
                                         (state[1] - omap.origin[1]) / step)
         row, col = int(row), int(col)
-        field = self.geodesic
+        field = self.guide_field
         for _ in range(max(1, round(self.prm["arc_radius"] / step))):
             r0, c0 = max(row - 1, 0), max(col - 1, 0)
             window = field[r0:row + 2, c0:col + 2]
@@ -382,9 +449,12 @@ class _Search:
     def _add(self, node, direction, shots) -> list[int]:
         """Add the kept shootings of `shots`, driven in `direction`, as children of `node`."""
         last = shots.free - 1  # the last row kept of each shooting
-        keep = np.flatnonzero(last >= max(1, shots.states.shape[1] // PREFIX_FRACTION))
+        # Each refinement halves the least prefix too: shorter moves in tight spots.
+        least = shots.states.shape[1] // (PREFIX_FRACTION * 2 ** self.level)
+        keep = np.flatnonzero(last >= max(1, least))
         ends = shots.states[keep, last[keep]]
-        rest = self._rest(ends)
+        rest, dubins = self._rest(ends), self._dubins(ends)
+        guide = self._rest(ends, self.guide_field)
         H = np.hypot(*(ends[:, :2] - self.goal[:2]).T)
         # A change of direction costs cusp_cost [m] on top of the distance driven.
         cusp = self.prm["cusp_cost"] if self.direction[node] == -direction else 0.0
@@ -401,20 +471,12 @@ class _Search:
             self.g.append(self.g[node] + float(shots.travelled[k, last[k]]) + cusp)
             self.H.append(float(H[j]))
             self.rest.append(float(rest[j]))
+            self.dubins.append(float(dubins[j]))
+            self.guide.append(float(guide[j]))
             self.edges.append(shots.states[k, :last[k] + 1])
             self.steers.append(float(shots.steer[k]))
             self.direction.append(direction)
         return new
-
-    def _dubins_length(self, node) -> float:
-        """[m] of the shortest forward path at the minimum turning radius from the node's
-        pose to the goal pose: "nearest" for a car, which the straight distance ignores (a
-        node beside the goal but facing away needs a loop, which the map may not allow)."""
-        if node not in self.dubins:
-            radius = self.f.wheelbase / math.tan(self.prm["delta_max"])
-            paths = dubins_paths(self.states[node][:3], self.goal[:3], radius)
-            self.dubins[node] = sum(q for _, q in paths[0]) if paths else math.inf
-        return self.dubins[node]
 
     def _attempts(self) -> int:
         """Connection attempts that called the OCP."""
@@ -422,17 +484,22 @@ class _Search:
 
     def _dubins_free(self, node) -> bool:
         """Whether any Dubins path from the node to the goal is collision-free."""
-        radius = self.f.wheelbase / math.tan(self.prm["delta_max"])
+        radius = self.radius
         # Backwards, the footprint (symmetric about its centre) sweeps what it sweeps driving
         # forwards between the poses turned round.
         flips = (0.0, math.pi) if self.prm["reverse"] else (0.0,)
+        paths = []
         for flip in flips:
             start = self.states[node][:3] + (0.0, 0.0, flip)
             for segs in dubins_paths(start, self.goal[:3] + (0.0, 0.0, flip), radius):
-                poses = dubins_poses(start, segs, radius, DUBINS_SPACING)
-                if first_collision(self.f.omap, self.f.footprint, poses[None])[0] < 0:
-                    return True
-        return False
+                paths.append(dubins_poses(start, segs, radius, DUBINS_SPACING))
+        if not paths:
+            return False
+        # One check of all words: each padded with its last pose to the longest.
+        rows = max(len(p) for p in paths)
+        padded = np.stack([np.vstack([p, np.repeat(p[-1:], rows - len(p), axis=0)])
+                           for p in paths])
+        return bool((first_collision(self.f.omap, self.f.footprint, padded) < 0).any())
 
     def _try_connect(self) -> bool:
         """Connect from the untried nodes within connect_radius of the goal that could shorten
@@ -442,13 +509,13 @@ class _Search:
         near = [i for i, d in enumerate(self.H) if d <= self.prm["connect_radius"]
                 and i not in self.tried and self.g[i] + d < limit]
         improved = False
-        for i in sorted(near, key=lambda j: (self.g[j] + self._dubins_length(j), j)):
+        # "Nearest" for a car: a node beside the goal but facing away needs a loop, which the
+        # map may not allow; the Dubins length (a lower bound forwards) says so.
+        for i in sorted(near, key=lambda j: (self.g[j] + max(self.H[j], self.dubins[j]), j)):
             if self._attempts() >= self.prm["connect_tries"] or \
                     not self._budget_left(self.result):
                 break
-            # The shortest Dubins path bounds any forward path of the car from below.
-            rest = self.H[i] if self.prm["reverse"] else self._dubins_length(i)
-            if self.g[i] + rest >= self.best * (1 - IMPROVE_TOL):
+            if self.g[i] + max(self.H[i], self.dubins[i]) >= self.best * (1 - IMPROVE_TOL):
                 continue
             self.tried.add(i)
             if not self._dubins_free(i):

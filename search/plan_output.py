@@ -85,6 +85,8 @@ def plan_record(result: PlanResult, scenario: Scenario, config, vehicle: dict, s
             "first_solution_s": result.first_solution_s,
             "solution_s": result.solution_s,
             "progress": [{"t_s": t, "length_m": length} for t, length in result.progress],
+            # Which budget cut the search short (null: none, so the plan is reproducible).
+            "budget_bound": result.budget_bound,
             "cusps": cusps(rows),
             "seed": seed,
             "method": config.method,

@@ -1,6 +1,7 @@
 """Query files for `stepzoo plan-bench`: a JSON list of {map, cell_size, start, goal, id}, the map
 path relative to the file; and the seeded generator of random street queries (start and goal
-in one free region of a map, a given distance apart) that wrote the shipped test set."""
+in one free region of a map, a given distance apart, the start with a collision-free forward
+departure and the goal with a collision-free forward arrival) that wrote the shipped test set."""
 from __future__ import annotations
 
 import json
@@ -14,8 +15,10 @@ from scipy.ndimage import label
 
 from stepzoo import dynamics
 from stepzoo.errors import UsageError
+from stepzoo.search.departure import free_departure, turned
 from stepzoo.search.footprint import Footprint, poses_collide
 from stepzoo.search.maps import MAP_DIR, SUBDIV, OccupancyMap
+from stepzoo.search.planner_config import PARAMS
 from stepzoo.search.scenarios import open_map, pose
 
 QUERY_DIR = Path(__file__).with_name("queries")
@@ -71,12 +74,15 @@ def random_queries(map_path, cell_size, n, seed, *, vehicle=None, margin=0.1, ne
     """`n` seeded queries on one map: start and goal centres at lattice points with at least
     `room` [m] to the nearest obstacle, in one region of lattice points where the car's centre
     may be (clearance >= half its width + margin), `near`..`far` [m] apart;
-    headings uniform, any pose whose footprint (+margin) collides redrawn. Map paths are
-    written relative to `rel_to` (a folder)."""
+    headings uniform; a pair is redrawn if a footprint (+margin) collides, or if no forward
+    arc at the steer limit or gentler leaves the start (arrives at the goal) free for
+    DEPARTURE_M: a query a forward-only car can at least begin. Map paths are written
+    relative to `rel_to` (a folder)."""
     omap = open_map(Path(map_path), cell_size)
     spec = dynamics.vehicle(vehicle)
     length, width = spec["length"] + 2 * margin, spec["width"] + 2 * margin
     footprint = Footprint.from_vehicle(length, width, 2 * math.ceil(length / width))
+    radius = (spec["Lf"] + spec["Lr"]) / math.tan(PARAMS["delta_max"].default)
     rng = np.random.default_rng(seed)
     points, region = _roomy_points(omap, room, spec["width"] / 2 + margin)
     name = Path(map_path).stem
@@ -91,7 +97,9 @@ def random_queries(map_path, cell_size, n, seed, *, vehicle=None, margin=0.1, ne
             continue
         b = mates[rng.integers(len(mates))]
         start, goal = (np.r_[p, rng.uniform(-math.pi, math.pi)] for p in (a, b))
-        if poses_collide(omap, footprint, np.vstack([start, goal])).any():
+        if poses_collide(omap, footprint, np.vstack([start, goal])).any() or not (
+                free_departure(omap, footprint, start, radius)
+                and free_departure(omap, footprint, turned(goal), radius)):
             continue
         out.append({"id": f"{name}-{len(out):02d}", "map": str(rel), "cell_size": cell_size,
                     "start": np.round(start, 3).tolist(), "goal": np.round(goal, 3).tolist()})

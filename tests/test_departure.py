@@ -1,0 +1,131 @@
+"""Leaving a pose forwards: the proof that no forward path leaves (boxed_in) holds against
+brute force, never contradicts a free arc, and the planner turns it into a typed no_path at
+once; the closed-form Dubins length is the shortest Dubins path; the boxed-in queries of the
+earlier draw are boxed in."""
+import math
+
+import numpy as np
+import pytest
+
+from stepzoo import dynamics
+from stepzoo.search.car_bounds import dubins_length
+from stepzoo.search.connect import dubins_paths
+from stepzoo.search.departure import arc_poses, boxed_in, free_departure, turned
+from stepzoo.search.footprint import Footprint, first_collision, poses_collide
+from stepzoo.search.maps import MAP_DIR, from_array
+from stepzoo.search.pathfinder import PathFinder
+from stepzoo.search.planner_config import make_config
+from stepzoo.search.queries import QUERY_DIR, load_queries
+from stepzoo.search.scenarios import open_map
+
+VEHICLE = dynamics.vehicle(None)
+RADIUS = (VEHICLE["Lf"] + VEHICLE["Lr"]) / math.tan(math.pi / 4)
+MARGIN = 0.1
+
+
+def footprint():
+    """The planner's footprint: the car grown by the default margin, slices half as long as
+    it is wide."""
+    length, width = VEHICLE["length"] + 2 * MARGIN, VEHICLE["width"] + 2 * MARGIN
+    return Footprint.from_vehicle(length, width, 2 * math.ceil(length / width))
+
+
+def random_forward_paths(rng, pose, n, length, spacing=0.05):
+    """(n, K, 3) forward paths from `pose` of piecewise-constant random curvature within
+    +-1/RADIUS, changing every 0.2 m, `length` [m] long."""
+    steps = math.ceil(length / spacing)
+    kappa = rng.uniform(-1, 1, (n, math.ceil(steps * spacing / 0.2) + 1)) / RADIUS
+    kappa = np.repeat(kappa, math.ceil(0.2 / spacing), axis=1)[:, :steps]
+    # Extremes too: full lock either way from the start.
+    kappa[:2] = np.array([[1.0], [-1.0]]) / RADIUS
+    heading = pose[2] + np.c_[np.zeros(n), np.cumsum(kappa * spacing, axis=1)]
+    mid = (heading[:, 1:] + heading[:, :-1]) / 2
+    x = pose[0] + np.c_[np.zeros(n), np.cumsum(spacing * np.cos(mid), axis=1)]
+    y = pose[1] + np.c_[np.zeros(n), np.cumsum(spacing * np.sin(mid), axis=1)]
+    return np.stack([x, y, heading], axis=-1)
+
+
+def facing_wall_map():
+    """A 30 x 20 m yard, walls 1 m thick."""
+    occupied = np.zeros((40, 60), bool)
+    occupied[:, -2:] = occupied[:, :2] = occupied[:2] = occupied[-2:] = True
+    return from_array(occupied, 0.5)
+
+
+def test_a_start_facing_a_wall_is_boxed_in_and_every_forward_path_collides():
+    omap, fp = facing_wall_map(), footprint()
+    start = np.array([26.0, 10.0, 0.0])  # the front 0.55 m from the east wall
+    assert not poses_collide(omap, fp, start)
+    boxed, longest = boxed_in(omap, fp, start, RADIUS)
+    assert boxed and 0 < longest < 2
+    paths = random_forward_paths(np.random.default_rng(0), start, 400, longest + 0.05)
+    assert (first_collision(omap, fp, paths) >= 0).all()
+    assert not free_departure(omap, fp, start, RADIUS)
+    # Facing the other way (12 m of yard ahead) it can leave, and the proof says nothing.
+    assert free_departure(omap, fp, turned(start), RADIUS)
+    assert not boxed_in(omap, fp, turned(start), RADIUS)[0]
+
+
+def test_boxed_in_never_contradicts_a_collision_free_path_on_a_real_map():
+    """Poses near walls on den312d: where boxed_in claims, 200 random forward paths and the
+    witness arcs all collide; where any of them is free, it does not claim."""
+    omap, fp = open_map(MAP_DIR / "den312d.map", 1.5), footprint()
+    rng = np.random.default_rng(1)
+    claims = frees = 0
+    while claims < 6 or frees < 6:
+        xmin, xmax, ymin, ymax = omap.bounds()
+        pose = np.array([rng.uniform(xmin, xmax), rng.uniform(ymin, ymax),
+                         rng.uniform(-math.pi, math.pi)])
+        if poses_collide(omap, fp, pose) or omap.clearance(pose[:2]) > 3.0:
+            continue
+        boxed, longest = boxed_in(omap, fp, pose, RADIUS)
+        paths = random_forward_paths(rng, pose, 200, max(longest, 0.5) + 0.05)
+        free = (first_collision(omap, fp, paths) < 0).any() or free_departure(
+            omap, fp, pose, RADIUS)
+        assert not (boxed and free), pose
+        claims += boxed
+        frees += free
+
+
+def test_the_planner_says_start_boxed_in_without_searching_and_reverse_is_not_boxed():
+    omap = facing_wall_map()
+    start, goal = (26.0, 10.0, 0.0), (8.0, 10.0, math.pi)
+    result = PathFinder(omap, make_config(), None, 2.0).plan(start, goal)
+    assert (result.status, result.cause, result.expansions) == ("no_path", "start_boxed_in", 0)
+    assert "try --reverse" in result.reason
+    # The goal turned round is the same pose facing the wall: no forward arrival.
+    result = PathFinder(omap, make_config(), None, 2.0).plan(goal, (26.0, 10.0, math.pi))
+    assert (result.status, result.cause, result.expansions) == ("no_path", "goal_boxed_in", 0)
+    # With reverse gear nothing is claimed (the planner's search decides).
+    config = make_config(reverse=1, max_expansions=1)
+    assert PathFinder(omap, config, None, 2.0).plan(start, goal).cause != "start_boxed_in"
+
+
+@pytest.mark.parametrize("qid", ["room-64-64-8-05-boxed", "room-64-64-8-09-boxed"])
+def test_the_boxed_in_queries_of_the_earlier_draw_are_boxed_in(qid):
+    query = {q.id: q for q in load_queries(QUERY_DIR / "boxed_in.json")}[qid]
+    omap = open_map(query.map_path, query.cell_size)
+    result = PathFinder(omap, make_config(), None, 5.0).plan(query.start, query.goal)
+    assert (result.status, result.cause, result.expansions) == ("no_path", "start_boxed_in", 0)
+    assert not free_departure(omap, footprint(), np.array(query.start), RADIUS)
+
+
+def test_arc_poses_lie_on_the_circle_of_their_curvature():
+    poses = arc_poses((1.0, 2.0, 0.3), 0.25, 3.0, 0.1)
+    centre = np.array([1.0, 2.0]) + 4.0 * np.array([-math.sin(0.3), math.cos(0.3)])
+    assert np.allclose(np.hypot(*(poses[:, :2] - centre).T), 4.0, atol=1e-12)
+    assert np.allclose(np.diff(poses[:, 2]) * 4.0, np.hypot(*np.diff(poses[:, :2], axis=0).T),
+                       rtol=1e-3)
+
+
+def test_the_closed_form_dubins_length_is_the_shortest_driven_dubins_path():
+    rng = np.random.default_rng(2)
+    starts = np.column_stack([rng.uniform(-15, 15, 300), rng.uniform(-15, 15, 300),
+                              rng.uniform(-4, 4, 300)])
+    goal = np.array([1.0, -2.0, 0.7])
+    driven = [sum(q for _, q in dubins_paths(s, goal, RADIUS)[0]) for s in starts]
+    assert np.allclose(dubins_length(starts, goal, RADIUS), driven, rtol=0, atol=1e-9)
+    # At the goal itself the length is zero; straight behind it, the gap.
+    assert dubins_length(goal[None], goal, RADIUS)[0] == pytest.approx(0.0, abs=1e-9)
+    behind = goal - (5 * math.cos(0.7), 5 * math.sin(0.7), 0.0)
+    assert dubins_length(behind[None], goal, RADIUS)[0] == pytest.approx(5.0, abs=1e-9)
