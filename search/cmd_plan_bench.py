@@ -66,7 +66,7 @@ def bench_rows(queries, config, runs, seed, speed):
                 "first_solution_s": result.first_solution_s,
                 "solution_s": result.solution_s, **metrics,
                 "expansions": result.expansions, "nodes": result.nodes,
-                "budget_bound": result.budget_bound,
+                "budget_bound": result.budget_bound, "lower_bound_m": result.lower_bound_m,
                 "connect_attempts": result.connect_attempts,
                 "method": config.method, "h": config.h,
                 "progress": json.dumps(result.progress)})

@@ -15,7 +15,7 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import dijkstra
 
 from stepzoo import dynamics
-from stepzoo.search.car_bounds import dubins_length
+from stepzoo.search.car_bounds import dubins_length, reeds_shepp_length
 from stepzoo.search.connect import Connection, connect, dubins_paths, dubins_poses
 from stepzoo.search.departure import boxed_in, turned
 from stepzoo.search.footprint import Footprint, first_collision, poses_collide
@@ -65,6 +65,9 @@ class PlanResult:
     # machine's speed and load), "max_expansions", or None (it ended by itself: the same
     # inputs and seed give the same plan anywhere).
     budget_bound: str | None = None
+    # [m] no path from start to goal is shorter (geodesic and the car's turning bound):
+    # path_length / lower_bound_m bounds how far from the shortest a plan can be.
+    lower_bound_m: float = 0.0
 
     def path_length(self) -> float:
         """[m] along the tree edges and the connection."""
@@ -154,7 +157,8 @@ class PathFinder:
             return "", ""
         radius = self.wheelbase / math.tan(self.config.params["delta_max"])
         gap = float(np.hypot(*(goal[:2] - start[:2])))
-        for name, pose, leave in (("start", start, "departure"), ("goal", turned(goal), "arrival")):
+        for name, pose, leave in (("start", start, "departure"),
+                                  ("goal", turned(goal), "arrival")):
             boxed, longest = boxed_in(self.omap, self.footprint, pose, radius)
             # A path shorter than the proof's length could end before it collides.
             if boxed and gap > longest:
@@ -271,7 +275,7 @@ class _Search:
         self.radius = finder.wheelbase / math.tan(self.prm["delta_max"])
         self.rest = [float(self._rest(start[None])[0])]
         self.guide = [float(self._rest(start[None], self.guide_field)[0])]
-        self.dubins = [float(self._dubins(start[None])[0])]
+        self.car = [float(self._car_bound(start[None])[0])]
         self.edges, self.steers = [None], [0.0]
         self.direction = [0]  # +1 forwards, -1 backwards, 0 the start (either way)
         self.seen = {self._cell(root, 0)}
@@ -281,6 +285,7 @@ class _Search:
         self.connect_s = 0.0
         self.best = math.inf
         self.t0 = perf_counter()
+        result.lower_bound_m = self._bound(0)
 
     def _cell(self, state, direction) -> tuple[int, int, int, int]:
         """Pruning cell of a state: position cells of cell_xy, heading cells of cell_heading,
@@ -299,28 +304,32 @@ class _Search:
                                         (xy[:, 1] - omap.origin[1]) / step)
         return (self.geodesic if field is None else field)[row, col]
 
-    def _dubins(self, poses) -> np.ndarray:
-        """(K,) [m] the shortest forward path of the car from poses (K, 3+) to the goal
-        ignoring obstacles (Dubins), a lower bound of the rest forwards; 0 (no bound) with
-        reverse gear."""
-        if self.prm["reverse"]:
-            return np.zeros(len(poses))
-        return dubins_length(poses, self.goal, self.radius)
+    def _car_bound(self, poses) -> np.ndarray:
+        """(K,) [m] the shortest path of the car from poses (K, 3+) to the goal ignoring
+        obstacles, a lower bound of the rest: Dubins forwards, Reeds-Shepp with reverse gear;
+        0 (a weaker bound) beyond 2 connect_radius of the goal, where the geodesic leads and
+        the turning radius hardly adds to it."""
+        bound = reeds_shepp_length if self.prm["reverse"] else dubins_length
+        out = np.zeros(len(poses))
+        near = np.hypot(*(poses[:, :2] - self.goal[:2]).T) <= 2 * self.prm["connect_radius"]
+        if near.any():
+            out[near] = bound(poses[near], self.goal, self.radius)
+        return out
 
     def _f(self, node) -> float:
         """The search's order: g + w H, w = h_weight (above 1: greedier first solutions), H the
-        larger of the guide geodesic (obstacles, no turning radius; _guide_field) and the Dubins
-        length (turning radius, no obstacles), as Hybrid A*: a node beside the goal but facing away ranks by
-        the loop it needs."""
-        return self.g[node] + self.prm["h_weight"] * max(self.guide[node], self.dubins[node])
+        larger of the guide geodesic (obstacles, no turning radius; _guide_field) and the car's
+        bound (turning radius, no obstacles: Dubins or Reeds-Shepp), as Hybrid A*: a node
+        beside the goal but facing away ranks by the loop it needs."""
+        return self.g[node] + self.prm["h_weight"] * max(self.guide[node], self.car[node])
 
     def _bound(self, node) -> float:
         """[m] a lower bound of the length of any path through `node`: g plus the larger of the
-        Dubins length and the geodesic less the octile metric's excess (at most 8.3% over
-        Euclidean) and two lattice steps."""
+        car's bound (Dubins or Reeds-Shepp) and the geodesic less the octile metric's excess
+        (at most 8.3% over Euclidean) and two lattice steps."""
         step = self.f.omap.resolution / SUBDIV
         return self.g[node] + max(self.rest[node] / OCTILE_EXCESS - 2 * step, 0.0,
-                                  self.dubins[node])
+                                  self.car[node])
 
     def _budget_left(self, res) -> bool:
         """Whether both budgets allow more work; if not, records which one bound."""
@@ -453,7 +462,7 @@ class _Search:
         least = shots.states.shape[1] // (PREFIX_FRACTION * 2 ** self.level)
         keep = np.flatnonzero(last >= max(1, least))
         ends = shots.states[keep, last[keep]]
-        rest, dubins = self._rest(ends), self._dubins(ends)
+        rest, car = self._rest(ends), self._car_bound(ends)
         guide = self._rest(ends, self.guide_field)
         H = np.hypot(*(ends[:, :2] - self.goal[:2]).T)
         # A change of direction costs cusp_cost [m] on top of the distance driven.
@@ -471,7 +480,7 @@ class _Search:
             self.g.append(self.g[node] + float(shots.travelled[k, last[k]]) + cusp)
             self.H.append(float(H[j]))
             self.rest.append(float(rest[j]))
-            self.dubins.append(float(dubins[j]))
+            self.car.append(float(car[j]))
             self.guide.append(float(guide[j]))
             self.edges.append(shots.states[k, :last[k] + 1])
             self.steers.append(float(shots.steer[k]))
@@ -503,19 +512,19 @@ class _Search:
 
     def _try_connect(self) -> bool:
         """Connect from the untried nodes within connect_radius of the goal that could shorten
-        the best path, shortest g + Dubins first, within the attempts left; True if the best
+        the best path, shortest g + car bound first, within the attempts left; True if the best
         path became shorter."""
         limit = self.best * (1 - IMPROVE_TOL)
         near = [i for i, d in enumerate(self.H) if d <= self.prm["connect_radius"]
                 and i not in self.tried and self.g[i] + d < limit]
         improved = False
-        # "Nearest" for a car: a node beside the goal but facing away needs a loop, which the
-        # map may not allow; the Dubins length (a lower bound forwards) says so.
-        for i in sorted(near, key=lambda j: (self.g[j] + max(self.H[j], self.dubins[j]), j)):
+        # "Nearest" for a car: a node beside the goal but facing away needs a loop (or, with
+        # reverse gear, a turn in three), which the map may not allow; the car's bound says so.
+        for i in sorted(near, key=lambda j: (self.g[j] + max(self.H[j], self.car[j]), j)):
             if self._attempts() >= self.prm["connect_tries"] or \
                     not self._budget_left(self.result):
                 break
-            if self.g[i] + max(self.H[i], self.dubins[i]) >= self.best * (1 - IMPROVE_TOL):
+            if self.g[i] + max(self.H[i], self.car[i]) >= self.best * (1 - IMPROVE_TOL):
                 continue
             self.tried.add(i)
             if not self._dubins_free(i):

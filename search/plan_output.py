@@ -87,6 +87,7 @@ def plan_record(result: PlanResult, scenario: Scenario, config, vehicle: dict, s
             "progress": [{"t_s": t, "length_m": length} for t, length in result.progress],
             # Which budget cut the search short (null: none, so the plan is reproducible).
             "budget_bound": result.budget_bound,
+            "lower_bound_m": result.lower_bound_m,
             "cusps": cusps(rows),
             "seed": seed,
             "method": config.method,

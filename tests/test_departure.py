@@ -129,3 +129,27 @@ def test_the_closed_form_dubins_length_is_the_shortest_driven_dubins_path():
     assert dubins_length(goal[None], goal, RADIUS)[0] == pytest.approx(0.0, abs=1e-9)
     behind = goal - (5 * math.cos(0.7), 5 * math.sin(0.7), 0.0)
     assert dubins_length(behind[None], goal, RADIUS)[0] == pytest.approx(5.0, abs=1e-9)
+
+
+def test_the_reeds_shepp_length_equals_ompls_reeds_shepp_distance():
+    """OMPL's ReedsSheppStateSpace (the test extras' ompl) on 500 random pose pairs."""
+    ob = pytest.importorskip("ompl.base")
+    from stepzoo.search.car_bounds import reeds_shepp_length
+    radius = 2.5
+    space = ob.ReedsSheppStateSpace(radius)
+    a, b = space.allocState(), space.allocState()
+    rng = np.random.default_rng(3)
+    starts = np.column_stack([rng.uniform(-12, 12, 500), rng.uniform(-12, 12, 500),
+                              rng.uniform(-4, 4, 500)])
+    goal = np.array([0.5, 1.0, 0.3])
+    b.setX(goal[0]), b.setY(goal[1]), b.setYaw(goal[2])
+    ompl = []
+    for x, y, yaw in starts:
+        a.setX(x), a.setY(y), a.setYaw(yaw)
+        ompl.append(space.distance(a, b))
+    rs = reeds_shepp_length(starts, goal, radius)
+    assert np.allclose(rs, ompl, rtol=0, atol=1e-9)
+    # Backwards is allowed: never longer than Dubins, and shorter for a goal straight behind.
+    assert (rs <= dubins_length(starts, goal, radius) + 1e-9).all()
+    behind = goal + (5 * math.cos(0.3), 5 * math.sin(0.3), 0.0)
+    assert reeds_shepp_length(behind[None], goal, radius)[0] == pytest.approx(5.0, abs=1e-9)
