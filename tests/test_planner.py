@@ -132,10 +132,20 @@ def test_no_two_tree_nodes_share_a_pruning_cell(plans):
     assert len(np.unique(cells, axis=0)) == len(ends) == result.nodes
 
 
-def test_path_length_is_at_least_the_straight_line(plans):
+def test_path_length_is_at_least_the_straight_line_and_the_plans_lower_bound(plans):
+    from stepzoo.search.pathfinder import OCTILE_EXCESS
     for scenario, result in plans.values():
         straight = np.hypot(*np.subtract(scenario.goal[:2], scenario.start[:2]))
-        assert result.path_length() >= straight
+        assert result.path_length() >= max(straight, result.lower_bound_m)
+        # The bound knows at least the straight line (the geodesic is never shorter).
+        step = scenario.omap.resolution / SUBDIV
+        assert result.lower_bound_m >= straight / OCTILE_EXCESS - 2 * step - 1e-9
+
+
+def test_a_plan_that_ends_by_itself_says_no_budget_bound_it(plans):
+    """Reproducible plans: none of the five scenarios' default plans is cut short by the
+    clock (they are then the same on any machine, as the test above shows for one)."""
+    assert [result.budget_bound for _, result in plans.values()] == [None] * len(plans)
 
 
 # --- bad endpoints, walls, budgets, blow-up ---------------------------------------------------
@@ -185,6 +195,7 @@ def test_the_expansion_budget_ends_in_the_closest_node():
     config = make_config(max_expansions=5)
     result = finder_for(scenario, config).plan(scenario.start, scenario.goal)
     assert (result.status, result.cause, result.expansions) == ("approximate", "budget", 5)
+    assert result.budget_bound == "max_expansions"
     ends = np.array([e[-1, :2] for e in result.tree])
     closest = np.hypot(*(ends - scenario.goal[:2]).T).min()
     assert np.hypot(*(result.path_edges[-1][-1, :2] - scenario.goal[:2])) == closest
