@@ -22,7 +22,7 @@ from stepzoo.search.footprint import Footprint, first_collision, poses_collide
 from stepzoo.search.maps import SUBDIV, OccupancyMap
 from stepzoo.search.planner_config import PlannerConfig
 from stepzoo.search.point_selector import point_selector, random_points
-from stepzoo.search.shooting import Shooter
+from stepzoo.search.shooting import Shooter, Shots
 
 EXACT, APPROXIMATE, NO_PATH = "exact", "approximate", "no_path"
 REFINE = 2              # times the pruning cells are halved when the heap empties unsolved
@@ -95,16 +95,15 @@ class PathFinder:
         self.vehicle_footprint = Footprint.from_vehicle(  # the car itself, for measures
             self.vehicle["length"], self.vehicle["width"], len(self.footprint.offsets))
         self.wheelbase = self.vehicle["Lf"] + self.vehicle["Lr"]
+        batch = prm["batch_nodes"] * (prm["n_arc"] + prm["n_random"])
         self.shooter = Shooter(omap, self.footprint, self.vehicle["name"], self.vx, config.method,
-                               config.h, config.n_steps, prm["n_arc"] + prm["n_random"],
-                               prm["delta_max"])
+                               config.h, config.n_steps, batch, prm["delta_max"])
         self._components = None
         # Reverse gear: a second shooter drives backwards from every node, towards an arc
         # behind it and the random points.
         self.back_shooter = Shooter(
             omap, self.footprint, self.vehicle["name"], self.vx, config.method, config.h,
-            config.n_steps, prm["n_arc"] + prm["n_random"], prm["delta_max"],
-            reverse=True) if prm["reverse"] else None
+            config.n_steps, batch, prm["delta_max"], reverse=True) if prm["reverse"] else None
 
     def warm_up(self, goal_speed_fixed=False) -> float:
         """Compile the driver and build the OCP once, so timed plans measure planning [s]."""
@@ -369,12 +368,13 @@ class _Search:
                          else f"search exhausted: every reachable pruning cell of "
                          f"{self.cell_xy:g} m and {self.cell_heading:.3g} rad was expanded")
                 break
-            _, _, node = heapq.heappop(heap)
-            if self._bound(node) >= self.best * (1 - IMPROVE_TOL):
+            nodes = self._pop(heap, min(prm["batch_nodes"],
+                                        prm["max_expansions"] - res.expansions))
+            if not nodes:
                 continue
-            res.expansions += 1
-            stall += 1
-            new = self._expand(node)
+            res.expansions += len(nodes)
+            stall += len(nodes)
+            new = self._expand(nodes)
             for i in new:
                 heapq.heappush(heap, (self._f(i), self.pushed, i))
                 self.pushed += 1
@@ -415,26 +415,49 @@ class _Search:
         heapq.heapify(heap)
         return heap
 
-    def _expand(self, node) -> list[int]:
-        """Shoot from `node` towards the arc and the random points (and, with reverse gear,
-        backwards towards an arc behind it and the same points); add every valid, new-cell
-        end (or the collision-free first part of a shooting, if long enough) as a child;
-        return the new node ids."""
-        prm, state = self.prm, self.states[node]
-        randoms = random_points(self.rng, self.goal, prm["n_random"], prm["random_spread"])
-        if len(randoms):
-            # One point leads along the geodesic instead: through the doors and round the
-            # corners the lattice path takes, where the arc and the goal's disc rarely aim.
-            randoms[0] = self._guide(state)
+    def _pop(self, heap, most) -> list[int]:
+        """Up to `most` nodes off the heap, best f first, skipping those that cannot beat the
+        best path."""
+        nodes = []
+        while heap and len(nodes) < most:
+            _, _, node = heapq.heappop(heap)
+            if self._bound(node) < self.best * (1 - IMPROVE_TOL):
+                nodes.append(node)
+        return nodes
+
+    def _expand(self, nodes) -> list[int]:
+        """Shoot from each of `nodes` towards the arc and the random points (and, with reverse
+        gear, backwards towards an arc behind it and the same points), all in one integration
+        call; add every valid, new-cell end (or the collision-free first part of a shooting,
+        if long enough) as a child, node by node; return the new node ids."""
+        prm = self.prm
+        per = prm["n_arc"] + prm["n_random"]
+        randoms = []
+        for node in nodes:
+            points = random_points(self.rng, self.goal, prm["n_random"], prm["random_spread"])
+            if len(points):
+                # One point leads along the geodesic instead: through the doors and round the
+                # corners the lattice path takes, where the arc and the goal's disc rarely aim.
+                points[0] = self._guide(self.states[node])
+            randoms.append(points)
+        # A short batch is filled with copies of its last node, whose shootings are dropped.
+        rows = [nodes[min(k, len(nodes) - 1)] for k in range(prm["batch_nodes"])]
+        states = np.repeat(np.array([self.states[i] for i in rows]), per, axis=0)
         new = []
         gears = [(1, self.f.shooter)]
         if self.f.back_shooter is not None:
             gears.append((-1, self.f.back_shooter))
         for direction, shooter in gears:
-            ahead = np.r_[state[:2], state[2] + (0.0 if direction > 0 else math.pi)]
-            points = np.vstack([point_selector(ahead, prm["arc_radius"], prm["n_arc"],
-                                               prm["delta_max"]), randoms])
-            new += self._add(node, direction, shooter.shoot(state, points, self.goal))
+            points = []
+            for k, node in enumerate(rows):
+                state = self.states[node]
+                ahead = np.r_[state[:2], state[2] + (0.0 if direction > 0 else math.pi)]
+                points += [point_selector(ahead, prm["arc_radius"], prm["n_arc"],
+                                          prm["delta_max"]), randoms[min(k, len(nodes) - 1)]]
+            shots = shooter.shoot(states, np.vstack(points), self.goal)
+            for k, node in enumerate(nodes):
+                part = slice(k * per, (k + 1) * per)
+                new += self._add(node, direction, Shots(*(a[part] for a in shots)))
         return new
 
     def _guide(self, state) -> np.ndarray:

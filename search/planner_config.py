@@ -61,6 +61,9 @@ PARAMS = {p.name: p for p in (
     Param("cusp_cost", 5.0, 0.0, 1000.0, "m",
           "added to the cost g at each change of direction (with reverse = 1)"),
     Param("connect_N", 50, 5, 1000, "1", "input intervals of the connection OCP"),
+    Param("batch_nodes", 4, 1, 64, "1",
+          "nodes expanded together, best f first, their shootings integrated in one call "
+          "(1: one node at a time, as the paper)"),
 )}
 
 
@@ -105,8 +108,9 @@ def make_config(method="rk4", h=0.02, provenance="built-in defaults", source="",
     params = {k: p.default for k, p in PARAMS.items()}
     params.update({k: check_param(k, v) for k, v in overrides.items()})
     config = PlannerConfig(method, float(h), params, str(provenance), str(source))
-    # One expansion shoots n_arc + n_random trajectories of n_steps, the 5 states kept.
-    batch = params["n_arc"] + params["n_random"]
+    # One call shoots n_arc + n_random trajectories of n_steps from each of batch_nodes nodes,
+    # the 5 states kept.
+    batch = params["batch_nodes"] * (params["n_arc"] + params["n_random"])
     check_budget(f"the planner at h = {h:g} s", config.n_steps + 1, batch, 5,
                  calls=params["max_expansions"])
     return config

@@ -26,11 +26,12 @@ class Shots(NamedTuple):
 
 
 def pure_pursuit(state, points, wheelbase, delta_max) -> np.ndarray:
-    """(B,) [rad]: the steer of the circle from `state` [X, Y, psi, ...] through each point
-    (B, 2) [m], delta = atan(2 L sin(alpha) / l_d), clipped to +-delta_max."""
-    points = np.asarray(points, float)
-    dx, dy = points[:, 0] - state[0], points[:, 1] - state[1]
-    alpha = np.arctan2(dy, dx) - state[2]
+    """(B,) [rad]: the steer of the circle from `state` [X, Y, psi, ...] (or one state per
+    point, (B, 3+)) through each point (B, 2) [m], delta = atan(2 L sin(alpha) / l_d),
+    clipped to +-delta_max."""
+    points, state = np.asarray(points, float), np.asarray(state, float)
+    dx, dy = points[:, 0] - state[..., 0], points[:, 1] - state[..., 1]
+    alpha = np.arctan2(dy, dx) - state[..., 2]
     lookahead = np.maximum(np.hypot(dx, dy), 1e-9)
     steer = np.arctan(2 * wheelbase * np.sin(alpha) / lookahead)
     return np.minimum(np.maximum(steer, -delta_max), delta_max)
@@ -75,15 +76,17 @@ class Shooter:
         return out
 
     def shoot(self, state, points, destination) -> Shots:
-        """Shoot from `state` (5,) towards each of `points` (B, 2) [m]."""
+        """Shoot from `state` (5,), or from one state per point (B, 5), towards each of
+        `points` (B, 2) [m]."""
+        start = np.broadcast_to(np.asarray(state, float), (self.batch, 5))
         if self.reverse:
             # Backwards, the car follows the circle of curvature -tan(delta)/L relative to
             # its direction of travel psi + pi: pure pursuit on the flipped pose, negated.
-            flipped = np.r_[state[:2], state[2] + np.pi]
+            flipped = start[:, :3] + (0.0, 0.0, np.pi)
             steer = -pure_pursuit(flipped, points, self.wheelbase, self.delta_max)
         else:
-            steer = pure_pursuit(state, points, self.wheelbase, self.delta_max)
-        states = self.integrate(state[None].repeat(self.batch, axis=0), steer)
+            steer = pure_pursuit(start, points, self.wheelbase, self.delta_max)
+        states = self.integrate(start, steer)
         # A blown-up shooting is a result (an invalid one), so its overflow warnings are noise;
         # first_collision treats non-finite poses as collisions, so it needs no branch either.
         with np.errstate(invalid="ignore", over="ignore"):
