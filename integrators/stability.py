@@ -12,6 +12,7 @@ from functools import cache
 import jax
 import jax.numpy as jnp
 import numpy as np
+from numpy.polynomial import polynomial as P
 
 from stepzoo.integrators.methods import Method
 
@@ -22,6 +23,8 @@ N_FINE = 8000
 R_FAR = 1e8            # ...then a log scan out to here; no exit at all means unbounded
 N_FAR = 2000
 BISECT = 60
+SECTOR_SCAN = 5.0      # [deg] ray spacing of the sector scan of `a_alpha`...
+SECTOR_TOL = 1e-4      # [deg] ...and the bisection's tolerance
 
 
 def stability_function(tab, z):
@@ -182,6 +185,41 @@ def a_stable(m: Method) -> bool:
 def l_stable(m: Method) -> bool:
     """A-stable with |R(-inf)| = 0 (to 1e-9)."""
     return a_stable(m) and stiff_decay(m) <= 1e-9
+
+
+def root_locus(lmm, n: int = 200_001) -> np.ndarray:
+    """The boundary locus z(theta) = rho(e^{i theta}) / sigma(e^{i theta}) of a multistep
+    method for theta in [0, pi] (the other half is its mirror image): the z where a root of
+    rho - z sigma has modulus 1, among them the whole boundary of the stability region."""
+    zeta = np.exp(1j * np.linspace(0.0, np.pi, n))
+    with np.errstate(divide="ignore", invalid="ignore"):     # sigma = 0: z at infinity
+        return P.polyval(zeta, lmm.alpha) / P.polyval(zeta, lmm.beta)
+
+
+def a_alpha(m: Method) -> float | None:
+    """The A(alpha) angle [deg]: the largest alpha such that the sector |arg(-z)| < alpha
+    lies in the stability region; 90 for A-stable methods, None where the negative real axis
+    itself leaves the region (no sector at all). Multistep: the smallest angle to the
+    negative real axis of the root locus in the left half-plane (every locus point has an
+    unstable side, so none may lie in the sector). Tableau: rays of the sector every
+    SECTOR_SCAN deg, the first that leaves bisected to SECTOR_TOL deg against the last that
+    does not."""
+    if not m.implicit or not np.isinf(ray_exit(m, np.pi)):
+        return None
+    if a_stable(m):
+        return 90.0
+    if m.is_multistep:
+        z = root_locus(m.scheme)[1:]                        # theta = 0 is z = 0 itself
+        left = np.isfinite(z) & (z.real < 0)
+        return float(np.degrees(np.min(np.pi - np.abs(np.angle(z[left])))))
+    stable = lambda deg: bool(np.isinf(ray_exit(m, float(np.pi - np.radians(deg)))))
+    hi = next(deg for deg in np.arange(SECTOR_SCAN, 90.0 + SECTOR_SCAN / 2, SECTOR_SCAN)
+              if not stable(deg))
+    lo = hi - SECTOR_SCAN
+    while hi - lo > SECTOR_TOL:
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if stable(mid) else (lo, mid)
+    return float(lo)
 
 
 def region_grid(m: Method, re=(-6.0, 2.0), im=(-4.0, 4.0), n=401, route="theory"):

@@ -9,12 +9,17 @@ import pytest
 
 from stepzoo.bench.cli import main as stepzoo
 from stepzoo.integrators import METHODS, integrate, method
-from stepzoo.integrators.stability import (amplification_empirical, max_stable_step, region_grid,
+from stepzoo.integrators.methods import Method, _rk
+from stepzoo.integrators.multistep import bdf
+from stepzoo.integrators.stability import (a_alpha, a_stable, amplification_empirical,
+                                           max_stable_step, ray_exit, region_grid,
                                            stability_intervals)
 
 # Published (real, imaginary) intervals: Hairer & Wanner II; Butcher 2016; nodepy; the exact
 # polynomial |R(iy)|^2 - 1 for Heun, RK6 (leading term +y^8/786: tangent, interval 0) and
-# DOPRI5 (first positive root 0.99719). None = unbounded (A-stable).
+# DOPRI5 (first positive root 0.99719); for BDF3-5 the first crossing of the imaginary axis
+# by the root locus rho/sigma(e^{i theta}) away from 0 (BDF3 and BDF4's locus starts into
+# Re z < 0, so their interval is 0). None = unbounded (A-stable, and BDF3-5 on the real axis).
 PUBLISHED = {
     "euler": (2.0, 0.0), "heun": (2.0, 0.0), "midpoint": (2.0, 0.0),
     "rk3": (2.5127, 1.7321), "rk4": (2.7853, 2.8284), "rk6": (2.8561, 0.0),
@@ -24,6 +29,7 @@ PUBLISHED = {
     "gauss_legendre4": (None, None), "radau_iia3": (None, None), "bdf2": (None, None),
     "radau_iia5": (None, None), "kvaerno3": (None, None),
     "ros2": (None, None), "ros3p": (None, None), "rodas3": (None, None),
+    "bdf3": (None, 0.0), "bdf4": (None, 0.0), "bdf5": (None, 0.7108),
 }
 
 
@@ -107,7 +113,8 @@ def test_stability_command_json(capsys):
 STIFF = {"backward_euler": (True, True, 0.0), "trapezoidal": (True, False, 1.0),
          "gauss_legendre4": (True, False, 1.0), "radau_iia3": (True, True, 0.0),
          "radau_iia5": (True, True, 0.0), "kvaerno3": (True, True, 0.0),
-         "bdf2": (True, True, 0.0), "ros2": (True, True, 0.0),
+         "bdf2": (True, True, 0.0), "bdf3": (False, False, 0.0), "bdf4": (False, False, 0.0),
+         "bdf5": (False, False, 0.0), "ros2": (True, True, 0.0),
          "ros3p": (True, False, math.sqrt(3) - 1), "rodas3": (True, True, 0.0),
          "am3": (False, False, (8 + math.sqrt(84)) / 10),
          "am4": (False, False, 2.36579), "rk4": (False, False, None), "ab2": (False, False, None)}
@@ -135,3 +142,62 @@ def test_a_and_l_stability_hold_numerically_with_the_method_s_own_step(methods_j
         assert far <= 1e-3      # BDF2: roots shrink like |z|^(-1/2)
     else:
         assert far >= 0.5 or not row["a_stable"]
+
+
+# A(alpha) angles [deg] of BDF3-6, Hairer & Wanner II, V.2, Table 2.1.
+A_ALPHA = {"bdf3": 86.03, "bdf4": 73.35, "bdf5": 51.84}
+BDF6 = 17.84
+
+
+def _sector_ray(degrees):
+    """The ray angle [rad] of z at `degrees` from the negative real axis."""
+    return float(np.pi - np.radians(degrees))
+
+
+@pytest.mark.parametrize("name", list(A_ALPHA))
+def test_a_alpha_of_bdf_by_root_locus_is_published_and_the_own_steps_agree(methods_json,
+                                                                             name):
+    """The root locus gives Hairer-Wanner's angle to 0.05 deg; the method's own step keeps
+    the ray 0.05 deg inside the sector stable out to |z| = 1e8, and leaves on the ray 0.05
+    deg outside it."""
+    alpha = methods_json[name]["a_alpha_deg"]
+    assert alpha == pytest.approx(A_ALPHA[name], abs=0.05)
+    m = METHODS[name]
+    assert math.isinf(ray_exit(m, _sector_ray(alpha - 0.05), "empirical"))
+    assert math.isfinite(ray_exit(m, _sector_ray(alpha + 0.05), "empirical"))
+
+
+def test_a_alpha_of_bdf6_and_of_the_other_methods():
+    assert a_alpha(Method("bdf6", "BDF", 6, bdf(6), "")) == pytest.approx(BDF6, abs=0.05)
+    for name, m in METHODS.items():
+        if name not in A_ALPHA:
+            assert a_alpha(m) == (90.0 if a_stable(m) else None), name
+
+
+def test_a_alpha_of_a_tableau_that_is_not_a_stable_by_its_rays():
+    """A 2-stage DIRK (gamma = 0.3, order 1) whose R(z) = (1 + 0.4 z - 0.045 z^2) / (1 -
+    0.3 z)^2 is bounded by 1 on the negative real axis but exceeds it on the imaginary
+    axis near 0 (|R(iy)|^2 = 1 + 0.07 y^2 + O(y^4)): an angle below 90 deg, confirmed by its
+    own step on rays 0.05 deg either side."""
+    m = Method("dirk", "DIRK", 1, _rk([[0.3, 0.0], [0.33, 0.3]], [0.5, 0.5]), "")
+    alpha = a_alpha(m)
+    assert not a_stable(m) and 45.0 < alpha < 90.0
+    assert math.isinf(ray_exit(m, _sector_ray(alpha - 0.05), "empirical"))
+    assert math.isfinite(ray_exit(m, _sector_ray(alpha + 0.05), "empirical"))
+
+
+@pytest.mark.parametrize("name", list(A_ALPHA))
+def test_bdf_blows_up_just_past_the_predicted_step_beyond_its_sector_and_not_far_past(name):
+    """y' = M y with eigenvalues 10 e^{+-i(pi - alpha - 2 deg)}, just outside the sector:
+    stable at 0.98 h_max, growing at 1.02 h_max, and stable again at |h lambda| = 100, past
+    the bounded set where BDF is unstable."""
+    lam = 10.0 * np.exp(1j * _sector_ray(A_ALPHA[name] + 2.0))
+    mat = jnp.array([[lam.real, -lam.imag], [lam.imag, lam.real]])
+    f = lambda t, y, u, p: mat @ y
+    h_max = max_stable_step(method(name), [lam, lam.conjugate()])
+    y0 = jnp.array([1.0, 0.0])
+    for h, grows in ((0.98 * h_max, False), (1.02 * h_max, True), (10.0, False)):
+        tr = integrate(method(name), f, y0, None, None, h, 3000)
+        assert bool(tr.converged)
+        final = float(jnp.linalg.norm(tr.x[-1]))
+        assert (final > 1.0) == grows, (name, h / h_max, final)
