@@ -1,8 +1,11 @@
 """Driver throughput (trajectory-steps per second) per method and batch size, on the generic
-model and, for rk4, with `fast_trig`; compile time per method apart from run time."""
+model and, for rk4, with `fast_trig`; compile time per method apart from run time. Each driver
+benchmark also records the right-hand-side evaluations per step its run counted (Newton
+iterations and Jacobians included), so that implicit methods compare with rk4 per evaluation."""
 from time import perf_counter
 
 import jax
+import numpy as np
 import pytest
 
 from stepzoo.bench.perf.workload import H_S, MODEL, N_STEPS, problem
@@ -12,28 +15,45 @@ from stepzoo.integrators.fast_trig import fast_trig
 BATCHES = (1, 100, 10_000, 100_000)
 ROUNDS = {1: 30, 100: 10, 10_000: 3, 100_000: 1}   # plus a warm-up round each
 METHODS = ("rk4", "dopri5", "ab4", "trapezoidal")
+# More implicit methods, at the batches of their ratios to rk4 (run.py's ratios_of).
+IMPLICIT = ("backward_euler", "radau_iia5", "bdf3")
+IMPLICIT_BATCHES = (1, 10_000)
 INTERLEAVED = 3     # rounds of each in test_generic_vs_fast_trig
 
 
 def n_steps(name, batch):
-    """Newton makes trapezoidal ~30x slower per step: fewer steps keep its big batches to
+    """Newton makes implicit steps ~30x slower: fewer steps keep their big batches to
     seconds; throughput per trajectory-step is still comparable."""
-    return N_STEPS if name != "trapezoidal" else max(10, min(N_STEPS, 2_000_000 // batch))
+    return N_STEPS if not method(name).implicit else max(10, min(N_STEPS, 2_000_000 // batch))
 
 
 def _run(meth, f, args, n):
-    return lambda: jax.block_until_ready(integrate_batch(meth, f, *args, H_S, n).x)
+    """A timed call; it returns the trajectories' mean evaluations per step."""
+    def call():
+        tr = jax.block_until_ready(integrate_batch(meth, f, *args, H_S, n))
+        return float(np.mean(tr.evals)) / n
+    return call
+
+
+def _driver(benchmark, name, batch):
+    n = n_steps(name, batch)
+    rounds = max(ROUNDS[batch], 2) if name == "rk4" else ROUNDS[batch]
+    evals = benchmark.pedantic(_run(method(name), MODEL.rhs, problem(batch), n),
+                               rounds=rounds, warmup_rounds=1)
+    benchmark.extra_info.update(kind="driver", method=name, batch=batch, n_steps=n,
+                                work=batch * n, rhs="model", evals_per_step=evals)
 
 
 @pytest.mark.parametrize("batch", BATCHES)
 @pytest.mark.parametrize("name", METHODS)
 def test_driver(benchmark, name, batch):
-    n = n_steps(name, batch)
-    benchmark.extra_info.update(kind="driver", method=name, batch=batch, n_steps=n,
-                                work=batch * n, rhs="model")
-    rounds = max(ROUNDS[batch], 2) if name == "rk4" else ROUNDS[batch]
-    benchmark.pedantic(_run(method(name), MODEL.rhs, problem(batch), n), rounds=rounds,
-                       warmup_rounds=1)
+    _driver(benchmark, name, batch)
+
+
+@pytest.mark.parametrize("batch", IMPLICIT_BATCHES)
+@pytest.mark.parametrize("name", IMPLICIT)
+def test_driver_implicit(benchmark, name, batch):
+    _driver(benchmark, name, batch)
 
 
 @pytest.mark.parametrize("batch", BATCHES)

@@ -21,16 +21,24 @@ TARGETS = {"rk4_b1e5_vs_numba_fastmath": (">=", 0.7), "rk4_b1e5_vs_diffrax": (">
            "plan_first_solution_s_median": ("<=", 0.1), "plan_connect_s_median": ("<=", 0.02),
            "generic_vs_fast_trig_b1e5": (">=", 0.9),
            # Issue 15: a repeated `stepzoo plan` starts its search well under a second.
-           "plan_warm_before_search_s": ("<=", 1.0)}
+           "plan_warm_before_search_s": ("<=", 1.0),
+           # Issue 14: implicit steps at batch 1e4, per right-hand-side evaluation.
+           "trapezoidal_b1e4_vs_rk4_per_eval": (">=", 0.25),
+           "backward_euler_b1e4_vs_rk4_per_eval": (">=", 0.25)}
+# Implicit methods whose throughput is a ratio to rk4's (same model, same batch).
+IMPLICIT = ("trapezoidal", "backward_euler", "radau_iia5", "bdf3")
 LABEL = {1: "1", 100: "100", 10_000: "1e4", 100_000: "1e5"}
 
 
 def run_benchmarks(json_path: Path, select: list[str]) -> int:
     """pytest on bench/perf with one host device per core, so that the driver can share a
-    batch among them (XLA reads the flag when JAX starts, hence the subprocess)."""
+    batch among them, and the command's XLA loop option (XLA reads its flags when JAX
+    starts, hence the subprocess)."""
+    from stepzoo.bench.cli import with_xla_option
     env = dict(os.environ)
-    env["XLA_FLAGS"] = (env.get("XLA_FLAGS", "") +
-                        f" --xla_force_host_platform_device_count={os.cpu_count()}").strip()
+    env["XLA_FLAGS"] = with_xla_option(
+        (env.get("XLA_FLAGS", "") +
+         f" --xla_force_host_platform_device_count={os.cpu_count()}").strip())
     cmd = [sys.executable, "-m", "pytest", str(ROOT / "bench" / "perf"), "-p", "no:cacheprovider",
            "-o", "python_files=bench_*.py", "-o", "addopts=", "-q",
            f"--benchmark-json={json_path}", "--benchmark-columns=min,median,rounds",
@@ -51,6 +59,8 @@ def figures_of(benchmarks: list[dict]) -> dict:
             key = f"{who}_b{LABEL[info['batch']]}_steps_per_s"
             fig[key] = info["work"] / st["min"]
             fig[key + "_median"] = info["work"] / st["median"]
+            if "evals_per_step" in info:
+                fig[key.replace("_steps_per_s", "_evals_per_step")] = info["evals_per_step"]
         elif kind == "compile":
             fig[f"compile_{info['method']}_s"] = max(st["min"] - info["run_s"], 0.0)
         elif kind == "connect":
@@ -108,6 +118,17 @@ def ratios_of(fig: dict) -> dict:
     # Throughput of the generic model over fast_trig's: their times the other way round.
     out["generic_vs_fast_trig_b1e5"] = ratio("interleaved_rk4_b1e5_fast_trig_s",
                                              "interleaved_rk4_b1e5_generic_s")
+    # Implicit over rk4 throughput: in steps, and in right-hand-side evaluations (steps/s
+    # times the evaluations per step each run counted, Jacobians as d evaluations).
+    for name in IMPLICIT:
+        for batch in ("1", "1e4"):
+            steps = ratio(f"driver_{name}_b{batch}_steps_per_s",
+                          f"driver_rk4_b{batch}_steps_per_s")
+            evals = ratio(f"driver_{name}_b{batch}_evals_per_step",
+                          f"driver_rk4_b{batch}_evals_per_step")
+            out[f"{name}_b{batch}_vs_rk4_per_step"] = steps
+            out[f"{name}_b{batch}_vs_rk4_per_eval"] = (None if steps is None or evals is None
+                                                       else steps * evals)
     out["sweep_vs_driver"] = ratio("sweep_integration_s", "sweep_driver_replay_s")
     out["connect_single_vs_multiple"] = ratio("connect_single_s_median",
                                               "connect_multiple_s_median")
