@@ -153,3 +153,20 @@ def test_the_reeds_shepp_length_equals_ompls_reeds_shepp_distance():
     assert (rs <= dubins_length(starts, goal, radius) + 1e-9).all()
     behind = goal + (5 * math.cos(0.3), 5 * math.sin(0.3), 0.0)
     assert reeds_shepp_length(behind[None], goal, radius)[0] == pytest.approx(5.0, abs=1e-9)
+
+
+def test_the_trees_dynamic_shootings_from_a_boxed_in_start_collide_too():
+    """The proof covers paths along the heading; the tree's dynamic bicycle slips sideways.
+    From the boxed start every one of its shootings (full lock either way, and between)
+    collides before the length the proof names."""
+    from stepzoo.search.shooting import Shooter
+    omap, fp = facing_wall_map(), footprint()
+    start = np.array([26.0, 10.0, 0.0, 0.0, 0.0])
+    boxed, longest = boxed_in(omap, fp, start, RADIUS)
+    shooter = Shooter(omap, fp, None, 5.0, "rk4", 0.01, 60, 9, math.pi / 4)
+    fan = np.linspace(-math.pi / 2, math.pi / 2, 9)
+    ahead = start[:2] + 2.0 * np.column_stack([np.cos(fan), np.sin(fan)])
+    shots = shooter.shoot(start, ahead, np.zeros(2))
+    assert boxed and np.abs(shots.steer).max() == pytest.approx(math.pi / 4)
+    reached = shots.travelled[np.arange(9), shots.free - 1]
+    assert (shots.free < shots.states.shape[1]).all() and (reached <= longest).all()
