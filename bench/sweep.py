@@ -8,6 +8,7 @@ import os
 import shutil
 import sys
 import time
+from contextlib import contextmanager
 from datetime import datetime, timezone
 from functools import cache
 from pathlib import Path
@@ -16,7 +17,7 @@ import numpy as np
 import pandas as pd
 
 from stepzoo import environment
-from stepzoo.bench import frozen, metrics, schema, sweep_folder
+from stepzoo.bench import frozen, jit_clock, metrics, schema, sweep_folder
 from stepzoo.bench.timing import per_step
 from stepzoo.errors import UsageError
 from stepzoo.output import atomic_write, to_json, write_file
@@ -27,7 +28,10 @@ REF_WINDOW = 64        # output times per reference call: its cost per step grow
 TRAJ_SAMPLES = 200     # reference samples of the figure trajectory
 ALONG_SAMPLES = 50     # reference samples whose Jacobians predict the stable step (divides
                        # TRAJ_SAMPLES: the figure trajectory's prediction reuses the shape)
-PROBES = 8             # candidate steps per lane in one stability call
+NARROWING = ("the grid's bracket [lo, hi] (lo stable, hi not) shrinks to hi / lo <= 1 + "
+             "rel_tol; the first round probes at h_pred (and rel_tol apart around it when the "
+             "block's call has room), later ones gallop away from it, then split the bracket "
+             "evenly; h_meas is lo, so ratio 1 means a limit in [h_pred, h_pred (1 + rel_tol))")
 
 
 # ---- chunks -----------------------------------------------------------------------------
@@ -95,17 +99,29 @@ class _Work:
 
     # -- batched calls ---------------------------------------------------------------------
     def integrate(self, meth, x0, u, p, h, n):
-        """(x (B, n+1, d), evals (B,), converged (B,), wall s) of n steps of h [s]."""
+        """(x (B, n+1, d), evals (B,), converged (B,), run s) of n steps of h [s]; the run
+        time leaves out JAX's compiling, which goes to timing's compile_s."""
         import jax.numpy as jnp
         from stepzoo.integrators import integrate_batch
         hb = jnp.broadcast_to(jnp.asarray(h, float), (len(x0),))
-        t0 = time.perf_counter()
-        tr = integrate_batch(meth, self.spec.rhs, jnp.asarray(x0), jnp.asarray(u),
-                             {k: jnp.asarray(v) for k, v in p.items()}, hb, jnp.asarray(n),
-                             max_steps=self.max_steps)
-        x = np.asarray(tr.x.block_until_ready())[:, : n + 1]
+        with jit_clock.split() as took:
+            tr = integrate_batch(meth, self.spec.rhs, jnp.asarray(x0), jnp.asarray(u),
+                                 {k: jnp.asarray(v) for k, v in p.items()}, hb, jnp.asarray(n),
+                                 max_steps=self.max_steps)
+            x = np.asarray(tr.x.block_until_ready())[:, : n + 1]
+        self.timing["compile_s"] += took["compile"]
         converged = np.asarray(tr.converged, bool)
-        return x, np.asarray(tr.evals), converged, time.perf_counter() - t0
+        return x, np.asarray(tr.evals), converged, took["wall"] - took["compile"]
+
+    @contextmanager
+    def clock(self, key):
+        """Charges the block's wall time to timing[key], less JAX's compiling in it, which goes
+        to ref_compile_s (for references) or compile_s. Blocks that call `integrate` are
+        not clocked: it charges its own."""
+        with jit_clock.split() as took:
+            yield
+        self.timing[key] += took["wall"] - took["compile"]
+        self.timing["ref_compile_s" if key == "reference_s" else "compile_s"] += took["compile"]
 
     def reference(self, h, n, x0=None, u=None, p=None):
         """((B, n+1, d) the reference at t = k h, k = 0..n, in windows of REF_WINDOW steps,
@@ -117,45 +133,40 @@ class _Work:
             return self._stiff_reference(h, n, x0, u, p)
         fn = _batched_reference(self.spec.rhs, cfg.rtol, cfg.atol)
         uj, pj = jnp.asarray(u), {k: jnp.asarray(v) for k, v in p.items()}
-        if "compiled" not in self.ref_cache:
-            t0 = time.perf_counter()
-            fn(jnp.asarray(x0), uj, pj, jnp.zeros(REF_WINDOW + 1)).x.block_until_ready()
-            self.timing["ref_compile_s"] += time.perf_counter() - t0
-            self.ref_cache["compiled"] = True
-        t0 = time.perf_counter()
         ts = h * np.arange(n + 1)
         out = np.empty((len(x0), n + 1, len(self.spec.states)))
         out[:, 0] = x0
         ok = np.ones(len(x0), bool)
-        for j in range(0, n, REF_WINDOW):
-            window = ts[j: j + REF_WINDOW + 1]
-            padded = np.concatenate([window, np.full(REF_WINDOW + 1 - len(window), window[-1])])
-            ref = fn(jnp.asarray(out[:, j]), uj, pj, jnp.asarray(padded))
-            out[:, j: j + len(window)] = np.asarray(ref.x)[:, : len(window)]
-            ok &= np.asarray(ref.success)
-        self.timing["reference_s"] += time.perf_counter() - t0
+        with self.clock("reference_s"):
+            for j in range(0, n, REF_WINDOW):
+                window = ts[j: j + REF_WINDOW + 1]
+                padded = np.concatenate([window,
+                                         np.full(REF_WINDOW + 1 - len(window), window[-1])])
+                ref = fn(jnp.asarray(out[:, j]), uj, pj, jnp.asarray(padded))
+                out[:, j: j + len(window)] = np.asarray(ref.x)[:, : len(window)]
+                ok &= np.asarray(ref.success)
         return out, ok
 
     def _stiff_reference(self, h, n, x0, u, p):
         """The reference of a stiff model: SciPy's implicit solver (`solutions.solve`) per
         distinct lane at the config's tolerances; a lane it fails on is NaN, ref_ok False."""
         from stepzoo.dynamics.solutions import solve
-        t0 = time.perf_counter()
         ts = h * np.arange(n + 1)
         out = np.full((len(x0), n + 1, len(self.spec.states)), np.nan)
         ok = np.zeros(len(x0), bool)
         done = {}
-        for b in range(len(x0)):
-            key = (tuple(x0[b]), tuple(u[b]), tuple(v[b] for v in p.values()))
-            if key not in done:
-                try:
-                    done[key] = solve(self.spec.rhs, x0[b], u[b], {k: v[b] for k, v in p.items()},
-                                      ts, stiff=True, rtol=self.cfg.rtol, atol=self.cfg.atol)
-                except RuntimeError:
-                    done[key] = None
-            if done[key] is not None:
-                out[b], ok[b] = done[key], True
-        self.timing["reference_s"] += time.perf_counter() - t0
+        with self.clock("reference_s"):
+            for b in range(len(x0)):
+                key = (tuple(x0[b]), tuple(u[b]), tuple(v[b] for v in p.values()))
+                if key not in done:
+                    try:
+                        done[key] = solve(self.spec.rhs, x0[b], u[b],
+                                          {k: v[b] for k, v in p.items()}, ts, stiff=True,
+                                          rtol=self.cfg.rtol, atol=self.cfg.atol)
+                    except RuntimeError:
+                        done[key] = None
+                if done[key] is not None:
+                    out[b], ok[b] = done[key], True
         return out, ok
 
     def _cached(self, key, make):
@@ -172,9 +183,8 @@ class _Work:
             dt = self.cfg.horizon / ALONG_SAMPLES
             ts = dt * np.arange(ALONG_SAMPLES + 1)
             xs, _ = self.reference(dt, ALONG_SAMPLES)
-            t0 = time.perf_counter()
-            jac = frozen.jacobians(self.spec.rhs, ts, xs, self.u, self.p)
-            self.timing["metrics_s"] += time.perf_counter() - t0
+            with self.clock("metrics_s"):
+                jac = frozen.jacobians(self.spec.rhs, ts, xs, self.u, self.p)
             return ts, xs, frozen.eigenvalues(jac), jac
         return self._cached("along", make)
 
@@ -208,42 +218,54 @@ class _Work:
     # -- stability -------------------------------------------------------------------------
     def stable(self, meth, H):
         """(stable, blow-up time [s] or NaN, converged), each (B, K), of the stability runs
-        at steps H (B, K) [s]: a run from the initial state plus the perturbation against a
-        run from the initial state with the same method and step. It blows up at the first
-        step where their scaled distance is not finite or exceeds `growth` times its start;
-        a run whose nonlinear solves failed is never stable."""
-        H = np.asarray(H, float)
-        B, K = H.shape
-        x0 = np.concatenate([_tile(self.x0 + self.delta, K), _tile(self.x0, K)])
-        u = np.concatenate([_tile(self.u, K)] * 2)
-        p = {k: np.concatenate([_tile(v, K)] * 2) for k, v in self.p.items()}
-        h = np.concatenate([H.ravel(), H.ravel()])
-        x, _, conv, wall = self.integrate(meth, x0, u, p, h, self.cfg.stab_steps)
-        t0 = time.perf_counter()
-        with np.errstate(invalid="ignore", over="ignore"):
-            dev = self.spec.scaled(x[: B * K] - x[B * K:])
-            blown = ~(dev <= self.cfg.growth * dev[:, :1])
-        k = np.where(blown.any(axis=1), np.argmax(blown, axis=1), -1).reshape(B, K)
-        conv = (conv[: B * K] & conv[B * K:]).reshape(B, K)
-        self.timing["stability_s"] += wall + time.perf_counter() - t0
-        return (k < 0) & conv, np.where(k < 0, np.nan, k * H), conv
+        at steps H (B, K) [s], row b at lane b (see `runs_at`)."""
+        return self.stable_at(meth, np.arange(len(H)), np.asarray(H, float).T)
 
-    def probe(self, meth, hs):
-        """`stable` for candidate steps hs (B, any count), PROBES per call (one shape)."""
+    def stable_at(self, meth, lanes, hs):
+        """`stable` of the lanes (L,) at steps hs (K,) [s], the same for each, or (K, L): the
+        outcomes are (L, K). Step by step: a call then holds as few steps as it can, which
+        keeps an implicit method's Newton iterations, run in lockstep over a call, as few as
+        each step needs."""
         hs = np.asarray(hs, float)
-        outs = []
-        for j in range(0, hs.shape[1], PROBES):
-            part = hs[:, j: j + PROBES]
-            pad = np.concatenate([part, np.repeat(part[:, -1:], PROBES - part.shape[1], 1)], 1)
-            outs.append([a[:, : part.shape[1]] for a in self.stable(meth, pad)])
-        return [np.concatenate(a, axis=1) for a in zip(*outs)]
+        hs = np.broadcast_to(hs[:, None] if hs.ndim == 1 else hs, (len(hs), len(lanes)))
+        out = self.runs_at(meth, np.tile(lanes, len(hs)), hs.ravel())
+        return tuple(a.reshape(hs.shape).T for a in out)
+
+    def runs_at(self, meth, lanes, h):
+        """(stable, blow-up time [s] or NaN, converged), each (N,), of the stability runs of
+        candidate steps h (N,) [s] at lanes (N,): a run from the initial state plus the
+        perturbation against a run from the initial state with the same method and step. It
+        blows up at the first step where their scaled distance is not finite or exceeds
+        `growth` times its start; a run whose nonlinear solves failed is never stable. The
+        candidates go in calls of the block's own size (the last one filled with repeats):
+        the accuracy runs' compiled program serves them."""
+        B, N = len(self.x0), len(h)
+        ok, t_blow, conv = np.zeros(N, bool), np.full(N, np.nan), np.zeros(N, bool)
+        for start in range(0, N, B):
+            part = slice(start, min(start + B, N))
+            m = part.stop - start
+            idx, hh = np.resize(lanes[part], B), np.resize(h[part], B)
+            u, p = self.u[idx], {k: v[idx] for k, v in self.p.items()}
+            xa, _, ca, run_a = self.integrate(meth, self.x0[idx] + self.delta[idx], u, p, hh,
+                                              self.cfg.stab_steps)
+            xb, _, cb, run_b = self.integrate(meth, self.x0[idx], u, p, hh, self.cfg.stab_steps)
+            t0 = time.perf_counter()
+            with np.errstate(invalid="ignore", over="ignore"):
+                dev = self.spec.scaled(xa[:m] - xb[:m])
+                blown = ~(dev <= self.cfg.growth * dev[:, :1])
+            k = np.where(blown.any(axis=1), np.argmax(blown, axis=1), -1)
+            conv[part] = ca[:m] & cb[:m]
+            ok[part] = (k < 0) & conv[part]
+            t_blow[part] = np.where(k < 0, np.nan, k * hh[:m])
+            self.timing["stability_s"] += run_a + run_b + time.perf_counter() - t0
+        return ok, t_blow, conv
 
     def measured_limits(self, meth, grid_ok, grid_conv):
         """(largest stable step [s], cause) per lane: bracketed by the grid (extended by
-        doubling up to h_probe_max, or halving below it), then narrowed PROBES steps at a
-        time. inf: nothing failed up to h_probe_max; 0: unstable even at the smallest probe.
-        The cause says what failed just above the limit: 'unstable', 'solver failed' or
-        'none'."""
+        doubling up to h_probe_max, or halving below it), then narrowed to rel_tol, starting
+        at the predicted limit (see `_candidates`). inf: nothing failed up to h_probe_max; 0:
+        unstable even at the smallest probe. The cause says what failed just above the limit:
+        'unstable', 'solver failed' or 'none'."""
         cfg, hs = self.cfg, np.asarray(self.cfg.hs)
         B = len(self.x0)
         lo, hi = np.full(B, np.nan), np.full(B, np.nan)
@@ -255,48 +277,73 @@ class _Work:
         cause[inner] = np.where(grid_conv[inner, first[inner]], "unstable", "solver failed")
 
         up = [hs[-1] * 2.0 ** k for k in range(1, 64) if hs[-1] * 2.0 ** k < cfg.h_probe_max]
-        rising = np.isnan(lo) & grid_ok[:, -1]
-        if rising.any():
+        rising = np.where(np.isnan(lo) & grid_ok[:, -1])[0]
+        if len(rising):
             ladder = np.array([*up, cfg.h_probe_max])
-            ok, _, conv = self.probe(meth, np.tile(ladder, (B, 1)))
-            for b in np.where(rising)[0]:
-                fails = np.where(~ok[b])[0]
+            ok, _, conv = self.stable_at(meth, rising, ladder)
+            for r, b in enumerate(rising):
+                fails = np.where(~ok[r])[0]
                 if len(fails):
                     j = fails[0]
                     lo[b], hi[b] = ladder[j - 1] if j else hs[-1], ladder[j]
-                    cause[b] = "unstable" if conv[b, j] else "solver failed"
+                    cause[b] = "unstable" if conv[r, j] else "solver failed"
                 else:
                     lo[b] = hi[b] = np.inf
-        falling = np.isnan(lo)
-        if falling.any():
+        falling = np.where(np.isnan(lo))[0]
+        if len(falling):
             ladder = hs[0] / 2.0 ** np.arange(1, 11)
-            ok, _, conv = self.probe(meth, np.tile(ladder, (B, 1)))
-            for b in np.where(falling)[0]:
-                fine = np.where(ok[b])[0]
+            ok, _, _ = self.stable_at(meth, falling, ladder)
+            for r, b in enumerate(falling):
+                fine = np.where(ok[r])[0]
                 cause[b] = "unstable" if grid_conv[b, 0] else "solver failed"
                 if len(fine):
                     j = fine[0]
                     lo[b], hi[b] = ladder[j], ladder[j - 1] if j else hs[0]
                 else:
                     lo[b] = hi[b] = 0.0
-        busy = np.isfinite(hi) & (hi > lo * (1 + cfg.rel_tol))
-        while busy.any():
-            frac = np.arange(1, PROBES + 1) / (PROBES + 1)
-            safe_lo, safe_hi = np.where(busy, lo, 1.0), np.where(busy, hi, 1.0)
-            cand = safe_lo[:, None] * (safe_hi / safe_lo)[:, None] ** frac[None, :]
-            ok, _, conv = self.stable(meth, cand)
-            for b in np.where(busy)[0]:
-                fails = np.where(~ok[b])[0]
+        self._narrow(meth, lo, hi, cause)
+        return lo, cause
+
+    def _narrow(self, meth, lo, hi, cause):
+        """Shrinks each finite bracket [lo, hi] (lo stable, hi not) in place until hi / lo <=
+        1 + rel_tol. Every round fills one call of the block's size: the lanes still busy
+        share its slots, so the last few get several candidates each."""
+        tau = math.log1p(self.cfg.rel_tol)
+        _, _, lam, _ = self.along()
+        pred = np.array([frozen.predicted_limit(meth, lam[b])[0] for b in range(len(lo))])
+        with np.errstate(invalid="ignore", divide="ignore"):
+            guess = np.where((pred > lo) & (pred < hi), np.log(pred), np.nan)
+        width = np.ones(len(lo))               # the gallop from the guess [tau], doubling
+        rounds = np.zeros(len(lo), int)
+
+        def busy():
+            with np.errstate(invalid="ignore"):
+                return np.where(np.isfinite(hi) & (np.log(hi / lo) > tau * (1 + 1e-9)))[0]
+
+        while len(todo := busy()):
+            share = len(self.x0) // len(todo)
+            lanes, cands = [], []
+            for b in todo:
+                c = np.exp(_candidates(math.log(lo[b]), math.log(hi[b]), guess[b],
+                                       width[b] * tau, share, rounds[b] == 0, tau))
+                lanes += [b] * len(c)
+                cands.append(c)
+            ok, _, conv = self.runs_at(meth, np.array(lanes), np.concatenate(cands))
+            at = 0
+            for b, c in zip(todo, cands):
+                ok_b, conv_b = ok[at: at + len(c)], conv[at: at + len(c)]
+                at += len(c)
+                fails = np.where(~ok_b)[0]
                 if len(fails):
                     j = fails[0]
-                    hi[b] = cand[b, j]
-                    cause[b] = "unstable" if conv[b, j] else "solver failed"
+                    hi[b] = c[j]
+                    cause[b] = "unstable" if conv_b[j] else "solver failed"
                     if j:
-                        lo[b] = cand[b, j - 1]
+                        lo[b] = c[j - 1]
                 else:
-                    lo[b] = cand[b, -1]
-            busy = np.isfinite(hi) & (hi > lo * (1 + cfg.rel_tol))
-        return lo, cause
+                    lo[b] = c[-1]
+            width[todo] *= 2
+            rounds[todo] += 1
 
     # -- chunks ------------------------------------------------------------------------------
     def reference_chunk(self) -> dict:
@@ -334,45 +381,40 @@ class _Work:
     def method_chunk(self, name: str) -> dict:
         from stepzoo.integrators import method
         cfg, meth = self.cfg, method(name)
-        t0 = time.perf_counter()
+        # Compiles the one program of the chunk's runs, accuracy and stability alike, so
+        # that the timed accuracy rounds below time the computation alone.
         self.integrate(meth, self.x0, self.u, self.p, cfg.hs[0], 1)
-        self.timing["compile_s"] += time.perf_counter() - t0
         runs, err_scale = self._accuracy_runs(meth)
-        H = np.tile(np.asarray(cfg.hs), (len(self.x0), 1))
-        t0 = time.perf_counter()
-        self.stable(meth, H[:, :PROBES])          # compiles the stability calls' one shape
-        self.timing["compile_s"] += time.perf_counter() - t0
-        self.timing["stability_s"] = 0.0
-        grid_ok, blowup_t, grid_conv = self.probe(meth, H)
+        grid_ok, blowup_t, grid_conv = self.stable(
+            meth, np.tile(np.asarray(cfg.hs), (len(self.x0), 1)))
         for j, col in enumerate(runs):
             col["stable"], col["blowup_t"] = grid_ok[:, j], blowup_t[:, j]
             col["converged"] = col["converged"] & grid_conv[:, j]
             col["stable"] &= col["converged"]
         h_meas, cause = self.measured_limits(meth, grid_ok, grid_conv)
 
-        t0 = time.perf_counter()
-        columns = schema.run_columns(self.spec.variables, self.spec.states, self.spec.vehicle)
-        runs_df = pd.concat([pd.DataFrame(r) for r in runs], ignore_index=True)
-        runs_df = runs_df.drop_duplicates(["h", "point"])[columns]   # padded lanes repeat
         ts, xs, lam, _ = self.along()
-        limits = []
-        for lane, i in enumerate(self.ids):
-            rows = runs_df[(runs_df["point"] == i) & runs_df["stable"]]
-            h_pred, k, j = frozen.predicted_limit(meth, lam[lane])
-            bind = lam[lane, k, j] if k >= 0 else complex(np.nan, np.nan)
-            limits.append(dict(
-                method=name, point=i, **{v: self.values[lane, c] for c, v in
-                                         enumerate(self.spec.variables)},
-                h_pred=h_pred, h_meas=h_meas[lane], ratio=_ratio(h_meas[lane], h_pred),
-                order_declared=meth.order,
-                order_fit=metrics.order_fit(rows["h"], rows["err"], cfg.rtol, cfg.atol,
-                                            err_scale[lane]),
-                h_probe_max=cfg.h_probe_max, t_bind=ts[k] if k >= 0 else np.nan,
-                lam_re_bind=bind.real, lam_im_bind=bind.imag, limit_cause=cause[lane],
-                **{f"bind_{s}": xs[lane, k, c] if k >= 0 else np.nan
-                   for c, s in enumerate(self.spec.states)}))
+        with self.clock("metrics_s"):
+            columns = schema.run_columns(self.spec.variables, self.spec.states, self.spec.vehicle)
+            runs_df = pd.concat([pd.DataFrame(r) for r in runs], ignore_index=True)
+            runs_df = runs_df.drop_duplicates(["h", "point"])[columns]   # padded lanes repeat
+            limits = []
+            for lane, i in enumerate(self.ids):
+                rows = runs_df[(runs_df["point"] == i) & runs_df["stable"]]
+                h_pred, k, j = frozen.predicted_limit(meth, lam[lane])
+                bind = lam[lane, k, j] if k >= 0 else complex(np.nan, np.nan)
+                limits.append(dict(
+                    method=name, point=i, **{v: self.values[lane, c] for c, v in
+                                             enumerate(self.spec.variables)},
+                    h_pred=h_pred, h_meas=h_meas[lane], ratio=_ratio(h_meas[lane], h_pred),
+                    order_declared=meth.order,
+                    order_fit=metrics.order_fit(rows["h"], rows["err"], cfg.rtol, cfg.atol,
+                                                err_scale[lane]),
+                    h_probe_max=cfg.h_probe_max, t_bind=ts[k] if k >= 0 else np.nan,
+                    lam_re_bind=bind.real, lam_im_bind=bind.imag, limit_cause=cause[lane],
+                    **{f"bind_{s}": xs[lane, k, c] if k >= 0 else np.nan
+                       for c, s in enumerate(self.spec.states)}))
         traj = self._trajectories(meth) if self.block == 0 else pd.DataFrame()
-        self.timing["metrics_s"] += time.perf_counter() - t0
         limits_df = pd.DataFrame(limits, columns=schema.limit_columns(self.spec.variables,
                                                                       self.spec.states))
         return {"runs": runs_df, "limits": limits_df, "trajectories": traj}
@@ -420,8 +462,9 @@ class _Work:
         t, ref = self.trajectory_reference()
         x0, u, p = self._traj_lanes()
         every = TRAJ_SAMPLES // ALONG_SAMPLES
-        jac = frozen.jacobians(self.spec.rhs, t[::every], np.repeat(ref[None, ::every],
-                                                                      len(x0), 0), u, p)
+        with self.clock("metrics_s"):
+            jac = frozen.jacobians(self.spec.rhs, t[::every],
+                                   np.repeat(ref[None, ::every], len(x0), 0), u, p)
         limit, _, _ = frozen.predicted_limit(meth, frozen.eigenvalues(jac[0]))
         base = limit if math.isfinite(limit) else cfg.hs[-1]
         hs = [max(f * base, cfg.hs[0]) for f in cfg.traj_fractions]
@@ -434,12 +477,34 @@ class _Work:
             chunk = hs[start: start + lanes]
             h = np.array(chunk + [chunk[-1]] * (lanes - len(chunk)))
             n = min(self.max_steps, math.ceil(cfg.horizon / h.min() - 1e-9))
-            x, _, _, _ = self.integrate(meth, x0, u, p, h, n)
+            x, _, _, run_s = self.integrate(meth, x0, u, p, h, n)
+            self.timing["metrics_s"] += run_s
             for k, hk in enumerate(chunk):
                 keep = min(n, math.floor(cfg.horizon / hk + 1e-9)) + 1
                 frames.append(_trajectory_rows(self.spec, meth.name, hk, hk * np.arange(keep),
                                                x[k, :keep], past[start + k]))
         return pd.concat(frames, ignore_index=True)
+
+
+def _candidates(lo, hi, guess, width, k, first, tau):
+    """Up to k candidate log-steps strictly inside the bracket (lo, hi) of log-steps, for a
+    bracket wider than tau = log(1 + rel_tol). Where the predicted limit `guess` lies in the
+    bracket, the first round probes at it and tau apart around it (the bracket is then
+    often done), and later rounds gallop from the bracket's end nearest the guess, `width`
+    away (doubling per round), until that passes the bracket's middle; otherwise, and then,
+    k evenly spaced points."""
+    even = lo + (hi - lo) * np.arange(1, k + 1) / (k + 1)
+    if np.isnan(guess) or (hi - lo) <= (k + 1) * tau:
+        return even
+    if first:
+        near = guess + tau * (np.arange(k) - (k - 1) // 2)
+        near = near[(near > lo) & (near < hi)]
+        return near if len(near) else even
+    if 2 * width >= hi - lo:
+        return even
+    if guess - lo <= hi - guess:
+        return lo + width * np.arange(1, k + 1) / k
+    return (hi - width * np.arange(1, k + 1) / k)[::-1]
 
 
 def _trajectory_rows(spec, name, h, t, x, past_limit) -> pd.DataFrame:
@@ -581,9 +646,11 @@ def summary(runs: pd.DataFrame, limits: pd.DataFrame) -> pd.DataFrame:
 
 
 def _timing(per_chunk: pd.DataFrame, assemble_s: float, wall_s: float) -> dict:
-    compile_s = per_chunk.groupby("method")["compile_s"].sum().drop("reference", errors="ignore")
-    out = {"compile_s": {k: round(float(v), 3) for k, v in compile_s.items()}}
-    out["compile_s"]["reference"] = round(float(per_chunk["ref_compile_s"].sum()), 3)
+    # JAX's compiling [s] per method; "reference": the references' and the Jacobians'.
+    compile_s = per_chunk.groupby("method")["compile_s"].sum()
+    out = {"compile_s": {k: round(float(v), 3) for k, v in compile_s.items() if k != "reference"}}
+    out["compile_s"]["reference"] = round(float(per_chunk["ref_compile_s"].sum()
+                                                + compile_s.get("reference", 0.0)), 3)
     for key in ("reference_s", "integration_s", "stability_s", "metrics_s"):
         out[key] = round(float(per_chunk[key].sum()), 3)
     out["metrics_s"] = round(out["metrics_s"] + assemble_s, 3)
@@ -607,7 +674,7 @@ def _write_manifest(cfg, out: Path, created, done, timing, complete) -> dict:
         "blowup_rule": metrics.BLOWUP_RULE,
         "stability": {"steps": cfg.stab_steps, "growth": cfg.growth,
                       "perturbation": cfg.perturbation, "h_probe_max_s": cfg.h_probe_max,
-                      "bisection_rel_tol": cfg.rel_tol},
+                      "bisection_rel_tol": cfg.rel_tol, "narrowing": NARROWING},
         "order_fit": (f"slope of log err on log h over the {metrics.ORDER_POINTS} finest "
                       f"stable steps with {metrics.FLOOR_FACTOR:g} * (atol + rtol * max|x|) "
                       f"< err < {metrics.ERR_CEIL:g} (err and |x|: the error states over "

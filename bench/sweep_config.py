@@ -379,17 +379,17 @@ class _Checker:
 def check_workload(cfg: SweepConfig):
     """UsageError (the estimate and the limit) if the sweep would hold more trajectory memory
     or integrate more steps than allowed ([limits], --max-memory, --max-steps)."""
-    from stepzoo.bench.sweep import PROBES
     from stepzoo.validate import GIB, check_budget
     lanes = min(cfg.points_per_chunk, len(cfg.points))
     steps = max(round(cfg.horizon / cfg.hs[0]), cfg.stab_steps) + 1   # every call's length
     blocks = -(-len(cfg.points) // cfg.points_per_chunk)
-    # Per method and block: accuracy runs at every step; stability calls of PROBES steps per
-    # lane, each a perturbed and an unperturbed run: the grid, the probes past it (doubling
-    # to h_probe_max, ten halvings) and the narrowing to rel_tol.
-    rounds = math.log(math.log(1.3) / math.log1p(cfg.rel_tol)) / math.log(PROBES + 1) + 1
-    calls = len(cfg.hs) / PROBES + 2 + math.ceil(rounds)
+    # Per method and block, calls of one block's lanes: the accuracy runs at every step; for
+    # stability a pair of runs (perturbed, unperturbed) a call apart, per grid step, per rung
+    # of the ladders past the grid (at most ten) and per narrowing round (a bisection's at
+    # most, from a bracket of 1.3). The pair's two trajectory arrays are held at once.
+    rounds = math.ceil(math.log2(math.log(1.3) / math.log1p(cfg.rel_tol))) + 1
+    calls = len(cfg.hs) + 2 * (len(cfg.hs) + 10 + rounds)
     memory = cfg.max_memory_gib and cfg.max_memory_gib * GIB
-    check_budget(f"the sweep {cfg.name!r}", steps, 2 * PROBES * lanes, len(cfg.spec.states),
-                 calls=len(cfg.methods) * blocks * (calls + len(cfg.hs) / (2 * PROBES)),
+    check_budget(f"the sweep {cfg.name!r}", steps, 2 * lanes, len(cfg.spec.states),
+                 calls=len(cfg.methods) * blocks * calls / 2,
                  memory=memory, max_steps=cfg.max_steps)

@@ -8,7 +8,7 @@ import numpy as np
 import pandas as pd
 
 from stepzoo.bench import frozen
-from stepzoo.bench.sweep import PROBES, _Work, n_blocks
+from stepzoo.bench.sweep import _Work, n_blocks
 
 
 def verdict(cfg, method_name: str, h: float) -> pd.DataFrame:
@@ -25,7 +25,7 @@ def verdict(cfg, method_name: str, h: float) -> pd.DataFrame:
     for block in range(n_blocks(cfg)):
         work = _Work(cfg, block, cache)
         work.max_steps = max(n, cfg.stab_steps)
-        ok, _, conv = work.stable(meth, np.full((len(work.x0), PROBES), h))
+        ok, _, conv = work.stable(meth, np.full((len(work.x0), 1), h))
         x, _, acc_conv, _ = work.integrate(meth, work.x0, work.u, work.p, h, n)
         ref, _ = work.reference(h, n)
         err = cfg.spec.scaled(x - ref).max(axis=1)

@@ -40,7 +40,7 @@ def _limits(cfg, name):
     every point of block 0 of cfg."""
     work = _Work(cfg, 0, {})
     m = method(name)
-    ok, _, conv = work.probe(m, np.tile(np.asarray(cfg.hs), (len(work.x0), 1)))
+    ok, _, conv = work.stable(m, np.tile(np.asarray(cfg.hs), (len(work.x0), 1)))
     pred = np.array([max_stable_step(m, np.linalg.eigvals(A)) for A in _lateral(work)])
     return work.measured_limits(m, ok, conv)[0][: work.n_real], pred[: work.n_real]
 

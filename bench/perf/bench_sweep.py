@@ -1,7 +1,13 @@
-"""The default envelope sweep, split as its manifest reports it (compile per method,
-reference, integration, stability, metrics), and the raw driver time of the same
-integrations: every accuracy call the sweep makes is recorded and replayed, compiled."""
+"""The default envelope sweep, split as its manifest reports it (JAX's compiling per method,
+and running: references, accuracy runs, stability runs, metrics), and the raw driver time of
+the same integrations: every accuracy call the sweep makes is recorded and replayed, compiled.
+Then the same sweep as `stepzoo sweep` runs it, twice in fresh processes sharing a new
+persistent compilation cache: cold (it fills the cache), then warm (it loads from it)."""
+import json
+import os
+import subprocess
 import sys
+import tempfile
 from pathlib import Path
 from time import perf_counter
 
@@ -35,3 +41,22 @@ def test_envelope_sweep(benchmark, tmp_path, monkeypatch):
         driver_s += perf_counter() - t0
     benchmark.extra_info.update(kind="sweep", timing=manifest["timing"], calls=len(calls),
                                 driver_s=driver_s)
+
+
+def _command_sweep(out: Path, cache: Path) -> dict:
+    """The manifest's timing of one `stepzoo sweep` of the envelope in a fresh process, with
+    its wall time [s] (imports included) as command_s."""
+    env = dict(os.environ, STEPZOO_CACHE_DIR=str(cache))
+    started = perf_counter()
+    done = subprocess.run([sys.executable, "-m", "stepzoo", "sweep", str(ENVELOPE), "--out",
+                           str(out), "--overwrite", "--no-progress", "--format", "json"],
+                          capture_output=True, text=True, check=True, env=env)
+    return dict(json.loads(done.stdout)["timing"], command_s=perf_counter() - started)
+
+
+def test_envelope_sweep_compilation_cache(benchmark):
+    with tempfile.TemporaryDirectory() as tmp:
+        cold = benchmark.pedantic(lambda: _command_sweep(Path(tmp) / "cold", Path(tmp) / "jax"),
+                                  rounds=1)
+        warm = _command_sweep(Path(tmp) / "warm", Path(tmp) / "jax")
+    benchmark.extra_info.update(kind="sweep_cache", cold=cold, warm=warm)

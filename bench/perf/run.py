@@ -71,9 +71,16 @@ def figures_of(benchmarks: list[dict]) -> dict:
             for name, s in t["compile_s"].items():
                 fig[f"sweep_compile_{name}_s"] = s
             fig["sweep_compile_s"] = sum(t["compile_s"].values())
-            for part in ("reference_s", "integration_s", "stability_s", "metrics_s", "total_s"):
+            for part in ("reference_s", "integration_s", "stability_s", "metrics_s", "total_s",
+                         "wall_s"):
                 fig[f"sweep_{part}"] = t[part]
             fig["sweep_driver_replay_s"] = info["driver_s"]
+        elif kind == "sweep_cache":
+            for run in ("cold", "warm"):
+                t = info[run]
+                fig[f"sweep_{run}_command_s"] = t["command_s"]
+                fig[f"sweep_{run}_wall_s"] = t["wall_s"]
+                fig[f"sweep_{run}_compile_s"] = sum(t["compile_s"].values())
         elif kind == "planner":
             rows = info["scenarios"]
             for name, r in rows.items():
@@ -130,14 +137,22 @@ def ratios_of(fig: dict) -> dict:
             out[f"{name}_b{batch}_vs_rk4_per_eval"] = (None if steps is None or evals is None
                                                        else steps * evals)
     out["sweep_vs_driver"] = ratio("sweep_integration_s", "sweep_driver_replay_s")
+    # Shares of the envelope sweep's wall time, and the persistent cache's effect on it.
+    out["sweep_compile_share"] = ratio("sweep_compile_s", "sweep_wall_s")
+    out["sweep_stability_share"] = ratio("sweep_stability_s", "sweep_wall_s")
+    out["sweep_warm_vs_cold"] = ratio("sweep_warm_command_s", "sweep_cold_command_s")
     out["connect_single_vs_multiple"] = ratio("connect_single_s_median",
                                               "connect_multiple_s_median")
     return out
 
 
+LOWER_RATIOS = ("sweep_vs_driver", "sweep_warm_vs_cold", "sweep_compile_share",
+                "sweep_stability_share")
+
+
 def higher_is_better(name: str) -> bool:
     return (name.endswith(("steps_per_s", "steps_per_s_median", "runs_per_s", "solved", "exact"))
-            or ("_vs_" in name and name != "sweep_vs_driver"
+            or ("_vs_" in name and name not in LOWER_RATIOS
                 and not name.startswith(("connect_", "plan_"))))
 
 
