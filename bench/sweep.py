@@ -301,19 +301,20 @@ class _Work:
                     lo[b], hi[b] = ladder[j], ladder[j - 1] if j else hs[0]
                 else:
                     lo[b] = hi[b] = 0.0
-        self._narrow(meth, lo, hi, cause)
+        if (np.isfinite(hi) & (hi > lo * (1 + cfg.rel_tol))).any():
+            lam = self.along()[2]
+            pred = np.array([frozen.predicted_limit(meth, lam[b])[0] for b in range(B)])
+            self.narrow(meth, lo, hi, cause, pred)
         return lo, cause
 
-    def _narrow(self, meth, lo, hi, cause):
-        """Shrinks each finite bracket [lo, hi] (lo stable, hi not) in place until hi / lo <=
-        1 + rel_tol. Every round fills one call of the block's size: the lanes still busy
-        share its slots, so the last few get several candidates each."""
+    def narrow(self, meth, lo, hi, cause, pred):
+        """Shrinks each finite bracket [lo, hi] [s] (lo stable, hi not) in place until hi / lo
+        <= 1 + rel_tol, guided by the predicted limits pred [s]. Every round fills one call of
+        the block's size: the lanes still busy share its slots, so the last few get several
+        candidates each."""
         tau = math.log1p(self.cfg.rel_tol)
-        _, _, lam, _ = self.along()
-        pred = np.array([frozen.predicted_limit(meth, lam[b])[0] for b in range(len(lo))])
         with np.errstate(invalid="ignore", divide="ignore"):
             guess = np.where((pred > lo) & (pred < hi), np.log(pred), np.nan)
-        width = np.ones(len(lo))               # the gallop from the guess [tau], doubling
         rounds = np.zeros(len(lo), int)
 
         def busy():
@@ -324,8 +325,9 @@ class _Work:
             share = len(self.x0) // len(todo)
             lanes, cands = [], []
             for b in todo:
+                # The gallop away from the guess: tau in the second round, doubling after.
                 c = np.exp(_candidates(math.log(lo[b]), math.log(hi[b]), guess[b],
-                                       width[b] * tau, share, rounds[b] == 0, tau))
+                                       tau * 2.0 ** (rounds[b] - 1), share, rounds[b] == 0, tau))
                 lanes += [b] * len(c)
                 cands.append(c)
             ok, _, conv = self.runs_at(meth, np.array(lanes), np.concatenate(cands))
@@ -342,7 +344,6 @@ class _Work:
                         lo[b] = c[j - 1]
                 else:
                     lo[b] = c[-1]
-            width[todo] *= 2
             rounds[todo] += 1
 
     # -- chunks ------------------------------------------------------------------------------

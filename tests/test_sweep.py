@@ -91,6 +91,34 @@ def test_blowup_rule_flags_a_step_just_past_the_limit_and_not_just_below(envelop
     assert np.all((t_blow[:, 1] > 0) & (t_blow[:, 1] <= envelope.stab_steps * 1.02 * pred))
 
 
+class _Threshold:
+    """A block whose lanes are stable exactly below their `limit` [s]; counts its calls."""
+
+    def __init__(self, limit, rel_tol):
+        self.limit, self.x0, self.calls = np.asarray(limit), np.zeros((len(limit), 1)), 0
+        self.cfg = dataclasses.make_dataclass("Cfg", ["rel_tol"])(rel_tol)
+
+    def runs_at(self, meth, lanes, h):
+        self.calls += -(-len(h) // len(self.x0))
+        ok = np.asarray(h) < self.limit[lanes]
+        return ok, np.where(ok, np.nan, 1.0), np.ones(len(h), bool)
+
+
+@pytest.mark.parametrize("off", [1.0, 1.0004, 0.97, 1.2, math.nan])
+def test_narrowing_brackets_each_limit_to_rel_tol_wherever_the_prediction_is(off):
+    """From brackets of the grid's width (1.26), the limit ends within rel_tol above lo and
+    at most hi, whether the prediction is exact, 0.04% or 3% off, outside the bracket, or
+    missing; a prediction within rel_tol takes 2 calls, where bisection takes 8."""
+    limit = np.geomspace(0.01, 0.5, 25)
+    lo, hi = limit / 1.1, limit * 1.15
+    block = _Threshold(limit, 1e-3)
+    cause = np.full(25, "unstable", object)
+    _Work.narrow(block, None, lo, hi, cause, limit * off)
+    assert np.all(lo < limit) and np.all(hi >= limit) and np.all(hi / lo <= 1 + 1e-3 + 1e-12)
+    if off in (1.0, 1.0004):
+        assert block.calls == 2
+
+
 def test_predicted_limit_from_jacobians_equals_the_closed_form_lateral_one(envelope):
     work = _Work(envelope, 0, {})
     _, _, lam, _ = work.along()
