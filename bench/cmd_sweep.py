@@ -21,16 +21,17 @@ def sweep(config, out, *, resume=False, overwrite=False, progress=True,
           scheduler=None) -> dict:
     """Run the sweep of the TOML file `config` into the folder `out` (on the Dask cluster at
     `scheduler` if given) and return its manifest. `stepzoo sweep` and `stepzoo run` call it."""
+    from stepzoo.bench.suite import SuiteConfig, load, run_suite
     from stepzoo.bench.sweep import run_sweep
-    from stepzoo.bench.sweep_config import load
     cfg = load(config)
+    run = run_suite if isinstance(cfg, SuiteConfig) else run_sweep
     if scheduler is None:
-        return run_sweep(cfg, out, resume=resume, overwrite=overwrite, progress=progress)
+        return run(cfg, out, resume=resume, overwrite=overwrite, progress=progress)
     from stepzoo.bench.distributed import sweep_runner
     from stepzoo.distributed import connect
     with connect(scheduler) as client:
-        return run_sweep(cfg, out, resume=resume, overwrite=overwrite, progress=progress,
-                         runner=sweep_runner(client))
+        return run(cfg, out, resume=resume, overwrite=overwrite, progress=progress,
+                   runner=sweep_runner(client))
 
 
 def show(manifest: dict, out, fmt: str = "text") -> None:
@@ -41,6 +42,9 @@ def show(manifest: dict, out, fmt: str = "text") -> None:
                        "timing": manifest["timing"]}))
         return
     t = manifest["timing"]
+    if manifest.get("problems"):
+        _show_suite(manifest, out)
+        return
     summary = pd.read_csv(f"{out}/summary.csv").to_dict("records")
     sys.stdout.write(text_table(summary, ["method", "order_declared", "order_fit_median",
                                           "h_pred_min", "h_meas_min", "worst_ratio"]) + "\n")
@@ -51,6 +55,31 @@ def show(manifest: dict, out, fmt: str = "text") -> None:
           f"{sum(t['compile_s'].values()):.1f} ({compile_s}); reference {t['reference_s']:.1f}; "
           f"integration {t['integration_s']:.1f}; stability {t['stability_s']:.1f}; "
           f"metrics {t['metrics_s']:.1f}")
+
+
+def _show_suite(manifest: dict, out) -> None:
+    """Observed orders, method by problem (NaN: not observable), where they differ from the
+    declared ones, what was written and the time it took."""
+    import pandas as pd
+    orders = pd.read_csv(f"{out}/orders.csv")
+    columns = list(orders.columns)
+    rows = [{k: (round(v, 2) if isinstance(v, float) else v) for k, v in r.items()}
+            for r in orders.to_dict("records")]
+    sys.stdout.write("observed order (asymptotic range; NaN: not observable)\n"
+                     + text_table(rows, columns) + "\n")
+    summary = pd.read_csv(f"{out}/summary.csv")
+    off = summary[summary["order_status"] != "matches"]
+    print(f"{len(summary) - len(off)} of {len(summary)} (problem, method) pairs within "
+          f"{manifest['order_tolerance']:g} of the declared order"
+          + (": the rest " + ", ".join(f"{s} {n}" for s, n in
+                                       off["order_status"].value_counts().items())
+             if len(off) else ""))
+    print(f"wrote {out}: one sweep folder per problem ({', '.join(manifest['problems'])}), "
+          "and all of them in runs.parquet, limits.parquet/csv, summary.parquet/csv, "
+          "eigenvalues.parquet, trajectories.parquet (column problem), orders.csv, "
+          "manifest.json")
+    t = manifest["timing"]
+    print(f"timing [s]: total {t['total_s']:.1f} (this call {t['wall_s']:.1f})")
 
 
 def main(args) -> int:

@@ -1,5 +1,9 @@
-"""What the sweep measures from trajectories: the blow-up rule, the fitted convergence
-order, and the rule's wording for the results' manifest."""
+"""What the sweep measures from trajectories: the blow-up rule, the observed convergence
+order on the asymptotic range of steps, and the rules' wording for the results' manifest."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
 import numpy as np
 
 BLOWUP_RULE = ("A stability run starts from the operating point's initial state plus a "
@@ -10,19 +14,83 @@ BLOWUP_RULE = ("A stability run starts from the operating point's initial state 
                "distance in the error norm is not finite or exceeds `growth` times its start, "
                "and is stable if that never happens within `steps` steps and every nonlinear "
                "solve converged.")
-ORDER_POINTS = 4          # finest usable steps in the order regression
-ERR_CEIL = 1e-1           # larger errors are not in the asymptotic range
+ERR_CEIL = 1.0            # errors this many times the solution's size are not asymptotic
 FLOOR_FACTOR = 10.0       # errors below this many reference tolerances are not the method's
+SLOPE_SPREAD = 0.1        # local slopes of one asymptotic range differ by at most this
+ORDER_TOL = 0.2           # an observed order this close to the declared one matches it
+ORDER_RULE = (f"slope of log err on log h over the asymptotic range: the finest run of at "
+              f"least 3 consecutive usable steps ({FLOOR_FACTOR:g} * (atol + rtol * max|x|) "
+              f"< err < {ERR_CEIL:g} * max|x|) whose local slopes differ by at most "
+              f"{SLOPE_SPREAD:g}, extended to coarser steps while they still do (err and |x|: "
+              "the error states over their scales); order_h_min/order_h_max/order_points record "
+              "the range, order_note why there is none (then the fit is over every usable step, "
+              "or NaN with fewer than 3)")
 
 
-def order_fit(hs, errors, rtol, atol, scale):
-    """Slope of log error on log h over the ORDER_POINTS finest steps whose error lies above
-    FLOOR_FACTOR reference tolerances (atol + rtol * scale, `scale` the size of the state
-    the error is of) and below ERR_CEIL. NaN when fewer than three steps qualify."""
+@dataclass(frozen=True)
+class OrderFit:
+    """An observed order and the range of steps [s] it was fitted on."""
+    order: float
+    h_min: float
+    h_max: float
+    points: int
+    note: str              # "asymptotic", or why no asymptotic range was found
+
+    def columns(self) -> dict:
+        """The `limits` table's order columns."""
+        return {"order_fit": self.order, "order_h_min": self.h_min, "order_h_max": self.h_max,
+                "order_points": self.points, "order_note": self.note}
+
+
+def order_fit(hs, errors, rtol, atol, scale) -> OrderFit:
+    """The observed order: slope of log error on log h over the asymptotic range, the finest
+    run of at least 3 consecutive usable steps whose local slopes agree within SLOPE_SPREAD,
+    extended to coarser steps while they still agree (local slopes tend to the order as h
+    goes to 0, and the finest usable steps are nearest that limit). `hs` [s] and `errors`
+    are those of the stable steps. A step is usable when its error is finite and lies above
+    FLOOR_FACTOR reference tolerances (atol + rtol * scale, `scale` the size of the state the
+    error is of; below, the error is the reference's or round-off) and below ERR_CEIL times
+    that size (above, it is no approximation at all)."""
     hs, e = np.asarray(hs, float), np.asarray(errors, float)
+    by_h = np.argsort(hs)
+    hs, e = hs[by_h], e[by_h]
+    finite = np.isfinite(e)
     floor = FLOOR_FACTOR * (atol + rtol * scale)
-    sel = np.where(np.isfinite(e) & (e > floor) & (e < ERR_CEIL))[0]
-    sel = sel[np.argsort(hs[sel])][:ORDER_POINTS]
-    if len(sel) < 3:
-        return float("nan")
-    return float(np.polyfit(np.log(hs[sel]), np.log(e[sel]), 1)[0])
+    ceil = ERR_CEIL * scale
+    usable = finite & (e > floor) & (e < ceil)
+    if usable.sum() < 3:
+        note = "unstable at every step" if not finite.any() else (
+            f"{usable.sum()} stable step(s) in the range: {(finite & (e <= floor)).sum()} at "
+            f"the reference's accuracy, {(finite & (e >= ceil)).sum()} with error above "
+            f"{ERR_CEIL:g} x the solution's size")
+        return OrderFit(float("nan"), float("nan"), float("nan"), int(usable.sum()), note)
+    h, err = np.log(hs[usable]), np.log(e[usable])
+    slopes = np.diff(err) / np.diff(h)
+    best = None                                 # (first, last) point of the range
+    for i in range(len(h) - 2):
+        if np.ptp(slopes[i:i + 2]) <= SLOPE_SPREAD:
+            j = i + 2
+            while j + 1 < len(h) and np.ptp(slopes[i:j + 1]) <= SLOPE_SPREAD:
+                j += 1
+            best = (i, j)
+            break
+    if best is None:
+        lo, hi, note = 0, len(h) - 1, (f"no asymptotic range: local slopes from "
+                                      f"{slopes.min():.2f} to {slopes.max():.2f}")
+    else:
+        (lo, hi), note = best, "asymptotic"
+    fit = float(np.polyfit(h[lo: hi + 1], err[lo: hi + 1], 1)[0])
+    return OrderFit(fit, float(np.exp(h[lo])), float(np.exp(h[hi])), hi - lo + 1, note)
+
+
+def order_status(observed: float, declared: float, note: str) -> str:
+    """How an observed order compares with the declared one: "matches" (within ORDER_TOL on
+    an asymptotic range), "below declared", "above declared", "no asymptotic range", or
+    "not observable"."""
+    if not np.isfinite(observed):
+        return "not observable"
+    if note != "asymptotic":
+        return "no asymptotic range"
+    if abs(observed - declared) <= ORDER_TOL:
+        return "matches"
+    return "below declared" if observed < declared else "above declared"

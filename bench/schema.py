@@ -18,23 +18,31 @@ SORT = {"runs": ["method", "h", "point"], "limits": ["method", "point"],
 # `err` [scaled]: largest error over the run of the error states, each over its scale.
 RUN_STATUS = ["stable", "blowup_t"]
 VEHICLE_ERRORS = ["err_pos", "err_final"]          # [m], models with X and Y only
-RUN_TAIL = ["evals_per_s", *timing.COLUMNS, "n_steps", "ref_ok", "converged", "err", "evals"]
+# evals: right-hand-side evaluations of the run; time_s [s]: its wall time, the fastest of
+# the timed rounds (time_per_step_s x n_steps): the two costs of a work-precision diagram.
+RUN_TAIL = ["evals_per_s", *timing.COLUMNS, "n_steps", "ref_ok", "converged", "err", "evals",
+            "time_s"]
 # `limits`: one row per (method, point). h_pred [s] from the frozen-Jacobian eigenvalues
 # along the reference, binding at t_bind [s] on eigenvalue lam_bind; h_meas [s] by
 # bisection; limit_cause: what ended the stable range ("unstable", "solver failed", or
 # "none" when nothing failed up to h_probe_max).
 LIMIT_TAIL = ["h_pred", "h_meas", "ratio", "order_declared", "order_fit", "h_probe_max",
               "t_bind", "lam_re_bind", "lam_im_bind", "limit_cause"]
+# order_fit: the observed order on the range of steps [s] order_h_min..order_h_max
+# (order_points steps), order_note why no asymptotic range was found ("asymptotic" if one
+# was); summary's order_status compares the median observed order with the declared one.
+ORDER_TAIL = ["order_h_min", "order_h_max", "order_points", "order_note"]
 SUMMARY = ["method", "family", "order_declared", "order_fit_median", "order_fit_min",
            "order_fit_max", "real_interval", "imag_interval", "h_meas_min", "h_pred_min",
-           "worst_ratio", "implicit", "evals_per_step", "points", "solver_failures"]
+           "worst_ratio", "implicit", "evals_per_step", "points", "solver_failures",
+           "order_h_min", "order_h_max", "order_status"]
 EIGEN_TAIL = ["lam_re", "lam_im"]
 TIMING = ["chunk", "method", "compile_s", "ref_compile_s", "reference_s", "integration_s",
           "stability_s", "metrics_s", "total_s"]
 
 # Measured wall times: they differ between two runs of the same config.
-MEASURED = {*timing.MEASURED, "compile_s", "ref_compile_s", "reference_s", "integration_s",
-            "stability_s", "metrics_s", "total_s"}
+MEASURED = {*timing.MEASURED, "time_s", "compile_s", "ref_compile_s", "reference_s",
+            "integration_s", "stability_s", "metrics_s", "total_s"}
 
 # What a reader needs of a results folder, whatever the model: the report and tune check
 # these and read the rest (envelope variables, states) from the manifest's "model".
@@ -54,7 +62,8 @@ def run_columns(variables, states, vehicle: bool) -> list[str]:
 
 
 def limit_columns(variables, states) -> list[str]:
-    return ["method", "point", *variables, *LIMIT_TAIL, *[f"bind_{s}" for s in states]]
+    return ["method", "point", *variables, *LIMIT_TAIL, *[f"bind_{s}" for s in states],
+            *ORDER_TAIL]
 
 
 def eigen_columns(variables) -> list[str]:

@@ -409,8 +409,8 @@ class _Work:
                                              enumerate(self.spec.variables)},
                     h_pred=h_pred, h_meas=h_meas[lane], ratio=_ratio(h_meas[lane], h_pred),
                     order_declared=meth.order,
-                    order_fit=metrics.order_fit(rows["h"], rows["err"], cfg.rtol, cfg.atol,
-                                                err_scale[lane]),
+                    **metrics.order_fit(rows["h"], rows["err"], cfg.rtol, cfg.atol,
+                                        err_scale[lane]).columns(),
                     h_probe_max=cfg.h_probe_max, t_bind=ts[k] if k >= 0 else np.nan,
                     lam_re_bind=bind.real, lam_im_bind=bind.imag, limit_cause=cause[lane],
                     **{f"bind_{s}": xs[lane, k, c] if k >= 0 else np.nan
@@ -452,6 +452,7 @@ class _Work:
             col["ref_ok"] = ok
             col["converged"] = conv
             col["evals"] = evals
+            col["time_s"] = col["time_per_step_s"] * n
             self.timing["metrics_s"] += time.perf_counter() - t0
             out.append(col)
         return out, scale
@@ -637,6 +638,10 @@ def summary(runs: pd.DataFrame, limits: pd.DataFrame) -> pd.DataFrame:
             order_fit_median=float(lim["order_fit"].median()),
             order_fit_min=float(lim["order_fit"].min()),
             order_fit_max=float(lim["order_fit"].max()),
+            order_h_min=float(lim["order_h_min"].min()),
+            order_h_max=float(lim["order_h_max"].max()),
+            order_status=metrics.order_status(float(lim["order_fit"].median()), m.order,
+                                              _most_common(lim["order_note"])),
             real_interval=real, imag_interval=imag,
             h_meas_min=float(lim["h_meas"].min()), h_pred_min=float(lim["h_pred"].min()),
             worst_ratio=float(worst), implicit=m.implicit,
@@ -644,6 +649,11 @@ def summary(runs: pd.DataFrame, limits: pd.DataFrame) -> pd.DataFrame:
             points=int(lim["point"].nunique()),
             solver_failures=int((~r["converged"]).sum()) if "converged" in r else 0))
     return pd.DataFrame(rows, columns=schema.SUMMARY)
+
+
+def _most_common(notes: pd.Series) -> str:
+    """The note most operating points share (the first in order on a tie)."""
+    return str(notes.value_counts(sort=True).index[0])
 
 
 def _timing(per_chunk: pd.DataFrame, assemble_s: float, wall_s: float) -> dict:
@@ -676,11 +686,7 @@ def _write_manifest(cfg, out: Path, created, done, timing, complete) -> dict:
         "stability": {"steps": cfg.stab_steps, "growth": cfg.growth,
                       "perturbation": cfg.perturbation, "h_probe_max_s": cfg.h_probe_max,
                       "bisection_rel_tol": cfg.rel_tol, "narrowing": NARROWING},
-        "order_fit": (f"slope of log err on log h over the {metrics.ORDER_POINTS} finest "
-                      f"stable steps with {metrics.FLOOR_FACTOR:g} * (atol + rtol * max|x|) "
-                      f"< err < {metrics.ERR_CEIL:g} (err and |x|: the error states over "
-                      "their scales); NaN where fewer than 3 qualify (a run that stays at "
-                      "rest has no error)"),
+        "order_fit": metrics.ORDER_RULE,
         "prediction": frozen.RULE,
         "trajectory_point": dict(zip(cfg.spec.variables, cfg.traj_point)),
         "horizon_s": cfg.horizon, "vehicle": cfg.vehicle, "model": cfg.model,

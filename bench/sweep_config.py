@@ -87,6 +87,11 @@ class SweepConfig:
 def load(path) -> SweepConfig:
     """Read and validate a sweep TOML; UsageError (one line per mistake) if it is wrong."""
     raw = read_toml(path, "sweep config", "give a TOML file such as bench/configs/small.toml")
+    if "problem" in raw:
+        raise UsageError(f"{path} is a suite of {len(raw['problem'])} problems ([[problem]] "
+                         "tables): `stepzoo sweep` runs it whole; this command takes one "
+                         "problem: the config.toml in that problem's folder of the suite's "
+                         "sweep, or a config of one model")
     return validate(raw, str(path))
 
 

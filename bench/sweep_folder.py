@@ -77,6 +77,11 @@ def check_finished(folder, manifest: dict, runs: pd.DataFrame, limits: pd.DataFr
     from stepzoo.bench.sweep_config import load
     folder = Path(folder)
     again = f"rerun `stepzoo sweep {folder / 'config.toml'} --out {folder} --resume`"
+    problems = manifest.get("problems")
+    if problems:
+        raise UsageError(f"{folder} holds a suite of {len(problems)} problems "
+                         f"({', '.join(map(str, problems))}); this reads one problem's sweep: "
+                         f"give its folder, such as {folder / str(problems[0])}")
     if not manifest.get("complete"):
         raise UsageError(f"{folder} holds an unfinished sweep; finish it: {again}")
     if not (folder / "config.toml").is_file():

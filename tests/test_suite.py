@@ -1,0 +1,168 @@
+"""Suites: the standard test problems in one sweep. Observed orders on DETEST match the declared
+ones within 0.2 on the asymptotic range the fit picks itself; a suite config sweeps each
+problem into a folder of its own (an ordinary sweep folder) and writes their tables together
+with a `problem` column and the orders table; commands that read one problem refuse a suite
+in one line."""
+import json
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from stepzoo.bench import metrics, schema
+from stepzoo.bench.cli import main as stepzoo
+from stepzoo.bench.suite import load, run_suite
+from stepzoo.bench.tune import tune
+from stepzoo.dynamics import model
+from stepzoo.errors import UsageError
+from stepzoo.integrators import integrate_batch, method
+
+SUBSET = ["detest_a1", "detest_b1", "detest_d1", "detest_e1"]
+METHODS = ["euler", "rk4", "ab3", "trapezoidal"]
+FINEST = 20 * 2 ** 13        # steps over [0, 20] of the finest grid step
+
+
+@pytest.mark.parametrize("problem", SUBSET)
+def test_observed_orders_on_detest_are_the_declared_ones(problem):
+    """Every grid step in one batch (each lane its own h, all run FINEST steps; the error is
+    read over each lane's first 20 s), against the problem's truth on the finest grid."""
+    m = model(problem)
+    ns = 20 * 2 ** np.arange(1, 14)
+    hs = 20.0 / ns
+    truth = m.solution(hs[-1] * np.arange(FINEST + 1))
+    scale = np.abs(truth).max()
+    x0 = np.tile(np.asarray(m.x0), (len(hs), 1))
+    for name in METHODS:
+        x = np.asarray(integrate_batch(name, m.rhs, x0, None, m.params(), hs, FINEST).x)
+        with np.errstate(invalid="ignore", over="ignore"):
+            err = [np.abs(x[k, : n + 1] - truth[:: FINEST // n]).max()
+                   for k, n in enumerate(ns)]
+        fit = metrics.order_fit(hs, err, 1e-14, 1e-16, scale)
+        assert fit.note == "asymptotic", (name, fit)
+        assert abs(fit.order - method(name).order) <= metrics.ORDER_TOL, (name, fit)
+        assert metrics.order_status(fit.order, method(name).order, fit.note) == "matches"
+
+
+def test_order_fit_takes_the_asymptotic_range_between_pre_asymptotic_and_floor():
+    """err = h^3 (1 + 40 h^2) + 1e-12: the h^2 term bends the coarse steps, the floor the
+    finest; the fit keeps the steps in between and finds 3."""
+    hs = 0.8 / 2 ** np.arange(14)
+    err = hs ** 3 * (1 + 40 * hs ** 2) + 1e-12
+    fit = metrics.order_fit(hs, err, 1e-12, 1e-14, 1.0)
+    assert fit.note == "asymptotic"
+    assert fit.order == pytest.approx(3.0, abs=0.02)
+    assert fit.h_max < 0.1 and fit.h_min > hs[-1]          # neither end of the grid
+    assert fit.points >= 3
+    sinking = metrics.order_fit(hs, 10.0 ** -np.arange(14.0) * (1 + (np.arange(14) % 2)),
+                                1e-30, 1e-30, 1.0)            # local slopes alternate
+    assert sinking.note.startswith("no asymptotic range")
+    assert metrics.order_status(sinking.order, 3, sinking.note) == "no asymptotic range"
+    none = metrics.order_fit([], [], 1e-12, 1e-14, 1.0)
+    assert np.isnan(none.order) and none.note == "unstable at every step"
+    assert metrics.order_status(none.order, 1, none.note) == "not observable"
+
+
+SUITE = """
+name = "mini"
+methods = ["rk4", "trapezoidal"]
+[steps]
+h = { min = 0.05, max = 0.4, num = 4 }
+[reference]
+rtol = 1e-12
+atol = 1e-14
+[stability]
+steps = 100
+h_probe_max = 20.0
+rel_tol = 0.01
+[timing]
+rounds = 1
+[[problem]]
+model = "detest_a1"
+[[problem]]
+name = "b2_short"
+model = "detest_b2"
+horizon = 4.0
+steps.h = { min = 0.02, max = 0.2, num = 4 }
+"""
+
+
+@pytest.fixture(scope="module")
+def suite(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("suite")
+    (folder / "mini.toml").write_text(SUITE)
+    cfg = load(folder / "mini.toml")
+    manifest = run_suite(cfg, folder / "out", progress=False)
+    return cfg, folder / "out", manifest
+
+
+def test_each_problem_is_an_ordinary_sweep_with_its_own_settings(suite):
+    cfg, out, manifest = suite
+    assert manifest["complete"] and manifest["problems"] == ["detest_a1", "b2_short"]
+    a1, b2 = cfg.problems[0][1], cfg.problems[1][1]
+    assert (a1.horizon, b2.horizon) == (20.0, 4.0)      # the published interval; its own
+    assert b2.hs[0] == pytest.approx(0.02) and a1.hs[0] == pytest.approx(0.05)
+    assert a1.spec.envelope == (("y1", (1.0,)),)        # the published initial value
+    for label, problem, _ in cfg.problems:
+        sub = json.loads((out / label / "manifest.json").read_text())
+        assert sub["complete"] and sub["config_sha256"] == problem.sha256
+        assert sub["config_sha256"] == manifest["problem_sha256"][label]
+    tuned = tune(out / "b2_short", None, 0.2, tol=1e-3)
+    assert tuned["method"] in ("rk4", "trapezoidal")
+
+
+def test_suite_tables_are_the_problems_tables_with_a_problem_column(suite):
+    cfg, out, _ = suite
+    for name in schema.PARQUET:
+        whole = pd.read_parquet(out / f"{name}.parquet")
+        assert whole.columns[0] == "problem"
+        for label in cfg.labels:
+            part = whole[whole["problem"] == label].drop(columns="problem")
+            own = pd.read_parquet(out / label / f"{name}.parquet")
+            part = part[own.columns].reset_index(drop=True)
+            pd.testing.assert_frame_equal(part, own, check_dtype=False)
+    summary = pd.read_csv(out / "summary.csv")
+    orders = pd.read_csv(out / "orders.csv").set_index("method")
+    assert list(orders.columns) == ["order_declared", "detest_a1", "b2_short"]
+    for _, row in summary.iterrows():
+        assert orders.loc[row["method"], row["problem"]] == pytest.approx(
+            row["order_fit_median"], nan_ok=True)
+    a1 = summary[summary["problem"] == "detest_a1"].set_index("method")
+    assert a1.loc["trapezoidal", "order_status"] == "matches"
+    limits = pd.read_parquet(out / "limits.parquet")
+    assert {"order_h_min", "order_h_max", "order_points", "order_note"} <= set(limits)
+    runs = pd.read_parquet(out / "runs.parquet")
+    assert np.allclose(runs["time_s"], runs["time_per_step_s"] * runs["n_steps"])
+
+
+def test_a_suite_is_refused_where_one_problem_is_read(suite, capsys):
+    cfg, out, _ = suite
+    with pytest.raises(UsageError, match="suite of 2 problems .* such as .*detest_a1"):
+        tune(out, None, 0.2, tol=1e-3)
+    assert stepzoo(["verdict", str(out / "config.toml"), "--method", "rk4", "--h",
+                    "0.1"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "suite of 2 problems" in err
+    assert stepzoo(["sweep", cfg.source, "--out", str(out)]) == 2      # it holds a sweep
+    assert "--resume" in capsys.readouterr().err
+
+
+def test_a_resumed_suite_computes_nothing_again(suite):
+    cfg, out, _ = suite
+    before = {p: p.stat().st_mtime_ns for p in out.glob("*/chunks/*")}
+    again = run_suite(cfg, out, resume=True, progress=False)
+    assert again["complete"]
+    assert {p: p.stat().st_mtime_ns for p in out.glob("*/chunks/*")} == before
+
+
+@pytest.mark.parametrize("edit, message", [
+    ('name = "detest_a1"\nmodel = "detest_a2"', "two problems are named 'detest_a1'"),
+    ('model = "detest_a2"\nmethods = ["euler"]', "sets methods, which is the suite's"),
+    ('model = "detest_a2"\nhorizon = -1.0', "[problem detest_a2]: horizon"),
+    ('name = "a b"\nmodel = "detest_a2"', "name 'a b' must be letters"),
+])
+def test_a_bad_problem_is_one_line_naming_it(tmp_path, capsys, edit, message):
+    (tmp_path / "bad.toml").write_text(SUITE + "[[problem]]\n" + edit + "\n")
+    assert stepzoo(["sweep", str(tmp_path / "bad.toml"), "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert message in err and len(err.splitlines()) == 1
+    assert not (tmp_path / "o").exists()
