@@ -103,6 +103,7 @@ def validate(raw: dict, source: str = "config") -> SuiteConfig:
         except (UsageError, KeyError) as err:
             bad.append(str(err.args[0]))
             continue
+        merged["methods"] = list(cfg.methods)     # "all" as of this release, by name
         out.append((label, cfg, merged))
     if bad:
         raise UsageError("\n".join(bad))
@@ -168,7 +169,8 @@ def run_suite(suite: SuiteConfig, out, resume=False, overwrite=False, progress=T
     created = environment.now()
     with writing(out, "sweep"):
         out = Path(out)
-        _check_start(suite, out, resume, overwrite)
+        sweep_folder.check_start(suite, out, resume, overwrite,
+                                 discard=lambda old: _discard(out, old))
         atomic_write(out / "config.toml", _config_copy(suite))
         _write_manifest(suite, out, created, None, complete=False)
         manifests = {}
@@ -191,32 +193,14 @@ def run_suite(suite: SuiteConfig, out, resume=False, overwrite=False, progress=T
         return _write_manifest(suite, out, created, timing, complete=True)
 
 
-def _check_start(suite: SuiteConfig, out: Path, resume: bool, overwrite: bool):
-    """As for one sweep: a folder that holds a suite needs --resume (the same suite) or
-    --overwrite (which removes its problems' folders and tables first)."""
-    manifest = out / "manifest.json"
-    if not manifest.is_file():
-        return
-    try:
-        old = json.loads(manifest.read_text())
-    except (json.JSONDecodeError, UnicodeDecodeError):
-        old = {}
-    if overwrite:
-        for label in old.get("problems", []):
-            if isinstance(label, str) and LABEL.fullmatch(label):
-                shutil.rmtree(out / label, ignore_errors=True)
-        for name in (*schema.PARQUET, *schema.CSV):
-            for path in out.glob(f"{name}.*"):
-                path.unlink()
-        return
-    if not resume:
-        raise UsageError(f"{out} already holds a sweep; pass --resume to continue it or "
-                         "--overwrite to start again")
-    if old.get("config_sha256") != suite.sha256:
-        raise UsageError(f"{out} holds a sweep of a different config (sha256 "
-                         f"{str(old.get('config_sha256'))[:12]}..., this one "
-                         f"{suite.sha256[:12]}...); resume with the same config, or give a new "
-                         "--out")
+def _discard(out: Path, old: dict):
+    """What an overwritten suite folder held: its problems' folders and its tables."""
+    for label in old.get("problems", []):
+        if isinstance(label, str) and LABEL.fullmatch(label):
+            shutil.rmtree(out / label, ignore_errors=True)
+    for name in (*schema.PARQUET, *schema.CSV, ORDERS.split(".")[0]):
+        for path in out.glob(f"{name}.*"):
+            path.unlink()
 
 
 def assemble(suite: SuiteConfig, out: Path) -> dict:

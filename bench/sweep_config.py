@@ -87,12 +87,18 @@ class SweepConfig:
 def load(path) -> SweepConfig:
     """Read and validate a sweep TOML; UsageError (one line per mistake) if it is wrong."""
     raw = read_toml(path, "sweep config", "give a TOML file such as bench/configs/small.toml")
+    check_one_problem(raw, path)
+    return validate(raw, str(path))
+
+
+def check_one_problem(raw: dict, path):
+    """UsageError when the config is a suite ([[problem]] tables), which only `stepzoo sweep`
+    runs; the commands that take one model's config call this."""
     if "problem" in raw:
         raise UsageError(f"{path} is a suite of {len(raw['problem'])} problems ([[problem]] "
                          "tables): `stepzoo sweep` runs it whole; this command takes one "
                          "problem: the config.toml in that problem's folder of the suite's "
                          "sweep, or a config of one model")
-    return validate(raw, str(path))
 
 
 def validate(raw: dict, source: str = "config") -> SweepConfig:

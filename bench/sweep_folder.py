@@ -19,9 +19,10 @@ def check_flags(resume: bool, overwrite: bool):
                          "or discard it); give one")
 
 
-def check_start(cfg, out: Path, resume: bool, overwrite: bool) -> dict | None:
+def check_start(cfg, out: Path, resume: bool, overwrite: bool, discard=None) -> dict | None:
     """The old manifest a resumed sweep continues (None: a fresh start); UsageError when the
-    folder holds a sweep and neither flag says what to do with it."""
+    folder holds a sweep and neither flag says what to do with it. With `overwrite`,
+    `discard(old manifest)` removes what the folder holds (default: its chunks)."""
     manifest = out / "manifest.json"
     holds = manifest.is_file() or (out / "chunks").is_dir()
     if not holds:
@@ -31,7 +32,10 @@ def check_start(cfg, out: Path, resume: bool, overwrite: bool) -> dict | None:
     except (json.JSONDecodeError, UnicodeDecodeError):
         old = {}
     if overwrite:
-        shutil.rmtree(out / "chunks", ignore_errors=True)
+        if discard is None:
+            shutil.rmtree(out / "chunks", ignore_errors=True)
+        else:
+            discard(old)
         return None
     if not resume:
         raise UsageError(f"{out} already holds a sweep; pass --resume to continue it or "

@@ -9,6 +9,7 @@ import time
 from pathlib import Path
 
 from stepzoo import environment
+from stepzoo.errors import UsageError
 from stepzoo.results_folder import check_kind, writing
 from stepzoo.validate import DEFAULT_MARGIN
 
@@ -84,10 +85,18 @@ def build(results, out, tuned_path=None, plans_dir=None, progress=False):
     manifest.json; returns (index, summary, shown). `progress`: a line per stage to stderr."""
     # Imported here, not with the module: pandas, matplotlib and plotly take seconds to
     # import, which `stepzoo report --help` (and `stepzoo run` before its sweep) need not wait.
+    from stepzoo.reports import suite_report
     from stepzoo.reports.load import load_plans, load_sweep, load_tuned
     started = environment.now()
     say = _progress(progress)
     sweep_dir, tuned_path, plans_dir = resolve(results, tuned_path, plans_dir)
+    problems = suite_report.suite_problems(sweep_dir)
+    if problems:
+        if tuned_path is not None or plans_dir is not None:
+            raise UsageError(f"{sweep_dir} holds a suite of problems; --tuned and --plans "
+                             "belong with one problem's report: give its folder, such as "
+                             f"{sweep_dir / problems[0]}")
+        return suite_report.build(sweep_dir, out, say)
     out = check_kind(out, "report")
     t0 = time.perf_counter()
     sweep = load_sweep(sweep_dir)

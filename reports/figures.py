@@ -333,9 +333,10 @@ def error_axis(view) -> str:
     return f"worst {view.error_label} over the envelope{unit}"
 
 
-def work_precision(sweep, tuned, out_dir: Path) -> Shown:
-    """Figure 5: worst error (position [m], or the error norm) against RHS evaluations and
-    wall time per simulated second."""
+def work_precision(sweep, tuned, out_dir: Path, number: int = 5,
+                   problem: str | None = None) -> Shown:
+    """Figure 5 (or `number`): worst error (position [m], or the error norm) against RHS
+    evaluations and wall time per simulated second; of one `problem` of a suite when named."""
     view = sweep.view.with_tolerance(tuned)
     tol = tolerance(tuned)
     unit = f" {view.error_unit}" if view.error_unit else ""
@@ -367,8 +368,10 @@ def work_precision(sweep, tuned, out_dir: Path) -> Shown:
                     Line2D([], [], marker="*", color="black", ls="", ms=12, mfc="none")]
         labels += [f"tolerance {tol:g}{unit}", "tuned choice"]
     fig.legend(handles, labels, loc="outside right center", fontsize=8)
-    name = _save(fig, out_dir, "fig5_work_precision.png")
-    caption = (f"Work-precision: worst {view.error_label} over the envelope against cost, one line "
+    name = _save(fig, out_dir, f"fig{number}_work_precision"
+                 + (f"_{problem}" if problem else "") + ".png")
+    caption = ((f"Problem {problem}. " if problem else "")
+               + f"Work-precision: worst {view.error_label} over the envelope against cost, one line "
                "per method, one point per step size (stable at every operating point), against "
                "two costs: right-hand-side evaluations per simulated second, and measured wall "
                "time per simulated second (the fastest of the sweep's timed rounds; the "
@@ -376,7 +379,8 @@ def work_precision(sweep, tuned, out_dir: Path) -> Shown:
                "error is the leftmost line at that height"
                + (", and the tuned choice (star) is the cheapest point under the tolerance "
                   "(dotted) within the stability margin." if tuned else "."))
-    return Shown(5, "Work-precision", caption, [(name, "")])
+    return Shown(number, "Work-precision" + (f": {problem}" if problem else ""), caption,
+                 [(name, "")])
 
 
 def envelope_axes(view, limits):

@@ -46,6 +46,9 @@ def config_path(given) -> Path:
     if not path.is_file():
         raise UsageError(f"sweep config {path} not found; give --config FILE (a sweep TOML, "
                          "e.g. bench/configs/small.toml)")
+    from stepzoo.bench.sweep_config import check_one_problem
+    from stepzoo.validate import read_toml
+    check_one_problem(read_toml(path, "sweep config", "give --config FILE"), path)
     return path
 
 

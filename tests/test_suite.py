@@ -4,6 +4,7 @@ problem into a folder of its own (an ordinary sweep folder) and writes their tab
 with a `problem` column and the orders table; commands that read one problem refuse a suite
 in one line."""
 import json
+from pathlib import Path
 
 import numpy as np
 import pandas as pd
@@ -17,9 +18,26 @@ from stepzoo.dynamics import model
 from stepzoo.errors import UsageError
 from stepzoo.integrators import integrate_batch, method
 
+CONFIGS = Path(__file__).resolve().parents[1] / "bench" / "configs"
 SUBSET = ["detest_a1", "detest_b1", "detest_d1", "detest_e1"]
 METHODS = ["euler", "rk4", "ab3", "trapezoidal"]
 FINEST = 20 * 2 ** 13        # steps over [0, 20] of the finest grid step
+
+
+def test_the_shipped_suites_cover_the_standard_sets():
+    """Every config in bench/configs loads; DETEST A, B, D, E and the stiff set run whole, the
+    dynamic bicycle with each tyre law, each over its published interval."""
+    for path in CONFIGS.glob("*.toml"):
+        load(path)
+    detest = load(CONFIGS / "detest.toml")
+    assert {f"detest_{c}{i}" for c in "abde" for i in range(1, 6)} <= set(detest.labels)
+    assert all(cfg.horizon == 20.0 for _, cfg, _ in detest.problems)
+    stiff = load(CONFIGS / "stiff.toml")
+    assert {"robertson", "vdp1000", "hires", "stiff_linear"} <= set(stiff.labels)
+    assert [cfg.horizon for _, cfg, _ in stiff.problems] == [
+        model(label).t_span[1] for label in stiff.labels]
+    tyres = load(CONFIGS / "tyre_laws.toml")
+    assert [cfg.spec.tyre for _, cfg, _ in tyres.problems] == ["linear", "pacejka", "fiala"]
 
 
 @pytest.mark.parametrize("problem", SUBSET)
@@ -144,6 +162,9 @@ def test_a_suite_is_refused_where_one_problem_is_read(suite, capsys):
     assert len(err.splitlines()) == 1 and "suite of 2 problems" in err
     assert stepzoo(["sweep", cfg.source, "--out", str(out)]) == 2      # it holds a sweep
     assert "--resume" in capsys.readouterr().err
+    assert stepzoo(["run", "--config", cfg.source, "--out", str(out.parent / "run")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "suite of 2 problems" in err
 
 
 def test_a_resumed_suite_computes_nothing_again(suite):
@@ -166,3 +187,17 @@ def test_a_bad_problem_is_one_line_naming_it(tmp_path, capsys, edit, message):
     err = capsys.readouterr().err.strip()
     assert message in err and len(err.splitlines()) == 1
     assert not (tmp_path / "o").exists()
+
+
+def test_suite_report_gives_the_orders_and_work_precision_per_problem(suite, tmp_path):
+    from stepzoo.reports.cmd_report import build
+    cfg, out, _ = suite
+    index, md, shown = build(out, tmp_path / "report")
+    assert [s.title for s in shown] == [f"Work-precision: {p}" for p in cfg.labels]
+    assert all((tmp_path / "report" / name).is_file() for s in shown for name, _ in s.images)
+    text = md.read_text()
+    summary = pd.read_csv(out / "summary.csv")
+    for _, row in summary.iterrows():
+        assert f"| {row['problem']} | {row['method']} | {row['order_declared']} |" in text
+    with pytest.raises(UsageError, match="suite of problems; --tuned"):
+        build(out, tmp_path / "other", tuned_path=tmp_path / "tuned.toml")
