@@ -20,8 +20,9 @@ setup: $(STAMP)
 run: $(STAMP)
 	$(BIN)/stepzoo run --out results
 
+# One worker per core; a file's tests stay on one worker, so its module fixtures run once.
 test: $(STAMP)
-	$(BIN)/python -m pytest
+	$(BIN)/python -m pytest -n auto --dist loadfile
 
 bench: $(STAMP)
 	$(BIN)/pip install --quiet -e ".[bench]"

@@ -1,4 +1,7 @@
+import atexit
 import os
+import shutil
+import tempfile
 
 from stepzoo.bench.cli import with_xla_option
 
@@ -7,6 +10,11 @@ from stepzoo.bench.cli import with_xla_option
 # compiled, hence the rounding), set before JAX starts, and float64. The library itself
 # changes no JAX setting; the tests ask for these as any caller would.
 os.environ["XLA_FLAGS"] = with_xla_option(os.environ.get("XLA_FLAGS", ""))
+# Commands run by the tests (in-process or as subprocesses) keep JAX's compiled programs in a
+# folder of this test session, not in the user's cache: the suite neither reads programs an
+# older stepzoo compiled nor leaves its own behind.
+os.environ["STEPZOO_CACHE_DIR"] = tempfile.mkdtemp(prefix="stepzoo-test-cache-")
+atexit.register(shutil.rmtree, os.environ["STEPZOO_CACHE_DIR"], ignore_errors=True)
 
 import jax  # noqa: E402
 import numpy as np  # noqa: E402
