@@ -27,6 +27,8 @@ COMMANDS = {
     "plan-bench": ("stepzoo.search.cmd_plan_bench", "plan a file of queries N times: a table "
                    "and OMPL benchmark logs"),
     "report": ("stepzoo.reports.cmd_report", "build the HTML report from result folders"),
+    "serve": ("stepzoo.search.cmd_serve", "keep a planner warm for `stepzoo plan --server`: "
+              "no start-up per plan"),
 }
 # Commands that run long enough to show progress: they take --no-progress and -q.
 LONG = ("run", "sweep", "plan", "report")
@@ -143,16 +145,27 @@ def main(argv=None) -> int:
         chosen = None
     # Before any subcommand module is imported: XLA reads its flags when JAX starts.
     os.environ["XLA_FLAGS"] = with_xla_option(os.environ.get("XLA_FLAGS", ""))
-    args = build_parser(chosen).parse_args(argv)
+    return run(build_parser(chosen).parse_args(argv), argv)
+
+
+def run(args, argv=None) -> int:
+    """Run the command parsed into `args`: here, or with `plan --server PATH` in the `stepzoo
+    serve` process at PATH, which is sent `argv` (then this process never imports JAX)."""
+    served = getattr(args, "server", None)
     if args.command in LONG:
         args.progress = not (args.no_progress or args.quiet)
-    configure_jax(args.platform)
+    if not served:
+        configure_jax(args.platform)
     stdout, budget = sys.stdout, validate.BUDGET
     sys.stdout = _Stdout(stdout)
     try:
-        if args.command in INTEGRATE:
-            _set_budget(args.max_memory, args.max_steps)
-        code = importlib.import_module(COMMANDS[args.command][0]).main(args) or 0
+        if served:
+            from stepzoo.search.plan_request import request
+            code = request(served, argv, args.platform)
+        else:
+            if args.command in INTEGRATE:
+                _set_budget(args.max_memory, args.max_steps)
+            code = importlib.import_module(COMMANDS[args.command][0]).main(args) or 0
         sys.stdout.flush()             # a full stdout fails here, not in a traceback at exit
         return code
     except StdoutError as err:

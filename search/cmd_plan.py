@@ -5,6 +5,7 @@ import argparse
 import csv
 import io
 import json
+import os
 import sys
 import textwrap
 import time
@@ -14,7 +15,7 @@ from pathlib import Path
 from stepzoo import environment
 from stepzoo.errors import UsageError
 from stepzoo.output import atomic_write, text_table, to_json
-from stepzoo.results_folder import check_kind, writing
+from stepzoo.search.plan_request import ENV
 from stepzoo.validate import check
 
 SUMMARY_COLUMNS = ["scenario", "status", "expansions", "nodes", "search_s", "connect_s",
@@ -61,6 +62,11 @@ def add_arguments(p):
                    help="what is printed: a line/table, or JSON")
     p.add_argument("--scheduler", metavar="ADDRESS", help="plan on a Dask cluster, one task "
                    "per scenario: tcp://HOST:8786, or local:N worker processes here")
+    p.add_argument("--server", metavar="SOCKET", default=os.environ.get(ENV) or None,
+                   help="plan in the `stepzoo serve` process listening at the Unix socket "
+                   "SOCKET, which has JAX, the compiled programs and the solvers warm: the same "
+                   f"files, output and exit status, without the start-up (default: ${ENV}; "
+                   "unset or empty: plan in this process)")
 
 
 def _numbers(text, flag):
@@ -135,6 +141,7 @@ def plan(scenarios, out, config=None, seed: int = 0, *, reverse: bool = False,
     goes into `out` itself. `stepzoo plan` and `stepzoo run` call it, e.g.
     `plan([load_scenario("street")], "plans")`."""
     from stepzoo.search.pathfinder import BAD_ENDPOINT
+    from stepzoo.results_folder import check_kind, writing
     from stepzoo.search.planner_config import load_config, with_params
     check("seed", "--seed", seed)
     started = environment.now()

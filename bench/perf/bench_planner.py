@@ -2,9 +2,10 @@
 scenario up before timing it): search, first-solution and connection time per scenario; and
 the start-up of `stepzoo plan` with JAX's compilation cache empty (cold) and filled (warm):
 the whole call, and the time and CPU time before its search starts, beside what importing
-the libraries it needs costs on its own."""
+the libraries it needs costs on its own; and the same call sent to a warm `stepzoo serve`."""
 import json
 import os
+import resource
 import subprocess
 import sys
 import time
@@ -28,7 +29,8 @@ def test_plan_all(benchmark, tmp_path):
 # `stepzoo plan ARGS` in a child that reports on stderr, as the search starts (PathFinder.plan
 # is entered after the map, the config, the compilation and the OCP's build), the clock and
 # its CPU time so far. Patched from inside plan_scenario, once the command has configured
-# JAX: importing cmd_plan first imports no JAX.
+# JAX: importing cmd_plan first imports no JAX. As `stepzoo serve`, the server writes the
+# line to the stderr of the plan it serves: the asking process's.
 SEARCH_STARTS = """
 import json, sys, time
 from stepzoo.search import cmd_plan
@@ -39,7 +41,9 @@ def timed_plan_scenario(*args):
     def plan(self, *a, **k):
         sys.stderr.write("SEARCH_STARTS " + json.dumps([time.time(), time.process_time()]) + "\\n")
         return search(self, *a, **k)
-    PathFinder.plan = plan
+    if not hasattr(search, "timed"):     # a server plans many times: patched once
+        plan.timed = True
+        PathFinder.plan = plan
     return plan_scenario(*args)
 cmd_plan.plan_scenario = timed_plan_scenario
 from stepzoo.bench.cli import main
@@ -99,9 +103,42 @@ def test_plan_start_up(benchmark, tmp_path):
                                            / figures["plan_cold_warmup_s"])
     figures["plan_warm_vs_cold_before_search"] = (figures["plan_warm_before_search_s"]
                                                   / figures["plan_cold_before_search_s"])
+    figures.update(_served(env, tmp_path))
+    figures["plan_served_vs_warm_before_search"] = (figures["plan_served_before_search_s"]
+                                                    / figures["plan_warm_before_search_s"])
     # What is ours of the warm start-up: all but the libraries' own import.
     figures["plan_warm_before_search_ours_s"] = (figures["plan_warm_before_search_s"]
                                                  - figures["import_libraries_s"])
     figures["plan_warm_before_search_ours_cpu_s"] = (figures["plan_warm_before_search_cpu_s"]
                                                      - figures["import_libraries_cpu_s"])
     benchmark.extra_info.update(kind="plan_start_up", figures=figures)
+
+
+def _served(env, tmp_path) -> dict:
+    """`stepzoo plan open_field --server` 3 times to a `stepzoo serve` that has warmed up,
+    each figure's fastest: the whole call, from launch to the search's start (in the server),
+    and the CPU time of the asking process."""
+    sock = tmp_path / "plan.sock"
+    server = subprocess.Popen([sys.executable, "-c", SEARCH_STARTS, "serve", "--socket",
+                               str(sock)], env=env, stdout=subprocess.PIPE,
+                              stderr=subprocess.DEVNULL, text=True)
+    runs = []
+    try:
+        assert "planning" in server.stdout.readline()       # ready: warmed up
+        for i in range(3):
+            cpu0 = resource.getrusage(resource.RUSAGE_CHILDREN)
+            t0 = time.time()
+            proc = subprocess.run([str(STEPZOO), "plan", "open_field", "--out",
+                                   str(tmp_path / f"served{i}"), "--server", str(sock)],
+                                  capture_output=True, text=True, env=env, check=True)
+            wall = time.time() - t0
+            cpu1 = resource.getrusage(resource.RUSAGE_CHILDREN)
+            line = next(ln for ln in proc.stderr.splitlines() if ln.startswith("SEARCH_STARTS "))
+            at = json.loads(line.split(" ", 1)[1])[0]
+            runs.append({"plan_served_wall_s": wall, "plan_served_before_search_s": at - t0,
+                         "plan_served_client_cpu_s": (cpu1.ru_utime + cpu1.ru_stime
+                                                      - cpu0.ru_utime - cpu0.ru_stime)})
+    finally:
+        server.terminate()
+        server.wait()
+    return {k: min(r[k] for r in runs) for k in runs[0]}

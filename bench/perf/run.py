@@ -22,6 +22,8 @@ TARGETS = {"rk4_b1e5_vs_numba_fastmath": (">=", 0.7), "rk4_b1e5_vs_diffrax": (">
            "generic_vs_fast_trig_b1e5": (">=", 0.9),
            # Issue 15: a repeated `stepzoo plan` starts its search well under a second.
            "plan_warm_before_search_s": ("<=", 1.0),
+           # ... and one sent to a warm `stepzoo serve` well under it.
+           "plan_served_before_search_s": ("<=", 0.5),
            # Issue 14: implicit steps at batch 1e4, per right-hand-side evaluation.
            "trapezoidal_b1e4_vs_rk4_per_eval": (">=", 0.25),
            "backward_euler_b1e4_vs_rk4_per_eval": (">=", 0.25)}

@@ -1,0 +1,260 @@
+"""`stepzoo serve`: a long-lived planner process. It plans once to warm up (JAX imported, the
+planner's programs compiled, the connection's solver built, the plotting library loaded), then
+answers `stepzoo plan ... --server SOCKET` requests on a Unix socket, one at a time in order of
+arrival, each run as that command would run in the asking process: in its folder, with its
+command line, its stdout and stderr sent back as written, and its exit status."""
+import os
+import select
+import shlex
+import signal
+import socket
+import stat
+import sys
+import tempfile
+import threading
+import time
+import traceback
+import _thread
+from pathlib import Path
+
+from stepzoo.bench import cli
+from stepzoo.errors import UsageError
+from stepzoo.search.plan_request import ENV, Messages, default_socket, identity, send
+
+WARM_UP_SCENARIO = "open_field"   # planned at start-up: it compiles what every plan uses
+# The signal by which a plan is stopped when its asker goes: its handler raises what Ctrl-C
+# raises. Not SIGINT itself, which a server started in the background may ignore.
+STOP = signal.SIGUSR1
+
+
+def add_arguments(p):
+    p.add_argument("--socket", metavar="PATH", help="Unix socket to listen on (default: "
+                   f"${ENV}, else $XDG_RUNTIME_DIR/stepzoo-plan.sock, else "
+                   "~/.cache/stepzoo/plan.sock); only this user may connect")
+    p.add_argument("--config", metavar="FILE", help="planner config TOML to warm up with "
+                   "(default: the shipped one); requests may name any config")
+
+
+def main(args) -> int:
+    path = Path(args.socket or default_socket()).absolute()
+    listener, inode = _listen(path)
+    signal.signal(STOP, _interrupt)
+    # `kill` (SIGTERM) ends the server as Ctrl-C does, through the `finally` that removes the
+    # socket file; a plan it interrupts is answered by no exit status.
+    signal.signal(signal.SIGTERM, _exit)
+    try:
+        started = time.perf_counter()
+        _warm_up(args.config)
+        sys.stdout.write(f"stepzoo serve: planning for `stepzoo plan ... --server {path}` (or "
+                         f"{ENV}={path}); pid {os.getpid()}, warmed up in "
+                         f"{time.perf_counter() - started:.1f} s; Ctrl-C stops\n")
+        sys.stdout.flush()
+        while True:
+            connection, _ = listener.accept()
+            with connection:
+                _answer(connection)
+    finally:
+        listener.close()
+        if path.exists() and path.stat().st_ino == inode:   # not a successor's socket
+            path.unlink()
+
+
+def _listen(path: Path) -> tuple[socket.socket, int]:
+    """A socket listening at `path` that only this user may connect to, and its inode. A
+    socket file left by a server that died is replaced; anything else there is kept."""
+    if path.is_symlink() or path.exists():
+        if not stat.S_ISSOCK(path.lstat().st_mode):
+            raise UsageError(f"{path} exists and is not a socket; give another --socket")
+        probe = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+        with probe:
+            try:
+                probe.connect(str(path))
+            except ConnectionRefusedError:
+                path.unlink()
+            else:
+                raise UsageError(f"a stepzoo server already listens at {path}; stop it first "
+                                 "or give another --socket")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    listener = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+    umask = os.umask(0o177)          # the file is born rw for the user only: no window open
+    try:
+        listener.bind(str(path))
+    except OSError as err:
+        listener.close()
+        if err.errno is None:        # e.g. "AF_UNIX path too long"
+            raise UsageError(f"cannot listen at {path}: {err}; give a shorter --socket") \
+                from None
+        raise
+    finally:
+        os.umask(umask)
+    listener.listen()
+    return listener, path.stat().st_ino
+
+
+def _warm_up(config) -> None:
+    """Plan WARM_UP_SCENARIO (with `config`) into a temporary folder, nothing printed; a bad
+    config is the one line its plan would print."""
+    with tempfile.TemporaryDirectory(prefix="stepzoo-serve-") as folder:
+        argv = ["plan", WARM_UP_SCENARIO, "--out", folder, "--quiet"]
+        errors = _Captured()
+        stdout, stderr = sys.stdout, sys.stderr
+        sys.stdout, sys.stderr = _Captured(), errors
+        try:
+            code = _plan(argv + (["--config", str(Path(config).absolute())] if config else []))
+        finally:
+            sys.stdout, sys.stderr = stdout, stderr
+    if code not in (0, 1):
+        line = errors.text.strip().splitlines()[-1] if errors.text.strip() else f"status {code}"
+        raise UsageError(f"the warm-up plan failed: {line.removeprefix('stepzoo plan: error: ')}")
+
+
+def _plan(argv: list[str]) -> int:
+    """`stepzoo` with the arguments `argv`, a plan, in this process."""
+    try:
+        args = cli.build_parser("plan").parse_args(argv)
+    except SystemExit as done:       # a bad flag, or --help: argparse has said so
+        return done.code if isinstance(done.code, int) else 2
+    if args.command != "plan":
+        sys.stderr.write(f"stepzoo {args.command}: error: a stepzoo server runs plans only\n")
+        return 2
+    args.server = None
+    return cli.run(args, argv)
+
+
+def _answer(connection: socket.socket) -> None:
+    """Read one request from `connection`, run its plan here, send back what it printed and
+    its exit status. Its folder is the asking process's for the duration, and closing the
+    asking side stops the plan as Ctrl-C would (exit status 130)."""
+    try:
+        asked = Messages(connection).next()
+    except (OSError, ValueError):
+        return                        # not a stepzoo client: nothing to answer
+    if not isinstance(asked, dict) or "argv" not in asked:
+        return
+    mine = identity()
+    if asked.get("stepzoo") != mine:
+        theirs = asked.get("stepzoo") or {}
+        _send(connection, {"refused": (
+            f"the server at {connection.getsockname()} runs stepzoo {mine['version']} from "
+            f"{mine['package']}, this is stepzoo {theirs.get('version')} from "
+            f"{theirs.get('package')}; start a server of this installation")})
+        return
+    home, started = os.getcwd(), time.perf_counter()
+    try:
+        os.chdir(asked["cwd"])
+    except OSError as err:
+        _send(connection, {"refused": f"the server cannot enter {asked['cwd']}: "
+                                      f"{err.strerror}; plan from a folder it can read"})
+        return
+    saved = sys.stdout, sys.stderr, sys.argv
+    sys.stdout, sys.stderr = _Forward(connection, "stdout"), _Forward(connection, "stderr")
+    sys.argv = list(asked.get("command_line") or ["stepzoo"])
+    watch = _Watch(connection)
+    try:
+        code = _stoppable(list(asked["argv"]), watch)
+    finally:
+        sys.stdout, sys.stderr, sys.argv = saved
+        os.chdir(home)
+    _send(connection, {"exit": code})
+    sys.stderr.write(f"stepzoo serve: {shlex.join(asked['argv'])}: exit {code} in "
+                     f"{time.perf_counter() - started:.2f} s"
+                     f"{' (stopped by the asker)' if watch.stopped else ''}\n")
+    if code == cli.INTERRUPTED and not watch.stopped:
+        raise KeyboardInterrupt       # Ctrl-C on the server itself: stop serving
+
+
+def _stoppable(argv: list[str], watch) -> int:
+    """_plan(argv) while `watch` may interrupt it; every interrupt it asks for lands here."""
+    watch.start()
+    try:
+        try:
+            code = _plan(argv)
+        except Exception:            # a bug: reported to the asker, as its own run would
+            sys.stderr.write(traceback.format_exc())
+            code = 1
+        watch.stop()
+        _nothing()                   # an interrupt the watch asked for before it stopped
+    except KeyboardInterrupt:        # a stop that landed outside the command's own handler
+        watch.stop()
+        code = cli.INTERRUPTED
+    return code
+
+
+def _interrupt(signum, frame):
+    raise KeyboardInterrupt
+
+
+def _exit(signum, frame):
+    raise SystemExit(0)
+
+
+def _nothing() -> None:
+    """A call: Python runs the handlers of pending signals (and interrupts) at calls."""
+
+
+def _send(connection, message) -> None:
+    try:
+        send(connection, message)
+    except OSError:
+        pass                          # the asker has gone; nobody is left to tell
+
+
+class _Forward:
+    """A text stream whose writes go to the asker as messages of `key` ("stdout", "stderr");
+    once the asker has gone they are dropped (its closing also stops the plan)."""
+
+    def __init__(self, connection, key: str):
+        self.connection, self.key, self.gone = connection, key, False
+
+    def write(self, text: str) -> int:
+        if text and not self.gone:
+            try:
+                send(self.connection, {self.key: text})
+            except OSError:
+                self.gone = True
+        return len(text)
+
+    def flush(self) -> None:
+        pass
+
+    def isatty(self) -> bool:
+        return False
+
+
+class _Captured:
+    """A text stream that keeps what is written to it."""
+
+    def __init__(self):
+        self.text = ""
+
+    def write(self, text: str) -> int:
+        self.text += text
+        return len(text)
+
+    def flush(self) -> None:
+        pass
+
+
+class _Watch(threading.Thread):
+    """Watches the asker's side of a connection while its plan runs: if it closes (Ctrl-C,
+    or the asking process died), the plan is interrupted as Ctrl-C interrupts a plan."""
+
+    def __init__(self, connection):
+        super().__init__(daemon=True)
+        self.connection, self.lock = connection, threading.Lock()
+        self.done, self.stopped = threading.Event(), False
+
+    def run(self):
+        while not self.done.is_set():
+            readable, _, _ = select.select([self.connection], [], [], 0.1)
+            if readable:
+                with self.lock:
+                    if not self.done.is_set():
+                        self.stopped = True
+                        _thread.interrupt_main(STOP)
+                return
+
+    def stop(self):
+        with self.lock:
+            self.done.set()
+        self.join()
