@@ -33,6 +33,18 @@ NARROWING = ("the grid's bracket [lo, hi] (lo stable, hi not) shrinks to hi / lo
              "block's call has room), later ones gallop away from it, then split the bracket "
              "evenly; h_meas is lo, so ratio 1 means a limit in [h_pred, h_pred (1 + rel_tol))")
 
+REFERENCE_KINDS = {
+    "exact": "the model's closed form (reference.exact)",
+    "implicit": "SciPy's LSODA at reference.rtol/atol, per distinct lane",
+    "adaptive": "adaptive Dormand-Prince 5(4) at reference.rtol/atol, restarted every "
+                f"{REF_WINDOW} output times"}
+
+
+def _reference_kind(cfg: SweepConfig) -> str:
+    if cfg.exact_reference:
+        return "exact"
+    return "implicit" if cfg.spec.stiff else "adaptive"
+
 
 # ---- chunks -----------------------------------------------------------------------------
 
@@ -129,6 +141,8 @@ class _Work:
         import jax.numpy as jnp
         cfg = self.cfg
         x0, u, p = (self.x0, self.u, self.p) if x0 is None else (x0, u, p)
+        if cfg.exact_reference:
+            return self._exact_reference(h, n, len(x0))
         if self.spec.stiff:
             return self._stiff_reference(h, n, x0, u, p)
         fn = _batched_reference(self.spec.rhs, cfg.rtol, cfg.atol)
@@ -146,6 +160,15 @@ class _Work:
                 out[:, j: j + len(window)] = np.asarray(ref.x)[:, : len(window)]
                 ok &= np.asarray(ref.success)
         return out, ok
+
+    def _exact_reference(self, h, n, lanes):
+        """The model's closed form at t = k h [s], k = 0..n, in each of the lanes (the config
+        keeps every lane at the model's own problem, which the closed form solves)."""
+        from stepzoo import dynamics
+        with self.clock("reference_s"):
+            x = dynamics.MODELS[self.spec.name].exact(h * np.arange(n + 1))
+        return np.broadcast_to(np.asarray(x, float), (lanes, n + 1, len(x[0]))).copy(), \
+            np.ones(lanes, bool)
 
     def _stiff_reference(self, h, n, x0, u, p):
         """The reference of a stiff model: SciPy's implicit solver (`solutions.solve`) per
@@ -690,6 +713,7 @@ def _write_manifest(cfg, out: Path, created, done, timing, complete) -> dict:
         "prediction": frozen.RULE,
         "trajectory_point": dict(zip(cfg.spec.variables, cfg.traj_point)),
         "horizon_s": cfg.horizon, "vehicle": cfg.vehicle, "model": cfg.model,
+        "reference": REFERENCE_KINDS[_reference_kind(cfg)],
         "model_spec": schema.model_record(cfg.spec),
         "stepzoo_version": ver, "timing_rounds": cfg.timing_rounds,
         **environment.provenance("sweep", created[1], environment.now() if complete else None),

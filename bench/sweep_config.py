@@ -23,7 +23,7 @@ MAX_GRID = 10_000       # values of one grid, or points of an envelope: more is 
                         # would be allocated before any estimate of the work
 SECTIONS = {
     "steps": {"h"},
-    "reference": {"rtol", "atol"},
+    "reference": {"rtol", "atol", "exact"},
     "stability": {"steps", "growth", "perturbation", "h_probe_max", "rel_tol"},
     "chunks": {"points"},
     "error": {"states", "scales"},
@@ -62,6 +62,7 @@ class SweepConfig:
     max_memory_gib: float | None = field(default=None, compare=False)
     max_steps: float | None = field(default=None, compare=False)
     timing_rounds: int = DEFAULT_ROUNDS    # timed repeats of each accuracy run
+    exact_reference: bool = False  # references from the model's closed form (reference.exact)
 
     @property
     def points(self) -> list[tuple]:
@@ -75,6 +76,8 @@ class SweepConfig:
         """Everything that decides the results (not the file's path or layout)."""
         d = {f.name: getattr(self, f.name) for f in fields(self) if f.name not in
              ("source", "spec", "max_memory_gib", "max_steps")}
+        if not self.exact_reference:       # a sweep from before the key keeps its sha256
+            del d["exact_reference"]
         d["spec"] = self.spec.canonical()
         return d
 
@@ -144,6 +147,11 @@ def validate(raw: dict, source: str = "config") -> SweepConfig:
     ref = sections["reference"]
     rtol = check.ranged("rtol", "reference.rtol", ref.get("rtol", 1e-10))
     atol = check.ranged("atol", "reference.atol", ref.get("atol", 1e-12))
+    exact = ref.get("exact", False)
+    if not isinstance(exact, bool):
+        bad.append(f"{source}: reference.exact must be true or false, got {exact!r}")
+    elif exact and spec is not None:
+        exact = closed_form_problem(spec, source, bad)
     stab = sections["stability"]
     steps = stab.get("steps", 1000)
     if not (isinstance(steps, int) and not isinstance(steps, bool) and 50 <= steps <= 100_000):
@@ -192,6 +200,9 @@ def validate(raw: dict, source: str = "config") -> SweepConfig:
     name = raw.get("name", Path(source).stem)
     if not isinstance(name, str):
         bad.append(f"{source}: name must be a string")
+    if exact is True and spec is not None and tuple(traj_point) not in spec.points:
+        bad.append(f"{source}: reference.exact solves the model's own problem alone; leave "
+                   "[trajectories] at the envelope's values")
     if not bad and spec is not None:
         check_rhs(spec, source)
     if bad:
@@ -200,7 +211,27 @@ def validate(raw: dict, source: str = "config") -> SweepConfig:
                        tuple(hs), float(rtol), float(atol), int(steps), float(growth),
                        float(perturbation), float(h_probe_max), float(rel_tol), int(per_chunk),
                        tuple(traj_point), tuple(float(f) for f in fractions), float(past),
-                       source, *limits, timing_rounds=int(rounds or DEFAULT_ROUNDS))
+                       source, *limits, timing_rounds=int(rounds or DEFAULT_ROUNDS),
+                       exact_reference=exact is True)
+
+
+def closed_form_problem(spec: ModelSpec, source: str, bad: list) -> bool:
+    """Whether the references may be `spec`'s closed form: a built-in test problem that has
+    one, at its own default problem (initial state, inputs, parameters) in every operating
+    point, since the closed form solves that problem alone; appends to `bad` if not."""
+    from stepzoo import dynamics
+    m = dynamics.MODELS.get(spec.name)
+    if m is None or m.exact is None or m.vehicle_params is not None:
+        bad.append(f"{source}: reference.exact needs a built-in test problem with a closed "
+                   f"form; {spec.name} has none (set reference.exact = false)")
+        return False
+    x0, u, p = spec.arrays(spec.points)
+    own = bool((x0 == np.asarray(m.x0, float)).all() and (u == np.asarray(m.u0, float)).all()
+               and all((p[k] == v).all() for k, v in m.params().items()))
+    if not own:
+        bad.append(f"{source}: reference.exact solves {spec.name}'s own problem alone; keep "
+                   "[envelope], [initial] and [params] at its published values")
+    return own
 
 
 def model_spec(raw, sections, source, bad, check) -> tuple[ModelSpec | None, str]:

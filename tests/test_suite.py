@@ -96,6 +96,7 @@ rel_tol = 0.01
 rounds = 1
 [[problem]]
 model = "detest_a1"
+reference.exact = true
 [[problem]]
 name = "b2_short"
 model = "detest_b2"
@@ -126,6 +127,24 @@ def test_each_problem_is_an_ordinary_sweep_with_its_own_settings(suite):
         assert sub["config_sha256"] == manifest["problem_sha256"][label]
     tuned = tune(out / "b2_short", None, 0.2, tol=1e-3)
     assert tuned["method"] in ("rk4", "trapezoidal")
+
+
+def test_an_exact_reference_is_the_closed_form(suite):
+    """A1 (y' = -y) against exp(-t) itself: the sweep's rk4 error at each step is the one
+    computed here from the closed form; B2 kept the adaptive reference."""
+    _, out, _ = suite
+    kinds = {p: json.loads((out / p / "manifest.json").read_text())["reference"]
+             for p in ("detest_a1", "b2_short")}
+    assert kinds["detest_a1"].startswith("the model's closed form")
+    assert kinds["b2_short"].startswith("adaptive Dormand-Prince")
+    runs = pd.read_parquet(out / "detest_a1" / "runs.parquet")
+    rk4 = runs[runs["method"] == "rk4"].sort_values("h")
+    ns = rk4["n_steps"].to_numpy()
+    x = np.asarray(integrate_batch("rk4", model("detest_a1").rhs, np.ones((len(ns), 1)), None,
+                                   {}, rk4["h"].to_numpy(), int(ns.max())).x)[..., 0]
+    err = [np.abs(x[k, : n + 1] - np.exp(-h * np.arange(n + 1))).max()
+           for k, (n, h) in enumerate(zip(ns, rk4["h"]))]
+    assert rk4["err"].to_numpy() == pytest.approx(err, rel=1e-9, abs=1e-16)
 
 
 def test_suite_tables_are_the_problems_tables_with_a_problem_column(suite):
@@ -180,6 +199,9 @@ def test_a_resumed_suite_computes_nothing_again(suite):
     ('model = "detest_a2"\nmethods = ["euler"]', "sets methods, which is the suite's"),
     ('model = "detest_a2"\nhorizon = -1.0', "[problem detest_a2]: horizon"),
     ('name = "a b"\nmodel = "detest_a2"', "name 'a b' must be letters"),
+    ('model = "detest_b1"\nreference.exact = true', "closed form; detest_b1 has none"),
+    ('model = "detest_a2"\nreference.exact = true\nenvelope.y1 = { values = [2.0] }',
+     "keep [envelope], [initial] and [params] at its published values"),
 ])
 def test_a_bad_problem_is_one_line_naming_it(tmp_path, capsys, edit, message):
     (tmp_path / "bad.toml").write_text(SUITE + "[[problem]]\n" + edit + "\n")
