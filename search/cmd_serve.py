@@ -25,6 +25,7 @@ WARM_UP_SCENARIO = "open_field"   # planned at start-up: it compiles what every 
 # The signal by which a plan is stopped when its asker goes: its handler raises what Ctrl-C
 # raises. Not SIGINT itself, which a server started in the background may ignore.
 STOP = signal.SIGUSR1
+REQUEST_S = 10.0                  # [s] a connection has to send its request line
 
 
 def add_arguments(p):
@@ -125,10 +126,12 @@ def _answer(connection: socket.socket) -> None:
     """Read one request from `connection`, run its plan here, send back what it printed and
     its exit status. Its folder is the asking process's for the duration, and closing the
     asking side stops the plan as Ctrl-C would (exit status 130)."""
+    connection.settimeout(REQUEST_S)  # a peer that connects and says nothing blocks no one
     try:
         asked = Messages(connection).next()
     except (OSError, ValueError):
         return                        # not a stepzoo client: nothing to answer
+    connection.settimeout(None)
     if not isinstance(asked, dict) or "argv" not in asked:
         return
     mine = identity()
