@@ -3,6 +3,7 @@ planner's programs compiled, the connection's solver built, the plotting library
 answers `stepzoo plan ... --server SOCKET` requests on a Unix socket, one at a time in order of
 arrival, each run as that command would run in the asking process: in its folder, with its
 command line, its stdout and stderr sent back as written, and its exit status."""
+import io
 import os
 import select
 import shlex
@@ -97,15 +98,16 @@ def _warm_up(config) -> None:
     config is the one line its plan would print."""
     with tempfile.TemporaryDirectory(prefix="stepzoo-serve-") as folder:
         argv = ["plan", WARM_UP_SCENARIO, "--out", folder, "--quiet"]
-        errors = _Captured()
+        errors = io.StringIO()
         stdout, stderr = sys.stdout, sys.stderr
-        sys.stdout, sys.stderr = _Captured(), errors
+        sys.stdout, sys.stderr = io.StringIO(), errors
         try:
             code = _plan(argv + (["--config", str(Path(config).absolute())] if config else []))
         finally:
             sys.stdout, sys.stderr = stdout, stderr
     if code not in (0, 1):
-        line = errors.text.strip().splitlines()[-1] if errors.text.strip() else f"status {code}"
+        said = errors.getvalue().strip()
+        line = said.splitlines()[-1] if said else f"status {code}"
         raise UsageError(f"the warm-up plan failed: {line.removeprefix('stepzoo plan: error: ')}")
 
 
@@ -202,11 +204,14 @@ def _send(connection, message) -> None:
         pass                          # the asker has gone; nobody is left to tell
 
 
-class _Forward:
+class _Forward(io.TextIOBase):
     """A text stream whose writes go to the asker as messages of `key` ("stdout", "stderr");
     once the asker has gone they are dropped (its closing also stops the plan)."""
 
+    encoding = "utf-8"
+
     def __init__(self, connection, key: str):
+        super().__init__()
         self.connection, self.key, self.gone = connection, key, False
 
     def write(self, text: str) -> int:
@@ -217,25 +222,8 @@ class _Forward:
                 self.gone = True
         return len(text)
 
-    def flush(self) -> None:
-        pass
-
-    def isatty(self) -> bool:
-        return False
-
-
-class _Captured:
-    """A text stream that keeps what is written to it."""
-
-    def __init__(self):
-        self.text = ""
-
-    def write(self, text: str) -> int:
-        self.text += text
-        return len(text)
-
-    def flush(self) -> None:
-        pass
+    def writable(self) -> bool:
+        return True
 
 
 class _Watch(threading.Thread):

@@ -4,6 +4,7 @@ asking process imports only the standard library; a server that is not there is 
 import json
 import re
 import select
+import socket
 import subprocess
 import sys
 
@@ -11,6 +12,7 @@ import numpy as np
 import pytest
 
 from stepzoo.bench.cli import main
+from stepzoo.search.plan_request import Messages, identity, send
 from stepzoo.search.planner_config import load_config
 
 # The asking side as a user runs it, then what it imported beyond the interpreter's start and
@@ -97,6 +99,21 @@ def test_bad_input_served_is_the_same_line_and_exit_2(server, monkeypatch, capsy
     assert (served.returncode, served.stdout, served.stderr) == (code, here.out, here.err)
     assert code == 2 and here.err.count("\n") == 1 and "nowhere.npy" in here.err
     assert not (folder / "bad").exists()
+
+
+def test_closing_the_asking_side_stops_the_plan_and_the_server_serves_on(server):
+    sock, folder = server
+    with socket.socket(socket.AF_UNIX, socket.SOCK_STREAM) as asker:
+        asker.connect(str(sock))
+        send(asker, {"argv": ["plan", "--all", "--out", "stopped", "--config", "budget.toml"],
+                     "cwd": str(folder), "command_line": ["stepzoo"], "stepzoo": identity()})
+        asker.shutdown(socket.SHUT_WR)          # what Ctrl-C in `stepzoo plan` does
+        answers, last = Messages(asker), None
+        while (answer := answers.next()) is not None:
+            last = answer
+    assert last == {"exit": 130} and not (folder / "stopped").exists()
+    again, _ = ask(folder, "plan", "nosuch", "--out", "x", "--server", str(sock))
+    assert again.returncode == 2 and "unknown scenario 'nosuch'" in again.stderr
 
 
 def test_no_server_is_one_line_and_exit_2(tmp_path):
