@@ -62,11 +62,13 @@ class Messages:
         return json.loads(self.lines.pop(0))
 
 
-def request(path, argv: list[str], platform: str | None) -> int:
+def request(path, argv: list[str], platform: str | None = None) -> int:
     """Run `stepzoo` with the arguments `argv` (a plan) in the server listening at `path`,
     in this process's folder and with its command line: its stdout and stderr are written
-    here as they come, and its exit status is returned. Ctrl-C cancels the plan on the server
-    and waits for it to stop; a second Ctrl-C stops waiting."""
+    here as they come, and its exit status is returned; a missing server is a UsageError.
+    Ctrl-C cancels the plan on the server and waits for it to stop; a second Ctrl-C stops
+    waiting. `platform` (the --platform flag) is refused: the server has its own. E.g.
+    `request("/tmp/plan.sock", ["plan", "street", "--out", "plan"])`."""
     if platform:
         raise UsageError("--platform does not go with --server: the server computes on the "
                          "platform it was started with (`stepzoo serve --platform NAME`)")
