@@ -74,12 +74,28 @@ def _show_suite(manifest: dict, out) -> None:
           + (": the rest " + ", ".join(f"{s} {n}" for s, n in
                                        off["order_status"].value_counts().items())
              if len(off) else ""))
+    sys.stdout.write("by method: problems that match, and the others (observed order, status)\n"
+                     + text_table(_by_method(summary), ["method", "declared", "matches",
+                                                        "others"]) + "\n")
     print(f"wrote {out}: one sweep folder per problem ({', '.join(manifest['problems'])}), "
           "and all of them in runs.parquet, limits.parquet/csv, summary.parquet/csv, "
           "eigenvalues.parquet, trajectories.parquet (column problem), orders.csv, "
           "manifest.json")
     t = manifest["timing"]
     print(f"timing [s]: total {t['total_s']:.1f} (this call {t['wall_s']:.1f})")
+
+
+def _by_method(summary) -> list[dict]:
+    """One row per method: how many problems match its declared order, and each other
+    problem with its observed order and status."""
+    rows = []
+    for name, own in summary.groupby("method", sort=True):
+        off = own[own["order_status"] != "matches"]
+        rows.append({"method": name, "declared": int(own["order_declared"].iloc[0]),
+                     "matches": f"{len(own) - len(off)}/{len(own)}",
+                     "others": "; ".join(f"{r.problem} {r.order_fit_median:.2f} "
+                                         f"{r.order_status}" for r in off.itertuples())})
+    return rows
 
 
 def main(args) -> int:

@@ -22,7 +22,7 @@ from stepzoo.bench.timing import per_step
 from stepzoo.errors import UsageError
 from stepzoo.output import atomic_write, to_json, write_file
 from stepzoo.results_folder import writing
-from stepzoo.bench.sweep_config import SweepConfig, check_workload
+from stepzoo.bench.sweep_config import ESTIMATES, SweepConfig, check_workload
 
 REF_WINDOW = 64        # output times per reference call: its cost per step grows with them
 TRAJ_SAMPLES = 200     # reference samples of the figure trajectory
@@ -468,7 +468,10 @@ class _Work:
                 pos = np.hypot(d[:, :, spec.states.index("X")], d[:, :, spec.states.index("Y")])
                 col["err_pos"], col["err_final"] = pos.max(axis=1), pos[:, -1]
             with np.errstate(invalid="ignore", over="ignore"):
-                col["err"] = spec.scaled(x - ref).max(axis=1)
+                dev = spec.scaled(x - ref)
+            # A run that left the finite range on the way has no final error to speak of.
+            col["err"] = dev.max(axis=1) if cfg.error_estimate == "max" else \
+                np.where(np.isfinite(dev).all(axis=1), dev[:, -1], np.inf)
             col["evals_per_s"] = evals / (n * h)
             col.update(per_step(walls, n * len(self.x0)))
             col["n_steps"] = n
@@ -714,6 +717,7 @@ def _write_manifest(cfg, out: Path, created, done, timing, complete) -> dict:
         "trajectory_point": dict(zip(cfg.spec.variables, cfg.traj_point)),
         "horizon_s": cfg.horizon, "vehicle": cfg.vehicle, "model": cfg.model,
         "reference": REFERENCE_KINDS[_reference_kind(cfg)],
+        "error_estimate": ESTIMATES[cfg.error_estimate],
         "model_spec": schema.model_record(cfg.spec),
         "stepzoo_version": ver, "timing_rounds": cfg.timing_rounds,
         **environment.provenance("sweep", created[1], environment.now() if complete else None),

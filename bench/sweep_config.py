@@ -26,11 +26,15 @@ SECTIONS = {
     "reference": {"rtol", "atol", "exact"},
     "stability": {"steps", "growth", "perturbation", "h_probe_max", "rel_tol"},
     "chunks": {"points"},
-    "error": {"states", "scales"},
+    "error": {"states", "scales", "estimate"},
     "limits": {"memory_gib", "steps"},
     "timing": {"rounds"},
 }
 DEFAULT_ROUNDS = 5     # timed repeats of each accuracy run, after its compilation
+ESTIMATES = {          # [error] estimate: which times of a run its error `err` is taken over
+    "max": "the largest scaled error over every step of the run",
+    "final": "the scaled error at the end of the horizon (as the Test Set for IVP Solvers "
+             "and DiffEqDevTools' error_estimate = :final)"}
 MODEL_KEYS = {"rhs", "path", "states", "inputs"}
 
 
@@ -63,6 +67,7 @@ class SweepConfig:
     max_steps: float | None = field(default=None, compare=False)
     timing_rounds: int = DEFAULT_ROUNDS    # timed repeats of each accuracy run
     exact_reference: bool = False  # references from the model's closed form (reference.exact)
+    error_estimate: str = "max"    # a key of ESTIMATES
 
     @property
     def points(self) -> list[tuple]:
@@ -76,8 +81,11 @@ class SweepConfig:
         """Everything that decides the results (not the file's path or layout)."""
         d = {f.name: getattr(self, f.name) for f in fields(self) if f.name not in
              ("source", "spec", "max_memory_gib", "max_steps")}
-        if not self.exact_reference:       # a sweep from before the key keeps its sha256
+        # A sweep from before these keys keeps its sha256.
+        if not self.exact_reference:
             del d["exact_reference"]
+        if self.error_estimate == "max":
+            del d["error_estimate"]
         d["spec"] = self.spec.canonical()
         return d
 
@@ -195,6 +203,10 @@ def validate(raw: dict, source: str = "config") -> SweepConfig:
     for key, value in zip(("limits.memory_gib", "limits.steps"), limits):
         if value is not None and not (is_num(value) and value > 0):
             bad.append(f"{source}: {key} must be a number > 0, got {value!r}")
+    estimate = sections["error"].get("estimate", "max")
+    if estimate not in ESTIMATES:
+        bad.append(f"{source}: error.estimate must be one of {', '.join(map(repr, ESTIMATES))}"
+                   f", got {estimate!r}")
     rounds = check.ranged("rounds", "timing.rounds",
                           sections["timing"].get("rounds", DEFAULT_ROUNDS))
     name = raw.get("name", Path(source).stem)
@@ -212,7 +224,7 @@ def validate(raw: dict, source: str = "config") -> SweepConfig:
                        float(perturbation), float(h_probe_max), float(rel_tol), int(per_chunk),
                        tuple(traj_point), tuple(float(f) for f in fractions), float(past),
                        source, *limits, timing_rounds=int(rounds or DEFAULT_ROUNDS),
-                       exact_reference=exact is True)
+                       exact_reference=exact is True, error_estimate=estimate)
 
 
 def closed_form_problem(spec: ModelSpec, source: str, bad: list) -> bool:

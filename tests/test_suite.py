@@ -34,8 +34,10 @@ def test_the_shipped_suites_cover_the_standard_sets():
     assert all(cfg.horizon == 20.0 for _, cfg, _ in detest.problems)
     stiff = load(CONFIGS / "stiff.toml")
     assert {"robertson", "vdp1000", "hires", "stiff_linear"} <= set(stiff.labels)
-    assert [cfg.horizon for _, cfg, _ in stiff.problems] == [
-        model(label).t_span[1] for label in stiff.labels]
+    horizons = {label: cfg.horizon for label, cfg, _ in stiff.problems}
+    vdp = horizons.pop("vdp1000")       # its slow branch: the first jump comes at 0.807 mu
+    assert vdp < (1.5 - np.log(2)) * model("vdp1000").params()["mu"]
+    assert horizons == {label: model(label).t_span[1] for label in horizons}
     tyres = load(CONFIGS / "tyre_laws.toml")
     assert [cfg.spec.tyre for _, cfg, _ in tyres.problems] == ["linear", "pacejka", "fiala"]
 
@@ -101,6 +103,7 @@ reference.exact = true
 name = "b2_short"
 model = "detest_b2"
 horizon = 4.0
+error.estimate = "final"
 steps.h = { min = 0.02, max = 0.2, num = 4 }
 """
 
@@ -145,6 +148,24 @@ def test_an_exact_reference_is_the_closed_form(suite):
     err = [np.abs(x[k, : n + 1] - np.exp(-h * np.arange(n + 1))).max()
            for k, (n, h) in enumerate(zip(ns, rk4["h"]))]
     assert rk4["err"].to_numpy() == pytest.approx(err, rel=1e-9, abs=1e-16)
+
+
+def test_a_final_error_estimate_is_the_error_at_the_horizon(suite):
+    """B2 with error.estimate = "final": each rk4 run's err is its distance from B2's closed
+    form at t = 4 s (the reference's own error, 1e-12, is far below rk4's)."""
+    _, out, _ = suite
+    manifest = json.loads((out / "b2_short" / "manifest.json").read_text())
+    assert manifest["error_estimate"].startswith("the scaled error at the end")
+    runs = pd.read_parquet(out / "b2_short" / "runs.parquet")
+    rk4 = runs[runs["method"] == "rk4"].sort_values("h")
+    b2 = model("detest_b2")
+    ns = rk4["n_steps"].to_numpy()
+    x = np.asarray(integrate_batch("rk4", b2.rhs, np.tile(b2.x0, (len(ns), 1)), None, {},
+                                   rk4["h"].to_numpy(), int(ns.max())).x)
+    final = [np.abs(x[k, n] - b2.exact(np.array([0.0, 4.0]))[-1]).max()
+             for k, n in enumerate(ns)]
+    assert rk4["err"].to_numpy() == pytest.approx(final, rel=1e-4)
+    assert (rk4["err"] < rk4[["err_y1", "err_y2", "err_y3"]].max(axis=1)).all()
 
 
 def test_suite_tables_are_the_problems_tables_with_a_problem_column(suite):
@@ -194,12 +215,29 @@ def test_a_resumed_suite_computes_nothing_again(suite):
     assert {p: p.stat().st_mtime_ns for p in out.glob("*/chunks/*")} == before
 
 
+def test_the_suite_output_counts_each_methods_matching_problems(suite, capsys):
+    """The text output's by-method table: per method, the problems whose summary says
+    "matches", and every other problem with its observed order and status."""
+    cfg, out, _ = suite
+    assert stepzoo(["sweep", cfg.source, "--out", str(out), "--resume", "-q"]) == 0
+    text = capsys.readouterr().out
+    table = text.split("by method:")[1].splitlines()[2:2 + len(cfg.methods)]
+    summary = pd.read_csv(out / "summary.csv")
+    for line, (name, own) in zip(table, summary.groupby("method")):
+        matching = (own["order_status"] == "matches").sum()
+        assert line.split()[:3] == [name, str(own["order_declared"].iloc[0]),
+                                    f"{matching}/{len(own)}"]
+        for r in own[own["order_status"] != "matches"].itertuples():
+            assert f"{r.problem} {r.order_fit_median:.2f} {r.order_status}" in line
+
+
 @pytest.mark.parametrize("edit, message", [
     ('name = "detest_a1"\nmodel = "detest_a2"', "two problems are named 'detest_a1'"),
     ('model = "detest_a2"\nmethods = ["euler"]', "sets methods, which is the suite's"),
     ('model = "detest_a2"\nhorizon = -1.0', "[problem detest_a2]: horizon"),
     ('name = "a b"\nmodel = "detest_a2"', "name 'a b' must be letters"),
     ('model = "detest_b1"\nreference.exact = true', "closed form; detest_b1 has none"),
+    ('model = "detest_b1"\nerror.estimate = "l2"', "error.estimate must be one of 'max', "),
     ('model = "detest_a2"\nreference.exact = true\nenvelope.y1 = { values = [2.0] }',
      "keep [envelope], [initial] and [params] at its published values"),
 ])
