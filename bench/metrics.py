@@ -17,14 +17,17 @@ BLOWUP_RULE = ("A stability run starts from the operating point's initial state 
 ERR_CEIL = 1.0            # errors this many times the solution's size are not asymptotic
 FLOOR_FACTOR = 10.0       # errors below this many reference tolerances are not the method's
 SLOPE_SPREAD = 0.1        # local slopes of one asymptotic range differ by at most this
+MIN_SLOPE = 0.5           # a range starts where local slopes are at least this (every method
+                          # here has order >= 1): below, the error is not the method's own
 ORDER_TOL = 0.2           # an observed order this close to the declared one matches it
 ORDER_RULE = (f"slope of log err on log h over the asymptotic range: the finest run of at "
               f"least 3 consecutive usable steps ({FLOOR_FACTOR:g} * (atol + rtol * max|x|) "
-              f"< err < {ERR_CEIL:g} * max|x|) whose local slopes differ by at most "
-              f"{SLOPE_SPREAD:g}, extended to coarser steps while they still do (err and |x|: "
-              "the error states over their scales); order_h_min/order_h_max/order_points record "
-              "the range, order_note why there is none (then the fit is over every usable step, "
-              "or NaN with fewer than 3)")
+              f"< err < {ERR_CEIL:g} * max|x|) whose local slopes are at least {MIN_SLOPE:g} (an "
+              f"error that barely falls, or grows, as h shrinks is round-off accumulating over "
+              f"more steps, not the method's) and differ by at most {SLOPE_SPREAD:g}, extended "
+              "to coarser steps while they still do (err and |x|: the error states over their "
+              "scales); order_h_min/order_h_max/order_points record the range, order_note why "
+              "there is none (then the fit is over every usable step, or NaN with fewer than 3)")
 
 
 @dataclass(frozen=True)
@@ -44,7 +47,7 @@ class OrderFit:
 
 def order_fit(hs, errors, rtol, atol, scale) -> OrderFit:
     """The observed order: slope of log error on log h over the asymptotic range, the finest
-    run of at least 3 consecutive usable steps whose local slopes agree within SLOPE_SPREAD,
+    run of >= 3 consecutive usable steps whose slopes, >= MIN_SLOPE, agree within SLOPE_SPREAD,
     extended to coarser steps while they still agree (local slopes tend to the order as h
     goes to 0, and the finest usable steps are nearest that limit). `hs` [s] and `errors`
     are those of the stable steps. A step is usable when its error is finite and lies above
@@ -68,7 +71,8 @@ def order_fit(hs, errors, rtol, atol, scale) -> OrderFit:
     slopes = np.diff(err) / np.diff(h)
     best = None                                 # (first, last) point of the range
     for i in range(len(h) - 2):
-        if np.ptp(slopes[i:i + 2]) <= SLOPE_SPREAD:
+        first = slopes[i:i + 2]
+        if np.ptp(first) <= SLOPE_SPREAD and first.min() >= MIN_SLOPE:
             j = i + 2
             while j + 1 < len(h) and np.ptp(slopes[i:j + 1]) <= SLOPE_SPREAD:
                 j += 1

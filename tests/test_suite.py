@@ -73,6 +73,10 @@ def test_order_fit_takes_the_asymptotic_range_between_pre_asymptotic_and_floor()
     assert fit.order == pytest.approx(3.0, abs=0.02)
     assert fit.h_max < 0.1 and fit.h_min > hs[-1]          # neither end of the grid
     assert fit.points >= 3
+    # Round-off growing as 1/h (the number of steps) below h = 0.01: slopes of -1 agree too.
+    rising = metrics.order_fit(hs, hs ** 3 + 1e-8 / hs, 1e-30, 1e-30, 1.0)
+    assert rising.note == "asymptotic"
+    assert rising.order == pytest.approx(3.0, abs=0.05) and rising.h_min > 0.02
     sinking = metrics.order_fit(hs, 10.0 ** -np.arange(14.0) * (1 + (np.arange(14) % 2)),
                                 1e-30, 1e-30, 1.0)            # local slopes alternate
     assert sinking.note.startswith("no asymptotic range")
