@@ -279,3 +279,23 @@ def test_every_shared_map_loads_with_plausible_size_and_free_space(path):
                                    ymin + (np.arange(rows) + 0.5) * omap.resolution), -1)
     # Cell centres are free exactly where the grid says so.
     assert np.array_equal(omap.is_free(centres), ~omap.occupied)
+
+
+def test_a_grid_seen_before_reuses_its_distance_field_and_a_changed_one_gets_its_own(tmp_path):
+    """A server plans on the same map file again and again: the field is transformed once,
+    and a file changed in between (same name, same size) never gets the old field."""
+    from stepzoo.search.maps import _grid_distance
+    grid = np.zeros((30, 40), bool)
+    grid[10:20, 15:25] = True
+    np.save(tmp_path / "site.npy", grid)
+    first = load_map(tmp_path / "site.npy", cell_size=0.5)
+    hits = _grid_distance.cache_info().hits
+    again = load_map(tmp_path / "site.npy", cell_size=0.25)
+    assert _grid_distance.cache_info().hits == hits + 1
+    np.testing.assert_array_equal(again.distance, first.distance / 2)   # same cells, half size
+    grid[0, 0] = True
+    np.save(tmp_path / "site.npy", grid)
+    changed = load_map(tmp_path / "site.npy", cell_size=0.5)
+    assert changed.distance[1, 1] == 0 and first.distance[1, 1] > 0      # cell (0, 0)
+    xy = np.array([[0.3, 0.3], [1.0, 0.8], [12.0, 4.0]])
+    assert np.all(changed.clearance(xy) <= true_clearance(grid, 0.5, (0.0, 0.0), xy) + 1e-12)
