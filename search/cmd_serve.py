@@ -170,9 +170,9 @@ def _answer(connection: socket.socket) -> None:
 
 def _stoppable(argv: list[str], watch) -> int:
     """_plan(argv) while `watch` may interrupt it; every interrupt it asks for lands here."""
-    watch.start()
     try:
         try:
+            watch.start()             # inside: an asker gone already is seen at once
             code = _plan(argv)
         except Exception:            # a bug: reported to the asker, as its own run would
             sys.stderr.write(traceback.format_exc())
