@@ -40,7 +40,7 @@ def server(tmp_path_factory):
     shipped = load_config()
     # An expansion budget: the plan cannot depend on how fast the machine is.
     (folder / "budget.toml").write_text(f'method = "{shipped.method}"\nh = {shipped.h!r}\n'
-                                        "[planner]\nmax_expansions = 120\n")
+                                        "[planner]\nmax_expansions = 60\n")
     sock = folder / "plan.sock"
     proc = subprocess.Popen([sys.executable, "-m", "stepzoo", "serve", "--socket", str(sock),
                              "--config", str(folder / "budget.toml")], stdout=subprocess.PIPE,
