@@ -15,6 +15,9 @@ os.environ["XLA_FLAGS"] = with_xla_option(os.environ.get("XLA_FLAGS", ""))
 # older stepzoo compiled nor leaves its own behind.
 os.environ["STEPZOO_CACHE_DIR"] = tempfile.mkdtemp(prefix="stepzoo-test-cache-")
 atexit.register(shutil.rmtree, os.environ["STEPZOO_CACHE_DIR"], ignore_errors=True)
+# A `stepzoo serve` the developer keeps for their own plans (STEPZOO_SERVER) would receive the
+# tests' plans: they plan in their own process unless a test starts a server itself.
+os.environ.pop("STEPZOO_SERVER", None)
 
 import jax  # noqa: E402
 import numpy as np  # noqa: E402
