@@ -67,6 +67,7 @@ def bench_rows(queries, config, runs, seed, speed):
                 "solution_s": result.solution_s, **metrics,
                 "expansions": result.expansions, "nodes": result.nodes,
                 "budget_bound": result.budget_bound, "lower_bound_m": result.lower_bound_m,
+                "widened": result.widened, "tight_edges": sum(result.path_tight),
                 "connect_attempts": result.connect_attempts,
                 "method": config.method, "h": config.h,
                 "progress": json.dumps(result.progress)})

@@ -16,6 +16,7 @@ from stepzoo.dynamics.kinematic import kinematic_bicycle, kinematic_terms
 from stepzoo.integrators import integrate, method as zoo_method
 from stepzoo.integrators.methods import TABLEAUS
 from stepzoo.integrators.steps import rk_slopes, weighted
+from stepzoo.search.car_bounds import reeds_shepp_words
 
 # Measured on 40 seeded problems (3-30 m, arbitrary headings, start speed 0-10 m/s, N=50,
 # rk4, 2-core CPU, before the IPOPT options below): in a 120 m box, multiple shooting solved
@@ -35,7 +36,7 @@ A_MAX = 4.0            # [m/s^2]
 TF_BOUNDS = (0.1, 30.0)  # [s]; the lower bound keeps dt = t_f/N away from zero
 THETA_MARGIN = 2 * pi  # [rad] beyond the start and goal headings: room for one loop, no more
 END_TOL = 1e-6         # [m, rad, m/s] end-constraint residual accepted as success
-MAX_TRIES = 3          # solves, one per heading winding, before a connection is given up
+MAX_TRIES = 3          # solves (one per winding and first direction) before giving up
 
 
 @dataclass(frozen=True)
@@ -135,6 +136,15 @@ def _advance(pose, sign, length, radius):
                      y + sign * radius * (np.cos(th) - np.cos(th + dth)), th + dth])
 
 
+def _arrives(start, segs, goal, radius) -> bool:
+    """Whether driving `segs` (turn sign, signed length [m]) from `start` ends at `goal`."""
+    pose = start
+    for sign, length in segs:
+        pose = _advance(pose, sign, length, radius)
+    miss = np.r_[pose[:2] - goal[:2], np.sin((pose[2] - goal[2]) / 2)]
+    return bool(np.abs(miss).max() < 1e-6 * (1 + radius))
+
+
 def dubins_paths(start, goal, radius):
     """Forward paths of curvature <= 1/radius (Dubins 1957) from pose `start` to `goal`
     ([X, Y, theta], [m, rad]), shortest first: lists of (turn sign, length [m]). Each word of
@@ -147,22 +157,31 @@ def dubins_paths(start, goal, radius):
     for signs, lengths in _dubins_words(_mod(start[2] - chord), _mod(goal[2] - chord),
                                         np.hypot(dx, dy) / radius):
         segs = [(s, radius * q) for s, q in zip(signs, lengths)]
-        pose = start
-        for s, q in segs:
-            pose = _advance(pose, s, q, radius)
-        miss = np.r_[pose[:2] - goal[:2], np.sin((pose[2] - goal[2]) / 2)]
-        if np.abs(miss).max() < 1e-6 * (1 + radius):
+        if _arrives(start, segs, goal, radius):
             paths.append(segs)
     return sorted(paths, key=lambda segs: sum(q for _, q in segs))
 
 
-def dubins_poses(start, segs, radius, spacing) -> np.ndarray:
-    """(K, 3) poses [X, Y, theta] along the path `segs` (from dubins_paths) from `start`,
-    at most `spacing` [m] apart, both ends included."""
+def reeds_shepp_paths(start, goal, radius):
+    """Paths of curvature <= 1/radius forwards and backwards (Reeds & Shepp 1990) from pose
+    `start` to `goal`, shortest first: lists of (turn sign, signed length [m], negative
+    backwards); each word driven and kept only if it arrives, as dubins_paths."""
+    start, goal = np.asarray(start, float), np.asarray(goal, float)
+    paths = []
+    for ok, segs in reeds_shepp_words(start[None], goal, radius):
+        segs = [(turn, float(q[0])) for turn, q in segs]
+        if ok[0] and _arrives(start, segs, goal, radius):
+            paths.append(segs)
+    return sorted(paths, key=lambda segs: sum(abs(q) for _, q in segs))
+
+
+def path_poses(start, segs, radius, spacing) -> np.ndarray:
+    """(K, 3) poses [X, Y, theta] along the path `segs` (from dubins_paths or
+    reeds_shepp_paths) from `start`, at most `spacing` [m] apart, both ends included."""
     pose = np.asarray(start, float)
     poses = [pose[None]]
     for sign, length in segs:
-        n = max(1, math.ceil(length / spacing))
+        n = max(1, math.ceil(abs(length) / spacing))
         # _advance is elementwise: an array of lengths gives (3, n) poses at once.
         poses.append(_advance(pose, sign, length * np.arange(1, n + 1) / n, radius).T)
         pose = poses[-1][-1]
@@ -187,20 +206,53 @@ def _fastest_profile(s_total, v0, a_max, v_max, v_goal):
     return t1, t1 + cruise, t1 + cruise + t3
 
 
-def _guess(N, segs, radius, start, a_max, v_max, v_goal):
+def _runs(segs) -> list:
+    """The path `segs` as runs driven one way: [(direction +1 or -1, [(turn, length [m])])]."""
+    runs = []
+    for sign, length in segs:
+        if length == 0:
+            continue
+        way = 1 if length > 0 else -1
+        if runs and runs[-1][0] == way:
+            runs[-1][1].append((sign, abs(length)))
+        else:
+            runs.append((way, [(sign, abs(length))]))
+    return runs or [(1, [(0, 0.0)])]
+
+
+def _guess(N, segs, radius, start, a_max, v_max, v_goal, v_back=0.0):
     """Net heading change [rad], t_f [s] and scaled inputs (2, N) of driving the path `segs`
-    of turning radius `radius` [m] at the fastest speed profile. Ignoring the map, this is the
-    continuous optimum for the shortest Dubins path: turning costs no speed in this model."""
+    (signed lengths: backwards below 0) of turning radius `radius` [m] at the fastest speed
+    profile: each run between cusps from rest to rest (the first from the start's speed, after
+    braking to rest straight ahead if the start moves the other way; the last to v_goal), at
+    most v_max forwards and v_back backwards [m/s]. Ignoring the map, this is the continuous
+    optimum for the shortest Dubins path: turning costs no speed in this model."""
     turn = sum(s * q / radius for s, q in segs)
-    t1, t2, tf = _fastest_profile(sum(q for _, q in segs), start[3], a_max, v_max, v_goal)
-    dt = tf / N
-    t_mid = (np.arange(N) + 0.5) * dt
-    acc = np.where(t_mid < t1, 1.0, np.where(t_mid < t2, 0.0, -1.0))
-    v = start[3] + a_max * dt * np.r_[0.0, np.cumsum(acc)]
-    travelled = v[:-1] * dt + a_max * acc * dt ** 2 / 2
-    s_mid = np.r_[0.0, np.cumsum(travelled)][:-1] + v[:-1] * dt / 2 + a_max * acc * dt ** 2 / 8
-    ends = np.cumsum([q for _, q in segs])
-    steer = np.array([s for s, _ in segs], float)[np.minimum(np.searchsorted(ends, s_mid), 2)]
+    runs, plans = _runs(segs), []
+    if start[3] * runs[0][0] < 0:
+        runs.insert(0, (1 if start[3] > 0 else -1, [(0, start[3] ** 2 / (2 * a_max))]))
+    for k, (way, run) in enumerate(runs):
+        v0 = max(way * start[3], 0.0) if k == 0 else 0.0
+        v_end = (None if v_goal is None else max(way * v_goal, 0.0)) if k == len(runs) - 1 \
+            else 0.0
+        plans.append((v0, _fastest_profile(sum(q for _, q in run), v0, a_max,
+                                           v_max if way > 0 else v_back, v_end)))
+    ends = np.cumsum([profile[2] for _, profile in plans])
+    tf = float(ends[-1])
+    t_mid = (np.arange(N) + 0.5) * tf / N
+    steer, acc = np.zeros(N), np.zeros(N)
+    for i, t in enumerate(t_mid):
+        k = min(int(np.searchsorted(ends, t)), len(runs) - 1)
+        way, run = runs[k]
+        v0, (t1, t2, _) = plans[k]
+        tau = t - (ends[k - 1] if k else 0.0)
+        # Distance along the run at tau: accelerate until t1, cruise until t2, then brake.
+        a1, a2, a3 = min(tau, t1), min(max(tau - t1, 0.0), t2 - t1), max(tau - t2, 0.0)
+        peak = v0 + a_max * t1
+        s = v0 * a1 + a_max * a1 ** 2 / 2 + peak * (a2 + a3) - a_max * a3 ** 2 / 2
+        along = np.cumsum([q for _, q in run])
+        steer[i] = run[min(int(np.searchsorted(along, s)), len(run) - 1)][0]
+        acc[i] = way * (1.0 if tau < t1 else 0.0 if tau < t2 else -1.0)
     return turn, tf, np.vstack([steer, acc])
 
 
@@ -295,14 +347,17 @@ def connect(start, goal, *, L, m, bounds=None, N=50, shooting=DEFAULT_SHOOTING,
     ([m, m, rad, m/s]), N piecewise-constant input intervals of dt = t_f/N.
 
     L [m] wheelbase, m [kg] mass; bounds (Xmin, Xmax, Ymin, Ymax) [m] or None; goal_speed
-    [m/s] or None (free); v_min <= v <= v_max [m/s] (v_min < 0 lets the car reverse), |delta| <= delta_max [rad],
+    [m/s] or None (free); v_min <= v <= v_max [m/s] (v_min < 0 lets the car reverse),
+    |delta| <= delta_max [rad],
     |F| <= m a_max [N]; tf_bounds (lo, hi) [s], default TF_BOUNDS. The paper leaves F
     free, which makes minimum time degenerate (t_f -> 0 with unbounded force), hence a_max.
 
-    The guess drives a Dubins path, which fixes how often the heading winds: the goal
+    The guess drives a Dubins path, or with v_min < 0 a Reeds-Shepp path too (its cusps at
+    rest, backwards at most -v_min), which fixes how often the heading winds: the goal
     heading is unwrapped after the path's net turn and theta is bounded THETA_MARGIN beyond
-    start and goal. The shortest path is tried first; if IPOPT fails (a map bound may cut
-    that path), the shortest path of each other winding is tried, up to MAX_TRIES solves.
+    start and goal. The fastest guess is tried first; if IPOPT fails (a map bound may cut
+    that path), the fastest of each other winding and first direction of travel is tried,
+    up to MAX_TRIES solves.
     Never raises for an infeasible problem: `success` is False and the arrays hold IPOPT's
     last iterate. The cached solver makes this function not thread-safe."""
     t0 = perf_counter()
@@ -318,14 +373,21 @@ def connect(start, goal, *, L, m, bounds=None, N=50, shooting=DEFAULT_SHOOTING,
     v_goal = [] if goal_speed is None else [goal_speed]
     radius = L / np.tan(delta_max)
     goal_local = np.array([*(goal[:2] - origin), goal[2]])
+    paths = dubins_paths(x0[:3], goal_local, radius)
+    if v_min < 0:
+        paths += reeds_shepp_paths(x0[:3], goal_local, radius)
+    # Fastest guess first; forwards only, that is the shortest Dubins path first.
+    guesses = sorted(((_guess(N, segs, radius, x0, a_max, v_max, goal_speed, -v_min),
+                       _runs(segs)[0][0]) for segs in paths), key=lambda pair: pair[0][1])
     tried = set()
-    for segs in dubins_paths(x0[:3], goal_local, radius):
-        turn, tf_g, u_g = _guess(N, segs, radius, x0, a_max, v_max, goal_speed)
+    for (turn, tf_g, u_g), way in guesses:
         theta_g = unwrap(goal[2], start[2] + turn)
         winding = round((theta_g - goal[2]) / (2 * pi))
-        if winding in tried:
+        # One try per heading winding and first direction of travel.
+        key = (winding, way)
+        if key in tried:
             continue
-        tried.add(winding)
+        tried.add(key)
         p = np.r_[x0, goal_local[:2], theta_g, L, m, delta_max, a_max, v_goal]
         lo = np.array([box[0], box[2], min(start[2], theta_g) - THETA_MARGIN, v_min])
         hi = np.array([box[1], box[3], max(start[2], theta_g) + THETA_MARGIN, v_max])

@@ -16,7 +16,8 @@ from scipy.sparse.csgraph import dijkstra
 
 from stepzoo import dynamics
 from stepzoo.search.car_bounds import dubins_length, reeds_shepp_length
-from stepzoo.search.connect import Connection, connect, dubins_paths, dubins_poses
+from stepzoo.search.connect import (Connection, connect, dubins_paths, path_poses,
+                                    reeds_shepp_paths)
 from stepzoo.search.departure import boxed_in, turned
 from stepzoo.search.footprint import Footprint, first_collision, poses_collide
 from stepzoo.search.maps import SUBDIV, OccupancyMap
@@ -42,7 +43,8 @@ CAUSES = (*BAD_ENDPOINT, "walled_off", *BOXED_IN, "exhausted", "budget", "connec
 class PlanResult:
     """What a plan found. `path_edges` are the tree shootings from the start to the node the
     path ends at (each (n_steps+1, 5) [X, Y, psi, vy, r] at steps of h), `path_steers` their
-    constant steers [rad], `connection` the OCP segment to the goal (exact plans only)."""
+    constant steers [rad], `path_tight` whether each is a tight move (kinematic bicycle),
+    `connection` the OCP segment to the goal (exact plans only)."""
     status: str                   # exact | approximate | no_path
     reason: str
     start: np.ndarray             # [X, Y, psi]
@@ -68,6 +70,10 @@ class PlanResult:
     # [m] no path from start to goal is shorter (geodesic and the car's turning bound):
     # path_length / lower_bound_m bounds how far from the shortest a plan can be.
     lower_bound_m: float = 0.0
+    # Whether the tree, exhausted with its own moves, was widened by tight moves (the
+    # kinematic bicycle at parking speed, full lock included), and which path edges are.
+    widened: bool = False
+    path_tight: list = field(default_factory=list)
 
     def path_length(self) -> float:
         """[m] along the tree edges and the connection."""
@@ -104,6 +110,11 @@ class PathFinder:
         self.back_shooter = Shooter(
             omap, self.footprint, self.vehicle["name"], self.vx, config.method, config.h,
             config.n_steps, batch, prm["delta_max"], reverse=True) if prm["reverse"] else None
+        # Tight moves, for when the tree exhausts unsolved: forwards on the kinematic bicycle
+        # at a fan of steers out to full lock (compiled only if a search needs them).
+        self.tight_shooter = Shooter(omap, self.footprint, self.vehicle["name"], self.vx,
+                                     config.method, config.h, config.n_steps, batch,
+                                     prm["delta_max"], tight=True)
 
     def warm_up(self, goal_speed_fixed=False) -> float:
         """Compile the driver and build the OCP once, so timed plans measure planning [s]."""
@@ -255,7 +266,9 @@ class _Search:
     Before the first solution the search is best-first on f = g + H with H the geodesic
     lattice distance to the goal; a shooting that collides keeps its collision-free first part
     (at least a quarter of the horizon) as a node, so a car facing a wall still moves; when the
-    heap empties the pruning cells are halved (REFINE times) and every node is expanded again.
+    heap empties the pruning cells are halved (REFINE times) and every node is expanded again;
+    if it empties once more, every node is expanded again with tight moves too (the kinematic
+    bicycle, which turns at L / tan(delta_max) where the dynamic model at vx understeers).
     After it, nodes that cannot beat the best path (g + a lower bound of the rest) are dropped
     and connections that would shorten it are tried, until no node is left, improve_expansions
     expansions pass without a shorter path, or the budget ends."""
@@ -277,6 +290,7 @@ class _Search:
         self.car = [float(self._car_bound(start[None])[0])]
         self.edges, self.steers = [None], [0.0]
         self.direction = [0]  # +1 forwards, -1 backwards, 0 the start (either way)
+        self.tight = [False]  # whether a node's edge is a tight move
         self.seen = {self._cell(root, 0)}
         self.tried: set[int] = set()
         self.cheap: set[int] = set()  # tried nodes whose every Dubins path collides: no OCP
@@ -363,10 +377,15 @@ class _Search:
                 if not math.isfinite(self.best) and self.level < REFINE:
                     heap = self._refine()
                     continue
+                if not math.isfinite(self.best) and not res.widened:
+                    res.widened = True
+                    heap = self._requeue()
+                    continue
                 res.cause = res.cause or "exhausted"
                 ended = ("no node left that could shorten the path" if res.cause == "connected"
                          else f"search exhausted: every reachable pruning cell of "
-                         f"{self.cell_xy:g} m and {self.cell_heading:.3g} rad was expanded")
+                         f"{self.cell_xy:g} m and {self.cell_heading:.3g} rad was expanded, "
+                         "tight moves (the kinematic bicycle out to full lock) included")
                 break
             nodes = self._pop(heap, min(prm["batch_nodes"],
                                         prm["max_expansions"] - res.expansions))
@@ -408,6 +427,10 @@ class _Search:
         self.cell_xy /= 2
         self.cell_heading /= 2
         self.seen = {self._cell(s, d) for s, d in zip(self.states, self.direction)}
+        return self._requeue()
+
+    def _requeue(self) -> list:
+        """Every node queued again; returns the new heap."""
         heap = []
         for i in range(len(self.states)):
             heap.append((self._f(i), self.pushed, i))
@@ -454,10 +477,21 @@ class _Search:
                 ahead = np.r_[state[:2], state[2] + (0.0 if direction > 0 else math.pi)]
                 points += [point_selector(ahead, prm["arc_radius"], prm["n_arc"],
                                           prm["delta_max"]), randoms[min(k, len(nodes) - 1)]]
-            shots = shooter.shoot(states, np.vstack(points), self.goal)
-            for k, node in enumerate(nodes):
-                part = slice(k * per, (k + 1) * per)
-                new += self._add(node, direction, Shots(*(a[part] for a in shots)))
+            new += self._add_all(nodes, direction, shooter.shoot(states, np.vstack(points),
+                                                                 self.goal))
+        if self.result.widened:
+            fan = np.linspace(-prm["delta_max"], prm["delta_max"], per)
+            shots = self.f.tight_shooter.shoot_steers(states, np.tile(fan, len(rows)), self.goal)
+            new += self._add_all(nodes, 1, shots, tight=True)
+        return new
+
+    def _add_all(self, nodes, direction, shots, tight=False) -> list[int]:
+        """Add the kept shootings of a batch, n_arc + n_random per node of `nodes`."""
+        per = self.prm["n_arc"] + self.prm["n_random"]
+        new = []
+        for k, node in enumerate(nodes):
+            part = slice(k * per, (k + 1) * per)
+            new += self._add(node, direction, Shots(*(a[part] for a in shots)), tight)
         return new
 
     def _guide(self, state) -> np.ndarray:
@@ -478,8 +512,9 @@ class _Search:
             row, col = r0 + k // window.shape[1], c0 + k % window.shape[1]
         return np.array([col, row]) * step + omap.origin
 
-    def _add(self, node, direction, shots) -> list[int]:
-        """Add the kept shootings of `shots`, driven in `direction`, as children of `node`."""
+    def _add(self, node, direction, shots, tight=False) -> list[int]:
+        """Add the kept shootings of `shots`, driven in `direction` (tight moves or not), as
+        children of `node`."""
         last = shots.free - 1  # the last row kept of each shooting
         # Each refinement halves the least prefix too: shorter moves in tight spots.
         least = shots.states.shape[1] // (PREFIX_FRACTION * 2 ** self.level)
@@ -508,14 +543,16 @@ class _Search:
             self.edges.append(shots.states[k, :last[k] + 1])
             self.steers.append(float(shots.steer[k]))
             self.direction.append(direction)
+            self.tight.append(tight)
         return new
 
     def _attempts(self) -> int:
         """Connection attempts that called the OCP."""
         return len(self.tried) - len(self.cheap)
 
-    def _dubins_free(self, node) -> bool:
-        """Whether any Dubins path from the node to the goal is collision-free."""
+    def _car_path_free(self, node) -> bool:
+        """Whether any Dubins path (with reverse gear, also any Reeds-Shepp path) from the node
+        to the goal is collision-free: the paths the connection's guesses drive."""
         radius = self.radius
         # Backwards, the footprint (symmetric about its centre) sweeps what it sweeps driving
         # forwards between the poses turned round.
@@ -524,7 +561,11 @@ class _Search:
         for flip in flips:
             start = self.states[node][:3] + (0.0, 0.0, flip)
             for segs in dubins_paths(start, self.goal[:3] + (0.0, 0.0, flip), radius):
-                paths.append(dubins_poses(start, segs, radius, DUBINS_SPACING))
+                paths.append(path_poses(start, segs, radius, DUBINS_SPACING))
+        if self.prm["reverse"]:
+            start = self.states[node][:3]
+            paths += [path_poses(start, segs, radius, DUBINS_SPACING)
+                      for segs in reeds_shepp_paths(start, self.goal[:3], radius)]
         if not paths:
             return False
         # One check of all words: each padded with its last pose to the longest.
@@ -550,10 +591,11 @@ class _Search:
             if self.g[i] + max(self.H[i], self.car[i]) >= self.best * (1 - IMPROVE_TOL):
                 continue
             self.tried.add(i)
-            if not self._dubins_free(i):
-                # The OCP starts from this path and ignores obstacles: it would collide too.
+            if not self._car_path_free(i):
+                # The OCP starts from these paths and ignores obstacles: it would collide too.
                 self.cheap.add(i)
-                self.failures.append("every Dubins path collides")
+                self.failures.append("every Dubins path collides" if not self.prm["reverse"]
+                                     else "every Dubins and Reeds-Shepp path collides")
                 continue
             t0 = perf_counter()
             conn, why = self.f._connect(self.states[i], self.goal, self.goal_speed,
@@ -578,9 +620,11 @@ class _Search:
         return improved
 
     def _set_path(self, node):
-        edges, steers = [], []
+        edges, steers, tight = [], [], []
         while self.parent[node] >= 0:
             edges.append(self.edges[node])
             steers.append(self.steers[node])
+            tight.append(self.tight[node])
             node = self.parent[node]
-        self.result.path_edges, self.result.path_steers = edges[::-1], steers[::-1]
+        res = self.result
+        res.path_edges, res.path_steers, res.path_tight = edges[::-1], steers[::-1], tight[::-1]

@@ -88,6 +88,10 @@ def plan_record(result: PlanResult, scenario: Scenario, config, vehicle: dict, s
             # Which budget cut the search short (null: none, so the plan is reproducible).
             "budget_bound": result.budget_bound,
             "lower_bound_m": result.lower_bound_m,
+            # Whether the tree exhausted its own moves and was widened by tight moves (the
+            # kinematic bicycle at parking speed), and how many of the path's edges are such.
+            "widened": result.widened,
+            "tight_edges": sum(result.path_tight),
             "cusps": cusps(rows),
             "seed": seed,
             "method": config.method,

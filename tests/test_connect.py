@@ -8,8 +8,9 @@ import pytest
 from stepzoo.dynamics.kinematic import kinematic_bicycle
 from stepzoo.dynamics.vehicles import vehicle
 from stepzoo.integrators import integrate, method
-from stepzoo.search.connect import (A_MAX, _fastest_profile, connect, dubins_paths, resimulate,
-                            step_function)
+from stepzoo.search.car_bounds import reeds_shepp_length
+from stepzoo.search.connect import (A_MAX, _fastest_profile, connect, dubins_paths,
+                                    reeds_shepp_paths, resimulate, step_function)
 
 CAR = vehicle("bmw320i")
 L, M = CAR["Lf"] + CAR["Lr"], CAR["m"]
@@ -100,6 +101,33 @@ def test_a_map_bound_across_the_shortest_path_gives_the_other_winding():
     assert free.states[-1, 2] == pytest.approx(-2.0, abs=1e-6)
     assert capped.states[-1, 2] == pytest.approx(-2.0 + 2 * pi_, abs=1e-6)
     assert capped.tf > free.tf
+
+
+@pytest.mark.parametrize("v0, behind, braking_s", [(0.0, 6.0, 0.0), (5.0, 4.0, 1.25)])
+def test_a_goal_behind_in_a_corridor_is_reached_by_reversing_in_minimum_time(v0, behind,
+                                                                               braking_s):
+    # A corridor 4 m wide has no room for a loop (turning radius 2.58 m): only reversing
+    # arrives. The minimum time is braking to rest (v0 / A_MAX, covering v0^2 / (2 A_MAX)
+    # ahead), then the fastest straight drive backwards at most 5 m/s, with a free end speed.
+    start, goal = np.array([0.0, 0.0, 0.0, v0]), np.array([-behind, 0.0, 0.0])
+    c = connect(start, goal, L=L, m=M, v_min=-5.0, bounds=(-10, 4, -2, 2))
+    assert c.success, c.status
+    tf = braking_s + _fastest_profile(behind + v0 ** 2 / (2 * A_MAX), 0.0, A_MAX, 5.0, None)[2]
+    assert tf * (1 - 1e-6) <= c.tf <= tf * (1 + 5e-3)
+    assert c.states[:, 3].min() == pytest.approx(-5.0, abs=1e-6)
+    assert np.abs(c.states[:, 1]).max() <= 2 + 1e-7
+
+
+def test_reeds_shepp_words_drive_to_the_goal_and_the_shortest_is_the_bound():
+    rng = np.random.default_rng(4)
+    radius = L / np.tan(pi_ / 4)
+    for _ in range(100):
+        start, goal = rng.uniform([-9, -9, -pi_], [9, 9, pi_], (2, 3))
+        paths = reeds_shepp_paths(start, goal, radius)  # each kept only if it arrives
+        lengths = [sum(abs(q) for _, q in segs) for segs in paths]
+        assert lengths == sorted(lengths)
+        assert lengths[0] == pytest.approx(reeds_shepp_length(start[None], goal, radius)[0],
+                                           abs=1e-9)
 
 
 def test_single_shooting_holds_the_map_bound_like_multiple():

@@ -60,23 +60,29 @@ def footprint_hits(omap, vehicle, poses, spacing):
 
 
 def dense_check(scenario, result):
-    """Re-simulate every path edge with the adaptive reference and the connection on a ten
-    times finer step; return (collisions, largest joint gap [m], connection miss [m])."""
+    """Re-simulate every path edge with the adaptive reference (tight moves on the kinematic
+    bicycle) and the connection on a ten times finer step; return (collisions, largest joint
+    gap [m], connection miss [m])."""
     vehicle = dynamics.vehicle(scenario.vehicle)
-    model = dynamics.model("dynamic5")
+    model, tight = dynamics.model("dynamic5"), dynamics.model("kinematic")
     p = model.params(scenario.vehicle, scenario.speed)
+    p_tight = tight.params(scenario.vehicle, scenario.speed)
     # Sample the footprint at a quarter cell and the motion so finely that no point of the car
     # moves more than a quarter cell between poses (speed plus rotation of the far corner).
     spacing = min(scenario.omap.resolution / 4, 0.1)
     collisions, joint_gap, previous_end = 0, 0.0, result.path_edges[0][0]
-    for edge, steer in zip(result.path_edges, result.path_steers):
+    for edge, steer, kinematic in zip(result.path_edges, result.path_steers, result.path_tight):
         # An edge may be the collision-free first part of a shooting: its own duration.
         duration = (len(edge) - 1) * result.h
         ts = np.linspace(0.0, duration, int(np.ceil(duration * scenario.speed * 4 / spacing)) + 1)
-        ref = reference(model.rhs, edge[0], np.array([steer]), p, ts, rtol=1e-10, atol=1e-10)
+        if kinematic:
+            ref = reference(tight.rhs, np.r_[edge[0, :3], scenario.speed], np.array([steer, 0.0]),
+                            p_tight, ts, rtol=1e-10, atol=1e-10)
+        else:
+            ref = reference(model.rhs, edge[0], np.array([steer]), p, ts, rtol=1e-10, atol=1e-10)
         xs = np.asarray(ref.x)
         assert bool(ref.success)
-        collisions += int(footprint_hits(scenario.omap, vehicle, xs, spacing).sum())
+        collisions += int(footprint_hits(scenario.omap, vehicle, xs[:, :3], spacing).sum())
         joint_gap = max(joint_gap, float(np.hypot(*(edge[0, :2] - previous_end[:2]))))
         previous_end = xs[-1]
     conn = result.connection
@@ -182,14 +188,33 @@ def test_a_walled_off_goal_is_no_path_without_searching():
 
 def test_a_dead_end_the_car_cannot_turn_in_exhausts_the_search():
     # A 3.5 m wide blind corridor: the corridor check passes (the goal is in the same free
-    # space), but a forward-only car facing the dead end cannot turn round.
+    # space), but a forward-only car facing the dead end cannot turn round, not even with
+    # the tight moves the search widens to.
     occupied = np.ones((60, 100), bool)
     occupied[10:50, 0:30] = False           # a 15 x 20 m yard with the goal
-    occupied[26:33, 30:95] = False           # the corridor, 3.5 m wide, closed at x = 47.5
+    occupied[26:33, 30:70] = False           # the corridor, 3.5 m wide, closed at x = 35
     finder = PathFinder(from_array(occupied, 0.5), CONFIG, None, 5.0)
     result = finder.plan((30.0, 14.75, 0.0), (7.0, 15.0, 0.0))
-    assert (result.status, result.cause) == ("no_path", "exhausted")
+    assert (result.status, result.cause, result.widened) == ("no_path", "exhausted", True)
     assert 0 < result.expansions < CONFIG.params["max_expansions"]
+
+
+def test_a_start_the_tree_cannot_turn_out_of_is_left_by_tight_moves():
+    # Facing a wall 3.5 m ahead at 17 degrees: the dynamic bicycle at 5 m/s understeers to a
+    # 3.3 m turn at full lock and its tree exhausts; the kinematic bicycle (2.6 m at full
+    # lock, what the connection drives) turns out, so the search widens and finds a path
+    # that the dense check re-simulates on each edge's own model.
+    from stepzoo.search.scenarios import Scenario
+    occupied = np.ones((64, 64), bool)
+    occupied[2:62, 2:62] = False            # a 30 x 30 m yard, its far wall at x = 31 m
+    omap = from_array(occupied, 0.5)
+    start, goal = (27.5, 16.0, 0.3), (8.0, 16.0, np.pi)
+    result = PathFinder(omap, CONFIG, None, 5.0).plan(start, goal)
+    assert (result.status, result.widened) == ("exact", True), result.reason
+    assert any(result.path_tight)
+    scenario = Scenario("yard", "", omap, "generated", start, goal, None, None, 5.0)
+    collisions, joint_gap, miss = dense_check(scenario, result)
+    assert (collisions, joint_gap < 1e-3, miss < 1e-3) == (0, True, True)
 
 
 def test_the_expansion_budget_ends_in_the_closest_node():
