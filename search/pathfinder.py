@@ -268,7 +268,8 @@ class _Search:
     (at least a quarter of the horizon) as a node, so a car facing a wall still moves; when the
     heap empties the pruning cells are halved (REFINE times) and every node is expanded again;
     if it empties once more, every node is expanded again with tight moves too (the kinematic
-    bicycle, which turns at L / tan(delta_max) where the dynamic model at vx understeers).
+    bicycle, which turns at L / tan(delta_max) where the dynamic model at vx understeers),
+    which chain until the tree's own moves take over.
     After it, nodes that cannot beat the best path (g + a lower bound of the rest) are dropped
     and connections that would shorten it are tried, until no node is left, improve_expansions
     expansions pass without a shorter path, or the budget ends."""
@@ -291,6 +292,7 @@ class _Search:
         self.edges, self.steers = [None], [0.0]
         self.direction = [0]  # +1 forwards, -1 backwards, 0 the start (either way)
         self.tight = [False]  # whether a node's edge is a tight move
+        self.widened_at = 0   # nodes below this id were there when the search widened
         self.seen = {self._cell(root, 0)}
         self.tried: set[int] = set()
         self.cheap: set[int] = set()  # tried nodes whose every Dubins path collides: no OCP
@@ -377,15 +379,16 @@ class _Search:
                 if not math.isfinite(self.best) and self.level < REFINE:
                     heap = self._refine()
                     continue
-                if not math.isfinite(self.best) and not res.widened:
-                    res.widened = True
+                if not (math.isfinite(self.best) or res.widened) and prm["tight_moves"]:
+                    res.widened, self.widened_at = True, len(self.states)
                     heap = self._requeue()
                     continue
                 res.cause = res.cause or "exhausted"
                 ended = ("no node left that could shorten the path" if res.cause == "connected"
                          else f"search exhausted: every reachable pruning cell of "
                          f"{self.cell_xy:g} m and {self.cell_heading:.3g} rad was expanded, "
-                         "tight moves (the kinematic bicycle out to full lock) included")
+                         + ("tight moves (the kinematic bicycle out to full lock) included"
+                            if res.widened else "tight moves off"))
                 break
             nodes = self._pop(heap, min(prm["batch_nodes"],
                                         prm["max_expansions"] - res.expansions))
@@ -479,10 +482,16 @@ class _Search:
                                           prm["delta_max"]), randoms[min(k, len(nodes) - 1)]]
             new += self._add_all(nodes, direction, shooter.shoot(states, np.vstack(points),
                                                                  self.goal))
-        if self.result.widened:
+        # Tight moves leave the region the tree exhausted: from its nodes and along chains of
+        # tight moves; once a node is reached by the tree's own move, the tree goes on alone.
+        tight = [i for i in nodes if i < self.widened_at or self.tight[i]]
+        if tight:
+            rows = [tight[min(k, len(tight) - 1)] for k in range(prm["batch_nodes"])]
             fan = np.linspace(-prm["delta_max"], prm["delta_max"], per)
-            shots = self.f.tight_shooter.shoot_steers(states, np.tile(fan, len(rows)), self.goal)
-            new += self._add_all(nodes, 1, shots, tight=True)
+            shots = self.f.tight_shooter.shoot_steers(
+                np.repeat(np.array([self.states[i] for i in rows]), per, axis=0),
+                np.tile(fan, len(rows)), self.goal)
+            new += self._add_all(tight, 1, shots, tight=True)
         return new
 
     def _add_all(self, nodes, direction, shots, tight=False) -> list[int]:

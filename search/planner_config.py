@@ -58,6 +58,10 @@ PARAMS = {p.name: p for p in (
     Param("reverse", 0, 0, 1, "1",
           "1: reverse gear (expansions backwards too, the connection may reverse); 0: forward "
           "only, as the paper"),
+    Param("tight_moves", 1, 0, 1, "1",
+          "1: when the tree exhausts unsolved, expand every node again with tight moves too "
+          "(the kinematic bicycle, out to full lock), which chain until the tree's own moves "
+          "take over; 0: the tree's own moves only, as the paper"),
     Param("cusp_cost", 5.0, 0.0, 1000.0, "m",
           "added to the cost g at each change of direction (with reverse = 1)"),
     Param("connect_N", 50, 5, 1000, "1", "input intervals of the connection OCP"),
