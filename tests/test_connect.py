@@ -121,7 +121,7 @@ def test_a_goal_behind_in_a_corridor_is_reached_by_reversing_in_minimum_time(v0,
 def test_reeds_shepp_words_drive_to_the_goal_and_the_shortest_is_the_bound():
     rng = np.random.default_rng(4)
     radius = L / np.tan(pi_ / 4)
-    for _ in range(100):
+    for _ in range(40):
         start, goal = rng.uniform([-9, -9, -pi_], [9, 9, pi_], (2, 3))
         paths = reeds_shepp_paths(start, goal, radius)  # each kept only if it arrives
         lengths = [sum(abs(q) for _, q in segs) for segs in paths]
