@@ -30,16 +30,24 @@ def test_plan_all(benchmark, tmp_path):
 # is entered after the map, the config, the compilation and the OCP's build), the clock and
 # its CPU time so far. Patched from inside plan_scenario, once the command has configured
 # JAX: importing cmd_plan first imports no JAX. As `stepzoo serve`, the server writes the
-# line to the stderr of the plan it serves: the asking process's.
+# line to the stderr of the plan it serves, the asking process's, with a third figure: its CPU
+# time since the request arrived.
 SEARCH_STARTS = """
 import json, sys, time
-from stepzoo.search import cmd_plan
+from stepzoo.search import cmd_plan, cmd_serve
+answer, arrived = cmd_serve._answer, [0.0]
+def timed_answer(connection):
+    arrived[0] = time.process_time()
+    return answer(connection)
+cmd_serve._answer = timed_answer
 plan_scenario = cmd_plan.plan_scenario
 def timed_plan_scenario(*args):
     from stepzoo.search.pathfinder import PathFinder
     search = PathFinder.plan
     def plan(self, *a, **k):
-        sys.stderr.write("SEARCH_STARTS " + json.dumps([time.time(), time.process_time()]) + "\\n")
+        cpu = time.process_time()
+        sys.stderr.write("SEARCH_STARTS " + json.dumps([time.time(), cpu, cpu - arrived[0]])
+                         + "\\n")
         return search(self, *a, **k)
     if not hasattr(search, "timed"):     # a server plans many times: patched once
         plan.timed = True
@@ -67,7 +75,7 @@ def _child(args, env, marker=None) -> tuple[float, float, float]:
     wall = time.time() - t0
     line = proc.stderr if marker is None else next(
         ln for ln in proc.stderr.splitlines() if ln.startswith(marker))[len(marker):]
-    at, cpu = json.loads(line)
+    at, cpu = json.loads(line)[:2]
     return at - t0, cpu, wall
 
 
@@ -106,6 +114,8 @@ def test_plan_start_up(benchmark, tmp_path):
     figures.update(_served(env, tmp_path))
     figures["plan_served_vs_warm_before_search"] = (figures["plan_served_before_search_s"]
                                                     / figures["plan_warm_before_search_s"])
+    figures["plan_served_vs_warm_before_search_cpu"] = (
+        figures["plan_served_before_search_cpu_s"] / figures["plan_warm_before_search_cpu_s"])
     # What is ours of the warm start-up: all but the libraries' own import.
     figures["plan_warm_before_search_ours_s"] = (figures["plan_warm_before_search_s"]
                                                  - figures["import_libraries_s"])
@@ -117,7 +127,9 @@ def test_plan_start_up(benchmark, tmp_path):
 def _served(env, tmp_path) -> dict:
     """`stepzoo plan open_field --server` 3 times to a `stepzoo serve` that has warmed up,
     each figure's fastest: the whole call, from launch to the search's start (in the server),
-    and the CPU time of the asking process."""
+    the CPU time of the asking process, and that plus the server's CPU time from the request
+    to the search's start (what both processes spend before the search: the asker only
+    waits once it has sent its request)."""
     sock = tmp_path / "plan.sock"
     server = subprocess.Popen([sys.executable, "-c", SEARCH_STARTS, "serve", "--socket",
                                str(sock)], env=env, stdout=subprocess.PIPE,
@@ -134,10 +146,11 @@ def _served(env, tmp_path) -> dict:
             wall = time.time() - t0
             cpu1 = resource.getrusage(resource.RUSAGE_CHILDREN)
             line = next(ln for ln in proc.stderr.splitlines() if ln.startswith("SEARCH_STARTS "))
-            at = json.loads(line.split(" ", 1)[1])[0]
+            at, _, server_cpu = json.loads(line.split(" ", 1)[1])
+            asker_cpu = cpu1.ru_utime + cpu1.ru_stime - cpu0.ru_utime - cpu0.ru_stime
             runs.append({"plan_served_wall_s": wall, "plan_served_before_search_s": at - t0,
-                         "plan_served_client_cpu_s": (cpu1.ru_utime + cpu1.ru_stime
-                                                      - cpu0.ru_utime - cpu0.ru_stime)})
+                         "plan_served_client_cpu_s": asker_cpu,
+                         "plan_served_before_search_cpu_s": asker_cpu + server_cpu})
     finally:
         server.terminate()
         server.wait()
