@@ -90,6 +90,9 @@ def request(path, argv: list[str], platform: str | None = None) -> int:
         while True:
             try:
                 answer = answers.next()
+            except ValueError:
+                raise UsageError(f"{path} answered something that is not a stepzoo server's "
+                                 "answer; check that it is a `stepzoo serve` socket") from None
             except KeyboardInterrupt:
                 if cancelled:
                     raise
