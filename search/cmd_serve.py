@@ -22,7 +22,7 @@ from stepzoo.bench import cli
 from stepzoo.errors import UsageError
 from stepzoo.search.plan_request import ENV, Messages, default_socket, identity, send
 
-WARM_UP_SCENARIO = "open_field"   # planned at start-up: it compiles what every plan uses
+WARM_UP_SCENARIO = "open_field"   # planned at start-up unless told: it compiles what plans use
 # The signal by which a plan is stopped when its asker goes: its handler raises what Ctrl-C
 # raises. Not SIGINT itself, which a server started in the background may ignore.
 STOP = signal.SIGUSR1
@@ -35,6 +35,10 @@ def add_arguments(p):
                    "~/.cache/stepzoo/plan.sock); only this user may connect")
     p.add_argument("--config", metavar="FILE", help="planner config TOML to warm up with "
                    "(default: the shipped one); requests may name any config")
+    p.add_argument("--warm-up", metavar="SCENARIO", default=WARM_UP_SCENARIO,
+                   help="built-in scenario or scenario .toml file planned at start-up, so that "
+                   "plans like it (vehicle, goal speed) find everything compiled (default: "
+                   f"{WARM_UP_SCENARIO})")
 
 
 def main(args) -> int:
@@ -46,7 +50,7 @@ def main(args) -> int:
     signal.signal(signal.SIGTERM, _exit)
     try:
         started = time.perf_counter()
-        _warm_up(args.config)
+        _warm_up(args.warm_up, args.config)
         sys.stdout.write(f"stepzoo serve: planning for `stepzoo plan ... --server {path}` (or "
                          f"{ENV}={path}); pid {os.getpid()}, warmed up in "
                          f"{time.perf_counter() - started:.1f} s; Ctrl-C stops\n")
@@ -93,16 +97,16 @@ def _listen(path: Path) -> tuple[socket.socket, int]:
     return listener, path.stat().st_ino
 
 
-def _warm_up(config) -> None:
-    """Plan WARM_UP_SCENARIO (with `config`) into a temporary folder, nothing printed; a bad
-    config is the one line its plan would print."""
+def _warm_up(scenario: str, config) -> None:
+    """Plan `scenario` (with `config`) into a temporary folder, nothing printed; a bad
+    scenario or config is the one line its plan would print."""
     with tempfile.TemporaryDirectory(prefix="stepzoo-serve-") as folder:
-        argv = ["plan", WARM_UP_SCENARIO, "--out", folder, "--quiet"]
+        argv = ["plan", scenario, "--out", folder, "--quiet"]
         errors = io.StringIO()
         stdout, stderr = sys.stdout, sys.stderr
         sys.stdout, sys.stderr = io.StringIO(), errors
         try:
-            code = _plan(argv + (["--config", str(Path(config).absolute())] if config else []))
+            code = _plan(argv + (["--config", config] if config else []))
         finally:
             sys.stdout, sys.stderr = stdout, stderr
     if code not in (0, 1):

@@ -41,10 +41,13 @@ def server(tmp_path_factory):
     # An expansion budget: the plan cannot depend on how fast the machine is.
     (folder / "budget.toml").write_text(f'method = "{shipped.method}"\nh = {shipped.h!r}\n'
                                         "[planner]\nmax_expansions = 60\n")
+    # The server warms up on the test's own map (a small one) and config.
+    (folder / "query.toml").write_text('map = "grid.npy"\ncell_size = 0.5\nspeed = 5.0\n'
+                                       "start = [4.0, 10.0, 0.0]\ngoal = [36.0, 10.0, 0.0]\n")
     sock = folder / "plan.sock"
     proc = subprocess.Popen([sys.executable, "-m", "stepzoo", "serve", "--socket", str(sock),
-                             "--config", str(folder / "budget.toml")], stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True)
+                             "--config", "budget.toml", "--warm-up", "query.toml"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=folder)
     try:
         ready, _, _ = select.select([proc.stdout], [], [], 600)
         line = proc.stdout.readline() if ready else ""
