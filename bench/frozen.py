@@ -22,6 +22,7 @@ REL_ZERO = 1e-8
 # scans serve a whole trajectory); those within RANK_SPREAD of the best are then exact.
 RANK_ANGLE = 1e-2
 RANK_SPREAD = 0.2
+AXIS_BAND = 2 * RANK_ANGLE    # [rad] rays this close to the imaginary axis are always exact
 
 
 @cache
@@ -78,10 +79,12 @@ def predicted_limit(m, lam) -> tuple[float, int, int]:
     coarse = np.round(theta / RANK_ANGLE) * RANK_ANGLE
     table = {a: _exit(m, a) for a in np.unique(coarse)}
     rough = np.array([table[a] for a in coarse]) / mod
-    best = np.min(rough)
-    if np.isinf(best):
-        return float("inf"), -1, -1
-    near = np.where(rough <= best * (1 + RANK_SPREAD))[0]
+    # Near the imaginary axis a region's exit changes fast with the angle (Euler's is
+    # -2 cos theta) and jumps at the axis itself (to 0 where the boundary is tangent to it
+    # at the origin, as rk4's): rounded angles rank those rays wrongly, so they are exact.
+    axis = theta < np.pi / 2 + AXIS_BAND
+    best = np.min(rough[~axis], initial=np.inf)
+    near = np.where(axis | (rough <= best * (1 + RANK_SPREAD)))[0]
     exact = np.array([_exit(m, theta[i]) / mod[i] for i in near])
     k = int(np.argmin(exact))
     if np.isinf(exact[k]):

@@ -20,7 +20,9 @@ SLOPE_SPREAD = 0.1        # local slopes of one asymptotic range differ by at mo
 MIN_SLOPE = 0.5           # a range starts where local slopes are at least this (every method
                           # here has order >= 1): below, the error is not the method's own
 ORDER_TOL = 0.2           # an observed order this close to the declared one matches it
-ORDER_RULE = (f"slope of log err on log h over the asymptotic range: the finest run of at "
+ORDER_RULE = (f"slope of log err on log h over the asymptotic range, read from every accuracy "
+              f"run whose nonlinear solves converged against a reference that succeeded, "
+              f"whatever the blow-up test says of that step: the finest run of at "
               f"least 3 consecutive usable steps ({FLOOR_FACTOR:g} * (atol + rtol * max|x|) "
               f"< err < {ERR_CEIL:g} * max|x|) whose local slopes are at least {MIN_SLOPE:g} (an "
               f"error that barely falls, or grows, as h shrinks is round-off accumulating over "
@@ -50,10 +52,13 @@ def order_fit(hs, errors, rtol, atol, scale) -> OrderFit:
     run of >= 3 consecutive usable steps whose slopes, >= MIN_SLOPE, agree within SLOPE_SPREAD,
     extended to coarser steps while they still agree (local slopes tend to the order as h
     goes to 0, and the finest usable steps are nearest that limit). `hs` [s] and `errors`
-    are those of the stable steps. A step is usable when its error is finite and lies above
-    FLOOR_FACTOR reference tolerances (atol + rtol * scale, `scale` the size of the state the
-    error is of; below, the error is the reference's or round-off) and below ERR_CEIL times
-    that size (above, it is no approximation at all)."""
+    are those of the accuracy runs whose solves converged against a good reference (not
+    only the steps the blow-up test calls stable: a perturbation that grows with the exact
+    solution, or an error scale that makes it unphysical, would hide the order). A step is
+    usable when its error is finite and lies above FLOOR_FACTOR reference tolerances (atol +
+    rtol * scale, `scale` the size of the state the error is of; below, the error is the
+    reference's or round-off) and below ERR_CEIL times that size (above, it is no
+    approximation at all)."""
     hs, e = np.asarray(hs, float), np.asarray(errors, float)
     by_h = np.argsort(hs)
     hs, e = hs[by_h], e[by_h]

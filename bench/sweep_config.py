@@ -35,6 +35,12 @@ ESTIMATES = {          # [error] estimate: which times of a run its error `err` 
     "max": "the largest scaled error over every step of the run",
     "final": "the scaled error at the end of the horizon (as the Test Set for IVP Solvers "
              "and DiffEqDevTools' error_estimate = :final)"}
+# Scaled size of the stability runs' initial deviation. h_pred is a linearised (small-
+# deviation) limit, so the deviation stays small through its `growth`: 1e-6 grown 100 times
+# is still far below the slip where a tyre saturates (at 0.1, saturation capped the growth
+# and Pacejka/Fiala limits came out 5-67 times the linear ones in straight running), and
+# well above the Newton solves' default tolerances (1e-10), so their noise is no growth.
+DEFAULT_PERTURBATION = 1e-6
 MODEL_KEYS = {"rhs", "path", "states", "inputs"}
 
 
@@ -167,7 +173,7 @@ def validate(raw: dict, source: str = "config") -> SweepConfig:
                    f"got {steps!r}")
     growth = check.ranged("growth", "stability.growth", stab.get("growth", 100.0))
     perturbation = check.ranged("perturbation", "stability.perturbation",
-                                stab.get("perturbation", 0.1))
+                                stab.get("perturbation", DEFAULT_PERTURBATION))
     h_probe_max = check.ranged("step", "stability.h_probe_max", stab.get("h_probe_max", 2.0))
     if h_probe_max and hs and h_probe_max < max(hs):
         bad.append(f"{source}: stability.h_probe_max ({h_probe_max:g} s) is below the "
