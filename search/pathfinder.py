@@ -23,6 +23,7 @@ from stepzoo.search.footprint import Footprint, first_collision, poses_collide
 from stepzoo.search.maps import SUBDIV, OccupancyMap
 from stepzoo.search.planner_config import PlannerConfig
 from stepzoo.search.point_selector import point_selector, random_points
+from stepzoo.search.reach import CELL_M, HEADING_BINS, STEP_M, WINDOW_M, unreachable
 from stepzoo.search.shooting import Shooter, Shots
 
 EXACT, APPROXIMATE, NO_PATH = "exact", "approximate", "no_path"
@@ -176,6 +177,24 @@ class PathFinder:
                     f"{name} boxed in: no collision-free forward {leave} (every path of "
                     f"curvature <= 1/{radius:.2f} m collides within {longest:.2f} m); "
                     "try --reverse")
+        return "", ""
+
+    def _check_enclosed(self, start, goal) -> tuple[str, str]:
+        """(cause, reason) if, forward only, no forward path gets from the start near the goal
+        (or from the goal turned round near the start), proved by growing every pose such a
+        path can reach (`reach.unreachable`); ('', '') otherwise. Run once the search has
+        exhausted: it costs seconds."""
+        if self.config.params["reverse"]:
+            return "", ""
+        radius = self.wheelbase / math.tan(self.config.params["delta_max"])
+        for name, pose, other in (("start", start, goal), ("goal", turned(goal), start)):
+            if unreachable(self.omap, self.footprint, pose, radius, other[:2]):
+                return f"{name}_boxed_in", (
+                    f"{name} boxed in: every pose a forward path of curvature <= 1/{radius:.2f} "
+                    f"m can reach from it (grown on {CELL_M:g} m and "
+                    f"{360 / HEADING_BINS:g} degree cells) stays within {WINDOW_M:g} m of it "
+                    f"and over {STEP_M:g} m from the {'goal' if name == 'start' else 'start'}"
+                    "; try --reverse")
         return "", ""
 
     def _corridors(self) -> np.ndarray:
@@ -389,6 +408,10 @@ class _Search:
                          f"{self.cell_xy:g} m and {self.cell_heading:.3g} rad was expanded, "
                          + ("tight moves (the kinematic bicycle out to full lock) included"
                             if res.widened else "tight moves off"))
+                if res.cause == "exhausted":
+                    cause, why = self.f._check_enclosed(self.states[0][:3], self.goal)
+                    if cause:
+                        res.cause, ended = cause, f"{ended}; {why}"
                 break
             nodes = self._pop(heap, min(prm["batch_nodes"],
                                         prm["max_expansions"] - res.expansions))
@@ -414,7 +437,7 @@ class _Search:
             return res
         failed = (f"; connections failed ({', '.join(sorted(set(self.failures)))})"
                   if self.failures else "")
-        if res.cause == "exhausted":
+        if res.cause in ("exhausted", *BOXED_IN):
             res.status, res.reason = NO_PATH, ended + failed
             return res
         closest = int(np.argmin(self.H))

@@ -1,7 +1,8 @@
 """Leaving a pose forwards: the proof that no forward path leaves (boxed_in) holds against
 brute force, never contradicts a free arc, and the planner turns it into a typed no_path at
-once; the closed-form Dubins length is the shortest Dubins path; the boxed-in queries of the
-earlier draw are boxed in."""
+once; the grown set of forward poses (reach) holds every collision-free random path's poses
+and proves a start pocket of the street set; the closed-form Dubins length is the shortest
+Dubins path; the boxed-in queries of the earlier draw are boxed in."""
 import math
 
 import numpy as np
@@ -170,3 +171,30 @@ def test_the_trees_dynamic_shootings_from_a_boxed_in_start_collide_too():
     assert boxed and np.abs(shots.steer).max() == pytest.approx(math.pi / 4)
     reached = shots.travelled[np.arange(9), shots.free - 1]
     assert (shots.free < shots.states.shape[1]).all() and (reached <= longest).all()
+
+
+def test_the_grown_forward_poses_hold_every_free_path_and_enclose_a_street_start():
+    """room-64-64-8-09's start faces a wall 4.5 m away at 15 degrees: a 2 m arc leaves it,
+    but the grown set closes within 7 m and the goal lies far outside; every collision-free
+    prefix of 300 random forward paths has its poses at each STEP_M of length in it."""
+    from stepzoo.search.reach import CELL_M, HEADING_BINS, STEP_M, forward_reach, misses
+    query = next(q for q in load_queries(QUERY_DIR / "streets.json")
+                 if q.id == "room-64-64-8-09")
+    omap, fp = open_map(query.map_path, query.cell_size), footprint()
+    start = np.array(query.start)
+    assert free_departure(omap, fp, start, RADIUS) and not boxed_in(omap, fp, start, RADIUS)[0]
+    reach, corner = forward_reach(omap, fp, start, RADIUS)
+    assert misses((reach, corner), np.array(query.goal[:2]))
+    paths = random_forward_paths(np.random.default_rng(3), start, 300, 8.0)
+    hit = first_collision(omap, fp, paths)
+    every = round(STEP_M / 0.05)
+    samples = 0
+    for path, first in zip(paths, hit):
+        free = path[:first] if first >= 0 else path
+        poses = free[::every]
+        col = np.floor((poses[:, 0] - corner[0]) / CELL_M).astype(int)
+        row = np.floor((poses[:, 1] - corner[1]) / CELL_M).astype(int)
+        b = np.floor(np.mod(poses[:, 2], 2 * np.pi) / (2 * np.pi / HEADING_BINS)).astype(int)
+        assert reach[b % HEADING_BINS, row, col].all()
+        samples += len(poses) - 1
+    assert samples > 300  # the paths do move: more than one step each on average

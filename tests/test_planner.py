@@ -186,16 +186,16 @@ def test_a_walled_off_goal_is_no_path_without_searching():
     assert (result.status, result.cause, result.expansions) == ("no_path", "walled_off", 0)
 
 
-def test_a_dead_end_the_car_cannot_turn_in_exhausts_the_search():
+def test_a_dead_end_the_car_cannot_turn_in_is_proved_boxed_in_once_the_search_exhausts():
     # A 3.5 m wide blind corridor: the corridor check passes (the goal is in the same free
     # space), but a forward-only car facing the dead end cannot turn round, not even with
-    # the tight moves the search widens to.
+    # the tight moves the search widens to; the grown set of forward poses then proves it.
     occupied = np.ones((60, 100), bool)
     occupied[10:50, 0:30] = False           # a 15 x 20 m yard with the goal
     occupied[26:33, 30:70] = False           # the corridor, 3.5 m wide, closed at x = 35
     finder = PathFinder(from_array(occupied, 0.5), CONFIG, None, 5.0)
     result = finder.plan((30.0, 14.75, 0.0), (7.0, 15.0, 0.0))
-    assert (result.status, result.cause, result.widened) == ("no_path", "exhausted", True)
+    assert (result.status, result.cause, result.widened) == ("no_path", "start_boxed_in", True)
     assert 0 < result.expansions < CONFIG.params["max_expansions"]
 
 
