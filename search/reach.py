@@ -85,6 +85,8 @@ def forward_reach(omap: OccupancyMap, footprint: Footprint, pose, radius):
     curvature <= 1/radius [1/m] from `pose` [X, Y, psi]."""
     if 2 * math.ceil(footprint.radius / omap.resolution) + 1 > EXACT_CELLS:
         return None  # disc_hits would answer from a lower bound: no proof from it
+    if STEP_M / radius > math.pi / 2:
+        return None  # the displacement bounds need a step's turn within a quarter turn
     n = int(round(2 * WINDOW_M / CELL_M))
     corner = np.asarray(pose[:2], float) - WINDOW_M
     bin_size = 2 * math.pi / HEADING_BINS
