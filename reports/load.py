@@ -12,6 +12,7 @@ import numpy as np
 import pandas as pd
 
 from stepzoo.bench import schema
+from stepzoo.bench.sweep_config import ESTIMATES
 from stepzoo.bench.sweep_folder import check_finished
 from stepzoo.errors import UsageError
 
@@ -55,6 +56,8 @@ class View:
         plane = ("X", "Y") if vehicle else (errs + tuple(s for s in states if s not in errs)
                                             + errs)[:2]
         column, unit, label = TOLERANCES["pos_tol_m" if vehicle else "tol"]
+        if not vehicle and manifest.get("error_estimate") == ESTIMATES["final"]:
+            label = "error at the end of the horizon (error states over their scales)"
         return View(str(spec.get("name", manifest.get("model", "?"))), vehicle, states,
                     tuple(spec["variables"]), errs, plot, plane, column, unit, label)
 

@@ -170,6 +170,9 @@ def test_a_final_error_estimate_is_the_error_at_the_horizon(suite):
              for k, n in enumerate(ns)]
     assert rk4["err"].to_numpy() == pytest.approx(final, rel=1e-4)
     assert (rk4["err"] < rk4[["err_y1", "err_y2", "err_y3"]].max(axis=1)).all()
+    from stepzoo.reports.load import load_sweep
+    assert load_sweep(out / "b2_short").view.error_label.startswith("error at the end")
+    assert load_sweep(out / "detest_a1").view.error_label.startswith("error (error states")
 
 
 def test_suite_tables_are_the_problems_tables_with_a_problem_column(suite):
