@@ -636,6 +636,9 @@ def _parquet(df: pd.DataFrame) -> bytes:
 def assemble(cfg: SweepConfig, chunks: Path) -> dict:
     """The final tables: the chunks' tables concatenated and sorted, plus the summary."""
     parts = {name: [] for name in schema.CHUNK_TABLES}
+    # A table no chunk has a row of keeps its columns (DETEST A5's Jacobian is 0 at t = 0:
+    # no chunk lists an eigenvalue), so that readers find the columns they check.
+    empty = {}
     for cid in chunk_ids(cfg):
         for name in schema.CHUNK_TABLES:
             path = chunks / cid / f"{name}.parquet"
@@ -643,9 +646,12 @@ def assemble(cfg: SweepConfig, chunks: Path) -> dict:
                 df = pd.read_parquet(path)
                 if len(df):
                     parts[name].append(df)
+                elif len(df.columns):
+                    empty.setdefault(name, df)
     tables = {}
     for name in schema.CHUNK_TABLES:
-        df = pd.concat(parts[name], ignore_index=True) if parts[name] else pd.DataFrame()
+        df = pd.concat(parts[name], ignore_index=True) if parts[name] else \
+            empty.get(name, pd.DataFrame())
         tables[name] = df.sort_values(schema.SORT[name], kind="stable", ignore_index=True) \
             if len(df) else df
     tables["summary"] = summary(tables["runs"], tables["limits"])
