@@ -750,16 +750,20 @@ def _finite(obj):
 
 def _config_copy(cfg) -> bytes:
     """The config file as the folder keeps it: the user's own bytes, but with a user model's
-    folder made absolute, so the copy still finds the module (tune and report reload it)."""
+    folder made absolute, so the copy still finds the module (tune and report reload it),
+    and with the sweep's name first where the file gave none (the name defaults to the
+    file's stem, and the copy's stem is "config": tune and report would see another sweep)."""
     import tomllib
 
     import tomli_w
     src = Path(cfg.source) if cfg.source else None
     if not (src and src.is_file()):
         return _as_toml(cfg.canonical()).encode()
-    if not cfg.spec.folder:
-        return src.read_bytes()
     raw = tomllib.loads(src.read_text())
+    named = b"" if "name" in raw else tomli_w.dumps({"name": cfg.name}).encode()
+    if not cfg.spec.folder:
+        return named + src.read_bytes()
+    raw = {"name": cfg.name, **raw}
     raw["model"]["path"] = cfg.spec.folder
     return (f"# {src.name} as swept, its model.path made absolute\n"
             + tomli_w.dumps(raw)).encode()

@@ -240,12 +240,13 @@ def test_the_suite_output_counts_each_methods_matching_problems(suite, capsys):
 
 def test_a_problem_with_no_eigenvalue_to_list_keeps_the_tables_columns(tmp_path):
     """DETEST A5's Jacobian is 0 at its initial state, so its eigenvalues table has no row;
-    the table still has its columns and the report reads the folder."""
+    the table still has its columns, and the report reads the folder (a config without a
+    name: the folder's copy names the sweep as the file's stem did)."""
     from stepzoo.bench.sweep import run_sweep
     from stepzoo.bench.sweep_config import load as load_config
     from stepzoo.reports.load import load_sweep
     (tmp_path / "a5.toml").write_text(
-        'name = "a5"\nmodel = "detest_a5"\nhorizon = 20.0\nmethods = ["euler"]\n'
+        'model = "detest_a5"\nhorizon = 20.0\nmethods = ["euler"]\n'
         '[envelope]\ny1 = { values = [4.0] }\n[steps]\nh = [1.0, 2.0]\n'
         '[stability]\nsteps = 50\nh_probe_max = 4.0\n[timing]\nrounds = 1\n')
     run_sweep(load_config(tmp_path / "a5.toml"), tmp_path / "a5", progress=False)
