@@ -27,6 +27,10 @@ TIMED = schema.MEASURED
 FINITE_LIMIT = [n for n, m in METHODS.items() if not math.isinf(max_stable_step(m, [-1.0]))]
 # The rest hold the whole negative real axis: A-stable, or A(alpha)-stable like BDF3-5.
 UNBOUNDED = [n for n in METHODS if n not in FINITE_LIMIT]
+# Swept on the envelope: one of each step code (one-stage, collocation, Rosenbrock, BDF) and
+# BDF5, whose sector is the narrowest; every other unbounded method's sector contains BDF5's
+# (checked below), so the envelope's eigenvalues lie in each of them too.
+SWEPT_UNBOUNDED = ["backward_euler", "trapezoidal", "radau_iia3", "ros2", "bdf5"]
 
 
 def _lateral(work):
@@ -66,7 +70,13 @@ def test_measured_limit_within_3pct_of_predicted_at_every_envelope_point(envelop
     assert np.all(np.isfinite(pred)) and np.all(np.abs(ratio - 1) <= 0.03), (name, ratio)
 
 
-@pytest.mark.parametrize("name", UNBOUNDED)
+def test_every_unbounded_method_holds_the_sector_of_the_swept_ones():
+    narrowest = min(a_alpha(method(n)) for n in SWEPT_UNBOUNDED)
+    assert set(SWEPT_UNBOUNDED) <= set(UNBOUNDED) and narrowest == a_alpha(method("bdf5"))
+    assert all(a_alpha(method(n)) >= narrowest for n in UNBOUNDED)
+
+
+@pytest.mark.parametrize("name", SWEPT_UNBOUNDED)
 def test_methods_unbounded_on_the_real_axis_never_blow_up_in_the_envelope(envelope, name):
     """A-stable methods hold every stable mode; an A(alpha)-stable one (BDF3-5) holds the
     envelope because every eigenvalue lies within its sector (at most 38.3 deg from the
