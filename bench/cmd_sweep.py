@@ -61,6 +61,8 @@ def _show_suite(manifest: dict, out) -> None:
     """Observed orders, method by problem (NaN: not observable), where they differ from the
     declared ones, what was written and the time it took."""
     import pandas as pd
+
+    from stepzoo.bench import metrics
     orders = pd.read_csv(f"{out}/orders.csv")
     columns = list(orders.columns)
     rows = [{k: (round(v, 2) if isinstance(v, float) else v) for k, v in r.items()}
@@ -69,8 +71,7 @@ def _show_suite(manifest: dict, out) -> None:
                      + text_table(rows, columns) + "\n")
     summary = pd.read_csv(f"{out}/summary.csv")
     off = summary[summary["order_status"] != "matches"]
-    print(f"{len(summary) - len(off)} of {len(summary)} (problem, method) pairs within "
-          f"{manifest['order_tolerance']:g} of the declared order"
+    print(metrics.orders_matched(summary["order_status"], manifest["order_tolerance"])
           + (": the rest " + ", ".join(f"{s} {n}" for s, n in
                                        off["order_status"].value_counts().items())
              if len(off) else ""))

@@ -92,6 +92,14 @@ def order_fit(hs, errors, rtol, atol, scale) -> OrderFit:
     return OrderFit(fit, float(np.exp(h[lo])), float(np.exp(h[hi])), hi - lo + 1, note)
 
 
+def orders_matched(statuses, tol: float = ORDER_TOL) -> str:
+    """"N of M (problem, method) pairs within tol of the declared order", from their
+    order statuses."""
+    statuses = list(statuses)
+    return (f"{sum(s == 'matches' for s in statuses)} of {len(statuses)} (problem, method) "
+            f"pairs within {tol:g} of the declared order")
+
+
 def order_status(observed: float, declared: float, note: str) -> str:
     """How an observed order compares with the declared one: "matches" (within ORDER_TOL on
     an asymptotic range), "below declared", "above declared", "no asymptotic range", or

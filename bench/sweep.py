@@ -670,15 +670,15 @@ def summary(runs: pd.DataFrame, limits: pd.DataFrame) -> pd.DataFrame:
         finite = ratios[np.isfinite(ratios) & (ratios > 0)]
         worst = finite[np.argmax(np.abs(np.log(finite)))] if len(finite) else np.nan
         r = runs[runs["method"] == name]
+        median = float(lim["order_fit"].median())
         rows.append(dict(
             method=name, family=m.family, order_declared=m.order,
-            order_fit_median=float(lim["order_fit"].median()),
+            order_fit_median=median,
             order_fit_min=float(lim["order_fit"].min()),
             order_fit_max=float(lim["order_fit"].max()),
             order_h_min=float(lim["order_h_min"].min()),
             order_h_max=float(lim["order_h_max"].max()),
-            order_status=metrics.order_status(float(lim["order_fit"].median()), m.order,
-                                              _most_common(lim["order_note"])),
+            order_status=metrics.order_status(median, m.order, most_common(lim["order_note"])),
             real_interval=real, imag_interval=imag,
             h_meas_min=float(lim["h_meas"].min()), h_pred_min=float(lim["h_pred"].min()),
             worst_ratio=float(worst), implicit=m.implicit,
@@ -688,7 +688,7 @@ def summary(runs: pd.DataFrame, limits: pd.DataFrame) -> pd.DataFrame:
     return pd.DataFrame(rows, columns=schema.SUMMARY)
 
 
-def _most_common(notes: pd.Series) -> str:
+def most_common(notes: pd.Series) -> str:
     """The note most operating points share (the first in order on a tie)."""
     return str(notes.value_counts(sort=True).index[0])
 

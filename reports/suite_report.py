@@ -10,6 +10,8 @@ import time
 from pathlib import Path
 
 from stepzoo import environment
+from stepzoo.bench import metrics
+from stepzoo.bench.sweep import most_common
 from stepzoo.errors import UsageError
 from stepzoo.reports import figures, interactive, tables
 from stepzoo.reports.tables import _plain
@@ -58,12 +60,12 @@ def build(results, out, progress_say):
             shown.append(fig)
             progress_say(f"[{number}/{len(sweeps)}] Figure {number}. {fig.title} in "
                          f"{time.perf_counter() - t0:.1f} s")
-        matches = sum(r["order_status"] == "matches" for r in rows)
         facts = [("suite folder", public_path(results, out)),
                  ("suite config sha256", manifest.get("config_sha256", "not recorded")),
                  ("problems", ", ".join(sweeps)),
-                 ("orders", f"{matches} of {len(rows)} (problem, method) pairs within "
-                  f"{manifest.get('order_tolerance', 0.2):g} of the declared order"),
+                 ("orders", metrics.orders_matched(
+                     (r["order_status"] for r in rows),
+                     manifest.get("order_tolerance", metrics.ORDER_TOL))),
                  ("order fit", manifest.get("order_fit", "not recorded"))]
         table = tables.Table(
             "Observed and declared orders", "Per problem and method: the observed order "
@@ -88,8 +90,7 @@ def order_rows(sweeps: dict) -> list[dict]:
     observable, the operating points' most common reason (limits' order_note)."""
     rows = []
     for label, sweep in sweeps.items():
-        notes = sweep.limits.groupby("method")["order_note"].agg(
-            lambda s: s.value_counts().index[0])
+        notes = sweep.limits.groupby("method")["order_note"].agg(most_common)
         for _, s in sweep.summary.iterrows():
             row = {key: _plain(s.get(key)) for key, _ in ORDER_COLUMNS if key in s.index}
             row["problem"] = label
