@@ -85,12 +85,18 @@ def arc_poses(pose, curvature, length, spacing) -> np.ndarray:
                             y - (np.cos(heading) - math.cos(psi)) / curvature, heading])
 
 
+def witness_arcs(pose, radius, length, spacing=ARC_SPACING) -> np.ndarray:
+    """(N_ARCS, n, 3) poses of N_ARCS forward arcs from `pose`, curvatures evenly in
+    [-1/radius, 1/radius], `length` [m] long, sampled every `spacing` [m]."""
+    return np.stack([arc_poses(pose, k, length, spacing)
+                     for k in np.linspace(-1 / radius, 1 / radius, N_ARCS)])
+
+
 def free_departure(omap: OccupancyMap, footprint: Footprint, pose, radius,
                    length=DEPARTURE_M) -> bool:
     """Whether one of N_ARCS arcs of curvature in [-1/radius, 1/radius], `length` [m] long,
     leaves `pose` forwards without collision (first_collision, interpolation included)."""
-    arcs = np.stack([arc_poses(pose, k, length, ARC_SPACING)
-                     for k in np.linspace(-1 / radius, 1 / radius, N_ARCS)])
+    arcs = witness_arcs(pose, radius, length)
     return bool((first_collision(omap, footprint, arcs) < 0).any())
 
 

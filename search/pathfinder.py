@@ -159,6 +159,11 @@ class PathFinder:
                                   "vehicle joins them")
         return self._check_boxed_in(start, goal)
 
+    def turn_radius(self) -> float:
+        """[m] the kinematic bicycle's tightest turn, wheelbase / tan(delta_max): the radius of
+        the connection's car, the car bounds and the boxed-in proofs."""
+        return self.wheelbase / math.tan(self.config.params["delta_max"])
+
     def _check_boxed_in(self, start, goal) -> tuple[str, str]:
         """(cause, reason) if, forward only, every way out of the start (or into the goal, the
         way out of the goal turned round) collides at once; ('', '') otherwise. With reverse
@@ -166,7 +171,7 @@ class PathFinder:
         way is free for long."""
         if self.config.params["reverse"]:
             return "", ""
-        radius = self.wheelbase / math.tan(self.config.params["delta_max"])
+        radius = self.turn_radius()
         gap = float(np.hypot(*(goal[:2] - start[:2])))
         for name, pose, leave in (("start", start, "departure"),
                                   ("goal", turned(goal), "arrival")):
@@ -186,7 +191,7 @@ class PathFinder:
         exhausted: it costs seconds."""
         if self.config.params["reverse"]:
             return "", ""
-        radius = self.wheelbase / math.tan(self.config.params["delta_max"])
+        radius = self.turn_radius()
         for name, pose, other in (("start", start, goal), ("goal", turned(goal), start)):
             if unreachable(self.omap, self.footprint, pose, radius, other[:2]):
                 return f"{name}_boxed_in", (
@@ -304,7 +309,7 @@ class _Search:
         root = np.array([*start, 0.0, 0.0])
         self.states, self.parent, self.g = [root], [-1], [0.0]
         self.H = [float(np.hypot(*(start[:2] - goal[:2])))]
-        self.radius = finder.wheelbase / math.tan(self.prm["delta_max"])
+        self.radius = finder.turn_radius()
         self.rest = [float(self._rest(start[None])[0])]
         self.guide = [float(self._rest(start[None], self.guide_field)[0])]
         self.car = [float(self._car_bound(start[None])[0])]
@@ -489,8 +494,7 @@ class _Search:
                 # corners the lattice path takes, where the arc and the goal's disc rarely aim.
                 points[0] = self._guide(self.states[node])
             randoms.append(points)
-        # A short batch is filled with copies of its last node, whose shootings are dropped.
-        rows = [nodes[min(k, len(nodes) - 1)] for k in range(prm["batch_nodes"])]
+        rows = self._filled(nodes)
         states = np.repeat(np.array([self.states[i] for i in rows]), per, axis=0)
         new = []
         gears = [(1, self.f.shooter)]
@@ -498,24 +502,29 @@ class _Search:
             gears.append((-1, self.f.back_shooter))
         for direction, shooter in gears:
             points = []
-            for k, node in enumerate(rows):
+            for node, random in zip(rows, self._filled(randoms)):
                 state = self.states[node]
                 ahead = np.r_[state[:2], state[2] + (0.0 if direction > 0 else math.pi)]
                 points += [point_selector(ahead, prm["arc_radius"], prm["n_arc"],
-                                          prm["delta_max"]), randoms[min(k, len(nodes) - 1)]]
+                                          prm["delta_max"]), random]
             new += self._add_all(nodes, direction, shooter.shoot(states, np.vstack(points),
                                                                  self.goal))
         # Tight moves leave the region the tree exhausted: from its nodes and along chains of
         # tight moves; once a node is reached by the tree's own move, the tree goes on alone.
         tight = [i for i in nodes if i < self.widened_at or self.tight[i]]
         if tight:
-            rows = [tight[min(k, len(tight) - 1)] for k in range(prm["batch_nodes"])]
+            rows = self._filled(tight)
             fan = np.linspace(-prm["delta_max"], prm["delta_max"], per)
             shots = self.f.tight_shooter.shoot_steers(
                 np.repeat(np.array([self.states[i] for i in rows]), per, axis=0),
                 np.tile(fan, len(rows)), self.goal)
             new += self._add_all(tight, 1, shots, tight=True)
         return new
+
+    def _filled(self, items: list) -> list:
+        """`items` (at most batch_nodes) filled up to batch_nodes with copies of its last: a
+        short batch's extra shootings are dropped by _add_all."""
+        return items + items[-1:] * (self.prm["batch_nodes"] - len(items))
 
     def _add_all(self, nodes, direction, shots, tight=False) -> list[int]:
         """Add the kept shootings of a batch, n_arc + n_random per node of `nodes`."""

@@ -17,7 +17,7 @@ import math
 
 import numpy as np
 
-from stepzoo.search.departure import arc_poses
+from stepzoo.search.departure import witness_arcs
 from stepzoo.search.footprint import Footprint, first_collision
 from stepzoo.search.maps import EXACT_CELLS, OccupancyMap
 
@@ -120,8 +120,7 @@ def forward_reach(omap: OccupancyMap, footprint: Footprint, pose, radius):
     margin = int(max(np.abs(v).max() for v in shifts.values())) + 2
     # A free arc that gets as near the edge is a path the growth would follow there: say so
     # at once instead of growing the whole window (an open start costs seconds otherwise).
-    arcs = np.stack([arc_poses(pose, k, 2 * WINDOW_M, CELL_M)
-                     for k in np.linspace(-1 / radius, 1 / radius, 9)])
+    arcs = witness_arcs(pose, radius, 2 * WINDOW_M, CELL_M)
     hit = first_collision(omap, footprint, arcs)
     for arc, first in zip(arcs, hit):
         free = arc[:first] if first >= 0 else arc
