@@ -67,7 +67,8 @@ def _show_suite(manifest: dict, out) -> None:
     columns = list(orders.columns)
     rows = [{k: (round(v, 2) if isinstance(v, float) else v) for k, v in r.items()}
             for r in orders.to_dict("records")]
-    sys.stdout.write("observed order (asymptotic range; NaN: not observable)\n"
+    sys.stdout.write("observed order (asymptotic range; NaN: not observable, or the method "
+                     "is not one of that problem's)\n"
                      + text_table(rows, columns) + "\n")
     summary = pd.read_csv(f"{out}/summary.csv")
     off = summary[summary["order_status"] != "matches"]

@@ -20,6 +20,8 @@ SLOPE_SPREAD = 0.1        # local slopes of one asymptotic range differ by at mo
 MIN_SLOPE = 0.5           # a range starts where local slopes are at least this (every method
                           # here has order >= 1): below, the error is not the method's own
 ORDER_TOL = 0.2           # an observed order this close to the declared one matches it
+STIFF_H_RHO = 1.0         # a step h with h * rho(J) above this is in the stiff range: the
+                          # classical error expansion (in powers of h lambda) does not hold
 ORDER_RULE = (f"slope of log err on log h over the asymptotic range, read from every accuracy "
               f"run whose nonlinear solves converged against a reference that succeeded, "
               f"whatever the blow-up test says of that step: the finest run of at "
@@ -100,14 +102,20 @@ def orders_matched(statuses, tol: float = ORDER_TOL) -> str:
             f"pairs within {tol:g} of the declared order")
 
 
-def order_status(observed: float, declared: float, note: str) -> str:
+def order_status(observed: float, declared: float, note: str,
+                 h_rho: float = float("nan")) -> str:
     """How an observed order compares with the declared one: "matches" (within ORDER_TOL on
-    an asymptotic range), "below declared", "above declared", "no asymptotic range", or
-    "not observable"."""
+    an asymptotic range), "stiff range" (it does not match, and even the finest step of the
+    fit has h * rho(J) > STIFF_H_RHO, `h_rho`, rho the largest spectral radius of the
+    Jacobian along the reference: the classical order is a statement about smaller steps,
+    and order reduction at these is the theory of stiff problems), "below declared", "above
+    declared", "no asymptotic range", or "not observable"."""
     if not np.isfinite(observed):
         return "not observable"
+    if note == "asymptotic" and abs(observed - declared) <= ORDER_TOL:
+        return "matches"
+    if h_rho > STIFF_H_RHO:
+        return "stiff range"
     if note != "asymptotic":
         return "no asymptotic range"
-    if abs(observed - declared) <= ORDER_TOL:
-        return "matches"
     return "below declared" if observed < declared else "above declared"

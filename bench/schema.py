@@ -30,12 +30,16 @@ LIMIT_TAIL = ["h_pred", "h_meas", "ratio", "order_declared", "order_fit", "h_pro
               "t_bind", "lam_re_bind", "lam_im_bind", "limit_cause"]
 # order_fit: the observed order on the range of steps [s] order_h_min..order_h_max
 # (order_points steps), order_note why no asymptotic range was found ("asymptotic" if one
-# was); summary's order_status compares the median observed order with the declared one.
-ORDER_TAIL = ["order_h_min", "order_h_max", "order_points", "order_note"]
+# was); rho_max [1/s]: the largest spectral radius of the Jacobian along the reference, and
+# order_h_rho = order_h_min * rho_max: above metrics.STIFF_H_RHO the whole fit lies in the
+# stiff range. summary's order_status compares the median observed order with the declared
+# one (median order_h_rho: see metrics.order_status).
+ORDER_TAIL = ["order_h_min", "order_h_max", "order_points", "order_note", "rho_max",
+              "order_h_rho"]
 SUMMARY = ["method", "family", "order_declared", "order_fit_median", "order_fit_min",
            "order_fit_max", "real_interval", "imag_interval", "h_meas_min", "h_pred_min",
            "worst_ratio", "implicit", "evals_per_step", "points", "solver_failures",
-           "order_h_min", "order_h_max", "order_status"]
+           "order_h_min", "order_h_max", "order_status", "order_h_rho"]
 EIGEN_TAIL = ["lam_re", "lam_im"]
 TIMING = ["chunk", "method", "compile_s", "ref_compile_s", "reference_s", "integration_s",
           "stability_s", "metrics_s", "total_s"]

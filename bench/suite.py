@@ -3,7 +3,8 @@
 Each `[[problem]]` table is a problem: a model with its own horizon, steps, envelope and
 settings. A problem's keys replace the config's top-level ones of the same name, except that
 the settings tables ([steps], [reference], [stability], [chunks], [trajectories], [timing],
-[limits]) are merged key by key; the methods are the config's, the same for every problem.
+[limits]) are merged key by key; a problem may have methods of its own (explicit methods on
+a stiff problem need a finer grid than the implicit ones: two problems of one model).
 A problem without a horizon runs over its built-in model's published interval; one without an
 envelope runs its model's default problem (the envelope is then its first state's initial
 value alone). Each problem is swept into its own folder, an ordinary sweep folder that tune,
@@ -29,7 +30,6 @@ from stepzoo.output import atomic_write, to_json
 from stepzoo.results_folder import writing
 
 SETTINGS = {"steps", "reference", "stability", "chunks", "trajectories", "timing", "limits"}
-SHARED_ONLY = {"methods"}           # one value for the whole suite
 LABEL = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]*")
 ORDERS = "orders.csv"
 
@@ -48,7 +48,8 @@ class SuiteConfig:
 
     @property
     def methods(self) -> tuple:
-        return self.problems[0][1].methods
+        """Every problem's methods, each once, in the order they first come."""
+        return tuple(dict.fromkeys(m for _, cfg, _ in self.problems for m in cfg.methods))
 
     @property
     def sha256(self) -> str:
@@ -82,9 +83,6 @@ def validate(raw: dict, source: str = "config") -> SuiteConfig:
         raise UsageError(f"{source}: name must be a string")
     bad, out, seen = [], [], set()
     for i, prob in enumerate(problems, 1):
-        for key in sorted(SHARED_ONLY & set(prob)):
-            bad.append(f"{source}: problem {i} sets {key}, which is the suite's (one value for "
-                       "every problem); set it at the top of the file")
         merged = _merged(top, prob, source)
         label = prob.get("name", _model_name(merged.get("model")))
         if not (isinstance(label, str) and LABEL.fullmatch(label)):
@@ -103,7 +101,7 @@ def validate(raw: dict, source: str = "config") -> SuiteConfig:
         except (UsageError, KeyError) as err:
             bad.append(str(err.args[0]))
             continue
-        merged["methods"] = list(cfg.methods)     # "all" as of this release, by name
+        merged["methods"] = list(cfg.methods)     # a selector as of this release, by name
         out.append((label, cfg, merged))
     if bad:
         raise UsageError("\n".join(bad))
@@ -219,7 +217,7 @@ def assemble(suite: SuiteConfig, out: Path) -> dict:
 def orders(summary: pd.DataFrame, labels: list[str]) -> pd.DataFrame:
     """Observed order (median over operating points, on the asymptotic range) per method, one
     column per problem, after the declared order; NaN where it cannot be observed (see
-    summary's order_status and limits' order_note)."""
+    summary's order_status and limits' order_note) or the problem does not run the method."""
     wide = summary.pivot(index="method", columns="problem", values="order_fit_median")
     declared = summary.groupby("method")["order_declared"].first()
     wide = wide.reindex(columns=labels)

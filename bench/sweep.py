@@ -430,6 +430,9 @@ class _Work:
             limits = []
             for lane, i in enumerate(self.ids):
                 rows = every[(every["point"] == i) & every["fit"]]
+                fit = metrics.order_fit(rows["h"], rows["err"], cfg.rtol, cfg.atol,
+                                        err_scale[lane])
+                rho = float(np.nanmax(np.abs(lam[lane]), initial=0.0))
                 h_pred, k, j = frozen.predicted_limit(meth, lam[lane])
                 bind = lam[lane, k, j] if k >= 0 else complex(np.nan, np.nan)
                 limits.append(dict(
@@ -437,8 +440,7 @@ class _Work:
                                              enumerate(self.spec.variables)},
                     h_pred=h_pred, h_meas=h_meas[lane], ratio=_ratio(h_meas[lane], h_pred),
                     order_declared=meth.order,
-                    **metrics.order_fit(rows["h"], rows["err"], cfg.rtol, cfg.atol,
-                                        err_scale[lane]).columns(),
+                    **fit.columns(), rho_max=rho, order_h_rho=fit.h_min * rho,
                     h_probe_max=cfg.h_probe_max, t_bind=ts[k] if k >= 0 else np.nan,
                     lam_re_bind=bind.real, lam_im_bind=bind.imag, limit_cause=cause[lane],
                     **{f"bind_{s}": xs[lane, k, c] if k >= 0 else np.nan
@@ -671,6 +673,8 @@ def summary(runs: pd.DataFrame, limits: pd.DataFrame) -> pd.DataFrame:
         worst = finite[np.argmax(np.abs(np.log(finite)))] if len(finite) else np.nan
         r = runs[runs["method"] == name]
         median = float(lim["order_fit"].median())
+        # Folders swept before rho_max was recorded have no order_h_rho.
+        h_rho = float(lim["order_h_rho"].median()) if "order_h_rho" in lim else np.nan
         rows.append(dict(
             method=name, family=m.family, order_declared=m.order,
             order_fit_median=median,
@@ -678,7 +682,9 @@ def summary(runs: pd.DataFrame, limits: pd.DataFrame) -> pd.DataFrame:
             order_fit_max=float(lim["order_fit"].max()),
             order_h_min=float(lim["order_h_min"].min()),
             order_h_max=float(lim["order_h_max"].max()),
-            order_status=metrics.order_status(median, m.order, most_common(lim["order_note"])),
+            order_status=metrics.order_status(median, m.order, most_common(lim["order_note"]),
+                                              h_rho),
+            order_h_rho=h_rho,
             real_interval=real, imag_interval=imag,
             h_meas_min=float(lim["h_meas"].min()), h_pred_min=float(lim["h_pred"].min()),
             worst_ratio=float(worst), implicit=m.implicit,

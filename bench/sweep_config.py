@@ -30,6 +30,11 @@ SECTIONS = {
     "limits": {"memory_gib", "steps"},
     "timing": {"rounds"},
 }
+SELECTORS = {          # `methods = "..."`: the zoo's methods of one kind, in the zoo's order
+    "all": lambda m: True,
+    "explicit": lambda m: not m.implicit,
+    "implicit": lambda m: m.implicit,
+}
 DEFAULT_ROUNDS = 5     # timed repeats of each accuracy run, after its compilation
 ESTIMATES = {          # [error] estimate: which times of a run its error `err` is taken over
     "max": "the largest scaled error over every step of the run",
@@ -140,10 +145,11 @@ def validate(raw: dict, source: str = "config") -> SweepConfig:
 
     horizon = check.ranged("horizon", "horizon", raw.get("horizon"))
     methods = raw.get("methods", "all")
-    if methods == "all":
-        methods = list(METHODS)
+    if isinstance(methods, str) and methods in SELECTORS:
+        methods = [name for name, m in METHODS.items() if SELECTORS[methods](m)]
     elif not (isinstance(methods, list) and methods and all(isinstance(m, str) for m in methods)):
-        bad.append(f"{source}: methods must be \"all\" or a non-empty list of names")
+        bad.append(f"{source}: methods must be one of {', '.join(map(repr, SELECTORS))} or a "
+                   "non-empty list of names")
         methods = []
     for m in methods:
         if m not in METHODS:

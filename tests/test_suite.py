@@ -81,6 +81,12 @@ def test_order_fit_takes_the_asymptotic_range_between_pre_asymptotic_and_floor()
                                 1e-30, 1e-30, 1.0)            # local slopes alternate
     assert sinking.note.startswith("no asymptotic range")
     assert metrics.order_status(sinking.order, 3, sinking.note) == "no asymptotic range"
+    # An order off the declared one where even the finest step of the fit has h rho > 1 is
+    # the stiff range's; the same below h rho = 1 is below declared.
+    assert metrics.order_status(1.0, 5, "asymptotic", 2 * metrics.STIFF_H_RHO) == "stiff range"
+    assert metrics.order_status(1.0, 5, "asymptotic", metrics.STIFF_H_RHO / 2) == \
+        "below declared"
+    assert metrics.order_status(5.1, 5, "asymptotic", 100.0) == "matches"
     none = metrics.order_fit([], [], 1e-12, 1e-14, 1.0)
     assert np.isnan(none.order) and none.note == "unstable at every step"
     assert metrics.order_status(none.order, 1, none.note) == "not observable"
@@ -107,6 +113,7 @@ reference.exact = true
 name = "b2_short"
 model = "detest_b2"
 horizon = 4.0
+methods = ["rk4"]
 error.estimate = "final"
 steps.h = { min = 0.02, max = 0.2, num = 4 }
 """
@@ -193,8 +200,19 @@ def test_suite_tables_are_the_problems_tables_with_a_problem_column(suite):
             row["order_fit_median"], nan_ok=True)
     a1 = summary[summary["problem"] == "detest_a1"].set_index("method")
     assert a1.loc["trapezoidal", "order_status"] == "matches"
+    # b2_short runs rk4 alone: the suite's methods are every problem's, each once.
+    assert list(summary[summary["problem"] == "b2_short"]["method"]) == ["rk4"]
+    assert np.isnan(orders.loc["trapezoidal", "b2_short"])
+    assert cfg.methods == ("rk4", "trapezoidal")
     limits = pd.read_parquet(out / "limits.parquet")
     assert {"order_h_min", "order_h_max", "order_points", "order_note"} <= set(limits)
+    # rho_max: A1's Jacobian is -1; B2's matrix [[-1, 1, 0], [1, -2, 1], [0, 1, -1]] has
+    # eigenvalues 0, -1 and -3 (Hull et al. 1972): spectral radii 1 and 3 s^-1.
+    rho = limits.groupby("problem")["rho_max"].agg(["min", "max"])
+    assert rho.loc["detest_a1"].tolist() == pytest.approx([1.0, 1.0], rel=1e-12)
+    assert rho.loc["b2_short"].tolist() == pytest.approx([3.0, 3.0], rel=1e-12)
+    assert np.allclose(limits["order_h_rho"], limits["order_h_min"] * limits["rho_max"],
+                       equal_nan=True)
     runs = pd.read_parquet(out / "runs.parquet")
     assert np.allclose(runs["time_s"], runs["time_per_step_s"] * runs["n_steps"])
 
@@ -257,7 +275,7 @@ def test_a_problem_with_no_eigenvalue_to_list_keeps_the_tables_columns(tmp_path)
 
 @pytest.mark.parametrize("edit, message", [
     ('name = "detest_a1"\nmodel = "detest_a2"', "two problems are named 'detest_a1'"),
-    ('model = "detest_a2"\nmethods = ["euler"]', "sets methods, which is the suite's"),
+    ('model = "detest_a2"\nmethods = "stiff"', "methods must be one of 'all', 'explicit'"),
     ('model = "detest_a2"\nhorizon = -1.0', "[problem detest_a2]: horizon"),
     ('name = "a b"\nmodel = "detest_a2"', "name 'a b' must be letters"),
     ('model = "detest_b1"\nreference.exact = true', "closed form; detest_b1 has none"),
