@@ -30,11 +30,10 @@ SECTIONS = {
     "limits": {"memory_gib", "steps"},
     "timing": {"rounds"},
 }
-SELECTORS = {          # `methods = "..."`: the zoo's methods of one kind, in the zoo's order
-    "all": lambda m: True,
-    "explicit": lambda m: not m.implicit,
-    "implicit": lambda m: m.implicit,
-}
+# `methods = "..."`: the zoo's methods of one kind. bounded: a finite real stability
+# interval (explicit methods, Adams-Moulton), the methods a stiff problem's fast modes bind;
+# unbounded: the rest (A- and A(alpha)-stable).
+SELECTORS = ("all", "explicit", "implicit", "bounded", "unbounded")
 DEFAULT_ROUNDS = 5     # timed repeats of each accuracy run, after its compilation
 ESTIMATES = {          # [error] estimate: which times of a run its error `err` is taken over
     "max": "the largest scaled error over every step of the run",
@@ -146,7 +145,7 @@ def validate(raw: dict, source: str = "config") -> SweepConfig:
     horizon = check.ranged("horizon", "horizon", raw.get("horizon"))
     methods = raw.get("methods", "all")
     if isinstance(methods, str) and methods in SELECTORS:
-        methods = [name for name, m in METHODS.items() if SELECTORS[methods](m)]
+        methods = selected(methods)
     elif not (isinstance(methods, list) and methods and all(isinstance(m, str) for m in methods)):
         bad.append(f"{source}: methods must be one of {', '.join(map(repr, SELECTORS))} or a "
                    "non-empty list of names")
@@ -459,3 +458,17 @@ def check_workload(cfg: SweepConfig):
     check_budget(f"the sweep {cfg.name!r}", steps, 2 * lanes, len(cfg.spec.states),
                  calls=len(cfg.methods) * blocks * calls / 2,
                  memory=memory, max_steps=cfg.max_steps)
+
+
+def selected(kind: str) -> list[str]:
+    """The names of the zoo's methods of one of the SELECTORS kinds, in the zoo's order."""
+    from stepzoo.integrators import METHODS
+    from stepzoo.integrators.stability import stability_intervals
+
+    def keep(m) -> bool:
+        if kind in ("explicit", "implicit"):
+            return m.implicit == (kind == "implicit")
+        if kind in ("bounded", "unbounded"):
+            return math.isfinite(stability_intervals(m)[0]) == (kind == "bounded")
+        return True
+    return [name for name, m in METHODS.items() if keep(m)]

@@ -37,7 +37,14 @@ def test_the_shipped_suites_cover_the_standard_sets():
     horizons = {label: cfg.horizon for label, cfg, _ in stiff.problems}
     vdp = horizons.pop("vdp1000")       # its slow branch: the first jump comes at 0.807 mu
     assert vdp < (1.5 - np.log(2)) * model("vdp1000").params()["mu"]
-    assert horizons == {label: model(label).t_span[1] for label in horizons}
+    assert horizons.pop("vdp1000-explicit") == vdp
+    assert horizons == {label: model(cfg.model).t_span[1] for label, cfg, _ in stiff.problems
+                        if label in horizons}
+    # Each model's methods: the A(alpha)-stable ones on the model, the rest on its fine grid.
+    for label in ("robertson", "vdp1000", "hires", "stiff_linear"):
+        ran = set(stiff.problems[stiff.labels.index(label)][1].methods)
+        fine = set(stiff.problems[stiff.labels.index(f"{label}-explicit")][1].methods)
+        assert not ran & fine and ran | fine == set(stiff.methods)
     tyres = load(CONFIGS / "tyre_laws.toml")
     assert [cfg.spec.tyre for _, cfg, _ in tyres.problems] == ["linear", "pacejka", "fiala"]
 
@@ -303,3 +310,16 @@ def test_suite_report_gives_the_orders_and_work_precision_per_problem(suite, tmp
         assert f"| {row['problem']} | {row['method']} | {row['order_declared']} |" in text
     with pytest.raises(UsageError, match="suite of problems; --tuned"):
         build(out, tmp_path / "other", tuned_path=tmp_path / "tuned.toml")
+
+
+def test_method_selectors_follow_the_stability_theory():
+    """`methods = "bounded"`: explicit methods and Adams-Moulton 3 and 4 (Dahlquist's second
+    barrier: no A-stable linear multistep method has order above 2); "unbounded": the A- and
+    A(alpha)-stable rest (BDF3-5 have the whole negative real axis)."""
+    from stepzoo.bench.sweep_config import selected
+    explicit = selected("explicit")
+    assert selected("bounded") == [m for m in selected("all") if m in explicit or
+                                   m in ("am3", "am4")]
+    assert sorted(selected("bounded") + selected("unbounded")) == sorted(selected("all"))
+    assert {"bdf3", "bdf4", "bdf5", "radau_iia5", "trapezoidal"} <= set(selected("unbounded"))
+    assert sorted(explicit + selected("implicit")) == sorted(selected("all"))
