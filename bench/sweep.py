@@ -35,7 +35,7 @@ NARROWING = ("the grid's bracket [lo, hi] (lo stable, hi not) shrinks to hi / lo
 
 REFERENCE_KINDS = {
     "exact": "the model's closed form (reference.exact)",
-    "implicit": "SciPy's LSODA at reference.rtol/atol, per distinct lane",
+    "scipy": "SciPy's {} at reference.rtol/atol, per distinct lane",
     "adaptive": "adaptive Dormand-Prince 5(4) at reference.rtol/atol, restarted every "
                 f"{REF_WINDOW} output times"}
 
@@ -43,7 +43,12 @@ REFERENCE_KINDS = {
 def _reference_kind(cfg: SweepConfig) -> str:
     if cfg.exact_reference:
         return "exact"
-    return "implicit" if cfg.spec.stiff else "adaptive"
+    return "adaptive" if _solver(cfg) == "dopri5" else "scipy"
+
+
+def _solver(cfg: SweepConfig) -> str:
+    """The reference's solver: reference.solver, else LSODA for a stiff model, else dopri5."""
+    return cfg.ref_solver or ("LSODA" if cfg.spec.stiff else "dopri5")
 
 
 # ---- chunks -----------------------------------------------------------------------------
@@ -143,8 +148,8 @@ class _Work:
         x0, u, p = (self.x0, self.u, self.p) if x0 is None else (x0, u, p)
         if cfg.exact_reference:
             return self._exact_reference(h, n, len(x0))
-        if self.spec.stiff:
-            return self._stiff_reference(h, n, x0, u, p)
+        if _reference_kind(cfg) == "scipy":
+            return self._scipy_reference(h, n, x0, u, p)
         fn = _batched_reference(self.spec.rhs, cfg.rtol, cfg.atol)
         uj, pj = jnp.asarray(u), {k: jnp.asarray(v) for k, v in p.items()}
         ts = h * np.arange(n + 1)
@@ -170,8 +175,8 @@ class _Work:
         return np.broadcast_to(np.asarray(x, float), (lanes, n + 1, len(x[0]))).copy(), \
             np.ones(lanes, bool)
 
-    def _stiff_reference(self, h, n, x0, u, p):
-        """The reference of a stiff model: SciPy's implicit solver (`solutions.solve`) per
+    def _scipy_reference(self, h, n, x0, u, p):
+        """A reference by SciPy's solve_ivp (`solutions.solve`, the config's solver) per
         distinct lane at the config's tolerances; a lane it fails on is NaN, ref_ok False."""
         from stepzoo.dynamics.solutions import solve
         ts = h * np.arange(n + 1)
@@ -184,8 +189,9 @@ class _Work:
                 if key not in done:
                     try:
                         done[key] = solve(self.spec.rhs, x0[b], u[b],
-                                          {k: v[b] for k, v in p.items()}, ts, stiff=True,
-                                          rtol=self.cfg.rtol, atol=self.cfg.atol)
+                                          {k: v[b] for k, v in p.items()}, ts,
+                                          method=_solver(self.cfg), rtol=self.cfg.rtol,
+                                          atol=self.cfg.atol)
                     except RuntimeError:
                         done[key] = None
                 if done[key] is not None:
@@ -733,7 +739,7 @@ def _write_manifest(cfg, out: Path, created, done, timing, complete) -> dict:
         "prediction": frozen.RULE,
         "trajectory_point": dict(zip(cfg.spec.variables, cfg.traj_point)),
         "horizon_s": cfg.horizon, "vehicle": cfg.vehicle, "model": cfg.model,
-        "reference": REFERENCE_KINDS[_reference_kind(cfg)],
+        "reference": REFERENCE_KINDS[_reference_kind(cfg)].format(_solver(cfg)),
         "error_estimate": ESTIMATES[cfg.error_estimate],
         "model_spec": schema.model_record(cfg.spec),
         "stepzoo_version": ver, "timing_rounds": cfg.timing_rounds,

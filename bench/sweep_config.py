@@ -23,7 +23,7 @@ MAX_GRID = 10_000       # values of one grid, or points of an envelope: more is 
                         # would be allocated before any estimate of the work
 SECTIONS = {
     "steps": {"h"},
-    "reference": {"rtol", "atol", "exact"},
+    "reference": {"rtol", "atol", "exact", "solver"},
     "stability": {"steps", "growth", "perturbation", "h_probe_max", "rel_tol"},
     "chunks": {"points"},
     "error": {"states", "scales", "estimate"},
@@ -34,6 +34,12 @@ SECTIONS = {
 # interval (explicit methods, Adams-Moulton), the methods a stiff problem's fast modes bind;
 # unbounded: the rest (A- and A(alpha)-stable).
 SELECTORS = ("all", "explicit", "implicit", "bounded", "unbounded")
+# [reference] solver: what computes a reference (the default: dopri5, JAX's adaptive
+# Dormand-Prince, for every model but the stiff test problems, which take LSODA); the others
+# are SciPy's solve_ivp methods, per distinct lane. Radau IIA (order 5) reaches 1e-13 where
+# LSODA stops near 1e-12 (Robertson at rtol 1e-13: 6e-14 against 1.3e-12, rk6 at 2^19 steps
+# the truth).
+REF_SOLVERS = ("", "dopri5", "LSODA", "Radau", "BDF", "DOP853")
 DEFAULT_ROUNDS = 5     # timed repeats of each accuracy run, after its compilation
 ESTIMATES = {          # [error] estimate: which times of a run its error `err` is taken over
     "max": "the largest scaled error over every step of the run",
@@ -78,6 +84,7 @@ class SweepConfig:
     timing_rounds: int = DEFAULT_ROUNDS    # timed repeats of each accuracy run
     exact_reference: bool = False  # references from the model's closed form (reference.exact)
     error_estimate: str = "max"    # a key of ESTIMATES
+    ref_solver: str = ""           # reference.solver; "": the model's default (REF_SOLVERS)
 
     @property
     def points(self) -> list[tuple]:
@@ -96,6 +103,8 @@ class SweepConfig:
             del d["exact_reference"]
         if self.error_estimate == "max":
             del d["error_estimate"]
+        if not self.ref_solver:
+            del d["ref_solver"]
         d["spec"] = self.spec.canonical()
         return d
 
@@ -171,6 +180,10 @@ def validate(raw: dict, source: str = "config") -> SweepConfig:
         bad.append(f"{source}: reference.exact must be true or false, got {exact!r}")
     elif exact and spec is not None:
         exact = closed_form_problem(spec, source, bad)
+    solver = ref.get("solver", "")
+    if solver not in REF_SOLVERS:
+        bad.append(f"{source}: reference.solver must be one of "
+                   f"{', '.join(map(repr, REF_SOLVERS))}, got {solver!r}")
     stab = sections["stability"]
     steps = stab.get("steps", 1000)
     if not (isinstance(steps, int) and not isinstance(steps, bool) and 50 <= steps <= 100_000):
@@ -235,7 +248,8 @@ def validate(raw: dict, source: str = "config") -> SweepConfig:
                        float(perturbation), float(h_probe_max), float(rel_tol), int(per_chunk),
                        tuple(traj_point), tuple(float(f) for f in fractions), float(past),
                        source, *limits, timing_rounds=int(rounds or DEFAULT_ROUNDS),
-                       exact_reference=exact is True, error_estimate=estimate)
+                       exact_reference=exact is True, error_estimate=estimate,
+                       ref_solver=solver)
 
 
 def closed_form_problem(spec: ModelSpec, source: str, bad: list) -> bool:

@@ -121,6 +121,7 @@ name = "b2_short"
 model = "detest_b2"
 horizon = 4.0
 methods = ["rk4"]
+reference.solver = "DOP853"
 error.estimate = "final"
 steps.h = { min = 0.02, max = 0.2, num = 4 }
 """
@@ -152,12 +153,12 @@ def test_each_problem_is_an_ordinary_sweep_with_its_own_settings(suite):
 
 def test_an_exact_reference_is_the_closed_form(suite):
     """A1 (y' = -y) against exp(-t) itself: the sweep's rk4 error at each step is the one
-    computed here from the closed form; B2 kept the adaptive reference."""
+    computed here from the closed form; B2's reference is SciPy's DOP853 (reference.solver)."""
     _, out, _ = suite
     kinds = {p: json.loads((out / p / "manifest.json").read_text())["reference"]
              for p in ("detest_a1", "b2_short")}
     assert kinds["detest_a1"].startswith("the model's closed form")
-    assert kinds["b2_short"].startswith("adaptive Dormand-Prince")
+    assert kinds["b2_short"].startswith("SciPy's DOP853")
     runs = pd.read_parquet(out / "detest_a1" / "runs.parquet")
     rk4 = runs[runs["method"] == "rk4"].sort_values("h")
     ns = rk4["n_steps"].to_numpy()
@@ -287,6 +288,7 @@ def test_a_problem_with_no_eigenvalue_to_list_keeps_the_tables_columns(tmp_path)
     ('name = "a b"\nmodel = "detest_a2"', "name 'a b' must be letters"),
     ('model = "detest_b1"\nreference.exact = true', "closed form; detest_b1 has none"),
     ('model = "detest_b1"\nerror.estimate = "l2"', "error.estimate must be one of 'max', "),
+    ('model = "detest_b1"\nreference.solver = "rk45"', "reference.solver must be one of"),
     ('model = "detest_a2"\nreference.exact = true\nenvelope.y1 = { values = [2.0] }',
      "keep [envelope], [initial] and [params] at its published values"),
 ])
