@@ -34,6 +34,18 @@ ORDER_RULE = (f"slope of log err on log h over the asymptotic range, read from e
               "there is none (then the fit is over every usable step, or NaN with fewer than 3)")
 
 
+def run_error(spec, x, ref, estimate: str) -> np.ndarray:
+    """Each run's error `err` (B,): the scaled distance (the error states over their scales)
+    of runs x (B, N+1, d) from the reference ref at the same times, its largest over the run
+    (estimate "max") or its value at the end ("final"; inf for a run that left the finite
+    range on the way, which has no final error to speak of): sweep_config.ESTIMATES."""
+    with np.errstate(invalid="ignore", over="ignore"):
+        dev = spec.scaled(x - ref)
+    if estimate == "max":
+        return dev.max(axis=1)
+    return np.where(np.isfinite(dev).all(axis=1), dev[:, -1], np.inf)
+
+
 @dataclass(frozen=True)
 class OrderFit:
     """An observed order and the range of steps [s] it was fitted on."""

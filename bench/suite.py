@@ -3,8 +3,9 @@
 Each `[[problem]]` table is a problem: a model with its own horizon, steps, envelope and
 settings. A problem's keys replace the config's top-level ones of the same name, except that
 the settings tables ([steps], [reference], [stability], [chunks], [trajectories], [timing],
-[limits]) are merged key by key; a problem may have methods of its own (explicit methods on
-a stiff problem need a finer grid than the implicit ones: two problems of one model).
+[limits], [newton]) are merged key by key; a problem may have methods of its own (explicit
+methods on a stiff problem need a finer grid than the implicit ones: two problems of one
+model).
 A problem without a horizon runs over its built-in model's published interval; one without an
 envelope runs its model's default problem (the envelope is then its first state's initial
 value alone). Each problem is swept into its own folder, an ordinary sweep folder that tune,
@@ -29,7 +30,8 @@ from stepzoo.errors import UsageError
 from stepzoo.output import atomic_write, to_json
 from stepzoo.results_folder import writing
 
-SETTINGS = {"steps", "reference", "stability", "chunks", "trajectories", "timing", "limits"}
+SETTINGS = {"steps", "reference", "stability", "chunks", "trajectories", "timing", "limits",
+            "newton"}
 LABEL = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]*")
 ORDERS = "orders.csv"
 

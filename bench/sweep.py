@@ -409,8 +409,7 @@ class _Work:
         return x0, u, p
 
     def method_chunk(self, name: str) -> dict:
-        from stepzoo.integrators import method
-        cfg, meth = self.cfg, method(name)
+        cfg, meth = self.cfg, self.cfg.method(name)
         # Compiles the one program of the chunk's runs, accuracy and stability alike, so
         # that the timed accuracy rounds below time the computation alone.
         self.integrate(meth, self.x0, self.u, self.p, cfg.hs[0], 1)
@@ -480,11 +479,7 @@ class _Work:
             if spec.vehicle:
                 pos = np.hypot(d[:, :, spec.states.index("X")], d[:, :, spec.states.index("Y")])
                 col["err_pos"], col["err_final"] = pos.max(axis=1), pos[:, -1]
-            with np.errstate(invalid="ignore", over="ignore"):
-                dev = spec.scaled(x - ref)
-            # A run that left the finite range on the way has no final error to speak of.
-            col["err"] = dev.max(axis=1) if cfg.error_estimate == "max" else \
-                np.where(np.isfinite(dev).all(axis=1), dev[:, -1], np.inf)
+            col["err"] = metrics.run_error(spec, x, ref, cfg.error_estimate)
             col["evals_per_s"] = evals / (n * h)
             col.update(per_step(walls, n * len(self.x0)))
             col["n_steps"] = n
@@ -741,6 +736,7 @@ def _write_manifest(cfg, out: Path, created, done, timing, complete) -> dict:
         "horizon_s": cfg.horizon, "vehicle": cfg.vehicle, "model": cfg.model,
         "reference": REFERENCE_KINDS[_reference_kind(cfg)].format(_solver(cfg)),
         "error_estimate": ESTIMATES[cfg.error_estimate],
+        "newton": cfg.newton_options,
         "model_spec": schema.model_record(cfg.spec),
         "stepzoo_version": ver, "timing_rounds": cfg.timing_rounds,
         **environment.provenance("sweep", created[1], environment.now() if complete else None),

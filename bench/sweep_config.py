@@ -18,7 +18,7 @@ from stepzoo.validate import problem, read_toml
 
 TOP = {"name", "model", "tyre", "vehicle", "horizon", "methods", "params", "initial",
        "envelope", "error", "steps", "reference", "limits", "stability", "chunks",
-       "trajectories", "timing"}
+       "trajectories", "timing", "newton"}
 MAX_GRID = 10_000       # values of one grid, or points of an envelope: more is a typo, and
                         # would be allocated before any estimate of the work
 SECTIONS = {
@@ -85,6 +85,9 @@ class SweepConfig:
     exact_reference: bool = False  # references from the model's closed form (reference.exact)
     error_estimate: str = "max"    # a key of ESTIMATES
     ref_solver: str = ""           # reference.solver; "": the model's default (REF_SOLVERS)
+    # [newton]: the implicit methods' solve options (fields of NewtonOptions) that differ
+    # from its defaults, as sorted (name, value) pairs
+    newton: tuple = ()
 
     @property
     def points(self) -> list[tuple]:
@@ -105,6 +108,10 @@ class SweepConfig:
             del d["error_estimate"]
         if not self.ref_solver:
             del d["ref_solver"]
+        if self.newton:
+            d["newton"] = dict(self.newton)
+        else:
+            del d["newton"]
         d["spec"] = self.spec.canonical()
         return d
 
@@ -112,6 +119,21 @@ class SweepConfig:
     def sha256(self) -> str:
         text = json.dumps(self.canonical(), sort_keys=True, separators=(",", ":"))
         return hashlib.sha256(text.encode()).hexdigest()
+
+    @property
+    def newton_options(self) -> dict:
+        """Every option of the implicit methods' Newton solves: [newton] over the defaults."""
+        from dataclasses import asdict
+
+        from stepzoo.integrators.newton import NewtonOptions
+        return asdict(NewtonOptions(**dict(self.newton)))
+
+    def method(self, name: str):
+        """The zoo's method `name` with this sweep's [newton] options (the same Method for
+        every call in a process: one compilation)."""
+        from stepzoo.integrators import method
+        from stepzoo.integrators.newton import NewtonOptions
+        return method(name, NewtonOptions(**dict(self.newton)) if self.newton else None)
 
 
 def load(path) -> SweepConfig:
@@ -139,7 +161,7 @@ def validate(raw: dict, source: str = "config") -> SweepConfig:
     for key in sorted(set(raw) - TOP):
         bad.append(f"{source}: unknown key {key!r}; known: {', '.join(sorted(TOP))}")
     sections = {}
-    for sec in (*SECTIONS, "params", "initial", "envelope", "trajectories"):
+    for sec in (*SECTIONS, "params", "initial", "envelope", "trajectories", "newton"):
         table = raw.get(sec, {})
         if not isinstance(table, dict):
             bad.append(f"{source}: [{sec}] must be a table")
@@ -233,6 +255,7 @@ def validate(raw: dict, source: str = "config") -> SweepConfig:
                    f", got {estimate!r}")
     rounds = check.ranged("rounds", "timing.rounds",
                           sections["timing"].get("rounds", DEFAULT_ROUNDS))
+    newton = newton_options(sections["newton"], source, bad)
     name = raw.get("name", Path(source).stem)
     if not isinstance(name, str):
         bad.append(f"{source}: name must be a string")
@@ -249,7 +272,31 @@ def validate(raw: dict, source: str = "config") -> SweepConfig:
                        tuple(traj_point), tuple(float(f) for f in fractions), float(past),
                        source, *limits, timing_rounds=int(rounds or DEFAULT_ROUNDS),
                        exact_reference=exact is True, error_estimate=estimate,
-                       ref_solver=solver)
+                       ref_solver=solver, newton=newton)
+
+
+def newton_options(table: dict, source: str, bad: list) -> tuple:
+    """[newton]: options of the implicit methods' Newton solves, keyed by the fields of
+    NewtonOptions; the sorted (name, value) pairs that differ from its defaults (a table
+    that repeats a default keeps the sweep's sha256). Appends to `bad` if wrong."""
+    from dataclasses import fields as fields_of
+
+    from stepzoo.integrators.newton import NewtonOptions
+    defaults = {f.name: f.default for f in fields_of(NewtonOptions)}
+    before = len(bad)
+    for key in sorted(set(table) - set(defaults)):
+        bad.append(f"{source}: unknown key newton.{key}; known: {', '.join(sorted(defaults))}")
+    given = {}
+    for key in sorted(set(table) & set(defaults)):
+        message = problem(f"newton_{key}", f"newton.{key}", table[key])
+        if message:
+            bad.append(f"{source}: {message}")
+        else:
+            given[key] = type(defaults[key])(table[key])
+    opts = {**defaults, **given}
+    if len(bad) == before and opts["rtol"] == 0 and opts["atol"] == 0:
+        bad.append(f"{source}: newton.rtol and newton.atol are both 0; give one > 0")
+    return tuple(sorted((k, v) for k, v in given.items() if v != defaults[k]))
 
 
 def closed_form_problem(spec: ModelSpec, source: str, bad: list) -> bool:

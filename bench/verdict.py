@@ -7,17 +7,18 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from stepzoo.bench import frozen
+from stepzoo.bench import frozen, metrics
 from stepzoo.bench.sweep import _Work, n_blocks
 
 
 def verdict(cfg, method_name: str, h: float) -> pd.DataFrame:
     """One row per operating point: its variables, h_pred [s], stable (measured), cause
-    ('unstable', 'solver failed' or ''), err (error norm), err_pos [m] for vehicle models."""
+    ('unstable', 'solver failed' or ''), err (the error norm, over the run or at its end as
+    the config's [error] estimate says, as the sweep's), err_pos [m] for vehicle models.
+    Implicit methods solve with the config's [newton] options."""
     import dataclasses
 
-    from stepzoo.integrators import method
-    meth = method(method_name)
+    meth = cfg.method(method_name)
     n = max(1, round(cfg.horizon / h))
     # The accuracy runs take n steps of h; the stability runs stab_steps.
     cfg = dataclasses.replace(cfg, hs=(cfg.horizon / n,))
@@ -28,7 +29,7 @@ def verdict(cfg, method_name: str, h: float) -> pd.DataFrame:
         ok, _, conv = work.stable(meth, np.full((len(work.x0), 1), h))
         x, _, acc_conv, _ = work.integrate(meth, work.x0, work.u, work.p, h, n)
         ref, _ = work.reference(h, n)
-        err = cfg.spec.scaled(x - ref).max(axis=1)
+        err = metrics.run_error(cfg.spec, x, ref, cfg.error_estimate)
         _, _, lam, _ = work.along()
         for lane, i in enumerate(work.ids):
             row = dict(point=i, **work.point_columns())

@@ -1,6 +1,7 @@
 """The zoo: each method is data (a tableau or multistep coefficients) plus metadata, and a
 registry by name. Adding a method is one `_register` line."""
-from dataclasses import dataclass, replace
+from dataclasses import asdict, dataclass, replace
+from functools import cache
 
 import jax.numpy as jnp
 import numpy as np
@@ -36,10 +37,21 @@ class Method:
 
     def with_newton(self, **options) -> "Method":
         """This method (and its starter) with other Newton options (fields of NewtonOptions).
-        Each call makes a new Method, hence a new compilation: make it once and reuse it."""
+        A call that changes the options makes a new Method, hence a new compilation: make it
+        once and reuse it (`method(name, newton)` does). A method with no nonlinear solve,
+        or options equal to its own, is returned itself: same results, no compilation."""
         opts = replace(self.newton, **options)
+        if opts == self.newton or not self.solves:
+            return self
         starter = self.starter.with_newton(**options) if self.starter is not None else None
         return replace(self, newton=opts, starter=starter)
+
+    @property
+    def solves(self) -> bool:
+        """Whether a step of it or of its starter solves nonlinear equations by Newton's
+        method (implicit, not Rosenbrock): the ones `newton` acts on."""
+        own = self.implicit and not self.is_rosenbrock
+        return own or (self.starter is not None and self.starter.solves)
 
     @property
     def is_multistep(self) -> bool:
@@ -236,10 +248,17 @@ for _k, _alpha in ((3, 86.03), (4, 73.35), (5, 51.84)):
               METHODS["radau_iia5"])
 
 
-def method(name: str) -> Method:
+def method(name: str, newton: NewtonOptions | None = None) -> Method:
+    """The zoo's method `name`, with Newton options `newton` where given: one Method per
+    (name, options) in a process, so each compiles once however often it is asked for."""
     if name not in METHODS:
         raise KeyError(f"unknown method {name!r}; known: {', '.join(METHODS)}")
-    return METHODS[name]
+    return METHODS[name] if newton is None else _with_options(name, newton)
+
+
+@cache
+def _with_options(name: str, newton: NewtonOptions) -> Method:
+    return METHODS[name].with_newton(**asdict(newton))
 
 
 def describe(m: Method) -> dict:

@@ -97,6 +97,17 @@ RANGES = {
     "cell": Range("a cell size", 1e-3, 100.0, "m/cell", "a millimetre to 100 m per cell"),
     "rounds": Range("a number of timed rounds", 1, 1000, "", "repeats of each timed run; "
                     "a thousand is minutes of timing alone", whole=True),
+    # [newton]: the fields of integrators.newton.NewtonOptions, the implicit methods' solves
+    "newton_rtol": Range("a relative tolerance", 0.0, 0.1, "", "0: atol alone; below "
+                         "round-off a solve stops where its increments are round-off"),
+    "newton_atol": Range("an absolute tolerance", 0.0, 1.0, "", "0: rtol alone; in the "
+                         "states' own units"),
+    "newton_res_tol": Range("a residual tolerance", 0.0, 1e6, "", "times the residual an "
+                            "error within tolerance makes", open_lo=True),
+    "newton_max_iter": Range("an iteration limit", 1, 1000, "", "simplified Newton "
+                             "iterations per solve", whole=True),
+    "newton_max_iter_full": Range("an iteration limit", 0, 1000, "", "full Newton "
+                                  "iterations of the retry; 0: no retry", whole=True),
 }
 
 

@@ -190,6 +190,21 @@ def test_a_final_error_estimate_is_the_error_at_the_horizon(suite):
     assert load_sweep(out / "detest_a1").view.error_label.startswith("error (error states")
 
 
+def test_the_verdict_s_error_is_the_sweep_s_on_a_final_error_config(suite):
+    """The verdict takes a run's error as the sweep does: on b2_short (error.estimate =
+    "final") rk4's verdict err at the finest step is the sweep's err of that run, the error
+    at the horizon, not the larger maximum over the run."""
+    from stepzoo.bench.verdict import verdict
+    cfg, out, _ = suite
+    b2 = dict((label, c) for label, c, _ in cfg.problems)["b2_short"]
+    runs = pd.read_parquet(out / "b2_short" / "runs.parquet")
+    run = runs[(runs["method"] == "rk4") & (runs["h"] == min(b2.hs))].iloc[0]
+    table = verdict(b2, "rk4", float(run["h"]))
+    assert bool(table["stable"].iloc[0])
+    assert table["err"].iloc[0] == pytest.approx(run["err"], rel=1e-12)
+    assert run["err"] < run[["err_y1", "err_y2", "err_y3"]].max()
+
+
 def test_suite_tables_are_the_problems_tables_with_a_problem_column(suite):
     cfg, out, _ = suite
     for name in schema.PARQUET:
@@ -289,6 +304,11 @@ def test_a_problem_with_no_eigenvalue_to_list_keeps_the_tables_columns(tmp_path)
     ('model = "detest_b1"\nreference.exact = true', "closed form; detest_b1 has none"),
     ('model = "detest_b1"\nerror.estimate = "l2"', "error.estimate must be one of 'max', "),
     ('model = "detest_b1"\nreference.solver = "rk45"', "reference.solver must be one of"),
+    ('model = "detest_b1"\nnewton = { tol = 1e-12 }',
+     "unknown key newton.tol; known: atol, max_iter, max_iter_full, res_tol, rtol"),
+    ('model = "detest_b1"\nnewton.max_iter = 2.5', "newton.max_iter must be an iteration limit"),
+    ('model = "detest_b1"\nnewton = { rtol = 0.0, atol = 0.0 }',
+     "newton.rtol and newton.atol are both 0"),
     ('model = "detest_a2"\nreference.exact = true\nenvelope.y1 = { values = [2.0] }',
      "keep [envelope], [initial] and [params] at its published values"),
 ])
