@@ -175,6 +175,14 @@ def reeds_shepp_paths(start, goal, radius):
     return sorted(paths, key=lambda segs: sum(abs(q) for _, q in segs))
 
 
+def guess_paths(start, goal, radius, reverse) -> list:
+    """The paths the connection's guesses drive from pose `start` to `goal` ([X, Y, theta],
+    [m, rad]) at turning radius `radius` [m]: dubins_paths, then with reverse gear
+    reeds_shepp_paths."""
+    paths = dubins_paths(start, goal, radius)
+    return paths + reeds_shepp_paths(start, goal, radius) if reverse else paths
+
+
 def path_poses(start, segs, radius, spacing) -> np.ndarray:
     """(K, 3) poses [X, Y, theta] along the path `segs` (from dubins_paths or
     reeds_shepp_paths) from `start`, at most `spacing` [m] apart, both ends included."""
@@ -220,13 +228,14 @@ def _runs(segs) -> list:
     return runs or [(1, [(0, 0.0)])]
 
 
-def _guess(N, segs, radius, start, a_max, v_max, v_goal, v_back=0.0):
-    """Net heading change [rad], t_f [s] and scaled inputs (2, N) of driving the path `segs`
-    (signed lengths: backwards below 0) of turning radius `radius` [m] at the fastest speed
-    profile: each run between cusps from rest to rest (the first from the start's speed, after
-    braking to rest straight ahead if the start moves the other way; the last to v_goal), at
-    most v_max forwards and v_back backwards [m/s]. Ignoring the map, this is the continuous
-    optimum for the shortest Dubins path: turning costs no speed in this model."""
+def _profile(segs, radius, start, a_max, v_max, v_goal, v_back=0.0):
+    """Net heading change [rad], t_f [s], and the runs between cusps with their fastest
+    speed profiles [(start speed [m/s], (t1, t2, t_end) [s])] of driving the path `segs`
+    (signed lengths: backwards below 0) of turning radius `radius` [m]: each run from rest to
+    rest (the first from the start's speed, after braking to rest straight ahead if the start
+    moves the other way; the last to v_goal), at most v_max forwards and v_back backwards
+    [m/s]. Ignoring the map, this is the continuous optimum for the shortest Dubins path:
+    turning costs no speed in this model."""
     turn = sum(s * q / radius for s, q in segs)
     runs, plans = _runs(segs), []
     if start[3] * runs[0][0] < 0:
@@ -237,6 +246,12 @@ def _guess(N, segs, radius, start, a_max, v_max, v_goal, v_back=0.0):
             else 0.0
         plans.append((v0, _fastest_profile(sum(q for _, q in run), v0, a_max,
                                            v_max if way > 0 else v_back, v_end)))
+    return turn, float(sum(profile[2] for _, profile in plans)), runs, plans
+
+
+def _guess_inputs(N, runs, plans, a_max):
+    """Scaled inputs (2, N) [steer sign, acceleration / a_max] at the midpoints of N equal
+    intervals of driving `runs` at their speed profiles `plans` (from `_profile`)."""
     ends = np.cumsum([profile[2] for _, profile in plans])
     tf = float(ends[-1])
     t_mid = (np.arange(N) + 0.5) * tf / N
@@ -253,7 +268,7 @@ def _guess(N, segs, radius, start, a_max, v_max, v_goal, v_back=0.0):
         along = np.cumsum([q for _, q in run])
         steer[i] = run[min(int(np.searchsorted(along, s)), len(run) - 1)][0]
         acc[i] = way * (1.0 if tau < t1 else 0.0 if tau < t2 else -1.0)
-    return turn, tf, np.vstack([steer, acc])
+    return np.vstack([steer, acc])
 
 
 @dataclass(frozen=True)
@@ -342,7 +357,7 @@ def _solve(prob, p, lo, hi, tf_range, tf_g, u_g):
 
 def connect(start, goal, *, L, m, bounds=None, N=50, shooting=DEFAULT_SHOOTING,
             method=DEFAULT_METHOD, goal_speed=None, v_max=25.0, delta_max=pi / 4,
-            a_max=A_MAX, tf_bounds=None, v_min=0.0) -> Connection:
+            a_max=A_MAX, tf_bounds=None, v_min=0.0, paths=None) -> Connection:
     """Minimum-time connection from `start` [X, Y, theta, v] to `goal` [X, Y, theta]
     ([m, m, rad, m/s]), N piecewise-constant input intervals of dt = t_f/N.
 
@@ -357,7 +372,8 @@ def connect(start, goal, *, L, m, bounds=None, N=50, shooting=DEFAULT_SHOOTING,
     heading is unwrapped after the path's net turn and theta is bounded THETA_MARGIN beyond
     start and goal. The fastest guess is tried first; if IPOPT fails (a map bound may cut
     that path), the fastest of each other winding and first direction of travel is tried,
-    up to MAX_TRIES solves.
+    up to MAX_TRIES solves. `paths` passes those paths when the caller has them already:
+    guess_paths(start, goal, radius, v_min < 0) with radius = L / tan(delta_max).
     Never raises for an infeasible problem: `success` is False and the arrays hold IPOPT's
     last iterate. The cached solver makes this function not thread-safe."""
     t0 = perf_counter()
@@ -373,14 +389,14 @@ def connect(start, goal, *, L, m, bounds=None, N=50, shooting=DEFAULT_SHOOTING,
     v_goal = [] if goal_speed is None else [goal_speed]
     radius = L / np.tan(delta_max)
     goal_local = np.array([*(goal[:2] - origin), goal[2]])
-    paths = dubins_paths(x0[:3], goal_local, radius)
-    if v_min < 0:
-        paths += reeds_shepp_paths(x0[:3], goal_local, radius)
+    if paths is None:
+        paths = guess_paths(x0[:3], goal_local, radius, v_min < 0)
     # Fastest guess first; forwards only, that is the shortest Dubins path first.
-    guesses = sorted(((_guess(N, segs, radius, x0, a_max, v_max, goal_speed, -v_min),
+    # The inputs, a Python loop per interval, are built only for the guesses tried.
+    guesses = sorted(((_profile(segs, radius, x0, a_max, v_max, goal_speed, -v_min),
                        _runs(segs)[0][0]) for segs in paths), key=lambda pair: pair[0][1])
     tried = set()
-    for (turn, tf_g, u_g), way in guesses:
+    for (turn, tf_g, runs, plans), way in guesses:
         theta_g = unwrap(goal[2], start[2] + turn)
         winding = round((theta_g - goal[2]) / (2 * pi))
         # One try per heading winding and first direction of travel.
@@ -388,6 +404,7 @@ def connect(start, goal, *, L, m, bounds=None, N=50, shooting=DEFAULT_SHOOTING,
         if key in tried:
             continue
         tried.add(key)
+        u_g = _guess_inputs(N, runs, plans, a_max)
         p = np.r_[x0, goal_local[:2], theta_g, L, m, delta_max, a_max, v_goal]
         lo = np.array([box[0], box[2], min(start[2], theta_g) - THETA_MARGIN, v_min])
         hi = np.array([box[1], box[3], max(start[2], theta_g) + THETA_MARGIN, v_max])

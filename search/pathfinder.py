@@ -16,8 +16,8 @@ from scipy.sparse.csgraph import dijkstra
 
 from stepzoo import dynamics
 from stepzoo.search.car_bounds import dubins_length, reeds_shepp_length
-from stepzoo.search.connect import (Connection, connect, dubins_paths, path_poses,
-                                    reeds_shepp_paths)
+from stepzoo.search.connect import (Connection, connect, dubins_paths, guess_paths,
+                                    path_poses)
 from stepzoo.search.departure import boxed_in, turned
 from stepzoo.search.footprint import Footprint, first_collision, poses_collide
 from stepzoo.search.maps import SUBDIV, OccupancyMap
@@ -268,15 +268,16 @@ class PathFinder:
         rows, cols = self._components.shape
         return min(max(row, 0), rows - 1), min(max(col, 0), cols - 1)
 
-    def _connect(self, node, goal, goal_speed, bounds=None, direction=1) -> tuple[Connection, str]:
+    def _connect(self, node, goal, goal_speed, bounds=None, direction=1,
+                 paths=None) -> tuple[Connection, str]:
         """Connection from a node state (5,), reached driving `direction` (+1 forwards, -1
-        backwards), to the goal pose; (connection, '' or why not). With reverse gear the OCP
-        lets the speed go down to -vx."""
+        backwards), to the goal pose, its guesses driving `paths` (connect's); (connection,
+        '' or why not). With reverse gear the OCP lets the speed go down to -vx."""
         prm = self.config.params
         conn = connect([node[0], node[1], node[2], direction * self.vx], goal, L=self.wheelbase,
                        m=self.vehicle["m"], bounds=bounds or self.omap.bounds(),
                        N=prm["connect_N"], goal_speed=goal_speed, delta_max=prm["delta_max"],
-                       v_min=-self.vx if prm["reverse"] else 0.0)
+                       v_min=-self.vx if prm["reverse"] else 0.0, paths=paths)
         if not conn.success:
             return conn, f"IPOPT: {conn.status}"
         if first_collision(self.omap, self.footprint, conn.states[None, :, :3])[0] >= 0:
@@ -591,22 +592,18 @@ class _Search:
         """Connection attempts that called the OCP."""
         return len(self.tried) - len(self.cheap)
 
-    def _car_path_free(self, node) -> bool:
+    def _car_path_free(self, node, guesses) -> bool:
         """Whether any Dubins path (with reverse gear, also any Reeds-Shepp path) from the node
-        to the goal is collision-free: the paths the connection's guesses drive."""
-        radius = self.radius
-        # Backwards, the footprint (symmetric about its centre) sweeps what it sweeps driving
-        # forwards between the poses turned round.
-        flips = (0.0, math.pi) if self.prm["reverse"] else (0.0,)
-        paths = []
-        for flip in flips:
-            start = self.states[node][:3] + (0.0, 0.0, flip)
-            for segs in dubins_paths(start, self.goal[:3] + (0.0, 0.0, flip), radius):
-                paths.append(path_poses(start, segs, radius, DUBINS_SPACING))
+        to the goal is collision-free: `guesses`, the paths the connection's guesses drive
+        (connect.guess_paths), and with reverse gear the Dubins paths driven backwards."""
+        radius, start = self.radius, self.states[node][:3]
+        paths = [path_poses(start, segs, radius, DUBINS_SPACING) for segs in guesses]
         if self.prm["reverse"]:
-            start = self.states[node][:3]
-            paths += [path_poses(start, segs, radius, DUBINS_SPACING)
-                      for segs in reeds_shepp_paths(start, self.goal[:3], radius)]
+            # Backwards, the footprint (symmetric about its centre) sweeps what it sweeps
+            # driving forwards between the poses turned round.
+            back = start + (0.0, 0.0, math.pi)
+            paths += [path_poses(back, segs, radius, DUBINS_SPACING) for segs in
+                      dubins_paths(back, self.goal[:3] + (0.0, 0.0, math.pi), radius)]
         if not paths:
             return False
         # One check of all words: each padded with its last pose to the longest.
@@ -632,7 +629,9 @@ class _Search:
             if self.g[i] + max(self.H[i], self.car[i]) >= self.best * (1 - IMPROVE_TOL):
                 continue
             self.tried.add(i)
-            if not self._car_path_free(i):
+            guesses = guess_paths(self.states[i][:3], self.goal[:3], self.radius,
+                                  self.prm["reverse"])
+            if not self._car_path_free(i, guesses):
                 # The OCP starts from these paths and ignores obstacles: it would collide too.
                 self.cheap.add(i)
                 self.failures.append("every Dubins path collides" if not self.prm["reverse"]
@@ -640,7 +639,7 @@ class _Search:
                 continue
             t0 = perf_counter()
             conn, why = self.f._connect(self.states[i], self.goal, self.goal_speed,
-                                        direction=self.direction[i] or 1)
+                                        direction=self.direction[i] or 1, paths=guesses)
             self.connect_s += perf_counter() - t0
             if why:
                 self.failures.append(why)
