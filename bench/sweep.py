@@ -217,6 +217,13 @@ class _Work:
             return ts, xs, frozen.eigenvalues(jac), jac
         return self._cached("along", make)
 
+    def predicted(self, meth) -> list[tuple[float, int, int]]:
+        """Per lane, (largest stable step [s], time index, eigenvalue index where it binds)
+        of the method along the lane's reference (frozen.predicted_limit)."""
+        lam = self.along()[2]
+        with self.clock("metrics_s"):
+            return [frozen.predicted_limit(meth, lam[b]) for b in range(len(self.x0))]
+
     def perturbation(self) -> np.ndarray:
         """(B, d) initial deviation of the stability runs: the same amount of each eigenmode
         of the Jacobian at the initial state that bounds a step (each mode scaled to size 1
@@ -289,12 +296,12 @@ class _Work:
             self.timing["stability_s"] += run_a + run_b + time.perf_counter() - t0
         return ok, t_blow, conv
 
-    def measured_limits(self, meth, grid_ok, grid_conv):
+    def measured_limits(self, meth, grid_ok, grid_conv, pred):
         """(largest stable step [s], cause) per lane: bracketed by the grid (extended by
         doubling up to h_probe_max, or halving below it), then narrowed to rel_tol, starting
-        at the predicted limit (see `_candidates`). inf: nothing failed up to h_probe_max; 0:
-        unstable even at the smallest probe. The cause says what failed just above the limit:
-        'unstable', 'solver failed' or 'none'."""
+        at the predicted limit pred [s] of each lane (see `_candidates`). inf: nothing failed
+        up to h_probe_max; 0: unstable even at the smallest probe. The cause says what failed
+        just above the limit: 'unstable', 'solver failed' or 'none'."""
         cfg, hs = self.cfg, np.asarray(self.cfg.hs)
         B = len(self.x0)
         lo, hi = np.full(B, np.nan), np.full(B, np.nan)
@@ -331,8 +338,6 @@ class _Work:
                 else:
                     lo[b] = hi[b] = 0.0
         if (np.isfinite(hi) & (hi > lo * (1 + cfg.rel_tol))).any():
-            lam = self.along()[2]
-            pred = np.array([frozen.predicted_limit(meth, lam[b])[0] for b in range(B)])
             self.narrow(meth, lo, hi, cause, pred)
         return lo, cause
 
@@ -424,7 +429,9 @@ class _Work:
             col["stable"], col["blowup_t"] = grid_ok[:, j], blowup_t[:, j]
             col["converged"] = col["converged"] & grid_conv[:, j]
             col["stable"] &= col["converged"]
-        h_meas, cause = self.measured_limits(meth, grid_ok, grid_conv)
+        predicted = self.predicted(meth)
+        h_meas, cause = self.measured_limits(meth, grid_ok, grid_conv,
+                                             np.array([p[0] for p in predicted]))
 
         ts, xs, lam, _ = self.along()
         with self.clock("metrics_s"):
@@ -438,7 +445,7 @@ class _Work:
                 fit = metrics.order_fit(rows["h"], rows["err"], cfg.rtol, cfg.atol,
                                         err_scale[lane])
                 rho = float(np.nanmax(np.abs(lam[lane]), initial=0.0))
-                h_pred, k, j = frozen.predicted_limit(meth, lam[lane])
+                h_pred, k, j = predicted[lane]
                 bind = lam[lane, k, j] if k >= 0 else complex(np.nan, np.nan)
                 limits.append(dict(
                     method=name, point=i, **{v: self.values[lane, c] for c, v in

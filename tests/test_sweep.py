@@ -46,7 +46,8 @@ def _limits(cfg, name):
     m = method(name)
     ok, _, conv = work.stable(m, np.tile(np.asarray(cfg.hs), (len(work.x0), 1)))
     pred = np.array([max_stable_step(m, np.linalg.eigvals(A)) for A in _lateral(work)])
-    return work.measured_limits(m, ok, conv)[0][: work.n_real], pred[: work.n_real]
+    guide = np.array([h for h, _, _ in work.predicted(m)])
+    return work.measured_limits(m, ok, conv, guide)[0][: work.n_real], pred[: work.n_real]
 
 
 @pytest.fixture(scope="module")
