@@ -8,6 +8,7 @@ import jax
 import numpy as np
 import pytest
 
+from stepzoo.bench.perf.implicit import IMPLICIT, IMPLICIT_BATCHES
 from stepzoo.bench.perf.workload import H_S, MODEL, N_STEPS, problem
 from stepzoo.integrators import integrate_batch, method
 from stepzoo.integrators.fast_trig import fast_trig
@@ -15,9 +16,6 @@ from stepzoo.integrators.fast_trig import fast_trig
 BATCHES = (1, 100, 10_000, 100_000)
 ROUNDS = {1: 30, 100: 10, 10_000: 3, 100_000: 1}   # plus a warm-up round each
 METHODS = ("rk4", "dopri5", "ab4", "trapezoidal")
-# More implicit methods, at the batches of their ratios to rk4 (run.py's ratios_of).
-IMPLICIT = ("backward_euler", "radau_iia5", "bdf3")
-IMPLICIT_BATCHES = (1, 10_000)
 INTERLEAVED = 3     # rounds of each in test_generic_vs_fast_trig
 
 
@@ -50,8 +48,9 @@ def test_driver(benchmark, name, batch):
     _driver(benchmark, name, batch)
 
 
+# The other implicit methods of run.py's ratios to rk4, at the batches of those ratios.
 @pytest.mark.parametrize("batch", IMPLICIT_BATCHES)
-@pytest.mark.parametrize("name", IMPLICIT)
+@pytest.mark.parametrize("name", [n for n in IMPLICIT if n not in METHODS])
 def test_driver_implicit(benchmark, name, batch):
     _driver(benchmark, name, batch)
 

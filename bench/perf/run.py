@@ -13,6 +13,8 @@ from datetime import datetime, timezone
 from pathlib import Path
 from statistics import median
 
+from stepzoo.bench.perf.implicit import IMPLICIT, IMPLICIT_BATCHES
+
 ROOT = Path(__file__).resolve().parents[2]
 RESULTS = ROOT / "bench" / "results"
 WORSE = 0.20   # a figure this much worse than the previous run is named
@@ -27,8 +29,6 @@ TARGETS = {"rk4_b1e5_vs_numba_fastmath": (">=", 0.7), "rk4_b1e5_vs_diffrax": (">
            # Issue 14: implicit steps at batch 1e4, per right-hand-side evaluation.
            "trapezoidal_b1e4_vs_rk4_per_eval": (">=", 0.25),
            "backward_euler_b1e4_vs_rk4_per_eval": (">=", 0.25)}
-# Implicit methods whose throughput is a ratio to rk4's (same model, same batch).
-IMPLICIT = ("trapezoidal", "backward_euler", "radau_iia5", "bdf3")
 LABEL = {1: "1", 100: "100", 10_000: "1e4", 100_000: "1e5"}
 
 
@@ -130,7 +130,7 @@ def ratios_of(fig: dict) -> dict:
     # Implicit over rk4 throughput: in steps, and in right-hand-side evaluations (steps/s
     # times the evaluations per step each run counted, Jacobians as d evaluations).
     for name in IMPLICIT:
-        for batch in ("1", "1e4"):
+        for batch in (LABEL[b] for b in IMPLICIT_BATCHES):
             steps = ratio(f"driver_{name}_b{batch}_steps_per_s",
                           f"driver_rk4_b{batch}_steps_per_s")
             evals = ratio(f"driver_{name}_b{batch}_evals_per_step",
