@@ -90,13 +90,13 @@ def build(results, out, tuned_path=None, plans_dir=None, progress=False):
     started = environment.now()
     say = _progress(progress)
     sweep_dir, tuned_path, plans_dir = resolve(results, tuned_path, plans_dir)
-    problems = suite_report.suite_problems(sweep_dir)
-    if problems:
+    suite = suite_report.suite_manifest(sweep_dir)
+    if suite:
         if tuned_path is not None or plans_dir is not None:
             raise UsageError(f"{sweep_dir} holds a suite of problems; --tuned and --plans "
                              "belong with one problem's report: give its folder, such as "
-                             f"{sweep_dir / problems[0]}")
-        return suite_report.build(sweep_dir, out, say)
+                             f"{sweep_dir / suite['problems'][0]}")
+        return suite_report.build(sweep_dir, suite, out, say)
     out = check_kind(out, "report")
     t0 = time.perf_counter()
     sweep = load_sweep(sweep_dir)

@@ -27,22 +27,23 @@ ORDER_COLUMNS = [
 ]
 
 
-def suite_problems(folder) -> list[str] | None:
-    """The problems of the suite whose sweep `folder` holds; None when it holds one sweep."""
+def suite_manifest(folder) -> dict | None:
+    """The manifest of the suite whose sweep `folder` holds (its "problems" a non-empty
+    list); None when it holds one sweep."""
     path = Path(folder) / "manifest.json"
     try:
         manifest = json.loads(path.read_text()) if path.is_file() else {}
     except (json.JSONDecodeError, UnicodeDecodeError):
         return None
     problems = manifest.get("problems")
-    return list(problems) if isinstance(problems, list) and problems else None
+    return manifest if isinstance(problems, list) and problems else None
 
 
-def build(results, out, progress_say):
-    """Write the suite's report into `out`; returns (index, summary, shown)."""
+def build(results, manifest, out, progress_say):
+    """Write the report of the suite in `results` (its manifest from suite_manifest) into
+    `out`; returns (index, summary, shown)."""
     started = environment.now()
     results = Path(results)
-    manifest = json.loads((results / "manifest.json").read_text())
     if not manifest.get("complete"):
         raise UsageError(f"{results} holds an unfinished suite; finish it: rerun `stepzoo "
                          f"sweep {results / 'config.toml'} --out {results} --resume`")
