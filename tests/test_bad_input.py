@@ -3,7 +3,9 @@ too large to fit or finish, every unusable file (unreadable, read-only, a full d
 stdout) is one line on stderr with exit status 2, never a traceback or a hang, and leaves
 what was already written as it was. Exit status 1 means a correct run found no answer."""
 import hashlib
+import json
 import os
+import shlex
 import shutil
 import subprocess
 import sys
@@ -209,14 +211,36 @@ def test_tune_finding_nothing_is_exit_1_and_keeps_the_old_file(finished, tmp_pat
 
 # ---- files the operating system refuses ---------------------------------------------------
 
-def as_user(*argv, cwd=ROOT):
-    """`python -m stepzoo ARGV` with file modes enforced: as root, without the capabilities
-    that let root ignore them (setpriv); (status, stderr)."""
-    cmd = [sys.executable, "-m", "stepzoo", *map(str, argv)]
+# Several commands in one new process, each through main(), the entry point of the `stepzoo`
+# command and of `python -m stepzoo` (test_a_full_stdout_is_one_line runs that one itself):
+# one start-up instead of one a command. Prints [[status, stderr], ...] as JSON, each
+# command's stdout kept apart.
+EACH = """import contextlib, io, json, sys
+from stepzoo.bench.cli import main
+done = []
+for argv in json.loads(sys.argv[1]):
+    err = io.StringIO()
+    with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(err):
+        done.append((main(argv), err.getvalue()))
+print(json.dumps(done))
+"""
+
+
+def each_command(*argvs) -> list:
+    """The stepzoo argument lists `argvs` as a command line of one process that runs EACH."""
+    return [sys.executable, "-c", EACH, json.dumps([list(map(str, a)) for a in argvs])]
+
+
+def as_user(*argvs):
+    """[(status, stderr)] of `stepzoo ARGV` for each ARGV, run one after the other in one new
+    process with file modes enforced: as root, without the capabilities that let root ignore
+    them (setpriv)."""
+    cmd = each_command(*argvs)
     if os.geteuid() == 0:
         cmd = ["setpriv", "--bounding-set", "-dac_override,-dac_read_search", "--", *cmd]
-    proc = subprocess.run(cmd, capture_output=True, text=True, cwd=cwd, timeout=300)
-    return proc.returncode, proc.stderr
+    proc = subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT, timeout=600)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    return json.loads(proc.stdout)
 
 
 def _modes_enforced() -> str | None:
@@ -245,28 +269,28 @@ def test_unreadable_inputs_are_one_line(finished, tmp_path):
     secret = tmp_path / "secret.toml"
     shutil.copy(config, secret)
     secret.chmod(0)
-    code, err = as_user("sweep", secret, "--out", tmp_path / "out")
-    assert code == 2 and "Permission denied" in one_line(err)
     grid = tmp_path / "grid.npy"
     np.save(grid, np.zeros((40, 40), bool))
     grid.chmod(0)
-    code, err = as_user("plan", "--map", grid, "--cell-size", "1", "--start", "5,5,0",
-                        "--goal", "30,30,0", "--out", tmp_path / "plan", "-q")
-    assert code == 2 and "grid.npy" in one_line(err)
     yaml = tmp_path / "m.yaml"
     yaml.write_text("image: grid.png\nresolution: 1\norigin: [0, 0, 0]\n")
     yaml.chmod(0)
-    code, err = as_user("plan", "--map", yaml, "--start", "5,5,0", "--goal", "30,30,0",
-                        "--out", tmp_path / "plan", "-q")
-    assert code == 2 and "m.yaml" in one_line(err)
-    assert not (tmp_path / "out").exists() and not (tmp_path / "plan").exists()
     shutil.copytree(sweep, tmp_path / "sweep")
     (tmp_path / "sweep" / "runs.parquet").chmod(0)
-    for argv in (["tune", tmp_path / "sweep", "--pos-tol", "10", "--out", tmp_path / "t.toml"],
-                 ["report", tmp_path / "sweep", "--out", tmp_path / "report", "-q"]):
-        code, err = as_user(*argv)
-        assert code == 2 and "Permission denied" in one_line(err), argv
-        assert "runs.parquet" in err, argv
+    said = as_user(
+        ["sweep", secret, "--out", tmp_path / "out"],
+        ["plan", "--map", grid, "--cell-size", "1", "--start", "5,5,0", "--goal", "30,30,0",
+         "--out", tmp_path / "plan", "-q"],
+        ["plan", "--map", yaml, "--start", "5,5,0", "--goal", "30,30,0", "--out",
+         tmp_path / "plan", "-q"],
+        ["tune", tmp_path / "sweep", "--pos-tol", "10", "--out", tmp_path / "t.toml"],
+        ["report", tmp_path / "sweep", "--out", tmp_path / "report", "-q"])
+    for (code, err), named in zip(said, ["Permission denied", "grid.npy", "m.yaml",
+                                         "runs.parquet", "runs.parquet"]):
+        assert code == 2 and named in one_line(err), err
+    for code, err in said[3:]:
+        assert "Permission denied" in err, err
+    assert not (tmp_path / "out").exists() and not (tmp_path / "plan").exists()
 
 
 @needs_modes
@@ -279,13 +303,13 @@ def test_a_read_only_output_folder_is_one_line_and_keeps_what_it_holds(finished,
     for folder in (tmp_path / "sweep", tmp_path / "plans", tmp_path):
         folder.chmod(0o555)
     try:
-        for argv in (["sweep", config, "--out", tmp_path / "sweep", "--resume"],
-                     ["tune", tmp_path / "sweep", "--pos-tol", "10", "--out",
-                      tmp_path / "tuned.toml"],
-                     ["report", tmp_path / "sweep", "--out", tmp_path / "report", "-q"],
-                     ["plan", "street", "--out", tmp_path / "plans", "-q"]):
-            code, err = as_user(*argv)
-            assert code == 2 and "Permission denied" in one_line(err), argv
+        said = as_user(["sweep", config, "--out", tmp_path / "sweep", "--resume"],
+                       ["tune", tmp_path / "sweep", "--pos-tol", "10", "--out",
+                        tmp_path / "tuned.toml"],
+                       ["report", tmp_path / "sweep", "--out", tmp_path / "report", "-q"],
+                       ["plan", "street", "--out", tmp_path / "plans", "-q"])
+        for code, err in said:
+            assert code == 2 and "Permission denied" in one_line(err), err
     finally:
         for folder in (tmp_path / "sweep", tmp_path / "plans", tmp_path):
             folder.chmod(0o755)
@@ -310,28 +334,26 @@ def test_a_full_disk_is_one_line_and_keeps_what_it_holds(finished, tmp_path):
     config, sweep, tuned = finished
     disk = tmp_path / "disk"
     disk.mkdir()
-    py = f"{sys.executable} -m stepzoo"
-    script = f"""set -u
+    commands = shlex.join(each_command(
+        ["sweep", config, "--out", disk / "sweep", "--resume", "--no-progress"],
+        ["tune", disk / "sweep", "--pos-tol", "10", "--out", disk / "tuned.toml"],
+        ["report", disk / "sweep", "--out", disk / "report", "-q"],
+        ["plan", "street", "--out", disk / "plans", "-q"]))
+    script = f"""set -eu
 mount -t tmpfs -o size=4m tmpfs {disk}
 cp -r {sweep} {disk}/sweep && cp {tuned} {disk}/tuned.toml && mkdir {disk}/plans
-dd if=/dev/zero of={disk}/fill bs=4096 2>/dev/null
+dd if=/dev/zero of={disk}/fill bs=4096 2>/dev/null || true
 find {disk}/sweep {disk}/tuned.toml -type f ! -name .stepzoo.lock | sort | xargs sha256sum > {tmp_path}/before
-{py} sweep {config} --out {disk}/sweep --resume --no-progress 2> {tmp_path}/sweep.err
-echo $? > {tmp_path}/sweep.rc
-{py} tune {disk}/sweep --pos-tol 10 --out {disk}/tuned.toml 2> {tmp_path}/tune.err
-echo $? > {tmp_path}/tune.rc
-{py} report {disk}/sweep --out {disk}/report -q 2> {tmp_path}/report.err
-echo $? > {tmp_path}/report.rc
-{py} plan street --out {disk}/plans -q 2> {tmp_path}/plan.err
-echo $? > {tmp_path}/plan.rc
+{commands} > {tmp_path}/said.json
 find {disk}/sweep {disk}/tuned.toml -type f ! -name .stepzoo.lock | sort | xargs sha256sum > {tmp_path}/after
 """
     subprocess.run(["unshare", "-m", "--propagation", "private", "sh", "-c", script],
                    cwd=ROOT, timeout=600, check=True)
-    for name in ("sweep", "tune", "report", "plan"):
-        err = (tmp_path / f"{name}.err").read_text()
-        assert (tmp_path / f"{name}.rc").read_text().strip() == "2", (name, err)
+    said = json.loads((tmp_path / "said.json").read_text())
+    for (code, err), name in zip(said, ("sweep", "tune", "report", "plan")):
+        assert code == 2, (name, err)
         assert f"No space left on device: {disk}" in one_line(err), name
+    assert len(said) == 4
     assert (tmp_path / "before").read_text() == (tmp_path / "after").read_text()
 
 
