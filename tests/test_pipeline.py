@@ -1,36 +1,68 @@
-"""`stepzoo run`: the real pipeline on the small sweep config writes every artefact it
-promises (sweep tables, tuned config, a plan per built-in scenario made with the tuned step,
-the report), keeps stdout for the report's path, and a bad config is one line, exit 2."""
+"""`stepzoo run`: the real pipeline writes every artefact it promises (sweep tables, tuned
+config, a plan per built-in scenario made with the tuned step, the report), keeps stdout for
+the report's path, finishes a run killed in its sweep from the chunks on disk to the tables
+of an undisturbed sweep, and a bad config is one line, exit 2."""
 import json
+import signal
 import subprocess
 import sys
+import time
 import tomllib
 from pathlib import Path
 
 import pandas as pd
 import pytest
 from test_report import check_report
+from test_results_folder import TABLES, tables
 
 from stepzoo.bench.cli import main as stepzoo
 from stepzoo.integrators import METHODS
 from stepzoo.search.scenarios import builtin_names
 
 ROOT = Path(__file__).resolve().parents[1]
-SMALL = ROOT / "bench" / "configs" / "small.toml"
 SWEEP_FILES = ["config.toml", "manifest.json", "runs.parquet", "limits.parquet", "limits.csv",
                "summary.csv", "eigenvalues.parquet", "trajectories.parquet"]
+POS_TOL = "1"   # [m] what the tiny sweep's coarse steps can meet
 
 
 @pytest.fixture(scope="module")
-def ran(tmp_path_factory):
+def ran(tiny_sweep, tmp_path_factory):
+    """(config, results folder, the finished process) of `stepzoo run` on the tiny sweep,
+    killed once its sweep has a chunk on disk (its lock dies with it) and run again, the
+    same command: every test of the pipeline reads the resumed run."""
+    config, _ = tiny_sweep
     out = tmp_path_factory.mktemp("run") / "results"
-    proc = subprocess.run([sys.executable, "-m", "stepzoo", "run", "--config", str(SMALL),
-                           "--out", str(out)], capture_output=True, text=True, cwd=ROOT)
-    return out, proc
+    argv = [sys.executable, "-m", "stepzoo", "run", "--config", str(config), "--out", str(out),
+            "--pos-tol", POS_TOL]
+    killed = subprocess.Popen(argv, cwd=ROOT, stdout=subprocess.DEVNULL,
+                              stderr=subprocess.DEVNULL)
+    deadline = time.monotonic() + 120
+    while not any((out / "sweep" / "chunks").glob("euler-*")) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    killed.send_signal(signal.SIGKILL)
+    killed.wait()
+    assert not (out / "sweep" / "runs.parquet").exists()
+    return config, out, subprocess.run(argv, capture_output=True, text=True, cwd=ROOT,
+                                       timeout=600)
+
+
+def test_a_killed_run_resumes_to_the_tables_of_an_undisturbed_sweep(ran, tiny_sweep,
+                                                                    tmp_path):
+    _, out, proc = ran
+    _, whole = tiny_sweep
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    a, b = tables(whole), tables(out / "sweep")
+    for name in TABLES:
+        pd.testing.assert_frame_equal(a[name], b[name], check_exact=True, obj=name)
+    assert stepzoo(["tune", str(whole), "--pos-tol", POS_TOL, "--out",
+                    str(tmp_path / "t.toml")]) == 0
+    mine, theirs = (tomllib.loads(p.read_text()) for p in (out / "tuned.toml",
+                                                          tmp_path / "t.toml"))
+    assert (mine["method"], mine["h"]) == (theirs["method"], theirs["h"])
 
 
 def test_run_ends_by_printing_the_report_path(ran):
-    out, proc = ran
+    _, out, proc = ran
     assert proc.returncode == 0, proc.stderr[-2000:]
     assert proc.stdout.strip().splitlines()[-1] == str(out / "report" / "index.html")
     for stage in ("[1/4] sweep", "[2/4] tune", "[3/4] plan", "[4/4] report"):
@@ -38,7 +70,7 @@ def test_run_ends_by_printing_the_report_path(ran):
 
 
 def test_run_writes_sweep_tables_and_a_tuned_config_from_them(ran):
-    out, proc = ran
+    _, out, proc = ran
     assert proc.returncode == 0, proc.stderr[-2000:]
     for name in SWEEP_FILES:
         assert (out / "sweep" / name).is_file(), name
@@ -50,7 +82,7 @@ def test_run_writes_sweep_tables_and_a_tuned_config_from_them(ran):
 
 
 def test_run_plans_every_builtin_scenario_with_the_tuned_step(ran):
-    out, proc = ran
+    _, out, proc = ran
     assert proc.returncode == 0, proc.stderr[-2000:]
     tuned = tomllib.loads((out / "tuned.toml").read_text())
     assert (out / "plans" / "summary.csv").is_file()
@@ -60,7 +92,7 @@ def test_run_plans_every_builtin_scenario_with_the_tuned_step(ran):
 
 
 def test_run_builds_the_full_report(ran):
-    out, proc = ran
+    _, out, proc = ran
     assert proc.returncode == 0, proc.stderr[-2000:]
     text = check_report(out / "report", n_plans=len(builtin_names()))
     assert f"{tomllib.loads((out / 'tuned.toml').read_text())['method']} at h" in text
@@ -81,7 +113,7 @@ def test_run_default_config_is_the_shipped_envelope():
 
 def test_every_results_folder_of_a_run_records_its_environment_and_progress(ran):
     from test_provenance import check_provenance
-    out, proc = ran
+    _, out, proc = ran
     assert proc.returncode == 0, proc.stderr[-2000:]
     for folder, kind in ((out, "run"), (out / "sweep", "sweep"), (out / "plans", "plan"),
                          (out / "report", "report")):
@@ -101,11 +133,11 @@ def test_a_stage_that_finds_nothing_is_one_line_naming_it_and_keeps_what_was_wri
     # Last: it runs again in the shared folder, as a second `make run` does, and reuses the
     # finished sweep (its manifest is not rewritten); no (method, h) meets a tolerance of a
     # nanometre, so tune finds no answer (exit 1).
-    out, proc = ran
+    config, out, proc = ran
     assert proc.returncode == 0, proc.stderr[-2000:]
     before = (out / "tuned.toml").read_text()
     created = json.loads((out / "sweep" / "manifest.json").read_text())["created"]
-    assert stepzoo(["run", "--config", str(SMALL), "--out", str(out), "--pos-tol", "1e-9",
+    assert stepzoo(["run", "--config", str(config), "--out", str(out), "--pos-tol", "1e-9",
                     "-q"]) == 1
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith("stepzoo run: no answer: stopped at tune: "), err

@@ -209,35 +209,6 @@ def test_a_folder_of_another_commands_results_is_refused(tiny_sweep, tmp_path, c
     assert {p.name for p in whole.iterdir()} == before
 
 
-def test_a_killed_run_resumes_to_the_same_tables(tiny_sweep, tmp_path):
-    """`stepzoo run` killed in its sweep (its lock dies with it): the same command again
-    finishes the sweep from the chunks on disk, to the tables of an undisturbed sweep."""
-    import tomllib
-    path, whole = tiny_sweep
-    out = tmp_path / "results"
-    argv = [sys.executable, "-m", "stepzoo", "run", "--config", str(path), "--out", str(out),
-            "--pos-tol", "1", "-q"]
-    proc = subprocess.Popen(argv, cwd=ROOT, stdout=subprocess.DEVNULL,
-                            stderr=subprocess.DEVNULL)
-    deadline = time.monotonic() + 120
-    while not any((out / "sweep" / "chunks").glob("euler-*")) and time.monotonic() < deadline:
-        time.sleep(0.05)
-    proc.send_signal(signal.SIGKILL)
-    proc.wait()
-    assert not (out / "sweep" / "runs.parquet").exists()
-    again = subprocess.run(argv, cwd=ROOT, capture_output=True, text=True, timeout=600)
-    assert again.returncode == 0, again.stderr[-2000:]
-    assert again.stdout.strip() == str(out / "report" / "index.html")
-    a, b = tables(whole), tables(out / "sweep")
-    for name in TABLES:
-        pd.testing.assert_frame_equal(a[name], b[name], check_exact=True, obj=name)
-    assert stepzoo(["tune", str(whole), "--pos-tol", "1", "--out",
-                    str(tmp_path / "t.toml")]) == 0
-    mine, theirs = (tomllib.loads(p.read_text()) for p in (out / "tuned.toml",
-                                                          tmp_path / "t.toml"))
-    assert (mine["method"], mine["h"]) == (theirs["method"], theirs["h"])
-
-
 def test_ctrl_c_stops_a_run_with_one_line_and_status_130(tiny_sweep, tmp_path):
     path, _ = tiny_sweep
     out = tmp_path / "results"
