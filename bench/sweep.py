@@ -26,6 +26,7 @@ from stepzoo.bench.sweep_config import ESTIMATES, SweepConfig, check_workload
 
 REF_WINDOW = 64        # output times per reference call: its cost per step grows with them
 TRAJ_SAMPLES = 200     # reference samples of the figure trajectory
+TRAJ_ROWS = 2000       # states kept of one figure run (evenly spread over it)
 ALONG_SAMPLES = 50     # reference samples whose Jacobians predict the stable step (divides
                        # TRAJ_SAMPLES: the figure trajectory's prediction reuses the shape)
 NARROWING = ("the grid's bracket [lo, hi] (lo stable, hi not) shrinks to hi / lo <= 1 + "
@@ -523,9 +524,9 @@ class _Work:
             x, _, _, run_s = self.integrate(meth, x0, u, p, h, n)
             self.timing["metrics_s"] += run_s
             for k, hk in enumerate(chunk):
-                keep = min(n, math.floor(cfg.horizon / hk + 1e-9)) + 1
-                frames.append(_trajectory_rows(self.spec, meth.name, hk, hk * np.arange(keep),
-                                               x[k, :keep], past[start + k]))
+                rows = figure_rows(min(n, math.floor(cfg.horizon / hk + 1e-9)) + 1)
+                frames.append(_trajectory_rows(self.spec, meth.name, hk, hk * rows,
+                                               x[k, rows], past[start + k]))
         return pd.concat(frames, ignore_index=True)
 
 
@@ -548,6 +549,14 @@ def _candidates(lo, hi, guess, width, k, first, tau):
     if guess - lo <= hi - guess:
         return lo + width * np.arange(1, k + 1) / k
     return (hi - width * np.arange(1, k + 1) / k)[::-1]
+
+
+def figure_rows(n: int) -> np.ndarray:
+    """Which of a figure run's n states the trajectories table keeps: all up to TRAJ_ROWS,
+    else TRAJ_ROWS evenly spread from the first to the last (a figure shows no more, and
+    an explicit method on a stiff problem takes millions of steps: 2.5 GB of table for
+    vdp1000 over 700 s at 0.2 of rk4's limit)."""
+    return np.unique(np.linspace(0, n - 1, min(n, TRAJ_ROWS)).round().astype(int))
 
 
 def _trajectory_rows(spec, name, h, t, x, past_limit) -> pd.DataFrame:

@@ -288,11 +288,14 @@ def test_the_suite_output_counts_each_methods_matching_problems(suite, capsys):
             assert f"{r.problem} {r.order_fit_median:.2f} {r.order_status}" in line
 
 
-def test_a_problem_with_no_eigenvalue_to_list_keeps_the_tables_columns(tmp_path):
+def test_a_problem_with_no_eigenvalue_to_list_keeps_the_tables_columns(tmp_path, monkeypatch):
     """DETEST A5's Jacobian is 0 at its initial state, so its eigenvalues table has no row;
     the table still has its columns, and the report reads the folder (a config without a
-    name: the folder's copy names the sweep as the file's stem did)."""
+    name: the folder's copy names the sweep as the file's stem did). A figure run keeps at
+    most TRAJ_ROWS states, spread from its first to its last, each the run's own state."""
+    from stepzoo.bench import sweep
     from stepzoo.bench.sweep import run_sweep
+    monkeypatch.setattr(sweep, "TRAJ_ROWS", 6)
     from stepzoo.bench.sweep_config import load as load_config
     from stepzoo.reports.load import load_sweep
     (tmp_path / "a5.toml").write_text(
@@ -303,6 +306,18 @@ def test_a_problem_with_no_eigenvalue_to_list_keeps_the_tables_columns(tmp_path)
     eig = pd.read_parquet(tmp_path / "a5" / "eigenvalues.parquet")
     assert len(eig) == 0 and {"point", "lam_re", "lam_im"} <= set(eig.columns)
     assert len(load_sweep(tmp_path / "a5").runs) == 2
+    traj = pd.read_parquet(tmp_path / "a5" / "trajectories.parquet")
+    a5 = model("detest_a5")
+    # (Two of the figure runs share h = 1 s, the grid's smallest; the table sorts on t.)
+    for h, run in traj[traj["method"] == "euler"].groupby("h"):
+        run = run.drop_duplicates("t")
+        n = int(np.floor(20.0 / h + 1e-9))
+        assert len(run) == min(n + 1, 6) and run["t"].iloc[0] == 0.0
+        assert run["t"].iloc[-1] == pytest.approx(n * h)
+        full = np.asarray(integrate_batch("euler", a5.rhs, np.array([[4.0]]), None, {},
+                                          np.array([h]), n).x)[0, :, 0]
+        assert run["y1"].to_numpy() == pytest.approx(full[np.rint(run["t"] / h).astype(int)],
+                                                     rel=1e-12)
 
 
 @pytest.mark.parametrize("edit, message", [
