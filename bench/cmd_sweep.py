@@ -58,8 +58,9 @@ def show(manifest: dict, out, fmt: str = "text") -> None:
 
 
 def _show_suite(manifest: dict, out) -> None:
-    """Observed orders, method by problem (NaN: not observable), where they differ from the
-    declared ones, what was written and the time it took."""
+    """Observed orders, method by problem (NaN: not observable, or not one of the problem's
+    methods), where they differ from the declared ones, what was written and the time it
+    took."""
     import pandas as pd
 
     from stepzoo.bench import metrics

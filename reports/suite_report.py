@@ -23,7 +23,8 @@ from stepzoo.results_folder import check_kind, writing
 ORDER_COLUMNS = [
     ("problem", "problem"), ("method", "method"), ("order_declared", "declared order"),
     ("order_fit_median", "observed order"), ("order_h_min", "fitted from h [s]"),
-    ("order_h_max", "to h [s]"), ("order_status", "status"), ("note", "why not observable"),
+    ("order_h_max", "to h [s]"), ("order_h_rho", "h rho at the finest"),
+    ("order_status", "status"), ("note", "why not observable"),
 ]
 
 
@@ -74,7 +75,10 @@ def build(results, manifest, out, progress_say):
             "operating points), the range of steps it was fitted on, and its status against "
             "the declared order; where no order can be observed (unstable at every step, as "
             "explicit methods on stiff problems; errors above the solution's size or at the "
-            "reference's accuracy) the reason is given.", rows, ORDER_COLUMNS)
+            "reference's accuracy) the reason is given. h rho is the fit's finest step times the "
+            "largest spectral radius of the Jacobian along the reference: an order that "
+            "misses where it exceeds 1 is in the stiff range, where order reduction is the "
+            "theory.", rows, ORDER_COLUMNS)
         own = environment.provenance("report", started, environment.now())
         appendix = [environment_table({"suite": manifest, "this report": own}, out)]
         index, md = write_report(out, f"stepzoo report: suite {manifest.get('config_name')}",

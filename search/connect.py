@@ -393,10 +393,11 @@ def connect(start, goal, *, L, m, bounds=None, N=50, shooting=DEFAULT_SHOOTING,
         paths = guess_paths(x0[:3], goal_local, radius, v_min < 0)
     # Fastest guess first; forwards only, that is the shortest Dubins path first.
     # The inputs, a Python loop per interval, are built only for the guesses tried.
-    guesses = sorted(((_profile(segs, radius, x0, a_max, v_max, goal_speed, -v_min),
-                       _runs(segs)[0][0]) for segs in paths), key=lambda pair: pair[0][1])
+    guesses = sorted((_profile(segs, radius, x0, a_max, v_max, goal_speed, -v_min)
+                      for segs in paths), key=lambda guess: guess[1])
     tried = set()
-    for (turn, tf_g, runs, plans), way in guesses:
+    for turn, tf_g, runs, plans in guesses:
+        way = runs[0][0]
         theta_g = unwrap(goal[2], start[2] + turn)
         winding = round((theta_g - goal[2]) / (2 * pi))
         # One try per heading winding and first direction of travel.

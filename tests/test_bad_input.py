@@ -240,6 +240,7 @@ def as_user(*argvs):
         cmd = ["setpriv", "--bounding-set", "-dac_override,-dac_read_search", "--", *cmd]
     proc = subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT, timeout=600)
     assert proc.returncode == 0, proc.stderr[-2000:]
+    assert proc.stderr == ""            # nothing past the commands' own captured lines
     return json.loads(proc.stdout)
 
 
@@ -344,7 +345,7 @@ mount -t tmpfs -o size=4m tmpfs {disk}
 cp -r {sweep} {disk}/sweep && cp {tuned} {disk}/tuned.toml && mkdir {disk}/plans
 dd if=/dev/zero of={disk}/fill bs=4096 2>/dev/null || true
 find {disk}/sweep {disk}/tuned.toml -type f ! -name .stepzoo.lock | sort | xargs sha256sum > {tmp_path}/before
-{commands} > {tmp_path}/said.json
+{commands} > {tmp_path}/said.json 2> {tmp_path}/said.err
 find {disk}/sweep {disk}/tuned.toml -type f ! -name .stepzoo.lock | sort | xargs sha256sum > {tmp_path}/after
 """
     subprocess.run(["unshare", "-m", "--propagation", "private", "sh", "-c", script],
@@ -353,7 +354,7 @@ find {disk}/sweep {disk}/tuned.toml -type f ! -name .stepzoo.lock | sort | xargs
     for (code, err), name in zip(said, ("sweep", "tune", "report", "plan")):
         assert code == 2, (name, err)
         assert f"No space left on device: {disk}" in one_line(err), name
-    assert len(said) == 4
+    assert len(said) == 4 and (tmp_path / "said.err").read_text() == ""
     assert (tmp_path / "before").read_text() == (tmp_path / "after").read_text()
 
 

@@ -369,3 +369,20 @@ def test_method_selectors_follow_the_stability_theory():
     assert sorted(selected("bounded") + selected("unbounded")) == sorted(selected("all"))
     assert {"bdf3", "bdf4", "bdf5", "radau_iia5", "trapezoidal"} <= set(selected("unbounded"))
     assert sorted(explicit + selected("implicit")) == sorted(selected("all"))
+
+
+def test_naming_the_default_reference_solver_keeps_the_sha256(tmp_path):
+    """reference.solver at the model's default (dopri5; LSODA for a stiff test problem) gives
+    the same results, so the same sha256; another solver is another config."""
+    from stepzoo.bench.sweep_config import load as load_config
+    shas = {}
+    for model_name, solver in (("detest_b1", ""), ("detest_b1", "dopri5"), ("detest_b1", "Radau"),
+                               ("robertson", ""), ("robertson", "LSODA")):
+        extra = f'\n[reference]\nsolver = "{solver}"\n' if solver else "\n"
+        path = tmp_path / f"{model_name}-{solver}.toml"
+        path.write_text(f'name = "s"\nmodel = "{model_name}"\nhorizon = 4.0\nmethods = ["rk4"]\n'
+                        f'[envelope]\ny1 = {{ values = [1.0] }}\n[steps]\nh = [0.5, 1.0]\n'
+                        f'[stability]\nh_probe_max = 4.0{extra}')
+        shas[model_name, solver] = load_config(path).sha256
+    assert shas["detest_b1", ""] == shas["detest_b1", "dopri5"] != shas["detest_b1", "Radau"]
+    assert shas["robertson", ""] == shas["robertson", "LSODA"]
