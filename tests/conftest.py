@@ -10,11 +10,15 @@ from stepzoo.bench.cli import with_xla_option
 # compiled, hence the rounding), set before JAX starts, and float64. The library itself
 # changes no JAX setting; the tests ask for these as any caller would.
 os.environ["XLA_FLAGS"] = with_xla_option(os.environ.get("XLA_FLAGS", ""))
-# Commands run by the tests (in-process or as subprocesses) keep JAX's compiled programs in a
-# folder of this test session, not in the user's cache: the suite neither reads programs an
-# older stepzoo compiled nor leaves its own behind.
-os.environ["STEPZOO_CACHE_DIR"] = tempfile.mkdtemp(prefix="stepzoo-test-cache-")
-atexit.register(shutil.rmtree, os.environ["STEPZOO_CACHE_DIR"], ignore_errors=True)
+# The tests and the commands they run (in-process or as subprocesses) keep JAX's compiled
+# programs in a folder of this test session, not in the user's cache: the suite neither reads
+# programs an older stepzoo compiled nor leaves its own behind. The first process makes it
+# and removes it at exit; pytest-xdist's workers, started from that process, inherit it, so
+# a program one worker compiled the other loads.
+if "STEPZOO_TEST_CACHE" not in os.environ:
+    os.environ["STEPZOO_TEST_CACHE"] = tempfile.mkdtemp(prefix="stepzoo-test-cache-")
+    atexit.register(shutil.rmtree, os.environ["STEPZOO_TEST_CACHE"], ignore_errors=True)
+os.environ["STEPZOO_CACHE_DIR"] = os.environ["STEPZOO_TEST_CACHE"]
 # A `stepzoo serve` the developer keeps for their own plans (STEPZOO_SERVER) would receive the
 # tests' plans: they plan in their own process unless a test starts a server itself.
 os.environ.pop("STEPZOO_SERVER", None)
@@ -28,6 +32,9 @@ from stepzoo.bench.sweep import run_sweep  # noqa: E402
 from stepzoo.bench.sweep_config import load  # noqa: E402
 
 jax.config.update("jax_enable_x64", True)
+jax.config.update("jax_compilation_cache_dir", os.environ["STEPZOO_CACHE_DIR"])
+jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
+
 
 # The smallest sweep that still has several chunks: 2 methods x 2 points, a chunk per point.
 TINY_SWEEP = """name = "tiny"
