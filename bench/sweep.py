@@ -22,7 +22,7 @@ from stepzoo.bench.timing import per_step
 from stepzoo.errors import UsageError
 from stepzoo.output import atomic_write, to_json, write_file
 from stepzoo.results_folder import writing
-from stepzoo.bench.sweep_config import ESTIMATES, SweepConfig, check_workload
+from stepzoo.bench.sweep_config import ESTIMATES, SweepConfig, check_workload, default_solver
 
 REF_WINDOW = 64        # output times per reference call: its cost per step grows with them
 TRAJ_SAMPLES = 200     # reference samples of the figure trajectory
@@ -48,8 +48,8 @@ def _reference_kind(cfg: SweepConfig) -> str:
 
 
 def _solver(cfg: SweepConfig) -> str:
-    """The reference's solver: reference.solver, else LSODA for a stiff model, else dopri5."""
-    return cfg.ref_solver or ("LSODA" if cfg.spec.stiff else "dopri5")
+    """The reference's solver: reference.solver, else the model's default."""
+    return cfg.ref_solver or default_solver(cfg.spec)
 
 
 # ---- chunks -----------------------------------------------------------------------------

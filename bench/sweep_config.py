@@ -206,7 +206,7 @@ def validate(raw: dict, source: str = "config") -> SweepConfig:
     if solver not in REF_SOLVERS:
         bad.append(f"{source}: reference.solver must be one of "
                    f"{', '.join(map(repr, REF_SOLVERS[1:]))}, got {solver!r}")
-    elif spec is not None and (exact is True or solver == ("LSODA" if spec.stiff else "dopri5")):
+    elif spec is not None and (exact is True or solver == default_solver(spec)):
         solver = ""       # the default, or unused: the same results, the same sha256
     stab = sections["stability"]
     steps = stab.get("steps", 1000)
@@ -275,6 +275,12 @@ def validate(raw: dict, source: str = "config") -> SweepConfig:
                        source, *limits, timing_rounds=int(rounds or DEFAULT_ROUNDS),
                        exact_reference=exact is True, error_estimate=estimate,
                        ref_solver=solver, newton=newton)
+
+
+def default_solver(spec: ModelSpec) -> str:
+    """The reference's solver where reference.solver is not given: LSODA for a stiff test
+    problem, else dopri5."""
+    return "LSODA" if spec.stiff else "dopri5"
 
 
 def newton_options(table: dict, source: str, bad: list) -> tuple:

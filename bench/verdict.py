@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from stepzoo.bench import frozen, metrics
+from stepzoo.bench import metrics
 from stepzoo.bench.sweep import _Work, n_blocks
 
 
@@ -30,12 +30,12 @@ def verdict(cfg, method_name: str, h: float) -> pd.DataFrame:
         x, _, acc_conv, _ = work.integrate(meth, work.x0, work.u, work.p, h, n)
         ref, _ = work.reference(h, n)
         err = metrics.run_error(cfg.spec, x, ref, cfg.error_estimate)
-        _, _, lam, _ = work.along()
+        predicted = work.predicted(meth)
         for lane, i in enumerate(work.ids):
             row = dict(point=i, **work.point_columns())
             row = {k: (v[lane] if k != "point" else i) for k, v in row.items()}
             stable = bool(ok[lane, 0] and acc_conv[lane])
-            row.update(h_pred=frozen.predicted_limit(meth, lam[lane])[0], stable=stable,
+            row.update(h_pred=predicted[lane][0], stable=stable,
                        cause="" if stable else ("unstable" if conv[lane, 0] and acc_conv[lane]
                                                 else "solver failed"),
                        err=float(err[lane]) if stable else float("inf"))
