@@ -183,9 +183,11 @@ def _solve(model: str, x0, u, p, duration, steps, speed):
     """One smooth piece: `model` from x0 under constant inputs u for `duration` [s]; (end
     state, poses (steps, 3) at duration * k / steps for k = 1..steps, poses (m, 3) at most
     CHECK_SPACING_M apart for a speed up to `speed` [m/s], the start excluded)."""
+    import jax.numpy as jnp
     from scipy.integrate import solve_ivp
     fun = _rhs(model)
-    u, pv = np.asarray(u, float), {k: float(v) for k, v in p.items()}
+    # JAX arrays once here: converting Python numbers at every call would double its cost.
+    u, pv = jnp.asarray(u, float), {k: jnp.asarray(v, float) for k, v in p.items()}
     sol = solve_ivp(lambda t, x: np.asarray(fun(t, x, u, pv)), (0.0, duration),
                     np.asarray(x0, float), method=METHOD, rtol=RTOL, atol=ATOL,
                     dense_output=True)
