@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import math
 from functools import cache
-from time import perf_counter
 
 import numpy as np
 
@@ -92,7 +91,6 @@ def replay(plan, omap: OccupancyMap, footprint: Footprint | None = None,
     along the replay (<= 0 touches); goal_distance_m [m]: replayed end to the goal position.
     A plan without a path gets these as None; `segments`, `nodes`, `samples` count what was
     compared, `end` is the replayed end pose [X, Y, psi]."""
-    t_start = perf_counter()
     if isinstance(plan, PlanResult):
         if vehicle is None:
             raise TypeError("replay of a PlanResult needs vehicle=PathFinder.vehicle")
@@ -109,7 +107,6 @@ def replay(plan, omap: OccupancyMap, footprint: Footprint | None = None,
     block = {"method": METHOD, "rtol": RTOL, "atol": ATOL, "segments": len(segs),
              **dict.fromkeys(METRICS), "nodes": 0, "samples": 0, "end": None}
     if not segs:
-        block["replay_s"] = perf_counter() - t_start
         return block
     if footprint is None:
         footprint = car_footprint(vehicle, margin)
@@ -126,8 +123,7 @@ def replay(plan, omap: OccupancyMap, footprint: Footprint | None = None,
         "clearance_min_m": float(distance_to_obstacles(omap, centres).min()
                                  - footprint.radius),
         "nodes": len(nodes), "samples": len(samples),
-        "end": [float(v) for v in samples[-1]],
-        "replay_s": perf_counter() - t_start})
+        "end": [float(v) for v in samples[-1]]})
     return block
 
 
@@ -148,7 +144,7 @@ def drive(segs: list[dict], start, vehicle: dict) -> tuple[np.ndarray, np.ndarra
     state = np.r_[np.asarray(start, float)[:3], 0.0, 0.0]  # [X, Y, psi, vy, r]
     for seg in segs:
         if seg["model"] == "dynamic5":
-            n = int(seg.get("steps") or 1)
+            n = int(seg["steps"])
             p = dict(_params("dynamic5", vehicle), vx=float(seg["vx"]))
             x, seg_nodes, seg_samples = _solve(
                 "dynamic5", state, [float(seg["inputs"]["delta"])], p, float(seg["duration"]),
