@@ -94,20 +94,17 @@ def replay(plan, omap: OccupancyMap, footprint: Footprint | None = None,
     if isinstance(plan, PlanResult):
         if vehicle is None:
             raise TypeError("replay of a PlanResult needs vehicle=PathFinder.vehicle")
-        segs = controls(plan)
-        start, goal = plan.start, plan.goal
-        planned = _result_nodes(plan)
-        margin = None
+        segs, start, goal, margin = controls(plan), plan.start, plan.goal, None
     else:
-        segs = plan["controls"]
+        segs, start, goal = plan["controls"], plan["start"], plan["goal"]
         vehicle = {**plan["vehicle"], **(vehicle or {})}
-        start, goal = plan["start"], plan["goal"]
-        planned = _path_nodes(np.asarray(plan["path"], float), segs) if segs else None
         margin = plan.get("params", {}).get("margin")
     block = {"method": METHOD, "rtol": RTOL, "atol": ATOL, "segments": len(segs),
              **dict.fromkeys(METRICS), "nodes": 0, "samples": 0, "end": None}
     if not segs:
         return block
+    planned = (_result_nodes(plan) if isinstance(plan, PlanResult)
+               else _path_nodes(np.asarray(plan["path"], float), segs))
     if footprint is None:
         footprint = car_footprint(vehicle, margin)
     nodes, samples = drive(segs, start, vehicle)
@@ -193,8 +190,7 @@ def _solve(model: str, x0, u, p, duration, steps, speed):
     # 10% above the largest speed: a dynamic bicycle's lateral speed adds a little to vx.
     m = max(1, math.ceil(1.1 * speed * duration / CHECK_SPACING_M))
     fine = duration * np.arange(1, m + 1) / m
-    nodes = sol.sol(at).T
-    return nodes[-1], nodes[:, :3], sol.sol(fine).T[:, :3]
+    return sol.y[:, -1], sol.sol(at).T[:, :3], sol.sol(fine).T[:, :3]
 
 
 @cache
