@@ -130,16 +130,16 @@ def build(results, out, tuned_path=None, plans_dir=None, progress=False, verdict
     out = check_kind(out, "report")
     t0 = time.perf_counter()
     sweep = load_sweep(sweep_dir)
+    missing = [name for name, _ in verdicts if name not in set(sweep.runs["method"])]
+    if missing:
+        raise UsageError(f"--verdict {missing[0]}: not a method of the sweep "
+                         f"{sweep_dir}; it has {', '.join(sorted(set(sweep.runs['method'])))}")
     tuned = load_tuned(tuned_path) if tuned_path is not None else None
     plan_list = load_plans(plans_dir) if plans_dir is not None else []
     say(f"read the sweep ({len(sweep.runs)} runs), "
         + (f"{len(plan_list)} plan(s)" if plan_list else "no plans") + (", the tuned config"
                                                                         if tuned else "")
         + f" in {time.perf_counter() - t0:.1f} s")
-    missing = [name for name, _ in verdicts if name not in set(sweep.runs["method"])]
-    if missing:
-        raise UsageError(f"--verdict {missing[0]}: not a method of the sweep "
-                         f"{sweep_dir}; it has {', '.join(sorted(set(sweep.runs['method'])))}")
     with writing(out, "report"):
         return _draw(sweep, tuned, tuned_path, plan_list, plans_dir, out, started, say,
                      verdicts)

@@ -11,6 +11,7 @@ import numpy as np
 from stepzoo.bench.cmd_verdict import verdicts as judge_all
 from stepzoo.bench.figure_runs import trajectories_at
 from stepzoo.bench.sweep_config import load
+from stepzoo.errors import UsageError
 from stepzoo.reports import figures, tables
 
 
@@ -31,7 +32,8 @@ def figure_point(sweep, tuned, margin):
     """(sweep whose trajectories Figures 1-2 draw, why that point): the config's own
     [trajectories] point when it names one; else, with a tuned config, the point where the
     tuned (method, h) binds (figures.binding_point), its figure runs computed by the sweep's
-    code when the sweep ran them elsewhere; else the sweep's."""
+    code when the sweep ran them elsewhere (the sweep's own runs when its config no longer
+    loads); else the sweep's."""
     try:
         raw = tomllib.loads((sweep.folder / "config.toml").read_text())
     except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError):
@@ -46,7 +48,13 @@ def figure_point(sweep, tuned, margin):
     ran = sweep.manifest.get("trajectory_point") or {}
     if all(np.isclose(ran.get(v, np.nan), x) for v, x in point.items()):
         return sweep, why
-    cfg = load(sweep.folder / "config.toml")
+    try:
+        cfg = load(sweep.folder / "config.toml")
+    except UsageError:
+        # The model's module is gone from where it was swept: the figures keep the sweep's
+        # own runs, and say why.
+        return sweep, f"not where the tuned choice binds ({why}): the sweep's config no " \
+            "longer loads, so its runs there cannot be made"
     traj = trajectories_at(cfg, [point[v] for v in cfg.spec.variables])
     manifest = {**sweep.manifest, "trajectory_point": point}
     return dataclasses.replace(sweep, trajectories=traj, manifest=manifest), why
