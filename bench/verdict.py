@@ -94,8 +94,8 @@ def classes(judged: pd.DataFrame, variables, margin: float) -> list[dict]:
     The kinds overlap (a point near the limit may also be inaccurate); each "where" names
     only points of its own kind."""
     stable = judged["stable"]
-    kinds = [("unstable", judged["cause"].str.startswith("unstable") & ~stable),
-             ("solver failed", judged["cause"].str.startswith("solver failed") & ~stable),
+    kinds = [("unstable", judged["cause"] == "unstable"),
+             ("solver failed", judged["cause"] == "solver failed"),
              (f"stable, within {margin:.0%} of the limit", stable & ~judged["with_margin"]),
              ("stable, not accurate", stable & ~judged["accurate"]),
              ("stable with margin and accurate", judged["with_margin"] & judged["accurate"])]
