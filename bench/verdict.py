@@ -96,7 +96,7 @@ def classes(judged: pd.DataFrame, variables, margin: float) -> list[dict]:
     stable = judged["stable"]
     kinds = [("unstable", judged["cause"] == "unstable"),
              ("solver failed", judged["cause"] == "solver failed"),
-             (f"stable, within {margin:.0%} of the limit", stable & ~judged["with_margin"]),
+             (f"stable, within {100 * margin:g}% of the limit", stable & ~judged["with_margin"]),
              ("stable, not accurate", stable & ~judged["accurate"]),
              ("stable with margin and accurate", judged["with_margin"] & judged["accurate"])]
     return [{"verdict": name, "points": int(mask.sum()),

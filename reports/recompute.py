@@ -43,7 +43,8 @@ def figure_point(sweep, tuned, margin):
         return sweep, "the point the config's [trajectories] table names"
     found = figures.binding_point(sweep, tuned, margin) if tuned else None
     if found is None:
-        return sweep, ""
+        return sweep, ("the envelope's first point; name another in the config's "
+                       "[trajectories] table, or give a tuned config to see where it binds")
     point, why = found
     ran = sweep.manifest.get("trajectory_point") or {}
     if all(np.isclose(ran.get(v, np.nan), x) for v, x in point.items()):
