@@ -46,8 +46,12 @@ def show(manifest: dict, out, fmt: str = "text") -> None:
         _show_suite(manifest, out)
         return
     summary = pd.read_csv(f"{out}/summary.csv").to_dict("records")
+    # A failed nonlinear solve is the solver's limit, shown apart from the method's.
+    solver = ["solver_limited_points", "h_solver_limit_min"] \
+        if any(r.get("solver_limited_points", 0) for r in summary) else []
     sys.stdout.write(text_table(summary, ["method", "order_declared", "order_fit_median",
-                                          "h_pred_min", "h_meas_min", "worst_ratio"]) + "\n")
+                                          "h_pred_min", "h_meas_min", "worst_ratio",
+                                          *solver]) + "\n")
     compile_s = ", ".join(f"{k} {v:.2f}" for k, v in t["compile_s"].items())
     print(f"wrote {out}: runs.parquet, limits.parquet/csv, summary.parquet/csv, "
           "eigenvalues.parquet, trajectories.parquet, manifest.json")

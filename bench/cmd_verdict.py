@@ -1,11 +1,13 @@
-"""`stepzoo verdict CONFIG --method M --h H [--tol E | --pos-tol M]`: where in a config's
-envelope a fixed (method, h) is stable and accurate and where not, with the worst error."""
+"""`stepzoo verdict CONFIG --method M --h H [--tol E | --pos-tol M] [--margin F] [--csv FILE]`:
+for a fixed (method, h), point by point over a config's envelope, whether it is stable (with
+the margin `tune` keeps, or how close to the limit) and accurate; then where each verdict
+holds, and the worst error."""
 import math
 import sys
 
 from stepzoo.errors import UsageError
 from stepzoo.output import text_table, to_json
-from stepzoo.validate import check
+from stepzoo.validate import DEFAULT_MARGIN, check
 
 
 def add_arguments(p):
@@ -17,12 +19,57 @@ def add_arguments(p):
     p.add_argument("--tol", type=float, help="accurate: error norm <= E (default 0.01)")
     p.add_argument("--pos-tol", type=float, metavar="METRES",
                    help="accurate: position error <= M [m] (vehicle models)")
+    p.add_argument("--margin", type=float, default=DEFAULT_MARGIN, metavar="FRACTION",
+                   help="stable with margin: h <= (1 - margin) x the measured largest stable "
+                   f"step at the point, as `stepzoo tune` keeps (default {DEFAULT_MARGIN})")
+    p.add_argument("--csv", metavar="FILE", help="also write one row per (method, h, point) "
+                   "to this CSV file")
     p.add_argument("--format", choices=["text", "json"], default="text")
+
+
+def verdicts(cfg, pairs, column: str, tol: float, margin: float, unit: str = ""):
+    """[(summary dict, judged per-point table)] per (method, h) of `pairs`."""
+    from stepzoo.bench.verdict import classes, judge, point_record, region, verdict
+    variables = list(cfg.spec.variables)
+    out = []
+    for name, h in pairs:
+        table = judge(verdict(cfg, name, h), h, column, tol, margin, unit)
+        worst = table.loc[table["error"].idxmax()]
+        kinds = classes(table, variables, margin)
+        out.append(({
+            "method": name, "h": h, "points": len(table), "stable": int(table["stable"].sum()),
+            "stable_with_margin": int(table["with_margin"].sum()),
+            "accurate": int(table["accurate"].sum()),
+            "unstable_where": kinds[0]["where"],
+            "solver_failed_where": kinds[1]["where"],
+            "inaccurate_where": region(table, table["stable"] & ~table["accurate"], variables),
+            "worst_error": float(worst["error"]),
+            "worst_at": {v: float(worst[v]) for v in variables},
+            "h_pred_min": float(table["h_pred"].min()),
+            "h_meas_min": float(table["h_meas"].min()),
+            "tolerance": {column: tol},
+            "margin": margin,
+            "classes": kinds,
+            "points_list": [point_record(r, variables) for _, r in table.iterrows()],
+        }, table))
+    return out
+
+
+def _csv(path, cfg, results) -> None:
+    import pandas as pd
+
+    from stepzoo.bench.verdict import POINT_FIELDS
+    from stepzoo.output import atomic_write
+    from stepzoo.results_folder import check_file_target
+    check_file_target(path, "--csv")
+    variables = list(cfg.spec.variables)
+    frames = [t.assign(method=v["method"], h=v["h"])[["method", "h", "point", *variables,
+                                                       *POINT_FIELDS]] for v, t in results]
+    atomic_write(path, pd.concat(frames, ignore_index=True).to_csv(index=False))
 
 
 def main(args) -> int:
     from stepzoo.bench.sweep_config import load
-    from stepzoo.bench.verdict import region, verdict
     from stepzoo.integrators import METHODS
     if len(args.method) != len(args.h):
         raise UsageError("give one --h per --method")
@@ -32,46 +79,53 @@ def main(args) -> int:
     hs = [check("step", "--h", h) for h in args.h]
     if args.pos_tol is not None and args.tol is not None:
         raise UsageError("give --tol or --pos-tol, not both")
+    margin = check("margin", "--margin", args.margin)
     column, tol = ("err_pos", check("pos_tol", "--pos-tol", args.pos_tol)) \
         if args.pos_tol is not None else ("err", check("tol", "--tol", args.tol or 0.01))
+    if args.csv is not None:
+        from stepzoo.results_folder import check_file_target
+        check_file_target(args.csv, "--csv")          # refused before the work, not after
     cfg = load(args.config)
     if column == "err_pos" and not cfg.spec.vehicle:
         raise UsageError(f"{cfg.model} has no position (X, Y); use --tol E")
-    variables = list(cfg.spec.variables)
-    out = []
-    for name, h in zip(args.method, hs):
-        table = verdict(cfg, name, h)
-        good = table["stable"] & (table[column] <= tol)
-        worst = table.loc[table[column].idxmax()]
-        out.append({
-            "method": name, "h": h, "points": len(table), "stable": int(table["stable"].sum()),
-            "accurate": int(good.sum()),
-            "unstable_where": region(table, ~table["stable"] & (table["cause"] == "unstable"),
-                                     variables),
-            "solver_failed_where": region(table, table["cause"] == "solver failed", variables),
-            "inaccurate_where": region(table, table["stable"] & ~good, variables),
-            "worst_error": float(worst[column]),
-            "worst_at": {v: float(worst[v]) for v in variables},
-            "h_pred_min": float(table["h_pred"].min()),
-            "tolerance": {column: tol},
-        })
+    unit = " m" if column == "err_pos" else ""
+    results = verdicts(cfg, list(zip(args.method, hs)), column, tol, margin, unit)
+    if args.csv is not None:
+        _csv(args.csv, cfg, results)
     if args.format == "json":
-        # JSON has no inf: a blown-up worst error is null.
-        for v in out:
-            v["worst_error"] = None if math.isinf(v["worst_error"]) else v["worst_error"]
+        out = []
+        for v, _ in results:
+            v = dict(v)
+            v["points"], v["n_points"] = v.pop("points_list"), v["points"]
+            # JSON has no inf: a blown-up worst error, an unbounded limit, is null.
+            for key in ("worst_error", "h_meas_min", "h_pred_min"):
+                v[key] = None if math.isinf(v[key]) else v[key]
+            out.append(v)
         print(to_json({"model": cfg.model, "config": str(args.config), "verdicts": out}))
         return 0
-    unit = " m" if column == "err_pos" else ""
-    for v in out:
-        worst = ("inf (blows up)" if math.isinf(v["worst_error"])
-                 else f"{v['worst_error']:.3g}{unit}")
-        print(f"{v['method']} at h = {v['h']:g} s on {cfg.model} ({v['points']} points): "
-              f"stable at {v['stable']}, within {tol:g}{unit} at {v['accurate']}; smallest "
-              f"predicted limit {v['h_pred_min']:.4g} s")
-        rows = [{"verdict": "unstable", "where": v["unstable_where"]},
-                {"verdict": "solver failed", "where": v["solver_failed_where"]},
-                {"verdict": "stable, not accurate", "where": v["inaccurate_where"]},
-                {"verdict": "worst error", "where": f"{worst} at " + ", ".join(
-                    f"{k} = {x:.4g}" for k, x in v["worst_at"].items())}]
-        sys.stdout.write(text_table(rows, ["verdict", "where"]) + "\n")
+    for v, table in results:
+        _show(cfg, v, table, tol, unit)
+    if args.csv is not None:
+        print(f"wrote {args.csv}: one row per (method, h, operating point)")
     return 0
+
+
+def _show(cfg, v, table, tol, unit) -> None:
+    variables = list(cfg.spec.variables)
+    worst = ("inf (blows up)" if math.isinf(v["worst_error"])
+             else f"{v['worst_error']:.3g}{unit}")
+    print(f"{v['method']} at h = {v['h']:g} s on {cfg.model} ({v['points']} points): "
+          f"stable at {v['stable']} ({v['stable_with_margin']} with margin {v['margin']:g}), "
+          f"within {tol:g}{unit} at {v['accurate']}; smallest predicted limit "
+          f"{v['h_pred_min']:.4g} s, smallest measured {v['h_meas_min']:.4g} s")
+    rows = [{**{k: r[k] for k in variables},
+             **{"h/h_meas": r["h_over_h_meas"], "stable": "yes" if r["stable"] else "no",
+                "error": r["error"], "accurate": "yes" if r["accurate"] else "no",
+                "verdict": r["verdict"]}} for _, r in table.iterrows()]
+    sys.stdout.write(text_table(rows, [*variables, "h/h_meas", "stable", "error", "accurate",
+                                       "verdict"]) + "\n")
+    summary = [{"verdict": k["verdict"], "points": k["points"], "where": k["where"]}
+               for k in v["classes"]]
+    summary.append({"verdict": "worst error", "points": "", "where": f"{worst} at " + ", ".join(
+        f"{k} = {x:.4g}" for k, x in v["worst_at"].items())})
+    sys.stdout.write(text_table(summary, ["verdict", "points", "where"]) + "\n")

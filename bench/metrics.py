@@ -131,3 +131,24 @@ def order_status(observed: float, declared: float, note: str,
     if note != "asymptotic":
         return "no asymptotic range"
     return "below declared" if observed < declared else "above declared"
+
+
+def own_limits(limits) -> dict:
+    """A method's limits over its points (`limits` rows, one method), the solver's apart from
+    the method's: h_meas_min [s] over the points where the method itself blew up or nothing
+    failed (NaN when a failed nonlinear solve ended every point's stable range), worst_ratio
+    of those points' h_meas / h_pred (the one farthest from 1), and over the points where a
+    failed solve ended it, their number (solver_limited_points) and smallest h_meas
+    (h_solver_limit_min [s], NaN when none): a solver's failure says nothing of the method's
+    stability."""
+    failed = (limits["limit_cause"] == "solver failed").to_numpy() \
+        if "limit_cause" in limits else np.zeros(len(limits), bool)
+    own = limits[~failed]
+    ratios = own["ratio"].to_numpy(float) if "ratio" in own else np.zeros(0)
+    ratios = ratios[np.isfinite(ratios) & (ratios > 0)]
+    return {"h_meas_min": float(own["h_meas"].min()) if len(own) else float("nan"),
+            "worst_ratio": float(ratios[np.argmax(np.abs(np.log(ratios)))]) if len(ratios)
+            else float("nan"),
+            "solver_limited_points": int(failed.sum()),
+            "h_solver_limit_min": float(limits["h_meas"][failed].min()) if failed.any()
+            else float("nan")}

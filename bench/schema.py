@@ -36,10 +36,14 @@ LIMIT_TAIL = ["h_pred", "h_meas", "ratio", "order_declared", "order_fit", "h_pro
 # one (median order_h_rho: see metrics.order_status).
 ORDER_TAIL = ["order_h_min", "order_h_max", "order_points", "order_note", "rho_max",
               "order_h_rho"]
+# summary: h_meas_min and worst_ratio are over the points where the method blew up or nothing
+# failed; solver_limited_points counts those where a failed nonlinear solve ended the stable
+# range first, h_solver_limit_min [s] their smallest h_meas (metrics.own_limits).
 SUMMARY = ["method", "family", "order_declared", "order_fit_median", "order_fit_min",
            "order_fit_max", "real_interval", "imag_interval", "h_meas_min", "h_pred_min",
            "worst_ratio", "implicit", "evals_per_step", "points", "solver_failures",
-           "order_h_min", "order_h_max", "order_status", "order_h_rho"]
+           "order_h_min", "order_h_max", "order_status", "order_h_rho",
+           "solver_limited_points", "h_solver_limit_min"]
 EIGEN_TAIL = ["lam_re", "lam_im"]
 TIMING = ["chunk", "method", "compile_s", "ref_compile_s", "reference_s", "integration_s",
           "stability_s", "metrics_s", "total_s"]

@@ -685,9 +685,6 @@ def summary(runs: pd.DataFrame, limits: pd.DataFrame) -> pd.DataFrame:
     for name, lim in limits.groupby("method", sort=True):
         m = METHODS[name]
         real, imag = stability_intervals(m)
-        ratios = lim["ratio"].to_numpy(float)
-        finite = ratios[np.isfinite(ratios) & (ratios > 0)]
-        worst = finite[np.argmax(np.abs(np.log(finite)))] if len(finite) else np.nan
         r = runs[runs["method"] == name]
         median = float(lim["order_fit"].median())
         # Folders swept before rho_max was recorded have no order_h_rho.
@@ -703,8 +700,8 @@ def summary(runs: pd.DataFrame, limits: pd.DataFrame) -> pd.DataFrame:
                                               h_rho),
             order_h_rho=h_rho,
             real_interval=real, imag_interval=imag,
-            h_meas_min=float(lim["h_meas"].min()), h_pred_min=float(lim["h_pred"].min()),
-            worst_ratio=float(worst), implicit=m.implicit,
+            h_pred_min=float(lim["h_pred"].min()), **metrics.own_limits(lim),
+            implicit=m.implicit,
             evals_per_step=float((r["evals_per_s"] * r["h"]).median()),
             points=int(lim["point"].nunique()),
             solver_failures=int((~r["converged"]).sum()) if "converged" in r else 0))

@@ -12,6 +12,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from stepzoo.bench.margin import stable_with_margin
 from stepzoo.bench.sweep_folder import check_finished
 from stepzoo.errors import NoAnswer, UsageError
 from stepzoo.validate import check
@@ -68,7 +69,7 @@ def candidates(runs: pd.DataFrame, limits: pd.DataFrame, tol, margin: float,
     """One row per (method, h): worst error (`column`) over the points, whether every point
     is stable with the margin and within the tolerance, and the two costs."""
     df = runs.merge(limits[["method", "point", "h_meas"]], on=["method", "point"])
-    df["in_margin"] = df["stable"] & (df["h"] <= (1.0 - margin) * df["h_meas"])
+    df["in_margin"] = stable_with_margin(df["stable"], df["h"], df["h_meas"], margin)
     df["time_per_s"] = df["time_per_step_s"] / df["h"]
     g = df.groupby(["method", "h"])
     table = pd.DataFrame({

@@ -27,6 +27,10 @@ def add_arguments(p):
                    "folder of them from `stepzoo plan --all` (default: RESULTS/plans of a run "
                    "folder, if there)")
     p.add_argument("--out", required=True, metavar="DIR", help="report folder to write")
+    p.add_argument("--verdict", action="append", default=[], metavar="METHOD:H",
+                   help="add the per-point verdict of this (method, step [s]) on the sweep's "
+                   "envelope, as `stepzoo verdict` gives it, and draw H on the limit and "
+                   "error figures (repeatable)")
     p.add_argument("--format", choices=["text", "json"], default="text",
                    help="what is printed: the report's path, or JSON with every file")
 
@@ -80,9 +84,30 @@ def _progress(on: bool):
     return say
 
 
-def build(results, out, tuned_path=None, plans_dir=None, progress=False):
+def parse_verdicts(specs) -> list[tuple[str, float]]:
+    """(method, h [s]) of each --verdict METHOD:H, or UsageError naming the bad one."""
+    from stepzoo.integrators import METHODS
+    from stepzoo.validate import check
+    pairs = []
+    for spec in specs:
+        name, sep, h = str(spec).rpartition(":")
+        try:
+            step = float(h)
+        except ValueError:
+            step = None
+        if not sep or step is None:
+            raise UsageError(f"--verdict {spec!r}: give METHOD:H, such as rk4:0.01")
+        if name not in METHODS:
+            raise UsageError(f"--verdict {spec!r}: unknown method {name!r}; known: "
+                             f"{', '.join(METHODS)}")
+        pairs.append((name, check("step", "--verdict", step)))
+    return pairs
+
+
+def build(results, out, tuned_path=None, plans_dir=None, progress=False, verdicts=()):
     """Load every input, draw the figures (static and interactive), write the report and its
-    manifest.json; returns (index, summary, shown). `progress`: a line per stage to stderr."""
+    manifest.json; returns (index, summary, shown). `progress`: a line per stage to stderr;
+    `verdicts`: (method, h [s]) pairs whose per-point verdict the report adds."""
     # Imported here, not with the module: pandas, matplotlib and plotly take seconds to
     # import, which `stepzoo report --help` (and `stepzoo run` before its sweep) need not wait.
     from stepzoo.reports import suite_report
@@ -91,7 +116,12 @@ def build(results, out, tuned_path=None, plans_dir=None, progress=False):
     say = _progress(progress)
     sweep_dir, tuned_path, plans_dir = resolve(results, tuned_path, plans_dir)
     suite = suite_report.suite_manifest(sweep_dir)
+    verdicts = parse_verdicts(verdicts)
     if suite:
+        if verdicts:
+            raise UsageError(f"{sweep_dir} holds a suite of problems; --verdict belongs "
+                             "with one problem's report: give its folder, such as "
+                             f"{sweep_dir / suite['problems'][0]}")
         if tuned_path is not None or plans_dir is not None:
             raise UsageError(f"{sweep_dir} holds a suite of problems; --tuned and --plans "
                              "belong with one problem's report: give its folder, such as "
@@ -100,6 +130,10 @@ def build(results, out, tuned_path=None, plans_dir=None, progress=False):
     out = check_kind(out, "report")
     t0 = time.perf_counter()
     sweep = load_sweep(sweep_dir)
+    missing = [name for name, _ in verdicts if name not in set(sweep.runs["method"])]
+    if missing:
+        raise UsageError(f"--verdict {missing[0]}: not a method of the sweep "
+                         f"{sweep_dir}; it has {', '.join(sorted(set(sweep.runs['method'])))}")
     tuned = load_tuned(tuned_path) if tuned_path is not None else None
     plan_list = load_plans(plans_dir) if plans_dir is not None else []
     say(f"read the sweep ({len(sweep.runs)} runs), "
@@ -107,25 +141,42 @@ def build(results, out, tuned_path=None, plans_dir=None, progress=False):
                                                                         if tuned else "")
         + f" in {time.perf_counter() - t0:.1f} s")
     with writing(out, "report"):
-        return _draw(sweep, tuned, tuned_path, plan_list, plans_dir, out, started, say)
+        return _draw(sweep, tuned, tuned_path, plan_list, plans_dir, out, started, say,
+                     verdicts)
 
 
-def _draw(sweep, tuned, tuned_path, plan_list, plans_dir, out, started, say):
-    from stepzoo.reports import figures, interactive, tables
+def _tolerance(sweep, tuned):
+    """(view, tolerance, margin) of the report: the tuned config's, else the defaults."""
+    from stepzoo.reports.load import tolerance
+    view = sweep.view.with_tolerance(tuned)
+    tol = tolerance(tuned) or (DEFAULT_POS_TOL_M if view.error == "err_pos" else DEFAULT_TOL)
+    margin = float(tuned.get("margin", DEFAULT_MARGIN)) if tuned else DEFAULT_MARGIN
+    return view, tol, margin
+
+
+def _draw(sweep, tuned, tuned_path, plan_list, plans_dir, out, started, say, verdicts=()):
+    from stepzoo.reports import figures, interactive, recompute, tables
     from stepzoo.reports.html import write_report
-    from stepzoo.reports.load import load_manifest, tolerance
+    from stepzoo.reports.load import load_manifest
     from stepzoo.reports.provenance import environment_table, public_path
+    view, tol, margin = _tolerance(sweep, tuned)
+    t0 = time.perf_counter()
+    at, why = recompute.figure_point(sweep, tuned, margin)
+    if at is not sweep:
+        point = ", ".join(f"{k} = {v:g}" for k, v in at.manifest["trajectory_point"].items())
+        say(f"ran Figures 1-2's runs at {point}, where the tuned choice binds, in "
+            f"{time.perf_counter() - t0:.1f} s")
     # (static figure, its interactive plots), drawn in the report's order.
-    draw = [(lambda: figures.yaw_rate(sweep, out), lambda: interactive.yaw_rate(sweep, tuned)),
-            (lambda: figures.xy_paths(sweep, out), lambda: interactive.xy_paths(sweep, tuned)),
+    draw = [(lambda: figures.yaw_rate(at, out, why), lambda: interactive.yaw_rate(at, tuned)),
+            (lambda: figures.xy_paths(at, out, why), lambda: interactive.xy_paths(at, tuned)),
             (lambda: figures.stability_regions(sweep, tuned, out),
              lambda: interactive.stability_regions(sweep, tuned)),
-            (lambda: figures.error_vs_step(sweep, out),
-             lambda: interactive.error_vs_step(sweep, tuned)),
+            (lambda: figures.error_vs_step(sweep, out, verdicts),
+             lambda: interactive.error_vs_step(sweep, tuned, verdicts)),
             (lambda: figures.work_precision(sweep, tuned, out),
              lambda: interactive.work_precision(sweep, tuned)),
-            (lambda: figures.stable_step_vs_speed(sweep, out),
-             lambda: interactive.stable_step_vs_speed(sweep, tuned)),
+            (lambda: figures.stable_step_vs_speed(sweep, out, verdicts),
+             lambda: interactive.stable_step_vs_speed(sweep, tuned, verdicts)),
             (lambda: figures.plans(plan_list, out), lambda: interactive.plans(plan_list))]
     shown, plots = [], {}
     for static, live in draw:
@@ -135,15 +186,19 @@ def _draw(sweep, tuned, tuned_path, plan_list, plans_dir, out, started, say):
         shown.append(fig)
         say(f"[{len(shown)}/{len(draw)}] Figure {fig.number}. {fig.title}: "
             f"{len(fig.images)} image(s) in {time.perf_counter() - t0:.1f} s")
-    view = sweep.view.with_tolerance(tuned)
-    tol = tolerance(tuned) or (DEFAULT_POS_TOL_M if view.error == "err_pos" else DEFAULT_TOL)
     unit = f" {view.error_unit}" if view.error_unit else ""
-    margin = float(tuned.get("margin", DEFAULT_MARGIN)) if tuned else DEFAULT_MARGIN
+    t0 = time.perf_counter()
+    verdict_tables = recompute.verdict_tables(sweep, verdicts, view, tol, margin)
+    if verdicts:
+        say(f"judged {len(verdicts)} verdict(s) in {time.perf_counter() - t0:.1f} s")
     summary = tables.Table(
         "Methods", f"Per method: declared and fitted order, stability intervals on the real "
         f"and imaginary axes, the smallest predicted and measured largest stable step over "
-        f"the envelope and their worst ratio, and how many runs had a nonlinear solve fail "
-        f"(never counted stable: a solver failure, not the method's instability); then the "
+        f"the envelope (measured where the method blew up, or nothing failed) and their "
+        f"worst ratio, how many runs had a nonlinear solve fail (never counted stable: a "
+        f"solver failure, not the method's instability), and apart from the measured limits "
+        f"the points where a failed solve ended the stable range, with the smallest step "
+        f"[s] up to which their solves converge; then the "
         f"largest swept step stable everywhere, at most {1 - margin:g} of the measured limit, "
         f"with worst {view.error_label} <= {tol:g}{unit}"
         f"{'' if tuned else ' (defaults: no tuned config given)'}, and its "
@@ -161,7 +216,8 @@ def _draw(sweep, tuned, tuned_path, plan_list, plans_dir, out, started, say):
         manifests["plans"] = load_manifest(plans_dir)
     manifests["this report"] = own
     appendix = [environment_table(manifests, out)]
-    index, md = write_report(out, "stepzoo report", facts, [decision, summary], shown, plots,
+    index, md = write_report(out, "stepzoo report", facts, [decision, summary,
+                                                             *verdict_tables], shown, plots,
                              interactive.plotly_js(), appendix)
     environment.write_manifest(out, "report", started, {
         "sweep": public_path(sweep.folder, out),
@@ -175,7 +231,7 @@ def _draw(sweep, tuned, tuned_path, plan_list, plans_dir, out, started, say):
 
 def main(args) -> int:
     index, md, shown = build(args.results, args.out, args.tuned, args.plans,
-                             progress=args.progress)
+                             progress=args.progress, verdicts=args.verdict)
     if args.format == "json":
         files = [name for s in shown for name, _ in s.images]
         sys.stdout.write(json.dumps({"index": str(index), "summary": str(md),

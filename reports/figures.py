@@ -33,6 +33,7 @@ PANEL_IN = (3.2, 2.5)          # [inch] one small-multiple panel
 PANEL_ASPECT = 1.35            # width / height of a panel's plotting area, labels aside
 BLOWUP_FACTOR = 3.0            # a sample run this far beyond the reference's range diverged
 STABLE_FILL, UNSTABLE = "#cfe3f5", "#d62728"
+VERDICT = "#ff7f0e"            # the steps asked about with `stepzoo report --verdict`
 
 
 @dataclass(frozen=True)
@@ -158,6 +159,31 @@ def _shades(n):
     return [colormaps["viridis"](v) for v in np.linspace(0.1, 0.75, max(n, 1))][:n]
 
 
+def binding_point(sweep, tuned, margin: float):
+    """(point, why) where the tuned (method, h) is nearest a bound it must keep: the
+    operating point of largest tightness max(h / ((1 - margin) h_meas), error / tol), both 1
+    at the bound (h_meas the point's measured largest stable step, the error the one the
+    tuned tolerance bounds); None when the sweep has no run of that (method, h)."""
+    view = sweep.view.with_tolerance(tuned)
+    tol, name, h = tolerance(tuned), tuned["method"], float(tuned["h"])
+    runs = sweep.runs[(sweep.runs["method"] == name) & np.isclose(sweep.runs["h"], h)]
+    lim = sweep.limits[sweep.limits["method"] == name][["point", "h_meas"]]
+    df = runs.merge(lim, on="point")
+    if df.empty or not tol:
+        return None
+    with np.errstate(divide="ignore", invalid="ignore"):
+        stab = (h / ((1.0 - margin) * df["h_meas"].to_numpy(float)))
+        acc = df[view.error].to_numpy(float) / tol
+    tight = np.fmax(np.nan_to_num(stab, nan=np.inf), np.nan_to_num(acc, nan=np.inf))
+    i = int(np.argmax(tight))
+    point = {v: float(df[v].iloc[i]) for v in view.variables}
+    unit = f" {view.error_unit}" if view.error_unit else ""
+    why = (f"the point where the tuned {name} at h = {h:g} s is nearest a bound it keeps: "
+           f"h / h_meas = {h / df['h_meas'].iloc[i]:.3g} (at most {1 - margin:g}), "
+           f"{view.error_label} {df[view.error].iloc[i]:.3g}{unit} (at most {tol:g}{unit})")
+    return point, why
+
+
 def _operating_point(sweep) -> str:
     point = sweep.manifest.get("trajectory_point") or sweep.manifest.get("paper_point")
     if isinstance(point, dict) and {"vx", "delta"} <= set(point):
@@ -179,9 +205,9 @@ def trajectory_title(view) -> str:
         f"{view.plot_state} against time"
 
 
-def yaw_rate(sweep, out_dir: Path) -> Shown:
+def yaw_rate(sweep, out_dir: Path, why: str = "") -> Shown:
     """Figure 1: the plotted state (the bicycle's yaw rate r [rad/s]) against time t [s],
-    each method at several steps."""
+    each method at several steps; `why`: why this operating point, for the caption."""
     view = sweep.view
     state = view.plot_state
     fig, past = _trajectory_figure(sweep.trajectories, "t", state, "t [s]",
@@ -189,7 +215,8 @@ def yaw_rate(sweep, out_dir: Path) -> Shown:
     name = _save(fig, out_dir, "fig1_yaw_rate.png")
     what = "Yaw rate" if state == "r" else f"The state {state} of {view.model}"
     caption = (f"{what} against time for each method at several fixed step sizes (coloured "
-               f"by step){_operating_point(sweep)}, over the tight reference (black, "
+               f"by step){_operating_point(sweep)}{f' ({why})' if why else ''}, over the "
+               "tight reference (black, "
                "dashed); for the bicycle, the paper's Figure 2. A stable step follows the "
                "reference, and the gap grows with the step; red dotted runs are past the "
                "method's predicted stability limit: they oscillate with growing amplitude "
@@ -203,15 +230,16 @@ def plane_title(view) -> str:
     return "X-Y paths" if view.vehicle else f"{view.plane[0]}-{view.plane[1]} phase plane"
 
 
-def xy_paths(sweep, out_dir: Path) -> Shown:
+def xy_paths(sweep, out_dir: Path, why: str = "") -> Shown:
     """Figure 2: the X-Y path [m] (or, for a model without position, the plane of two of its
-    states) of each method at several steps, with the reference."""
+    states) of each method at several steps, with the reference; `why` as Figure 1's."""
     view = sweep.view
     xs, ys = view.plane
     fig, past = _trajectory_figure(sweep.trajectories, xs, ys, state_label(view, xs),
                                    state_label(view, ys), equal=view.vehicle)
     name = _save(fig, out_dir, "fig2_xy_paths.png")
-    past_text = " Past the limit: " + (", ".join(past) or "none") + "."
+    past_text = (" Past the limit: " + (", ".join(past) or "none") + "."
+                 + (f" The operating point{_operating_point(sweep)}: {why}." if why else ""))
     if view.vehicle:
         caption = ("The vehicle's path in the plane for the same runs as Figure 1; the "
                    "paper's Figure 3. The steady turn of the reference (black, dashed) is a "
@@ -285,8 +313,13 @@ def stability_regions(sweep, tuned, out_dir: Path) -> Shown:
 ERROR_NORM = "worst error (error states over their scales)"
 
 
-def error_vs_step(sweep, out_dir: Path) -> Shown:
-    """Figure 4: worst error norm against h [s], log-log, with declared slopes."""
+def verdict_label(name: str, h: float) -> str:
+    return f"{name} at h = {h:g} s (verdict)"
+
+
+def error_vs_step(sweep, out_dir: Path, verdicts=()) -> Shown:
+    """Figure 4: worst error norm against h [s], log-log, with declared slopes; each
+    (method, h) of `verdicts` a vertical line on its method's panel."""
     table = worst_case(sweep.runs)
     table = table[np.isfinite(table["err"]) & (table["err"] > 0)]
     names = method_order(table["method"])
@@ -303,6 +336,9 @@ def error_vs_step(sweep, out_dir: Path) -> Shown:
             hh = np.array([h.min(), h.max()])
             ax.loglog(hh, err[i] * (hh / h[i]) ** int(order), "--", color="grey", lw=1.0,
                       label=f"slope {int(order)} (declared)")
+        for vname, vh in verdicts:
+            if vname == name:
+                ax.axvline(vh, color=VERDICT, ls="-.", lw=1.2, label=verdict_label(vname, vh))
         fit = float(summary["order_fit_median"].get(name, np.nan))
         ax.set_title(f"{name}" + (f" (fit {fit:.2f})" if np.isfinite(fit) else ""), fontsize=9)
         ax.set_xlabel("h [s]", fontsize=8)
@@ -318,8 +354,15 @@ def error_vs_step(sweep, out_dir: Path) -> Shown:
                "slope of the method's declared order, and the title gives the fitted order "
                "(median over points). In the asymptotic range the measured line is parallel "
                "to the dashed one; at small steps it may flatten at the reference's accuracy "
-               "or round-off.")
+               "or round-off." + _verdict_text(verdicts, "vertical"))
     return Shown(4, "Error against step size", caption, [(name, "")])
+
+
+def _verdict_text(verdicts, how: str) -> str:
+    if not verdicts:
+        return ""
+    return (f" The steps asked about with --verdict are {how} dash-dotted lines on their "
+            "method's panel: " + ", ".join(f"{n} at {h:g} s" for n, h in verdicts) + ".")
 
 
 def _styles(names):
@@ -383,6 +426,14 @@ def work_precision(sweep, tuned, out_dir: Path, number: int = 5,
                  [(name, "")])
 
 
+def solver_limited(limits: pd.DataFrame) -> np.ndarray:
+    """Which limits rows a failed nonlinear solve ended (limit_cause; none in a folder swept
+    before it was recorded)."""
+    if "limit_cause" not in limits:
+        return np.zeros(len(limits), bool)
+    return (limits["limit_cause"] == "solver failed").to_numpy()
+
+
 def envelope_axes(view, limits):
     """(x variable, colour variable or None, the colour variable's values)."""
     xvar = view.variables[0]
@@ -400,9 +451,10 @@ def limit_title(view) -> str:
     return f"Measured and predicted largest stable step against {view.variables[0]}"
 
 
-def stable_step_vs_speed(sweep, out_dir: Path) -> Shown:
+def stable_step_vs_speed(sweep, out_dir: Path, verdicts=()) -> Shown:
     """Figure 6: largest stable step [s] over the first envelope variable (the bicycle's vx
-    [m/s]), one line per value of the second; predicted (lines) and measured (dots)."""
+    [m/s]), one line per value of the second; predicted (lines) and measured (dots); each
+    (method, h) of `verdicts` a horizontal line on its method's panel."""
     limits = sweep.limits
     view = sweep.view
     names = method_order(limits["method"])
@@ -425,18 +477,35 @@ def stable_step_vs_speed(sweep, out_dir: Path) -> Shown:
                     label=f"{cvar}={delta:.3g}" if cvar else "predicted")
             meas = sub["h_meas"].to_numpy(dtype=float)
             ok = np.isfinite(meas) & (meas > 0)
-            ax.plot(sub[xvar][ok], meas[ok], "o", color=colour, ms=4, mfc="none")
+            solver = solver_limited(sub)
+            ax.plot(sub[xvar][ok & ~solver], meas[ok & ~solver], "o", color=colour, ms=4,
+                    mfc="none")
+            ax.plot(sub[xvar][ok & solver], meas[ok & solver], "X", color=colour, ms=6)
             if (~ok).any() and name in h_tried:
                 # No blow-up at any tried step: the true limit lies above the largest one.
                 ax.plot(sub[xvar][~ok], np.full((~ok).sum(), h_tried[name]), "^",
                         color=colour, ms=5)
+        for vname, vh in verdicts:
+            if vname == name:
+                ax.axhline(vh, color=VERDICT, ls="-.", lw=1.2, label=verdict_label(vname, vh))
         ax.set_yscale("log")
         ax.set_title(name, fontsize=9)
         ax.set_xlabel(variable_label(xvar), fontsize=8)
         ax.set_ylabel("largest stable h [s]", fontsize=8)
         ax.tick_params(which="both", labelsize=7)
+    failed = sorted(set(limits["method"][solver_limited(limits)]), key=names.index)
     if axes:
-        axes[0].legend(fontsize=6)
+        handles, labels = axes[0].get_legend_handles_labels()
+        marks = [("o", "none", "blow-up measured"), ("^", None, "no blow-up up to the "
+                 "largest step tried")] + ([("X", None, "a nonlinear solve failed")]
+                                          if failed else [])
+        for mark, face, label in marks:
+            handles.append(Line2D([], [], marker=mark, color="grey", mfc=face, ls=""))
+            labels.append(label)
+        axes[0].legend(handles, labels, fontsize=6)
+        for ax, name in zip(axes[1:], names[1:]):
+            if any(vname == name for vname, _ in verdicts):
+                ax.legend(fontsize=6)
     name = _save(fig, out_dir, "fig6_stable_step_vs_speed.png")
     bicycle = ("; the limit grows with speed because the eigenvalues scale like 1/vx, so the "
                "slowest speed of the envelope sets the step" if xvar == "vx" else "")
@@ -444,9 +513,14 @@ def stable_step_vs_speed(sweep, out_dir: Path) -> Shown:
                + (f" and {cvar}" if cvar else "") + ": lines are the "
                "prediction from the eigenvalues of df/dx along the reference and the "
                "stability region, circles the step where the sweep measured blow-up; a "
-               "triangle means no blow-up up to the largest step tried. Circles on the lines "
-               f"confirm the frozen-Jacobian theory{bicycle}."
-               + (f" A-stable, no limit: {', '.join(unlimited)}." if unlimited else ""))
+               "triangle means no blow-up up to the largest step tried; a cross is the "
+               "largest step where every nonlinear solve converged, where a solve failed "
+               "before any blow-up: the solver's limit, not the method's. Circles on the "
+               f"lines confirm the frozen-Jacobian theory{bicycle}."
+               + (f" A-stable, no limit predicted: {', '.join(unlimited)}." if unlimited
+                  else "")
+               + (f" A solve failed first at some points of: {', '.join(failed)}." if failed
+                  else "") + _verdict_text(verdicts, "horizontal"))
     return Shown(6, limit_title(view), caption, [(name, "")])
 
 

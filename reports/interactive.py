@@ -18,14 +18,15 @@ from plotly.subplots import make_subplots
 from stepzoo.integrators import METHODS
 from stepzoo.integrators.stability import amplification_theory, region_grid
 from stepzoo.reports.figures import (ERROR_NORM, _sample_runs, envelope_axes, error_axis,
-                                     method_order, scaled_eigenvalues, state_label,
-                                     variable_label, worst_case)
+                                     method_order, scaled_eigenvalues, solver_limited,
+                                     state_label, variable_label, verdict_label, worst_case)
 from stepzoo.reports.load import tolerance
 
 HEIGHT_PX = 460
 MAX_POINTS = 400          # points kept per trajectory trace: enough for the eye and the hover
 REFERENCE = dict(color="black", dash="dash", width=1.5)
 UNSTABLE = "#d62728"
+VERDICT = "#ff7f0e"
 DASHES = ("solid", "dash", "dot", "dashdot", "longdash", "longdashdot")
 CONFIG = {"responsive": True, "displaylogo": False, "scrollZoom": False,
           "modeBarButtonsToRemove": ["select2d", "lasso2d"]}
@@ -174,8 +175,22 @@ def stability_regions(sweep, tuned=None) -> list:
     return [fig]
 
 
-def error_vs_step(sweep, tuned=None) -> list:
-    """Figure 4: worst error norm against h [s], log-log, declared slopes dashed."""
+def _verdict_lines(fig, verdicts, colours, x=None, y=None) -> None:
+    """Each (method, h) of `verdicts` as a dash-dotted line in its method's colour: vertical
+    at h over the y values `y`, or horizontal at h over the x values `x`."""
+    for name, h in verdicts:
+        span = [float(np.nanmin(x if x is not None else y)),
+                float(np.nanmax(x if x is not None else y))]
+        xs, ys = (span, [h, h]) if x is not None else ([h, h], span)
+        fig.add_trace(go.Scatter(
+            x=xs, y=ys, mode="lines", name=verdict_label(name, h), legendgroup=name,
+            line=dict(color=colours.get(name, VERDICT), dash="dashdot", width=2),
+            hovertemplate=f"{verdict_label(name, h)}<extra></extra>"))
+
+
+def error_vs_step(sweep, tuned=None, verdicts=()) -> list:
+    """Figure 4: worst error norm against h [s], log-log, declared slopes dashed, the
+    steps of `verdicts` dash-dotted."""
     table = worst_case(sweep.runs)
     table = table[np.isfinite(table["err"]) & (table["err"] > 0)]
     names = method_order(table["method"])
@@ -200,6 +215,8 @@ def error_vs_step(sweep, tuned=None) -> list:
                 x=hh, y=err[i] * (hh / h[i]) ** int(order), mode="lines", legendgroup=name,
                 showlegend=False, line=dict(color=colours[name], dash="dash", width=1),
                 hovertemplate=f"{name}: slope {int(order)} (declared order)<extra></extra>"))
+    if len(table):
+        _verdict_lines(fig, verdicts, colours, y=table["err"].to_numpy(float))
     _layout(fig, "step size h [s]", ERROR_NORM,
             logx=True, logy=True, height=560)
     return [fig]
@@ -268,9 +285,10 @@ def work_precision(sweep, tuned=None) -> list:
     return [fig]
 
 
-def stable_step_vs_speed(sweep, tuned=None) -> list:
+def stable_step_vs_speed(sweep, tuned=None, verdicts=()) -> list:
     """Figure 6: largest stable step [s] against the first envelope variable (the bicycle's
-    vx [m/s]), a dash per value of the second: predicted lines, measured markers."""
+    vx [m/s]), a dash per value of the second: predicted lines, measured markers, the steps
+    of `verdicts` dash-dotted."""
     limits = sweep.limits
     names = method_order(limits["method"])
     colours = _colours(names)
@@ -278,7 +296,7 @@ def stable_step_vs_speed(sweep, tuned=None) -> list:
     fig = go.Figure()
     for name in names:
         rows = limits[limits["method"] == name]
-        first = True
+        first, failed_shown = True, False
         for k, delta in enumerate(deltas):
             sub = (rows if cvar is None else rows[rows[cvar] == delta]).sort_values(xvar)
             pred = sub["h_pred"].to_numpy(float)
@@ -297,13 +315,19 @@ def stable_step_vs_speed(sweep, tuned=None) -> list:
                     line=dict(color=colours[name], dash=DASHES[k % len(DASHES)], width=1.5)))
                 first = False
             found = np.isfinite(meas) & (meas > 0)
-            if found.any():
-                fig.add_trace(go.Scatter(
-                    x=sub[xvar][found], y=meas[found], mode="markers", name=name,
-                    legendgroup=name, showlegend=first, meta=name, customdata=custom[found],
-                    hovertemplate=hover, marker=dict(color=colours[name], symbol="circle-open",
-                                                     size=8)))
-                first = False
+            solver = solver_limited(sub)
+            for keep, symbol, what in ((found & ~solver, "circle-open", "blow-up"),
+                                       (found & solver, "x", "a nonlinear solve failed")):
+                if keep.any():
+                    fig.add_trace(go.Scatter(
+                        x=sub[xvar][keep], y=meas[keep], mode="markers",
+                        name=f"{name}: {what}" if symbol == "x" else name, legendgroup=name,
+                        showlegend=first if symbol != "x" else not failed_shown,
+                        meta=f"{name} ({what})",
+                        customdata=custom[keep], hovertemplate=hover,
+                        marker=dict(color=colours[name], symbol=symbol, size=8)))
+                    first, failed_shown = False, failed_shown or symbol == "x"
+    _verdict_lines(fig, verdicts, colours, x=limits[xvar].to_numpy(float))
     _layout(fig, variable_label(xvar), "largest stable step h [s]", logy=True, height=560)
     return [fig]
 

@@ -9,6 +9,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from stepzoo.bench.margin import stable_with_margin
+from stepzoo.bench.metrics import own_limits
 from stepzoo.reports.figures import method_order, worst_case
 
 
@@ -27,6 +29,8 @@ METHOD_COLUMNS = [
     ("imag_interval", "imag. interval"), ("h_pred_min", "h max predicted [s]"),
     ("h_meas_min", "h max measured [s]"), ("worst_ratio", "worst meas./pred."),
     ("solver_failures", "runs with failed solves"),
+    ("solver_limited_points", "points limited by a failed solve"),
+    ("h_solver_limit_min", "h max where solves converge [s]"),
     ("h_at_tol", "h at tolerance [s]"), ("evals_at_tol", "RHS evals per sim. s"),
     ("time_at_tol", "wall s per sim. s"),
 ]
@@ -38,8 +42,10 @@ TUNING_COLUMNS = [
 
 
 def method_summary(sweep, tol: float, margin: float, error: str = "err_pos") -> list[dict]:
-    """One row per method: the sweep's summary.csv plus the largest step [s] that is stable at
-    every operating point, keeps `margin` below the measured limit and has a worst error (the
+    """One row per method: the sweep's summary.csv, its limits told apart from the solver's
+    (metrics.own_limits, from limits.parquet: a folder swept before summary.csv had them reads
+    the same), plus the largest step [s] that is stable at every operating point, keeps
+    `margin` below the measured limit (the solver's included) and has a worst error (the
     runs column `error`: position [m], or the error norm) <= tol, with its costs (None when
     no step qualifies)."""
     table = worst_case(sweep.runs, error)
@@ -48,17 +54,39 @@ def method_summary(sweep, tol: float, margin: float, error: str = "err_pos") -> 
     for name in method_order(summary.index):
         s = summary.loc[name]
         row = {key: _plain(s[key]) for key, _ in METHOD_COLUMNS if key in s.index}
-        row["method"] = name
-        cap = (1.0 - margin) * float(s["h_meas_min"])
+        own = own_limits(sweep.limits[sweep.limits["method"] == name])
+        row.update({k: _plain(v) for k, v in own.items()}, method=name)
+        limit = np.fmin(own["h_meas_min"], own["h_solver_limit_min"])
         ok = table[(table["method"] == name) & (table["worst"] <= tol)]
-        if math.isfinite(cap):
-            ok = ok[ok["h"] <= cap]
+        if np.isfinite(limit):
+            ok = ok[stable_with_margin(True, ok["h"], limit, margin)]
         if len(ok):
             best = ok.loc[ok["h"].idxmax()]
             row.update(h_at_tol=float(best["h"]), evals_at_tol=float(best["evals_per_s"]),
                        time_at_tol=float(best["time_per_s"]))
         rows.append(row)
     return rows
+
+
+def verdict_table(summary: dict, judged, variables, tol: float, unit: str = "") -> Table:
+    """The report's section of one `stepzoo verdict` (method, h): its summary (how many
+    points, and where, per kind of answer) as the caption, one row per operating point."""
+    kinds = "; ".join(f"{k['verdict']}: {k['points']} ({k['where']})"
+                      for k in summary["classes"] if k["points"])
+    caption = (f"{summary['method']} at h = {summary['h']:g} s on the sweep's envelope, point "
+               f"by point, as `stepzoo verdict` gives it: stable (the sweep's blow-up test at "
+               f"h), h / h_meas (the point's measured largest stable step; stable with margin "
+               f"when at most {1 - summary['margin']:g}), the error and whether it is within "
+               f"{tol:g}{unit}. Of {summary['points']} points: {kinds}.")
+    rows = [{**{v: float(r[v]) for v in variables}, "h_over_h_meas": _plain(r["h_over_h_meas"]),
+             "stable": bool(r["stable"]), "error": _plain(r["error"]),
+             "accurate": bool(r["accurate"]), "verdict": r["verdict"]}
+            for _, r in judged.iterrows()]
+    columns = [(v, v) for v in variables] + [
+        ("h_over_h_meas", "h / h_meas"), ("stable", "stable"), ("error", f"error{unit}"),
+        ("accurate", "accurate"), ("verdict", "verdict")]
+    return Table(f"Verdict: {summary['method']} at h = {summary['h']:g} s", caption, rows,
+                 columns)
 
 
 def tuning_rows(tuned: dict) -> list[dict]:

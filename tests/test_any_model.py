@@ -152,6 +152,6 @@ def test_verdict_names_the_region_past_the_predicted_limit(tmp_path, capsys):
     assert stepzoo(["verdict", str(config), "--method", "rk4", "--h", repr(float(h)), "--tol", "10",
                     "--format", "json"]) == 0
     v = json.loads(capsys.readouterr().out)["verdicts"][0]
-    assert v["points"] == 6 and v["stable"] == 4
+    assert len(v["points"]) == v["n_points"] == 6 and v["stable"] == 4
     assert v["unstable_where"].startswith("k = 1000") and v["worst_error"] is None
     assert v["worst_at"]["k"] == 1000.0

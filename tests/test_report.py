@@ -39,7 +39,9 @@ def write_sweep(folder):
     folder.mkdir(parents=True)
     (folder / "config.toml").write_text(
         'horizon = 1.0\nmethods = ["euler", "rk4", "ab4", "backward_euler"]\n'
-        f"[envelope]\nvx = [2.0, 15.0]\ndelta = [0.1, 0.785]\n[steps]\nh = {STEPS}\n")
+        f"[envelope]\nvx = [2.0, 15.0]\ndelta = [0.1, 0.785]\n[steps]\nh = {STEPS}\n"
+        # The point of the synthetic trajectories below, named: the report draws them.
+        "[trajectories]\nvx = 15.0\ndelta = 0.785\n")
     (folder / "manifest.json").write_text(json.dumps(
         {"config_sha256": load(folder / "config.toml").sha256, "complete": True,
          "timing": {"repeats": 3}, "blowup_rule": "|x| > 1e6",
@@ -288,3 +290,35 @@ def test_missing_folders_are_named(tmp_path, capsys):
         assert stepzoo(["report", *args, "--out", str(tmp_path / "r")]) == 2
         err = capsys.readouterr().err
         assert err.count("\n") == 1 and named in err
+
+
+def test_verdict_adds_its_rows_and_draws_its_step(tiny_sweep, tmp_path, capsys):
+    """--verdict euler:0.05 on the tiny sweep: a section whose rows are the sweep's own
+    stability and position error at that step, point by point, and the step on Figures 4 and
+    6 (static and interactive); a bad METHOD:H is one line, exit 2, nothing written."""
+    _, folder = tiny_sweep
+    out = tmp_path / "report"
+    assert stepzoo(["report", str(folder), "--out", str(out), "--verdict", "euler:0.05",
+                    "-q"]) == 0
+    md = (out / "summary.md").read_text()
+    section = md[md.index("## Verdict: euler at h = 0.05 s"):md.index("## Figure 1.")]
+    rows = [ln.split(" | ") for ln in section.splitlines() if re.match(r"\| (6|20) \|", ln)]
+    runs = pd.read_parquet(folder / "runs.parquet")
+    runs = runs[(runs["method"] == "euler") & (runs["h"] == 0.05)].set_index("vx")
+    assert len(rows) == len(runs) == 2
+    for cells in rows:
+        run = runs.loc[float(cells[0].strip("| "))]
+        assert cells[3] == ("yes" if run["stable"] else "no")
+        assert float(cells[4]) == pytest.approx(run["err_pos"], rel=1e-3)     # 4 digits
+    assert "stable, within 13% of the limit" in section
+    for n in (4, 6):
+        caption = md[md.index(f"## Figure {n}."):].split("\n\n")[1]
+        assert "--verdict are" in caption and "euler at 0.05 s" in caption
+    assert (out / "index.html").read_text().count("euler at h = 0.05 s (verdict)") >= 2
+    for bad, said in (("euler", "give METHOD:H"), ("rk4:0.01", "not a method of the sweep"),
+                      ("euler:-1", "--verdict")):
+        assert stepzoo(["report", str(folder), "--out", str(tmp_path / "bad"), "--verdict",
+                        bad]) == 2
+        err = capsys.readouterr().err.strip()
+        assert len(err.splitlines()) == 1 and said in err, err
+        assert not (tmp_path / "bad").exists()
