@@ -196,11 +196,11 @@ def sweep_of(tuned: dict, given=None) -> Path:
 
 
 def schedule(tuned: dict, sweep: Path, method: str | None = None) -> pd.DataFrame:
-    """For `method` (default: the tuned one), per value of each envelope variable (every other variable over
-    its whole range): `h_safe_s`, the largest swept step [s] stable with the tuned margin and
-    within its tolerance at every such point, NaN if none; `h_stable_s`, (1 - margin) x the
-    smallest measured largest stable step [s] there (inf: never unstable); the worst error
-    at h_safe and the point count."""
+    """For `method` (default: the tuned one), per value of each envelope variable (every
+    other variable over its whole range): `h_safe_s`, the largest swept step [s] stable with
+    the tuned margin and within its tolerance at every such point, NaN if none;
+    `h_stable_s`, (1 - margin) x the smallest measured largest stable step [s] there (inf:
+    never unstable); the worst error at h_safe and the point count."""
     from stepzoo.bench.tune import candidates as qualify
     from stepzoo.bench.tune import load_results
     runs, limits, manifest = load_results(sweep)

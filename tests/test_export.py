@@ -116,7 +116,8 @@ def test_a_choice_acados_lacks_goes_to_the_cheapest_qualifying_method_it_has():
         {"method": "midpoint", "h": 0.0125, "qualifies": True},
         {"method": "rk3", "h": 0.016, "qualifies": True}]}
     a = export.acados(t, 0.1)
-    assert (a["method"], a["integrator_type"], a["sim_method_num_stages"]) == ("midpoint", "ERK", 2)
+    assert a["method"] == "midpoint"
+    assert (a["integrator_type"], a["sim_method_num_stages"]) == ("ERK", 2)
     assert a["sim_method_num_steps"] == 8 and "rank 3" in a["why"]
     with pytest.raises(NoAnswer):
         export.acados({"method": "heun", "h": 0.01, "runners_up": t["runners_up"][:2]}, 0.1)
