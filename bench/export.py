@@ -11,8 +11,6 @@ import json
 import math
 from pathlib import Path
 
-import pandas as pd
-
 from stepzoo.errors import NoAnswer, UsageError
 from stepzoo.validate import read_toml
 
@@ -195,12 +193,14 @@ def sweep_of(tuned: dict, given=None) -> Path:
     return folder
 
 
-def schedule(tuned: dict, sweep: Path, method: str | None = None) -> pd.DataFrame:
+def schedule(tuned: dict, sweep: Path, method: str | None = None):
     """For `method` (default: the tuned one), per value of each envelope variable (every
     other variable over its whole range): `h_safe_s`, the largest swept step [s] stable with
     the tuned margin and within its tolerance at every such point, NaN if none;
     `h_stable_s`, (1 - margin) x the smallest measured largest stable step [s] there (inf:
     never unstable); the worst error at h_safe and the point count."""
+    import pandas as pd
+
     from stepzoo.bench.tune import candidates as qualify
     from stepzoo.bench.tune import load_results
     runs, limits, manifest = load_results(sweep)
@@ -224,7 +224,7 @@ def schedule(tuned: dict, sweep: Path, method: str | None = None) -> pd.DataFram
     return pd.DataFrame(rows)
 
 
-def schedule_records(table: pd.DataFrame) -> dict:
+def schedule_records(table) -> dict:
     """The schedule as JSON: per variable, rows of value and steps (non-finite as null)."""
     def plain(v):
         return v if not isinstance(v, float) or math.isfinite(v) else None
@@ -235,7 +235,7 @@ def schedule_records(table: pd.DataFrame) -> dict:
     return out
 
 
-def as_json(tuned: dict, path, sweep: Path, table: pd.DataFrame,
+def as_json(tuned: dict, path, sweep: Path, table,
             interval_s: float | None) -> dict:
     """Everything exported, for machines: the choice, the tools' settings, the schedule."""
     out = {"tuned": str(path), "sweep": str(sweep), "method": tuned["method"],

@@ -152,6 +152,7 @@ def test_an_impossible_tolerance_is_no_answer_one_line_and_exit_1(tuned, tmp_pat
 @pytest.mark.parametrize("args,message", [
     (["--pos-tol", "0.1", "--margin", "1.5"], "--margin must be a stability margin"),
     (["--pos-tol", "-1"], "--pos-tol must be a position tolerance"),
+    (["--pos-tol", "0.1", "--rounds", "0"], "--rounds must be a number of timed rounds"),
 ])
 def test_bad_flags_are_one_line_and_exit_2(tuned, tmp_path, capsys, args, message):
     sweep, _ = tuned
