@@ -142,7 +142,8 @@ def tune(folder, pos_tol, margin: float, tol=None, *, batch: int, interval_s: fl
     choice = per_method.iloc[0]
     n_points = int(choice["points"])
     why = (f"{choice['method']} at h = {choice['h']:g} s is the "
-           f"{'fastest' if cost == 'time' else 'cheapest'} step that stays within "
+           f"{'fastest (within the measured spread)' if cost == 'time' else 'cheapest'} step "
+           "that stays within "
            f"{1 - margin:g} x the measured largest stable step and within "
            f"{crit.show(crit.tol)} at all {n_points} operating points: "
            + (f"{choice['cost_time_per_s']:.3g} s of wall time per simulated second in the "
@@ -202,7 +203,8 @@ def _calibrate(folder, ok: pd.DataFrame, batch: int, interval_s: float, rounds: 
 def _rank(ok: pd.DataFrame, cost: str, col: str) -> tuple[pd.DataFrame, object]:
     """The qualifying rows, the chosen first, then by cost; and the fastest row's label.
     By time: every row slower than the fastest by less than the larger of the two methods'
-    spreads (at most TIE_MAX) ties with it, and the tie goes to the fewest evaluations."""
+    spreads (at most TIE_MAX) ties with it, and the tie goes to the fewest evaluations, then
+    to the smaller worst error."""
     if cost == "evals":
         ranked = ok.sort_values(["cost_evals_per_s", col, "method"], kind="stable")
         return ranked, None
@@ -211,7 +213,8 @@ def _rank(ok: pd.DataFrame, cost: str, col: str) -> tuple[pd.DataFrame, object]:
     fastest = by_time.iloc[0]
     window = np.minimum(np.maximum(by_time["spread"], fastest["spread"]), TIE_MAX)
     tied = by_time[by_time["cost_time_per_s"] <= fastest["cost_time_per_s"] * (1 + window)]
-    chosen = tied.sort_values(["cost_evals_per_s", "cost_time_per_s", col, "method"],
+    # Equal evaluations too: the smaller worst error, which no noise can flip.
+    chosen = tied.sort_values(["cost_evals_per_s", col, "cost_time_per_s", "method"],
                               kind="stable").index[0]
     order = [chosen] + [i for i in by_time.index if i != chosen]
     return by_time.loc[order], by_time.index[0]
