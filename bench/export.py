@@ -3,8 +3,9 @@ for a shooting interval, a runnable diffrax snippet, and a step schedule, the la
 step per value of each envelope variable, computed from the sweep the choice came from.
 
 A shooting interval S is split into num_steps = ceil(S / h) equal steps: the step S / num_steps
-is h when S is a whole number of h, else the largest step below h that divides S (a smaller
-step stays stable and accurate wherever h is, the sweep's limits being the largest)."""
+is h when S is a whole number of h, else the largest step below h that divides S: a shorter
+step stays below the measured largest stable step, and a convergent method's error shrinks
+with its step."""
 from __future__ import annotations
 
 import json
