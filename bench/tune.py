@@ -155,7 +155,8 @@ def tune(folder, pos_tol, margin: float, tol=None, *, batch: int, interval_s: fl
     if cost == "time" and fastest != choice.name:
         f = ranked.loc[fastest]
         why += (f"; {f['method']} at h = {f['h']:g} s is {f['cost_time_per_s']:.3g} s, "
-                "faster by less than the calibration's spread, with more RHS evaluations")
+                f"faster by less than the calibration's spread, with "
+                f"{_tie_loss(f, choice, col)}")
     runners = [_runner(r, choice, crit, cost) for _, r in per_method.iloc[1:].iterrows()]
     for name in sorted(set(table["method"]) - set(per_method["method"])):
         runners.append(_infeasible(table[table["method"] == name], name, crit, margin))
@@ -231,9 +232,9 @@ def _runner(row, choice, crit, cost: str) -> dict:
     key, what = (("cost_time_per_s", "time") if cost == "time"
                  else ("cost_evals_per_s", "RHS evaluations"))
     factor = row[key] / choice[key]
-    if factor <= 1:      # a tie the choice won: faster within the spread, more evaluations
-        lost = (f"is {factor:.3g} x the choice in time, within the calibration's spread, "
-                "and spends more RHS evaluations")
+    if cost == "time" and factor <= 1:      # a tie within the spread that the choice won
+        lost = (f"is {factor:.3g} x the choice in time, a tie within the calibration's "
+                f"spread, with {_tie_loss(row, choice, crit.column)}")
     else:
         lost = f"costs {factor:.3g} x the choice in {what}"
     return {"method": str(row["method"]), "h": float(row["h"]), "qualifies": True,
@@ -242,6 +243,13 @@ def _runner(row, choice, crit, cost: str) -> dict:
             "cost_time_spread_per_s": float(row["cost_time_spread_per_s"]),
             "reason": (f"qualifies at h = {row['h']:g} s (worst error "
                        f"{crit.show(row[crit.column])}) but {lost}")}
+
+
+def _tie_loss(row, choice, col: str) -> str:
+    """Why `row` lost a time tie to `choice`."""
+    if row["cost_evals_per_s"] > choice["cost_evals_per_s"]:
+        return "more RHS evaluations"
+    return "as many RHS evaluations and a larger worst error"
 
 
 def _infeasible(rows: pd.DataFrame, name: str, crit, margin: float) -> dict:
