@@ -65,12 +65,12 @@ def pick(tuned: dict, usable, tool: str) -> tuple[dict, str]:
         if usable(c["method"]):
             if rank == 0:
                 return c, f"the tuned choice, {c['method']} at h = {c['h']:g} s"
-            return c, (f"{tuned['method']}, the tuned choice, has no {tool} equivalent; "
+            return c, (f"{tuned['method']}, the tuned choice, has no equivalent in {tool}; "
                        f"{c['method']} at h = {c['h']:g} s is the cheapest qualifying method "
                        f"that {tool} has (rank {rank + 1} of the tuning)")
     names = ", ".join(c["method"] for c in candidates(tuned))
-    raise NoAnswer(f"no qualifying method of the tuning ({names}) has a {tool} equivalent; "
-                   f"tune a sweep that includes one")
+    raise NoAnswer(f"no qualifying method of the tuning ({names}) has an equivalent in "
+                   f"{tool}; tune a sweep that includes one")
 
 
 def acados(tuned: dict, interval_s: float) -> dict:
