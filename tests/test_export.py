@@ -201,3 +201,14 @@ def test_a_file_that_is_no_tuned_config_is_one_line_and_exit_2(tiny_sweep, capsy
     assert stepzoo(["export", str(config), "--to", "json"]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "not a tuned config" in err
+
+
+def test_a_tuned_config_without_its_sweep_needs_sweep_and_says_so(tuned, tmp_path, capsys):
+    import tomli_w
+    _, t, sweep = tuned
+    old = tmp_path / "old.toml"
+    old.write_text(tomli_w.dumps({k: v for k, v in t.items() if k != "sweep"}))
+    assert stepzoo(["export", str(old), "--to", "json"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "--sweep DIR" in err
+    assert stepzoo(["export", str(old), "--to", "json", "--sweep", str(sweep)]) == 0
