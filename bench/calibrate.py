@@ -12,6 +12,9 @@ from typing import Callable, Mapping, NamedTuple
 import numpy as np
 
 ROUNDS = 7          # timed rounds per method after its compiling call
+# The planner's call with its default parameters (bench cannot read search's): batch_nodes x
+# (n_arc + n_random) shootings of one horizon [s]. `stepzoo tune` passes the planner's own.
+PLANNER_BATCH, PLANNER_INTERVAL_S = 40, 0.8
 # Wall time [s] a round's sample of one method lasts at least, in back-to-back calls: a call
 # of explicit methods at batch 40 takes a fraction of a millisecond, where a single
 # preemption or timer tick is a large part of one call's time.

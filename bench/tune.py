@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from stepzoo.bench.calibrate import ROUNDS, calibrate
+from stepzoo.bench.calibrate import PLANNER_BATCH, PLANNER_INTERVAL_S, ROUNDS, calibrate
 from stepzoo.bench.sweep_folder import check_finished
 from stepzoo.errors import NoAnswer, UsageError
 from stepzoo.validate import check
@@ -109,13 +109,14 @@ def check_arguments(pos_tol, margin: float, tol=None, cost: str = "time",
     return crit
 
 
-def tune(folder, pos_tol, margin: float, tol=None, *, batch: int, interval_s: float,
-         cost: str = "time", rounds: int = ROUNDS) -> dict:
+def tune(folder, pos_tol, margin: float, tol=None, *, batch: int = PLANNER_BATCH,
+         interval_s: float = PLANNER_INTERVAL_S, cost: str = "time",
+         rounds: int = ROUNDS) -> dict:
     """The tuned config as a dict (the TOML's content): under --pos-tol (pos_tol [m]) or
     --tol (tol, in the sweep's error norm), ranked by `cost` ("time" or "evals"). Each
     qualifying method is calibrated at its largest qualifying step in calls of `batch`
-    trajectories over `interval_s` [s] (the planner's shooting; the command passes the
-    planner's), `rounds` rounds: both costs are recorded whichever ranks."""
+    trajectories over `interval_s` [s] (default: the planner's default call), `rounds`
+    rounds: both costs are recorded whichever ranks."""
     crit = check_arguments(pos_tol, margin, tol, cost, rounds)
     runs, limits, manifest = load_results(folder)
     col = crit.column

@@ -72,6 +72,12 @@ def test_cost_evals_chooses_the_fewest_evaluations_that_qualify(tuned_both):
     assert table[table["ok"]]["cost_evals_per_s"].min() == pytest.approx(t["cost_evals_per_s"])
 
 
+def test_the_calibration_defaults_are_the_planners_call():
+    from stepzoo.bench.calibrate import PLANNER_BATCH, PLANNER_INTERVAL_S
+    from stepzoo.bench.cmd_tune import planner_call
+    assert planner_call() == (PLANNER_BATCH, PLANNER_INTERVAL_S)
+
+
 def test_the_reports_tuning_table_says_which_cost_chose(tuned_both):
     from stepzoo.reports.tables import tuning_caption, tuning_rows
     _, files = tuned_both
