@@ -1,0 +1,88 @@
+"""What limits the step where the model is not smooth: a steering clamp crossed at a known
+time along the reference is found there (within one step) and named, and the fitted order it
+caps says so; a `where` switch is a jump of f; the smooth built-in models (DETEST, the
+linear-tyre bicycle) are never flagged."""
+import tomllib
+from pathlib import Path
+
+import jax.numpy as jnp
+import numpy as np
+import pandas as pd
+import pytest
+
+from stepzoo import dynamics
+from stepzoo.bench import nonsmooth
+from stepzoo.bench.sweep import run_sweep
+from stepzoo.bench.sweep_config import load
+
+USER = Path(__file__).resolve().parent / "user_model"
+DETEST = Path(__file__).resolve().parents[1] / "bench" / "configs" / "detest.toml"
+
+
+@pytest.fixture(scope="module")
+def clamp_sweep(tmp_path_factory):
+    """(config, its sweep folder) of the steering-clamp model, rk4 alone."""
+    out = tmp_path_factory.mktemp("clamp")
+    text = (USER / "steer_clamp.toml").read_text().replace('["heun", "rk4"]', '["rk4"]') \
+        .replace('path = "."', f'path = "{USER}"')
+    (out / "clamp.toml").write_text(text)
+    cfg = load(out / "clamp.toml")
+    run_sweep(cfg, out / "sweep", progress=False)
+    return cfg, out / "sweep"
+
+
+def test_a_steering_clamp_is_flagged_where_the_reference_crosses_it(clamp_sweep):
+    cfg, folder = clamp_sweep
+    limits = pd.read_parquet(folder / "limits.parquet")
+    crossing = 0.42 / limits["rate"]                      # [s] delta = rate t reaches 0.42
+    assert np.all(np.abs(limits["nonsmooth_t"] - crossing) <= cfg.hs[0])
+    assert (limits["nonsmooth_what"] == "delta").all()
+    assert (limits["nonsmooth_kind"] == "kink").all()
+    assert (limits["nonsmooth_events"] == 1).all()
+    summary = pd.read_csv(folder / "summary.csv").iloc[0]
+    assert summary["order_fit_median"] < 4 - 0.2           # rk4's order is capped ...
+    assert summary["order_status"] == "limited by non-smooth f"   # ... and says why
+    assert summary["nonsmooth_points"] == 2
+    assert "delta (kink)" in summary["nonsmooth_note"]
+    assert "land a step on the event" in summary["nonsmooth_note"]
+
+
+def switch(t, x, u, p):
+    """x0 runs at rate 1; x1 starts moving once x0 passes 0.3: f jumps at t = 0.3 s."""
+    return jnp.stack([jnp.ones_like(x[0]), jnp.where(x[0] > 0.3, 1.0, 0.0)])
+
+
+def test_a_where_switch_is_a_jump_of_f_at_its_time():
+    ts = np.linspace(0.0, 1.0, 101)
+    xs = np.stack([ts, np.maximum(ts - 0.3, 0.0)], axis=1)[None]
+    event, = nonsmooth.detect(switch, ts, xs, np.zeros((1, 0)), {}, ("x0", "x1"), (),
+                              1e-10, 1e-12)
+    assert abs(event.t - 0.3) <= ts[1] and (event.what, event.kind) == ("x1", "jump")
+
+
+def finest_steps() -> dict:
+    """{DETEST problem: its finest step [s] in bench/configs/detest.toml}."""
+    raw = tomllib.loads(DETEST.read_text())
+    default = raw["steps"]["h"]["min"]
+    return {p["model"]: p.get("steps", {}).get("h", {}).get("min", default)
+            for p in raw["problem"]}
+
+
+def test_the_smooth_builtin_models_are_never_flagged(tiny_sweep):
+    """DETEST at the suite's finest steps along its own solutions, and the linear-tyre
+    bicycle's sweep."""
+    flagged = {}
+    for name, h in finest_steps().items():
+        m = dynamics.MODELS[name]
+        ts = m.t_span[0] + h * np.arange(round((m.t_span[1] - m.t_span[0]) / h) + 1)
+        event, = nonsmooth.detect(m.rhs, ts, m.solution(ts)[None], np.zeros((1, 0)),
+                                  {k: np.array([v]) for k, v in m.params().items()}, m.states,
+                                  (), 1e-13, 1e-15)
+        if np.isfinite(event.t):
+            flagged[name] = event
+    assert flagged == {}
+    _, folder = tiny_sweep
+    assert pd.read_parquet(folder / "limits.parquet")["nonsmooth_t"].isna().all()
+    summary = pd.read_csv(folder / "summary.csv")
+    assert (summary["nonsmooth_points"] == 0).all()
+    assert "limited by non-smooth f" not in set(summary["order_status"])
