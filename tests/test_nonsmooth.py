@@ -86,3 +86,19 @@ def test_the_smooth_builtin_models_are_never_flagged(tiny_sweep):
     summary = pd.read_csv(folder / "summary.csv")
     assert (summary["nonsmooth_points"] == 0).all()
     assert "limited by non-smooth f" not in set(summary["order_status"])
+
+
+def test_the_sweep_command_and_the_report_say_where_and_the_remedy(clamp_sweep, capsys):
+    import json
+
+    from stepzoo.bench.cmd_sweep import show
+    from stepzoo.reports.cmd_report import _facts
+    from stepzoo.reports.load import load_sweep
+    _, folder = clamp_sweep
+    show(json.loads((folder / "manifest.json").read_text()), folder)
+    out = capsys.readouterr().out.splitlines()
+    assert "limited by non-smooth f" in out[1]                 # rk4's row
+    said = [line for line in out if line.startswith("f is not smooth")]
+    assert len(said) == 1 and "2 of 2 points" in said[0] and nonsmooth.REMEDY in said[0]
+    facts = dict(_facts(load_sweep(folder), None, None, [], None, folder))
+    assert facts["non-smooth f"] == said[0]
