@@ -94,6 +94,7 @@ def test_the_sweep_command_and_the_report_say_where_and_the_remedy(clamp_sweep, 
     from stepzoo.bench.cmd_sweep import show
     from stepzoo.reports.cmd_report import _facts
     from stepzoo.reports.load import load_sweep
+    from stepzoo.reports.suite_report import order_rows
     _, folder = clamp_sweep
     show(json.loads((folder / "manifest.json").read_text()), folder)
     out = capsys.readouterr().out.splitlines()
@@ -102,3 +103,5 @@ def test_the_sweep_command_and_the_report_say_where_and_the_remedy(clamp_sweep, 
     assert len(said) == 1 and "2 of 2 points" in said[0] and nonsmooth.REMEDY in said[0]
     facts = dict(_facts(load_sweep(folder), None, None, [], None, folder))
     assert facts["non-smooth f"] == said[0]
+    row, = order_rows({"clamp": load_sweep(folder)})        # a suite report's order table
+    assert row["order_status"] == "limited by non-smooth f" and row["note"] == said[0]
