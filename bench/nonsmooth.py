@@ -19,6 +19,7 @@ SUBSAMPLES = 64      # times of the confirming reference inside a candidate inte
 CONCENTRATION = 0.5  # a jump makes this much of an entry's change over the interval within
                      # two of them; a smooth change makes about 2 / SUBSAMPLES of it
 MAX_CHECKS = 20      # candidate intervals confirmed per lane, the first in time
+CHUNK = 256          # samples per call of the Jacobian program (its one compiled shape)
 MAX_LEVELS = 6       # nested refinements of one candidate: 32^-6 of the smallest step
 REMEDY = ("land a step on the event (split the horizon there), handle the event (switch the "
           "model there), or smooth the model (a smooth clamp or saturation)")
@@ -51,13 +52,27 @@ class Event:
 
 @cache
 def _program(f):
-    """Jitted (f, df/dx, df/du) at the samples ts (T,), xs (T, n) of one lane."""
+    """Jitted (f, df/dx, df/du) at CHUNK samples ts (CHUNK,), xs (CHUNK, n) of one lane."""
     import jax
 
     def at(t, x, u, p):
         jx, ju = jax.jacfwd(lambda x, u: f(t, x, u, p), argnums=(0, 1))(x, u)
         return f(t, x, u, p), jx, ju
     return jax.jit(jax.vmap(at, in_axes=(0, 0, None, None)))
+
+
+def _along(f, ts, xs, u, p) -> tuple:
+    """(f, df/dx, df/du) at the samples ts (T,), xs (T, n), in calls of CHUNK samples (the
+    last one padded): one compiled program per model, whatever the sweep's steps."""
+    import jax.numpy as jnp
+    T = len(ts)
+    pad = -T % CHUNK
+    ts = np.concatenate([ts, np.full(pad, ts[-1])])
+    xs = np.concatenate([xs, np.repeat(xs[-1:], pad, axis=0)])
+    parts = [_program(f)(jnp.asarray(ts[i: i + CHUNK]), jnp.asarray(xs[i: i + CHUNK]), u, p)
+             for i in range(0, len(ts), CHUNK)]
+    return tuple(np.concatenate([np.asarray(part[k]) for part in parts])[:T]
+                 for k in range(3))
 
 
 def detect(f, ts, xs, u, p, states, inputs, rtol: float, atol: float) -> list[Event]:
@@ -74,8 +89,7 @@ def detect(f, ts, xs, u, p, states, inputs, rtol: float, atol: float) -> list[Ev
             out.append(Event())
             continue
         ub, pb = jnp.asarray(u[b]), {k: jnp.asarray(v[b]) for k, v in p.items()}
-        table = _Entries(*_program(f)(jnp.asarray(ts), jnp.asarray(xs[b]), ub, pb), states,
-                         inputs, rtol)
+        table = _Entries(*_along(f, ts, np.asarray(xs[b]), ub, pb), states, inputs, rtol)
         found = []
         for lo, hi in table.candidates()[:MAX_CHECKS]:
             hit = _confirm(f, ts[lo], ts[hi], xs[b, lo], ub, pb, table, rtol, atol)
@@ -98,7 +112,7 @@ def _confirm(f, t0, t1, x0, u, p, table, rtol, atol):
         ref = reference(f, jnp.asarray(x0), u, p, jnp.asarray(sub), rtol, atol)
         if not bool(ref.success):
             return None
-        fx, jx, ju = _program(f)(jnp.asarray(sub), ref.x, u, p)
+        fx, jx, ju = _along(f, sub, np.asarray(ref.x), u, p)
         fine = _Entries(fx, jx, ju, table.states, table.inputs, rtol, table.floor)
         hit = fine.concentrated(sub)
         if hit is None:
@@ -155,10 +169,9 @@ class _Entries:
 
     def concentrated(self, ts):
         """(time [s], what, kind, first sample of the two intervals) of a jump over the
-        samples ts: an entry whose change from
-        the first sample to the last, above its floor, happens for at least CONCENTRATION
-        of it within two intervals; None if no entry's does. A jump of f itself names it
-        first (its Jacobian may jump with it)."""
+        samples ts: an entry whose change from the first sample to the last, above its
+        floor, happens for at least CONCENTRATION of it within two intervals; None if no
+        entry's does. A jump of f itself names it first (its Jacobian may jump with it)."""
         total = np.abs(self.values[-1] - self.values[0])
         two = np.abs(self.values[2:] - self.values[:-2])
         with np.errstate(invalid="ignore", divide="ignore"):

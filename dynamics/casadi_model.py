@@ -91,7 +91,7 @@ def to_jax(fn) -> Callable:
 
     def evaluate(*args):
         import jax.numpy as jnp
-        dtype = jnp.result_type(*args) if args else jnp.result_type(float)
+        dtype = jnp.result_type(float, *args)     # a float, the inputs' own if they are
         inputs = [jnp.ravel(jnp.asarray(a, dtype)) for a in args]
         work = [None] * n_work
         outs = [[jnp.zeros((), dtype)] * n for n in sizes]
