@@ -2,6 +2,7 @@
 CasADi's own evaluation and Jacobian, a sweep of the paper's bicycle written in CasADi
 ([model] casadi) measures the limits of the JAX bicycle, and a model that cannot be had is
 one line and exit status 2."""
+import json
 import sys
 from pathlib import Path
 
@@ -93,8 +94,9 @@ states = ["vy", "r"]
     return path
 
 
-def test_a_sweep_of_the_casadi_bicycle_equals_the_jax_bicycles_limits(tiny_sweep, tmp_path):
-    _, jax_folder = tiny_sweep
+def test_a_sweep_of_the_casadi_bicycle_equals_the_jax_bicycles_limits(tiny_sweep, tmp_path,
+                                                                      capsys):
+    jax_config, jax_folder = tiny_sweep
     bicycle().save(str(tmp_path / "bicycle.casadi"))
     saved = casadi_config(tmp_path, str(tmp_path / "bicycle.casadi"))
     run_sweep(load(saved), tmp_path / "out", progress=False)
@@ -104,6 +106,15 @@ def test_a_sweep_of_the_casadi_bicycle_equals_the_jax_bicycles_limits(tiny_sweep
     for col in ("h_pred", "h_meas", "order_fit", "t_bind", "rho_max"):
         np.testing.assert_allclose(got[col], want[col], rtol=1e-9, err_msg=col)
     assert (got["limit_cause"] == want["limit_cause"]).all()
+    # ... and the commands that take a config see it as the JAX bicycle: `stepzoo stability`.
+    predicted = []
+    for config in (saved, jax_config):
+        assert stepzoo(["stability", str(config), "--format", "json"]) == 0
+        predicted.append(json.loads(capsys.readouterr().out)["methods"])
+    for name, limit in predicted[1].items():
+        want_h = limit["max_stable_step"]          # None: no limit (A-stable)
+        assert predicted[0][name]["max_stable_step"] == \
+            (want_h if want_h is None else pytest.approx(want_h, rel=1e-9)), name
     # The module:function form gives the same function: the same right-hand side object.
     assert load(casadi_config(tmp_path, "casadi_bicycle:bicycle")).spec.rhs is \
         load(saved).spec.rhs
