@@ -365,8 +365,8 @@ def model_spec(raw, sections, source, bad, check) -> tuple[ModelSpec | None, str
                        "model.p) are two ways to give a model; keep one")
             return None, vehicle
         if not isinstance(name, str):
-            bad.append(f"{source}: model.{key} must be \"module:function\" (your "
-                       f"{'f(t, x, u, p)' if key == 'rhs' else 'casadi.Function, or its saved file'})")
+            what = "f(t, x, u, p)" if key == "rhs" else "casadi.Function, or its saved file"
+            bad.append(f"{source}: model.{key} must be \"module:function\" (your {what})")
             return None, vehicle
         states = name_list(model.get("states"), "states", source, bad)
         inputs = name_list(model.get("inputs", []), "inputs", source, bad)
