@@ -47,12 +47,11 @@ def show(manifest: dict, out, fmt: str = "text") -> None:
         return
     summary = pd.read_csv(f"{out}/summary.csv").to_dict("records")
     sys.stdout.write(text_table(summary, ["method", "order_declared", "order_fit_median",
-                                          "order_status", "h_pred_min", "h_meas_min",
-                                          "worst_ratio"]) + "\n")
+                                          "h_pred_min", "h_meas_min", "worst_ratio"]) + "\n")
+    compile_s = ", ".join(f"{k} {v:.2f}" for k, v in t["compile_s"].items())
     for note in dict.fromkeys(r.get("nonsmooth_note") for r in summary):
         if isinstance(note, str) and note:         # where f is not smooth, and the remedy
             print(note)
-    compile_s = ", ".join(f"{k} {v:.2f}" for k, v in t["compile_s"].items())
     print(f"wrote {out}: runs.parquet, limits.parquet/csv, summary.parquet/csv, "
           "eigenvalues.parquet, trajectories.parquet, manifest.json")
     print(f"timing [s]: total {t['total_s']:.1f} (this call {t['wall_s']:.1f}); compile "

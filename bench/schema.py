@@ -36,6 +36,14 @@ LIMIT_TAIL = ["h_pred", "h_meas", "ratio", "order_declared", "order_fit", "h_pro
 # one (median order_h_rho: see metrics.order_status).
 ORDER_TAIL = ["order_h_min", "order_h_max", "order_points", "order_note", "rho_max",
               "order_h_rho"]
+SUMMARY = ["method", "family", "order_declared", "order_fit_median", "order_fit_min",
+           "order_fit_max", "real_interval", "imag_interval", "h_meas_min", "h_pred_min",
+           "worst_ratio", "implicit", "evals_per_step", "points", "solver_failures",
+           "order_h_min", "order_h_max", "order_status", "order_h_rho"]
+EIGEN_TAIL = ["lam_re", "lam_im"]
+TIMING = ["chunk", "method", "compile_s", "ref_compile_s", "reference_s", "integration_s",
+          "stability_s", "metrics_s", "total_s"]
+
 # nonsmooth_t [s]: the first time where f is not smooth along the point's reference (NaN
 # where it is smooth), nonsmooth_what the state or input that jumps, nonsmooth_kind "jump"
 # (f itself) or "kink" (its Jacobian), nonsmooth_events how many such points (rule:
@@ -43,14 +51,7 @@ ORDER_TAIL = ["order_h_min", "order_h_max", "order_points", "order_note", "rho_m
 # order_status says "limited by non-smooth f"; its nonsmooth_points counts them and
 # nonsmooth_note says where and the remedy.
 NONSMOOTH_TAIL = ["nonsmooth_t", "nonsmooth_what", "nonsmooth_kind", "nonsmooth_events"]
-SUMMARY = ["method", "family", "order_declared", "order_fit_median", "order_fit_min",
-           "order_fit_max", "real_interval", "imag_interval", "h_meas_min", "h_pred_min",
-           "worst_ratio", "implicit", "evals_per_step", "points", "solver_failures",
-           "order_h_min", "order_h_max", "order_status", "order_h_rho", "nonsmooth_points",
-           "nonsmooth_note"]
-EIGEN_TAIL = ["lam_re", "lam_im"]
-TIMING = ["chunk", "method", "compile_s", "ref_compile_s", "reference_s", "integration_s",
-          "stability_s", "metrics_s", "total_s"]
+SUMMARY = [*SUMMARY, "nonsmooth_points", "nonsmooth_note"]
 
 # Measured wall times: they differ between two runs of the same config.
 MEASURED = {*timing.MEASURED, "time_s", "compile_s", "ref_compile_s", "reference_s",
