@@ -765,6 +765,7 @@ def _write_manifest(cfg, out: Path, created, done, timing, complete) -> dict:
                       "perturbation": cfg.perturbation, "h_probe_max_s": cfg.h_probe_max,
                       "bisection_rel_tol": cfg.rel_tol, "narrowing": NARROWING},
         "order_fit": metrics.ORDER_RULE,
+        "nonsmooth": nonsmooth.RULE,
         "prediction": frozen.RULE,
         "trajectory_point": dict(zip(cfg.spec.variables, cfg.traj_point)),
         "horizon_s": cfg.horizon, "vehicle": cfg.vehicle, "model": cfg.model,

@@ -2,6 +2,7 @@
 time along the reference is found there (within one step) and named, and the fitted order it
 caps says so; a `where` switch is a jump of f; the smooth built-in models (DETEST, the
 linear-tyre bicycle) are never flagged."""
+import json
 import tomllib
 from pathlib import Path
 
@@ -39,6 +40,8 @@ def test_a_steering_clamp_is_flagged_where_the_reference_crosses_it(clamp_sweep)
     assert (limits["nonsmooth_what"] == "delta").all()
     assert (limits["nonsmooth_kind"] == "kink").all()
     assert (limits["nonsmooth_events"] == 1).all()
+    manifest = json.loads((folder / "manifest.json").read_text())
+    assert manifest["nonsmooth"] == nonsmooth.RULE                  # the rule, with the folder
     summary = pd.read_csv(folder / "summary.csv").iloc[0]
     assert summary["order_fit_median"] < 4 - 0.2           # rk4's order is capped ...
     assert summary["order_status"] == "limited by non-smooth f"   # ... and says why
@@ -89,8 +92,6 @@ def test_the_smooth_builtin_models_are_never_flagged(tiny_sweep):
 
 
 def test_the_sweep_command_and_the_report_say_where_and_the_remedy(clamp_sweep, capsys):
-    import json
-
     from stepzoo.bench.cmd_sweep import show
     from stepzoo.reports.cmd_report import _facts
     from stepzoo.reports.load import load_sweep
