@@ -40,7 +40,9 @@ def every_operation():
         + ca.log1p(b ** 2) + ca.expm1(0.1 * c) + ca.sign(b) * ca.floor(3 * c) + t * a ** 2
         + ca.asin(0.5 * ca.tanh(c)) + ca.acos(0.3 * ca.tanh(b)) + ca.atanh(0.5 * ca.tanh(a))
         + ca.acosh(2 + b ** 2) + ca.power(u, 3) + ca.logic_and(a > 0, b < 1)
-        + ca.logic_or(a >= 2, b <= -1) + ca.logic_not(c == 0.5) + (a != b))
+        + ca.logic_or(a >= 2, b <= -1) + ca.logic_not(c == 0.5) + (a != b),
+        ca.remainder(a, 0.3) + ca.copysign(b, -1.0) + ca.ceil(2 * c) + 1 / (1 + a ** 2)
+        + ca.erfinv(0.5 * ca.tanh(a)) + 2 * b - c + b ** 2.5)
     return ca.Function("every", [x, u, p, t], [out], ["x", "u", "p", "t"], ["dx"])
 
 
