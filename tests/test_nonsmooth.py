@@ -1,7 +1,7 @@
 """What limits the step where the model is not smooth: a steering clamp crossed at a known
 time along the reference is found there (within one step) and named, and the fitted order it
-caps says so; a `where` switch is a jump of f; the smooth built-in models (DETEST, the
-linear-tyre bicycle) are never flagged."""
+caps says so; a `where` switch and the CommonRoad steering stop are jumps of f; the smooth
+built-in models (DETEST, the linear-tyre bicycle) are never flagged."""
 import json
 import tomllib
 from pathlib import Path
@@ -105,3 +105,26 @@ def test_the_sweep_command_and_the_report_say_where_and_the_remedy(clamp_sweep, 
     assert facts["non-smooth f"] == said[0]
     row, = order_rows({"clamp": load_sweep(folder)})        # a suite report's order table
     assert row["order_status"] == "limited by non-smooth f" and row["note"] == said[0]
+
+
+def test_the_commonroad_steering_stop_is_a_jump_of_f_where_delta_reaches_it():
+    """The built-in single-track model (st) sets the steering rate to 0 at delta_max, as
+    CommonRoad does: steered at a constant rate from delta0, f jumps at (delta_max - delta0)
+    / rate; held still, nothing is flagged."""
+    from stepzoo.integrators.reference import reference
+    m = dynamics.model("st")
+    p = m.params()
+    ts = np.linspace(0.0, 2.0, 1001)
+    x0, u = m.from_rest(10.0, 0.7)
+    events = []
+    for rate in (0.3, 0.0):                                  # [rad/s]
+        steer = u.at[0].set(rate)
+        ref = reference(m.rhs, x0, steer, p, ts, 1e-10, 1e-12)
+        events += nonsmooth.detect(m.rhs, ts, np.asarray(ref.x)[None],
+                                   np.asarray(steer)[None],
+                                   {k: np.array([v]) for k, v in p.items()}, m.states,
+                                   m.inputs, 1e-10, 1e-12)
+    stop, still = events
+    assert abs(stop.t - (p["delta_max"] - 0.7) / 0.3) <= ts[1]
+    assert (stop.what, stop.kind, stop.count) == ("delta", "jump", 1)
+    assert np.isnan(still.t) and still.count == 0
