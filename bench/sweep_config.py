@@ -360,9 +360,13 @@ def model_spec(raw, sections, source, bad, check) -> tuple[ModelSpec | None, str
                        f"{', '.join(sorted(MODEL_KEYS))}")
         key = "casadi" if "casadi" in model else "rhs"
         name = model.get(key)
-        if "casadi" in model and "rhs" in model or "p" in model and key == "rhs":
-            bad.append(f"{source}: model.rhs (a JAX f(t, x, u, p)) and model.casadi (with "
-                       "model.p) are two ways to give a model; keep one")
+        if "casadi" in model and "rhs" in model:
+            bad.append(f"{source}: model.rhs (a JAX f(t, x, u, p)) and model.casadi are two "
+                       "ways to give a model; keep one")
+            return None, vehicle
+        if "p" in model and key == "rhs":
+            bad.append(f"{source}: model.p names the entries of a CasADi function's p "
+                       "(model.casadi); a JAX model.rhs reads [params] by name: drop model.p")
             return None, vehicle
         if not isinstance(name, str):
             what = "f(t, x, u, p)" if key == "rhs" else "casadi.Function, or its saved file"

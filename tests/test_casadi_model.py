@@ -151,3 +151,18 @@ def test_a_casadi_model_that_cannot_be_had_is_one_line_and_exit_2(tmp_path, caps
     lines = captured.err.strip().splitlines()
     assert captured.out == "" and len(lines) == 1 and words in lines[0], captured.err
     assert not (tmp_path / "o").exists()
+
+
+@pytest.mark.parametrize("edit, words", [
+    (lambda t: t.replace('casadi = "', 'rhs = "x:y"\ncasadi = "'), "keep one"),
+    (lambda t: t.replace('casadi = "casadi_bicycle:bicycle"', 'rhs = "casadi_bicycle:bicycle"'),
+     "drop model.p"),
+    (lambda t: t.replace('"Car", "vx"]', '"Car"]'), "model.p (m, Iz, Lf, Lr, Caf, Car)"),
+])
+def test_a_casadi_table_that_mixes_keys_is_one_line_and_exit_2(tmp_path, capsys, edit, words):
+    config = tmp_path / "bad.toml"
+    config.write_text(edit(casadi_config(tmp_path, "casadi_bicycle:bicycle").read_text()))
+    assert stepzoo(["sweep", str(config), "--out", str(tmp_path / "o")]) == 2
+    captured = capsys.readouterr()
+    lines = captured.err.strip().splitlines()
+    assert captured.out == "" and len(lines) == 1 and words in lines[0], captured.err
