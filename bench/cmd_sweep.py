@@ -53,6 +53,9 @@ def show(manifest: dict, out, fmt: str = "text") -> None:
                                           "h_pred_min", "h_meas_min", "worst_ratio",
                                           *solver]) + "\n")
     compile_s = ", ".join(f"{k} {v:.2f}" for k, v in t["compile_s"].items())
+    for note in dict.fromkeys(r.get("nonsmooth_note") for r in summary):
+        if isinstance(note, str) and note:         # where f is not smooth, and the remedy
+            print(note)
     print(f"wrote {out}: runs.parquet, limits.parquet/csv, summary.parquet/csv, "
           "eigenvalues.parquet, trajectories.parquet, manifest.json")
     print(f"timing [s]: total {t['total_s']:.1f} (this call {t['wall_s']:.1f}); compile "

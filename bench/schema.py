@@ -48,6 +48,15 @@ EIGEN_TAIL = ["lam_re", "lam_im"]
 TIMING = ["chunk", "method", "compile_s", "ref_compile_s", "reference_s", "integration_s",
           "stability_s", "metrics_s", "total_s"]
 
+# nonsmooth_t [s]: the first time where f is not smooth along the point's reference (NaN
+# where it is smooth), nonsmooth_what the state or input that jumps, nonsmooth_kind "jump"
+# (f itself) or "kink" (its Jacobian), nonsmooth_events how many such points (rule:
+# bench.nonsmooth.RULE). Where most points have one and the order misses, summary's
+# order_status says "limited by non-smooth f"; its nonsmooth_points counts them and
+# nonsmooth_note says where and the remedy.
+NONSMOOTH_TAIL = ["nonsmooth_t", "nonsmooth_what", "nonsmooth_kind", "nonsmooth_events"]
+SUMMARY = [*SUMMARY, "nonsmooth_points", "nonsmooth_note"]
+
 # Measured wall times: they differ between two runs of the same config.
 MEASURED = {*timing.MEASURED, "time_s", "compile_s", "ref_compile_s", "reference_s",
             "integration_s", "stability_s", "metrics_s", "total_s"}
@@ -71,7 +80,7 @@ def run_columns(variables, states, vehicle: bool) -> list[str]:
 
 def limit_columns(variables, states) -> list[str]:
     return ["method", "point", *variables, *LIMIT_TAIL, *[f"bind_{s}" for s in states],
-            *ORDER_TAIL]
+            *ORDER_TAIL, *NONSMOOTH_TAIL]
 
 
 def eigen_columns(variables) -> list[str]:

@@ -17,7 +17,7 @@ import numpy as np
 import pandas as pd
 
 from stepzoo import environment
-from stepzoo.bench import frozen, jit_clock, metrics, schema, sweep_folder
+from stepzoo.bench import frozen, jit_clock, metrics, nonsmooth, schema, sweep_folder
 from stepzoo.bench.timing import per_step
 from stepzoo.errors import UsageError
 from stepzoo.output import atomic_write, to_json, write_file
@@ -217,6 +217,20 @@ class _Work:
                 jac = frozen.jacobians(self.spec.rhs, ts, xs, self.u, self.p)
             return ts, xs, frozen.eigenvalues(jac), jac
         return self._cached("along", make)
+
+    def nonsmooth(self) -> list:
+        """Per lane, where f is not smooth along its reference at the smallest grid step
+        (bench.nonsmooth; none where that reference failed)."""
+        def make():
+            h = self.cfg.hs[0]
+            n = round(self.cfg.horizon / h)
+            ref, ok = self._cached(("accuracy", h), lambda: self.reference(h, n))
+            with self.clock("metrics_s"):
+                return nonsmooth.detect(self.spec.rhs, h * np.arange(n + 1),
+                                        np.where(ok[:, None, None], ref, np.nan), self.u,
+                                        self.p, self.spec.states, self.spec.inputs,
+                                        self.cfg.rtol, self.cfg.atol)
+        return self._cached("nonsmooth", make)
 
     def predicted(self, meth) -> list[tuple[float, int, int]]:
         """Per lane, (largest stable step [s], time index, eigenvalue index where it binds)
@@ -435,6 +449,7 @@ class _Work:
                                              np.array([p[0] for p in predicted]))
 
         ts, xs, lam, _ = self.along()
+        events = self.nonsmooth()
         with self.clock("metrics_s"):
             columns = schema.run_columns(self.spec.variables, self.spec.states, self.spec.vehicle)
             every = pd.concat([pd.DataFrame(r) for r in runs], ignore_index=True)
@@ -457,7 +472,7 @@ class _Work:
                     h_probe_max=cfg.h_probe_max, t_bind=ts[k] if k >= 0 else np.nan,
                     lam_re_bind=bind.real, lam_im_bind=bind.imag, limit_cause=cause[lane],
                     **{f"bind_{s}": xs[lane, k, c] if k >= 0 else np.nan
-                       for c, s in enumerate(self.spec.states)}))
+                       for c, s in enumerate(self.spec.states)}, **events[lane].columns()))
         traj = self._trajectories(meth) if self.block == 0 else pd.DataFrame()
         limits_df = pd.DataFrame(limits, columns=schema.limit_columns(self.spec.variables,
                                                                       self.spec.states))
@@ -689,6 +704,8 @@ def summary(runs: pd.DataFrame, limits: pd.DataFrame) -> pd.DataFrame:
         median = float(lim["order_fit"].median())
         # Folders swept before rho_max was recorded have no order_h_rho.
         h_rho = float(lim["order_h_rho"].median()) if "order_h_rho" in lim else np.nan
+        flagged = int(np.isfinite(lim["nonsmooth_t"].to_numpy(float)).sum()) \
+            if "nonsmooth_t" in lim else 0
         rows.append(dict(
             method=name, family=m.family, order_declared=m.order,
             order_fit_median=median,
@@ -697,14 +714,15 @@ def summary(runs: pd.DataFrame, limits: pd.DataFrame) -> pd.DataFrame:
             order_h_min=float(lim["order_h_min"].min()),
             order_h_max=float(lim["order_h_max"].max()),
             order_status=metrics.order_status(median, m.order, most_common(lim["order_note"]),
-                                              h_rho),
+                                              h_rho, nonsmooth=flagged >= 0.5 * len(lim)),
             order_h_rho=h_rho,
             real_interval=real, imag_interval=imag,
             h_pred_min=float(lim["h_pred"].min()), **metrics.own_limits(lim),
             implicit=m.implicit,
             evals_per_step=float((r["evals_per_s"] * r["h"]).median()),
             points=int(lim["point"].nunique()),
-            solver_failures=int((~r["converged"]).sum()) if "converged" in r else 0))
+            solver_failures=int((~r["converged"]).sum()) if "converged" in r else 0,
+            nonsmooth_points=flagged, nonsmooth_note=nonsmooth.note(lim)))
     return pd.DataFrame(rows, columns=schema.SUMMARY)
 
 
@@ -744,6 +762,7 @@ def _write_manifest(cfg, out: Path, created, done, timing, complete) -> dict:
                       "perturbation": cfg.perturbation, "h_probe_max_s": cfg.h_probe_max,
                       "bisection_rel_tol": cfg.rel_tol, "narrowing": NARROWING},
         "order_fit": metrics.ORDER_RULE,
+        "nonsmooth": nonsmooth.RULE,
         "prediction": frozen.RULE,
         "trajectory_point": dict(zip(cfg.spec.variables, cfg.traj_point)),
         "horizon_s": cfg.horizon, "vehicle": cfg.vehicle, "model": cfg.model,

@@ -11,6 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
+from stepzoo.bench import casadi_model
 from stepzoo.bench.model_spec import (BICYCLE_ERROR_STATES, ModelSpec, builtin, check_rhs, is_num,
                                       load_function, name_list)
 from stepzoo.errors import UsageError
@@ -51,7 +52,7 @@ ESTIMATES = {          # [error] estimate: which times of a run its error `err` 
 # and Pacejka/Fiala limits came out 5-67 times the linear ones in straight running), and
 # well above the Newton solves' default tolerances (1e-10), so their noise is no growth.
 DEFAULT_PERTURBATION = 1e-6
-MODEL_KEYS = {"rhs", "path", "states", "inputs"}
+MODEL_KEYS = {"rhs", "path", "states", "inputs", "casadi", "p"}   # casadi, p: bench.casadi_model
 
 
 @dataclass(frozen=True)
@@ -357,9 +358,19 @@ def model_spec(raw, sections, source, bad, check) -> tuple[ModelSpec | None, str
         for key in sorted(set(model) - MODEL_KEYS):
             bad.append(f"{source}: unknown key model.{key}; known: "
                        f"{', '.join(sorted(MODEL_KEYS))}")
-        name = model.get("rhs")
+        key = "casadi" if "casadi" in model else "rhs"
+        name = model.get(key)
+        if "casadi" in model and "rhs" in model:
+            bad.append(f"{source}: model.rhs (a JAX f(t, x, u, p)) and model.casadi are two "
+                       "ways to give a model; keep one")
+            return None, vehicle
+        if "p" in model and key == "rhs":
+            bad.append(f"{source}: model.p names the entries of a CasADi function's p "
+                       "(model.casadi); a JAX model.rhs reads [params] by name: drop model.p")
+            return None, vehicle
         if not isinstance(name, str):
-            bad.append(f"{source}: model.rhs must be \"module:function\" (your f(t, x, u, p))")
+            what = "f(t, x, u, p)" if key == "rhs" else "casadi.Function, or its saved file"
+            bad.append(f"{source}: model.{key} must be \"module:function\" (your {what})")
             return None, vehicle
         states = name_list(model.get("states"), "states", source, bad)
         inputs = name_list(model.get("inputs", []), "inputs", source, bad)
@@ -372,7 +383,14 @@ def model_spec(raw, sections, source, bad, check) -> tuple[ModelSpec | None, str
             return None, vehicle
         folder = str((Path(source).resolve().parent / folder).resolve())
         try:
-            rhs, sha = load_function(name, Path(folder), source)
+            if key == "casadi":
+                p_names = casadi_model.check_p(model.get("p"), sections["params"], source, bad)
+                if len(bad) > before:
+                    return None, vehicle
+                rhs, sha = casadi_model.load(name, Path(folder), states, inputs, p_names,
+                                             source)
+            else:
+                rhs, sha = load_function(name, Path(folder), source)
         except UsageError as err:
             bad.append(str(err))
             return None, vehicle

@@ -55,6 +55,9 @@ def _facts(sweep, tuned, tuned_path, plan_list, plans_dir, out) -> list:
     timing = sweep.manifest.get("timing")
     if isinstance(timing, dict) and isinstance(timing.get("total_s"), (int, float)):
         facts.append(("sweep computing time", f"{timing['total_s']:.1f} s"))
+    notes = [n for n in sweep.summary.get("nonsmooth_note", []) if isinstance(n, str) and n]
+    if notes:                      # where f is not smooth, and the remedy (bench.nonsmooth)
+        facts.append(("non-smooth f", notes[0]))
     rounds = sweep.manifest.get("timing_rounds")
     facts.append(("timing", f"each run timed in {rounds} rounds after compilation; figures "
                   "use the fastest, the tables' hover and Figure 5 give the spread"

@@ -78,7 +78,9 @@ def build(results, manifest, out, progress_say):
             "reference's accuracy) the reason is given. h rho is the fit's finest step times the "
             "largest spectral radius of the Jacobian along the reference: an order that "
             "misses where it exceeds 1 is in the stiff range, where order reduction is the "
-            "theory.", rows, ORDER_COLUMNS)
+            "theory. 'limited by non-smooth f': the model's right-hand side jumps, or its "
+            "Jacobian does, along the references (a clamp, a switch), which caps every "
+            "method's order.", rows, ORDER_COLUMNS)
         own = environment.provenance("report", started, environment.now())
         appendix = [environment_table({"suite": manifest, "this report": own}, out)]
         index, md = write_report(out, f"stepzoo report: suite {manifest.get('config_name')}",
@@ -100,5 +102,7 @@ def order_rows(sweeps: dict) -> list[dict]:
             row = {key: _plain(s.get(key)) for key, _ in ORDER_COLUMNS if key in s.index}
             row["problem"] = label
             row["note"] = "" if s["order_status"] == "matches" else notes.get(s["method"], "")
+            if s["order_status"] == "limited by non-smooth f":
+                row["note"] = s["nonsmooth_note"]          # where, what, and the remedy
             rows.append(row)
     return rows

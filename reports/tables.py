@@ -25,7 +25,8 @@ class Table:
 
 METHOD_COLUMNS = [
     ("method", "method"), ("family", "family"), ("order_declared", "order"),
-    ("order_fit_median", "fitted order"), ("real_interval", "real interval"),
+    ("order_fit_median", "fitted order"), ("order_status", "order status"),
+    ("real_interval", "real interval"),
     ("imag_interval", "imag. interval"), ("h_pred_min", "h max predicted [s]"),
     ("h_meas_min", "h max measured [s]"), ("worst_ratio", "worst meas./pred."),
     ("solver_failures", "runs with failed solves"),
