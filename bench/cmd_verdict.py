@@ -22,6 +22,7 @@ def add_arguments(p):
 
 def main(args) -> int:
     from stepzoo.bench.sweep_config import load
+    from stepzoo.bench import model_nan
     from stepzoo.bench.verdict import region, verdict
     from stepzoo.integrators import METHODS
     if len(args.method) != len(args.h):
@@ -49,6 +50,8 @@ def main(args) -> int:
             "unstable_where": region(table, ~table["stable"] & (table["cause"] == "unstable"),
                                      variables),
             "solver_failed_where": region(table, table["cause"] == "solver failed", variables),
+            "model_nan_where": region(table, table["cause"].str.startswith(model_nan.PREFIX),
+                                      variables),
             "inaccurate_where": region(table, table["stable"] & ~good, variables),
             "worst_error": float(worst[column]),
             "worst_at": {v: float(worst[v]) for v in variables},
@@ -70,6 +73,7 @@ def main(args) -> int:
               f"predicted limit {v['h_pred_min']:.4g} s")
         rows = [{"verdict": "unstable", "where": v["unstable_where"]},
                 {"verdict": "solver failed", "where": v["solver_failed_where"]},
+                {"verdict": "model returned NaN", "where": v["model_nan_where"]},
                 {"verdict": "stable, not accurate", "where": v["inaccurate_where"]},
                 {"verdict": "worst error", "where": f"{worst} at " + ", ".join(
                     f"{k} = {x:.4g}" for k, x in v["worst_at"].items())}]

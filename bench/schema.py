@@ -67,7 +67,7 @@ def run_columns(variables, states, vehicle: bool) -> list[str]:
 
 def limit_columns(variables, states) -> list[str]:
     return ["method", "point", *variables, *LIMIT_TAIL, *[f"bind_{s}" for s in states],
-            *ORDER_TAIL]
+            *ORDER_TAIL, "model_nan_t"]      # [s] where the model is not finite (model_nan)
 
 
 def eigen_columns(variables) -> list[str]:

@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from stepzoo.bench import metrics
+from stepzoo.bench import metrics, model_nan
 from stepzoo.bench.sweep import _Work, n_blocks
 
 
@@ -31,6 +31,7 @@ def verdict(cfg, method_name: str, h: float) -> pd.DataFrame:
         ref, _ = work.reference(h, n)
         err = metrics.run_error(cfg.spec, x, ref, cfg.error_estimate)
         predicted = work.predicted(meth)
+        nan_t = model_nan.lane_times(work)
         for lane, i in enumerate(work.ids):
             row = dict(point=i, **work.point_columns())
             row = {k: (v[lane] if k != "point" else i) for k, v in row.items()}
@@ -43,6 +44,8 @@ def verdict(cfg, method_name: str, h: float) -> pd.DataFrame:
                 ix, iy = cfg.spec.states.index("X"), cfg.spec.states.index("Y")
                 d = np.hypot(x[lane, :, ix] - ref[lane, :, ix], x[lane, :, iy] - ref[lane, :, iy])
                 row["err_pos"] = float(np.nanmax(d)) if stable else float("inf")
+            if np.isfinite(nan_t[lane]):
+                row.update(stable=False, cause=model_nan.cause(nan_t[lane]), h_pred=np.nan)
             rows.append(row)
     return pd.DataFrame(rows)
 
