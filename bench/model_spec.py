@@ -165,7 +165,7 @@ def load_function(ref: str, folder: Path, source: str):
         text = Path(inspect.getfile(module)).read_bytes()
     except (TypeError, OSError):
         text = b""
-    return _quiet(fn), hashlib.sha256(text).hexdigest()
+    return _Quiet(fn), hashlib.sha256(text).hexdigest()
 
 
 def shadowed(module, module_name: str, folder: Path, source: str):
@@ -193,15 +193,27 @@ def _prints_to_stderr():
         yield
 
 
-@functools.cache
-def _quiet(fn):
-    """`fn` with its prints sent to stderr; one wrapper per function, so that JAX's
-    compiled programs (cached by function) are shared by every load of the model."""
-    @functools.wraps(fn)
-    def rhs(t, x, u, p):
+class _Quiet:
+    """A user's f(t, x, u, p) whose prints go to stderr. Equal to, and hashed as, another of
+    the same f, and pickled (for a Dask worker) as f itself: JAX's compiled programs, cached
+    by function, serve every load of the model."""
+
+    def __init__(self, fn):
+        self.fn = fn
+        functools.update_wrapper(self, fn)
+
+    def __call__(self, t, x, u, p):
         with _prints_to_stderr():
-            return fn(t, x, u, p)
-    return rhs
+            return self.fn(t, x, u, p)
+
+    def __eq__(self, other):
+        return isinstance(other, _Quiet) and other.fn == self.fn
+
+    def __hash__(self):
+        return hash(self.fn)
+
+    def __reduce__(self):
+        return _Quiet, (self.fn,)
 
 
 def check_rhs(spec: ModelSpec, source: str):
