@@ -315,11 +315,12 @@ def _read_movingai(path: Path) -> np.ndarray:
     The header is read, and the size checked, before the grid."""
     header = {}
     with open(path, encoding="ascii", errors="replace") as fh:
-        for number, line in enumerate(iter(fh.readline, "")):
+        # Header lines are short: a longer one is read no further than this.
+        for number, line in enumerate(iter(lambda: fh.readline(256), "")):
             words = line.split()
             if words == ["map"]:
                 break
-            if len(words) != 2 or len(line) > 80:
+            if len(words) != 2 or len(line) == 256:
                 raise ValueError(f"{path}:{number + 1}: bad MovingAI header line "
                                  f"{line[:80].rstrip()!r}; expected 'type octile', 'height H', "
                                  "'width W', then 'map'")
@@ -335,8 +336,9 @@ def _read_movingai(path: Path) -> np.ndarray:
         if rows < 1 or cols < 1:
             raise ValueError(f"{path}: height and width must be >= 1, got {rows} x {cols}")
         check_cells(path, rows, cols, DECODE_BYTES["movingai"])
-        # A grid line is cols characters and a line end (two on Windows), at most.
-        text = fh.read(rows * (cols + 2) + 2)
+        # A grid line is cols characters and a line end: twice that bounds what is read, and
+        # a line's trailing blanks; more than that is refused below, unread.
+        text = fh.read(2 * rows * (cols + 2) + 64)
         if fh.read(4096).strip():
             raise ValueError(f"{path}: the grid is longer than the {rows} rows of {cols} "
                              "characters the header says; fix the header or the grid")
