@@ -21,8 +21,8 @@ def add_arguments(p):
 
 
 def main(args) -> int:
-    from stepzoo.bench.sweep_config import load
     from stepzoo.bench import model_nan
+    from stepzoo.bench.sweep_config import load
     from stepzoo.bench.verdict import region, verdict
     from stepzoo.integrators import METHODS
     if len(args.method) != len(args.h):
