@@ -42,7 +42,8 @@ INTERRUPTED = 130          # the shell's status for a command ended by Ctrl-C (1
 EXIT_STATUSES = """exit status:
   0    success
   1    the command ran correctly but found no answer: a plan that is not exact
-       (approximate or no_path), a tuning where no (method, h) qualifies
+       (approximate or no_path), a tuning where no (method, h) qualifies, a stability
+       point where the model is not finite
   2    bad input, or a file or folder that cannot be used (unreadable, read-only, disk
        full, busy with another stepzoo command); one line on stderr says which
   130  interrupted (Ctrl-C); a sweep resumes with --resume"""

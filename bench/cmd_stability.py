@@ -2,7 +2,8 @@
 initial state and, per method, the largest stable step they predict along the reference
 trajectory (frozen Jacobians), with where it binds. The model comes from a sweep config
 (CONFIG, the point by --at VAR=VALUE, else the config's trajectory point) or by name
-(--model, --tyre; a vehicle model at --vx and --delta)."""
+(--model, --tyre; a vehicle model at --vx and --delta). Where the model is not finite on
+the reference, no limit is predicted and it says so (exit status 1)."""
 import math
 import sys
 
@@ -83,42 +84,54 @@ def at_point(cfg, assignments) -> tuple:
 
 def predict(cfg, point) -> dict:
     """Eigenvalues at the initial state and, per method, the predicted largest stable step
-    [s] along the reference over the config's horizon, where it binds (t [s], lambda)."""
+    [s] along the reference over the config's horizon, where it binds (t [s], lambda);
+    model_nan_t [s]: where f or df/dx is first not finite on the reference (None: nowhere),
+    and then no method has a prediction."""
     import dataclasses
 
-    from stepzoo.bench import frozen
+    from stepzoo.bench import frozen, model_nan
     from stepzoo.bench.sweep import _Work
     from stepzoo.integrators import METHODS
     spec = dataclasses.replace(cfg.spec, envelope=tuple(
         (var, (value,)) for var, value in zip(cfg.spec.variables, point)))
     one = dataclasses.replace(cfg, spec=spec, points_per_chunk=1, traj_point=point)
-    ts, _, lam, _ = _Work(one, 0, {}).along()
+    work = _Work(one, 0, {})
+    ts, _, lam, _ = work.along()
+    nan_t = float(model_nan.lane_times(work)[0])
     ev = lam[0, 0]
     ev = ev[np.abs(ev) > frozen.REL_ZERO * np.nanmax(np.abs(ev), initial=0.0)]
     methods = {}
     for name, m in METHODS.items():
-        h, k, j = frozen.predicted_limit(m, lam[0])
-        methods[name] = {"max_stable_step": None if math.isinf(h) else h,
+        h, k, j = frozen.predicted_limit(m, lam[0]) if math.isnan(nan_t) else (math.nan, -1, -1)
+        methods[name] = {"max_stable_step": None if not math.isfinite(h) else h,
                          "t_bind": None if k < 0 else float(ts[k]),
                          "lambda_bind": None if k < 0 else [float(lam[0, k, j].real),
                                                             float(lam[0, k, j].imag)]}
     return {"model": cfg.model, "point": dict(zip(cfg.spec.variables, point)),
-            "horizon_s": cfg.horizon,
+            "horizon_s": cfg.horizon, "jacobian_finite": math.isnan(nan_t),
+            "model_nan_t": None if math.isnan(nan_t) else nan_t,
             "eigenvalues": [[float(e.real), float(e.imag)]
                             for e in sorted(ev, key=lambda z: (z.real, z.imag))],
             "methods": methods}
 
 
 def main(args) -> int:
+    from stepzoo.bench import model_nan
     cfg = config_from_args(args)
     out = predict(cfg, at_point(cfg, args.at))
     if "vx" in out["point"] and "delta" in out["point"]:
         out = {"vx": out["point"]["vx"], "delta": out["point"]["delta"], **out}
+    # No prediction where the model is not finite: a correct run without an answer.
+    status = 0 if out["jacobian_finite"] else 1
     if args.format == "json":
         print(to_json(out))
-        return 0
+        return status
     point = ", ".join(f"{k} = {v:g}" for k, v in out["point"].items())
     print(f"{out['model']} at {point}")
+    if not out["jacobian_finite"]:
+        print(f"the Jacobian is not finite at this point ({model_nan.cause(out['model_nan_t'])}"
+              " on the reference): no largest stable step is predicted")
+        return status
     print("eigenvalues of df/dx at the initial state [1/s]: "
           + ", ".join(f"{re:.4g}{im:+.4g}j" for re, im in out["eigenvalues"]))
     rows = [{"method": k, "max_stable_step_s": v["max_stable_step"], "binds_at_t_s": v["t_bind"]}

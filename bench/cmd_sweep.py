@@ -2,6 +2,7 @@
 folder (tables in Parquet, summaries in CSV), resumable chunk by chunk."""
 import sys
 
+from stepzoo.bench import model_nan
 from stepzoo.output import text_table, to_json
 
 
@@ -52,6 +53,10 @@ def show(manifest: dict, out, fmt: str = "text") -> None:
     sys.stdout.write(text_table(summary, ["method", "order_declared", "order_fit_median",
                                           "h_pred_min", "h_meas_min", "worst_ratio",
                                           *solver]) + "\n")
+    nan_note = model_nan.note(pd.read_csv(f"{out}/limits.csv"),
+                              manifest["model_spec"]["variables"])
+    if nan_note:
+        print(nan_note)
     compile_s = ", ".join(f"{k} {v:.2f}" for k, v in t["compile_s"].items())
     for note in dict.fromkeys(r.get("nonsmooth_note") for r in summary):
         if isinstance(note, str) and note:         # where f is not smooth, and the remedy

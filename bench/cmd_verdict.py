@@ -42,6 +42,7 @@ def verdicts(cfg, pairs, column: str, tol: float, margin: float, unit: str = "")
             "accurate": int(table["accurate"].sum()),
             "unstable_where": kinds[0]["where"],
             "solver_failed_where": kinds[1]["where"],
+            "model_nan_where": kinds[2]["where"],
             "inaccurate_where": region(table, table["stable"] & ~table["accurate"], variables),
             "worst_error": float(worst["error"]),
             "worst_at": {v: float(worst[v]) for v in variables},

@@ -6,6 +6,8 @@ A built-in model (`model = "dynamic5"`) and a user's own (`[model] rhs = "module
 are read into the same `ModelSpec`; nothing downstream knows which it was."""
 from __future__ import annotations
 
+import contextlib
+import functools
 import hashlib
 import importlib
 import inspect
@@ -136,16 +138,22 @@ def load_function(ref: str, folder: Path, source: str):
         raise UsageError(f"{source}: model.rhs must be \"module:function\", got {ref!r}")
     sys.path.insert(0, str(folder))
     try:
-        module = importlib.import_module(module_name)
+        with _prints_to_stderr():
+            module = importlib.import_module(module_name)
     except ModuleNotFoundError as err:
         raise UsageError(f"{source}: model.rhs names module {module_name!r}, which is not in "
                          f"{folder} nor installed ({err}); set model.path to its folder") \
             from None
+    except SystemExit as err:  # sys.exit() at import would end stepzoo with its status
+        raise UsageError(f"{source}: the model module {module_name!r} exited during import "
+                         f"(SystemExit {err.code!r}); a model module defines functions, it "
+                         "does not run a program at import") from None
     except Exception as err:   # the user's module failing at import: say so in one line
         raise UsageError(f"{source}: importing {module_name!r} failed: "
                          f"{type(err).__name__}: {err}") from None
     finally:
         sys.path.remove(str(folder))
+    shadowed(module, module_name, folder, source)
     fn = getattr(module, func_name, None)
     if fn is None:
         raise UsageError(f"{source}: {module_name!r} has no function {func_name!r} (model.rhs "
@@ -157,13 +165,70 @@ def load_function(ref: str, folder: Path, source: str):
         text = Path(inspect.getfile(module)).read_bytes()
     except (TypeError, OSError):
         text = b""
-    return fn, hashlib.sha256(text).hexdigest()
+    return _Quiet(fn), hashlib.sha256(text).hexdigest()
+
+
+def shadowed(module, module_name: str, folder: Path, source: str):
+    """UsageError when `folder` holds the module's file but the import found another module
+    of that name (Python's own, or one imported or installed earlier): the model would be
+    looked up in the wrong module."""
+    top = module_name.split(".")[0]
+    mine = [folder / f"{top}.py", folder / top]
+    if not any(p.exists() for p in mine):
+        return
+    found = getattr(module, "__file__", None)
+    if found and Path(found).resolve().is_relative_to(folder.resolve()):
+        return
+    whose = "Python's standard module" if top in sys.stdlib_module_names else "the module"
+    raise UsageError(f"{source}: model.rhs names module {top!r}, but {folder / (top + '.py')} "
+                     f"is shadowed by {whose} {top!r} ({found or 'built in'}); rename your "
+                     "file (and model.rhs) to a name of its own")
+
+
+@contextlib.contextmanager
+def _prints_to_stderr():
+    """The user's code may print (while imported, and each time JAX traces it): that goes
+    to stderr, so that stdout holds the command's output alone (--format json)."""
+    with contextlib.redirect_stdout(sys.stderr):
+        yield
+
+
+class _Quiet:
+    """A user's f(t, x, u, p) whose prints go to stderr. Equal to, and hashed as, another of
+    the same f, and pickled (for a Dask worker) as f itself: JAX's compiled programs, cached
+    by function, serve every load of the model."""
+
+    def __init__(self, fn):
+        self.fn = fn
+        functools.update_wrapper(self, fn)
+
+    def __call__(self, t, x, u, p):
+        with _prints_to_stderr():
+            return self.fn(t, x, u, p)
+
+    def __eq__(self, other):
+        return isinstance(other, _Quiet) and other.fn == self.fn
+
+    def __hash__(self):
+        return hash(self.fn)
+
+    def __reduce__(self):
+        return _Quiet, (self.fn,)
 
 
 def check_rhs(spec: ModelSpec, source: str):
-    """Trace the right-hand side once: it must return one derivative per state."""
+    """Trace the right-hand side once: it must return one real derivative per state, its
+    parameters may not be named like a state or input (an envelope over the name would vary
+    the parameter alone), and an envelope over a parameter it never reads is a warning on
+    stderr."""
     import jax
     import jax.numpy as jnp
+    for name, _ in spec.params:
+        if name in spec.states or name in spec.inputs:
+            what = "state" if name in spec.states else "input"
+            raise UsageError(f"{source}: params.{name} has the name of a {what} of "
+                             f"{spec.name}; an envelope over {name!r} would vary the "
+                             "parameter alone: rename the parameter")
     x0, u, p = spec.arrays(spec.points[:1])
     args = (0.0, jnp.asarray(x0[0]), jnp.asarray(u[0]), {k: v[0] for k, v in p.items()})
     try:
@@ -177,3 +242,33 @@ def check_rhs(spec: ModelSpec, source: str):
     if shape != (len(spec.states),):
         raise UsageError(f"{source}: model {spec.name} returns shape {shape}, but model.states "
                          f"names {len(spec.states)} states; return one derivative per state")
+    if jnp.issubdtype(out.dtype, jnp.complexfloating):
+        raise UsageError(f"{source}: model {spec.name} returns complex values ({out.dtype}); "
+                         "the integrators take real states: return real derivatives (a "
+                         "complex state as two real states, its real and imaginary parts)")
+    for name in unread_params(spec, args):
+        sys.stderr.write(f"{source}: warning: the envelope varies params.{name}, which model "
+                         f"{spec.name} never reads: every value of it gives the same results\n")
+
+
+def unread_params(spec: ModelSpec, args) -> list[str]:
+    """The envelope's parameters that the right-hand side's output does not depend on, found
+    by tracing it: a parameter counts as read when any operation that leads to the output
+    takes it (an operation with a sub-program counts all its inputs, so nothing read is
+    ever reported)."""
+    import jax
+    from jax.extend.core import Var
+    unread = []
+    t, x, u, p = args
+    for name in (v for v in spec.variables if spec.kind(v) == "param"):
+        def of_one(value, name=name):
+            return spec.rhs(t, x, u, {**p, name: value})
+        closed = jax.make_jaxpr(of_one)(p[name])
+        jaxpr = closed.jaxpr
+        needed = {v for v in jaxpr.outvars if isinstance(v, Var)}
+        for eqn in reversed(jaxpr.eqns):
+            if needed.intersection(eqn.outvars):
+                needed.update(v for v in eqn.invars if isinstance(v, Var))
+        if jaxpr.invars[0] not in needed:
+            unread.append(name)
+    return unread

@@ -80,7 +80,7 @@ def run_columns(variables, states, vehicle: bool) -> list[str]:
 
 def limit_columns(variables, states) -> list[str]:
     return ["method", "point", *variables, *LIMIT_TAIL, *[f"bind_{s}" for s in states],
-            *ORDER_TAIL, *NONSMOOTH_TAIL]
+            *ORDER_TAIL, *NONSMOOTH_TAIL, "model_nan_t"]   # [s] where the model is not finite
 
 
 def eigen_columns(variables) -> list[str]:

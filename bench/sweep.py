@@ -17,7 +17,8 @@ import numpy as np
 import pandas as pd
 
 from stepzoo import environment
-from stepzoo.bench import frozen, jit_clock, metrics, nonsmooth, schema, sweep_folder
+from stepzoo.bench import (frozen, jit_clock, metrics, model_nan, nonsmooth, schema,
+                           sweep_folder)
 from stepzoo.bench.timing import per_step
 from stepzoo.errors import UsageError
 from stepzoo.output import atomic_write, to_json, write_file
@@ -247,7 +248,9 @@ class _Work:
         jac = self.along()[3]
         out = np.zeros_like(self.x0)
         for b in range(len(self.x0)):
-            w, V = np.linalg.eig(jac[b, 0])
+            # A model not finite at the start (model_nan) has no modes: every state alike.
+            finite = np.isfinite(jac[b, 0]).all()
+            w, V = np.linalg.eig(jac[b, 0] if finite else np.zeros_like(jac[b, 0]))
             keep = frozen.constraining(w)
             d = np.zeros(len(w))
             for j in np.where(keep)[0]:
@@ -473,6 +476,7 @@ class _Work:
                     lam_re_bind=bind.real, lam_im_bind=bind.imag, limit_cause=cause[lane],
                     **{f"bind_{s}": xs[lane, k, c] if k >= 0 else np.nan
                        for c, s in enumerate(self.spec.states)}, **events[lane].columns()))
+        model_nan.record(limits, model_nan.lane_times(self))
         traj = self._trajectories(meth) if self.block == 0 else pd.DataFrame()
         limits_df = pd.DataFrame(limits, columns=schema.limit_columns(self.spec.variables,
                                                                       self.spec.states))

@@ -11,6 +11,7 @@ from pathlib import Path
 import pandas as pd
 
 from stepzoo.errors import UsageError
+from stepzoo.safe_parse import json_loads
 
 
 def check_flags(resume: bool, overwrite: bool):
@@ -28,7 +29,7 @@ def check_start(cfg, out: Path, resume: bool, overwrite: bool, discard=None) -> 
     if not holds:
         return None
     try:
-        old = json.loads(manifest.read_text()) if manifest.is_file() else {}
+        old = json_loads(manifest.read_text()) if manifest.is_file() else {}
     except (json.JSONDecodeError, UnicodeDecodeError):
         old = {}
     if overwrite:

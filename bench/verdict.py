@@ -12,7 +12,7 @@ import numpy as np
 import pandas as pd
 
 from stepzoo.bench import margin as margin_rule
-from stepzoo.bench import metrics
+from stepzoo.bench import metrics, model_nan
 from stepzoo.bench.sweep import _Work, n_blocks
 
 # The per-point fields of `stepzoo verdict` (CSV columns, JSON keys), after the envelope's
@@ -44,6 +44,7 @@ def verdict(cfg, method_name: str, h: float) -> pd.DataFrame:
         predicted = work.predicted(meth)
         h_meas, limit_cause = work.measured_limits(meth, ok, conv,
                                                    np.array([p[0] for p in predicted]))
+        nan_t = model_nan.lane_times(work)
         for lane, i in enumerate(work.ids):
             row = {k: v[lane] for k, v in work.point_columns().items()}
             stable = bool(ok[lane, 0] and acc_conv[lane])
@@ -56,6 +57,9 @@ def verdict(cfg, method_name: str, h: float) -> pd.DataFrame:
                 ix, iy = cfg.spec.states.index("X"), cfg.spec.states.index("Y")
                 d = np.hypot(x[lane, :, ix] - ref[lane, :, ix], x[lane, :, iy] - ref[lane, :, iy])
                 row["err_pos"] = float(np.nanmax(d)) if stable else float("inf")
+            if np.isfinite(nan_t[lane]):
+                row.update(stable=False, cause=model_nan.cause(nan_t[lane]), h_pred=np.nan,
+                           h_meas=np.nan)
             rows.append(row)
     return pd.DataFrame(rows)
 
@@ -96,6 +100,7 @@ def classes(judged: pd.DataFrame, variables, margin: float) -> list[dict]:
     stable = judged["stable"]
     kinds = [("unstable", judged["cause"] == "unstable"),
              ("solver failed", judged["cause"] == "solver failed"),
+             ("model returned NaN", judged["cause"].str.startswith(model_nan.PREFIX)),
              (f"stable, within {100 * margin:g}% of the limit", stable & ~judged["with_margin"]),
              ("stable, not accurate", stable & ~judged["accurate"]),
              ("stable with margin and accurate", judged["with_margin"] & judged["accurate"])]

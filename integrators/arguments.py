@@ -134,6 +134,22 @@ def shared(tree, batch: int):
     return jax.tree.map(leaf, tree)
 
 
+def explain_batch(err: Exception, u, p, batch: int):
+    """After a batch failed with `err` while JAX traced it: a ValueError naming the first leaf
+    of u or p whose leading axis is not the batch's, the likely cause (such a leaf is shared:
+    every trajectory gets all of it, and f then computes with an array of the wrong shape);
+    nothing where every leaf has the batch's length or none."""
+    for name, tree in (("u", u), ("p", p)):
+        for path, leaf in jax.tree_util.tree_flatten_with_path(tree)[0]:
+            shape = tuple(np.shape(leaf))
+            if shape and shape[0] != batch:
+                raise ValueError(f"{name}{jax.tree_util.keystr(path)} has shape {shape}, not one "
+                                 f"value per trajectory ({batch}, ...): a leaf without the "
+                                 "batch's leading axis is shared, every trajectory gets all of "
+                                 f"it, and f fails on it ({str(err).splitlines()[0]}); give "
+                                 f"{name} one row per row of x0") from None
+
+
 def check_tolerance(rtol, atol, dtype):
     """rtol and atol > 0, and rtol within reach of the work dtype's precision."""
     for name, value in (("rtol", rtol), ("atol", atol)):

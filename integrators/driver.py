@@ -266,9 +266,14 @@ def integrate_batch(method, f, x0, u=None, p=None, h=None, n_steps=None, t0=0.0,
     (3, 1001, 2)
     """
     method, f, x0, scalar = _arguments(method, f, x0, h, n_steps, t0, max_steps, True)
+    given = (u, p)
     u, p = arguments.shared(u, x0.shape[0]), arguments.shared(p, x0.shape[0])
     fn = _jitted[(_batch, max_steps is not None)]
-    traj, far = fn(method, f, x0, u, p, h, n_steps, t0, max_steps, libm=False)
+    try:
+        traj, far = fn(method, f, x0, u, p, h, n_steps, t0, max_steps, libm=False)
+    except (TypeError, ValueError) as err:      # JAX's words for it name neither u nor p
+        arguments.explain_batch(err, *given, x0.shape[0])
+        raise
     exact = lambda: fn(method, f, x0, u, p, h, n_steps, t0, max_steps, libm=True)[0]
     if isinstance(far, jax.core.Tracer):
         traj = lax.cond(far, exact, lambda: traj)

@@ -15,6 +15,7 @@ from stepzoo.bench import schema
 from stepzoo.bench.sweep_config import ESTIMATES
 from stepzoo.bench.sweep_folder import check_finished
 from stepzoo.errors import UsageError
+from stepzoo.safe_parse import json_loads, toml_loads
 
 # Columns each sweep table must have, whatever the model (the schema's), plus those the
 # manifest's model names: its envelope variables and states (View).
@@ -128,7 +129,7 @@ def load_sweep(folder) -> Sweep:
         raise UsageError(f"sweep folder {folder} lacks {', '.join(missing)}; rerun "
                          f"`stepzoo sweep CONFIG --out {folder}`")
     try:
-        manifest = json.loads((folder / "manifest.json").read_text())
+        manifest = json_loads((folder / "manifest.json").read_text())
     except (UnicodeDecodeError, json.JSONDecodeError) as err:
         raise UsageError(f"{folder / 'manifest.json'} is damaged ({err}); rerun "
                          "`stepzoo sweep`") from None
@@ -169,7 +170,7 @@ def load_tuned(path) -> dict:
         raise UsageError(f"tuned config {path} does not exist; run `stepzoo tune SWEEP_DIR "
                          f"--tol E --out {path}` first")
     try:
-        data = tomllib.loads(path.read_text())
+        data = toml_loads(path.read_text())
     except (UnicodeDecodeError, tomllib.TOMLDecodeError) as err:
         raise UsageError(f"tuned config {path} is damaged ({err}); rerun `stepzoo tune`") \
             from None
@@ -184,7 +185,7 @@ def load_tuned(path) -> dict:
 def _load_plan(folder: Path) -> Plan:
     path = folder / "plan.json"
     try:
-        record = json.loads(path.read_text())
+        record = json_loads(path.read_text())
     except (UnicodeDecodeError, json.JSONDecodeError) as err:
         raise UsageError(f"{path} is damaged ({err}); rerun `stepzoo plan`") from None
     if not isinstance(record, dict):
@@ -229,7 +230,7 @@ def load_manifest(folder) -> dict | None:
     if not path.is_file():
         return None
     try:
-        manifest = json.loads(path.read_text())
+        manifest = json_loads(path.read_text())
     except (UnicodeDecodeError, json.JSONDecodeError) as err:
         raise UsageError(f"{path} is damaged ({err}); rerun the command that wrote "
                          f"{folder}") from None

@@ -19,6 +19,7 @@ from stepzoo.reports.html import write_report
 from stepzoo.reports.load import load_sweep
 from stepzoo.reports.provenance import environment_table, public_path
 from stepzoo.results_folder import check_kind, writing
+from stepzoo.safe_parse import json_loads
 
 ORDER_COLUMNS = [
     ("problem", "problem"), ("method", "method"), ("order_declared", "declared order"),
@@ -33,7 +34,7 @@ def suite_manifest(folder) -> dict | None:
     list); None when it holds one sweep."""
     path = Path(folder) / "manifest.json"
     try:
-        manifest = json.loads(path.read_text()) if path.is_file() else {}
+        manifest = json_loads(path.read_text()) if path.is_file() else {}
     except (json.JSONDecodeError, UnicodeDecodeError):
         return None
     problems = manifest.get("problems")

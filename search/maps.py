@@ -7,12 +7,15 @@ and everything outside the grid are obstacles; a distance field answers clearanc
 from __future__ import annotations
 
 import math
+import struct
 from dataclasses import dataclass, field
 from functools import lru_cache
 from pathlib import Path
 
 import numpy as np
 from scipy.ndimage import distance_transform_edt
+
+from stepzoo.validate import check_memory
 
 # The distance field is sampled on a lattice SUBDIV times finer than the cells. Obstacles are
 # unions of whole cells, so at lattice points the field is exact, and reading it at the nearest
@@ -29,6 +32,16 @@ _FRAME = EXACT_CELLS // 2 + 1
 # so a changed map is never given an old field): a process that plans again and again on the
 # same map (`stepzoo serve`) transforms it once (0.39 s of CPU for 1024 x 1024 cells).
 FIELDS_KEPT = 2
+
+# Peak memory a grid cell costs while a map is built: the occupancy, and the distance field
+# on a lattice SUBDIV times finer with the transform's intermediates (tracemalloc: 142 bytes
+# per cell on a 1000 x 1500 grid). A file's decoding adds its own per cell (DECODE_BYTES).
+MAP_BYTES_PER_CELL = 144
+# [bytes per cell] held while decoding: an image's pixels as float64 RGB and their grey mean;
+# a MovingAI grid's one-character strings; an array's own items come from its header.
+DECODE_BYTES = {"image": 32, "movingai": 16}
+# A ROS map yaml is a dozen short lines: anything far larger is not one.
+ROS_YAML_MAX_BYTES = 1 << 16
 
 _MOVINGAI_FREE = frozenset(".GS")
 _MOVINGAI_BLOCKED = frozenset("@OTW")
@@ -216,13 +229,48 @@ def _cell_size(path: Path, cell_size, resolution, required: bool):
     return given[0] if given else None
 
 
+def check_cells(path: Path, rows: int, cols: int, decode_bytes: float):
+    """UsageError (naming the size and --max-memory) if building a map of rows x cols cells
+    from `path` would take more memory than allowed (validate.check_memory), before any cell
+    is decoded."""
+    cells = float(rows) * float(cols)
+    check_memory(f"map {path} of {rows} x {cols} cells", cells * (MAP_BYTES_PER_CELL
+                                                                  + decode_bytes),
+                 f"{cells:.3g} cells x {MAP_BYTES_PER_CELL + decode_bytes:g} bytes",
+                 "give a smaller map or larger cells (downsample it)")
+
+
+def image_shape(path: Path) -> tuple[int, int] | None:
+    """(rows, cols) from a PNG's IHDR or a PGM/PBM/PPM header, read without decoding; None for
+    other formats (Pillow then reads the size from the header it knows)."""
+    with open(path, "rb") as fh:
+        head = fh.read(512)
+    if head[:8] == b"\x89PNG\r\n\x1a\n" and head[12:16] == b"IHDR" and len(head) >= 24:
+        cols, rows = struct.unpack(">II", head[16:24])
+        return rows, cols
+    if head[:1] == b"P" and head[1:2] in b"123456" and len(head) > 2:
+        words = []
+        for line in head[2:].split(b"\n"):
+            words += line.split(b"#")[0].split()
+            if len(words) >= 2:
+                break
+        if len(words) >= 2 and words[0].isdigit() and words[1].isdigit():
+            return int(words[1]), int(words[0])
+    return None
+
+
 def _read_grey(path: Path) -> np.ndarray:
     """Image as float grey values 0..255, colour channels averaged (alpha ignored), as ROS does."""
     # Pillow and PyYAML are imported by the readers of their formats: a scenario of
     # rectangles, or a MovingAI map, needs neither.
     from PIL import Image, UnidentifiedImageError
+    shape = image_shape(path)
+    if shape is not None:           # before Pillow, whose own bomb limit is no memory limit
+        check_cells(path, *shape, DECODE_BYTES["image"])
     try:
         with Image.open(path) as image:
+            # Opening reads the header alone: the size is known before the pixels are.
+            check_cells(path, image.size[1], image.size[0], DECODE_BYTES["image"])
             image.load()
             bands = image.getbands()
             if bands in (("L",), ("1",), ("L", "A"), ("I",), ("F",)):
@@ -242,37 +290,59 @@ def _occupancy(grey: np.ndarray) -> np.ndarray:
 
 
 def _read_npy(path: Path) -> np.ndarray:
+    """The 2-D array of a .npy file, its shape and item size checked from the header first."""
     try:
-        array = np.load(path, allow_pickle=False)
+        with open(path, "rb") as fh:
+            version = np.lib.format.read_magic(fh)
+            read = np.lib.format.read_array_header_1_0 if version == (1, 0) \
+                else np.lib.format.read_array_header_2_0
+            shape, _, dtype = read(fh)
     except (OSError, ValueError) as error:
         raise ValueError(f"cannot read {path} as a NumPy array: {error}; "
                          "save it with np.save") from None
-    if array.ndim != 2:
-        raise ValueError(f"{path} holds an array of shape {array.shape}; a map needs a 2-D array")
-    return array
+    if len(shape) != 2:
+        raise ValueError(f"{path} holds an array of shape {shape}; a map needs a 2-D array")
+    check_cells(path, *shape, dtype.itemsize)
+    try:
+        return np.load(path, allow_pickle=False)
+    except (OSError, ValueError) as error:
+        raise ValueError(f"cannot read {path} as a NumPy array: {error}; "
+                         "save it with np.save") from None
 
 
 def _read_movingai(path: Path) -> np.ndarray:
-    """MovingAI grid as bool (rows, cols), True = blocked, row 0 = the file's first (top) row."""
-    lines = path.read_text(encoding="ascii", errors="replace").splitlines()
+    """MovingAI grid as bool (rows, cols), True = blocked, row 0 = the file's first (top) row.
+    The header is read, and the size checked, before the grid."""
     header = {}
-    for number, line in enumerate(lines):
-        words = line.split()
-        if words == ["map"]:
-            break
-        if len(words) != 2:
-            raise ValueError(f"{path}:{number + 1}: bad MovingAI header line {line!r}; expected "
-                             "'type octile', 'height H', 'width W', then 'map'")
-        header[words[0]] = words[1]
-    else:
-        raise ValueError(f"{path}: no 'map' line; a MovingAI file has 'type', 'height', 'width' "
-                         "lines, then 'map', then the grid")
-    try:
-        rows, cols = int(header["height"]), int(header["width"])
-    except (KeyError, ValueError):
-        raise ValueError(f"{path}: the header needs integer 'height' and 'width' lines, "
-                         f"got {header}") from None
-    grid = [line.rstrip() for line in lines[number + 1:]]
+    with open(path, encoding="ascii", errors="replace") as fh:
+        # Header lines are short: a longer one is read no further than this.
+        for number, line in enumerate(iter(lambda: fh.readline(256), "")):
+            words = line.split()
+            if words == ["map"]:
+                break
+            if len(words) != 2 or len(line) == 256:
+                raise ValueError(f"{path}:{number + 1}: bad MovingAI header line "
+                                 f"{line[:80].rstrip()!r}; expected 'type octile', 'height H', "
+                                 "'width W', then 'map'")
+            header[words[0]] = words[1]
+        else:
+            raise ValueError(f"{path}: no 'map' line; a MovingAI file has 'type', 'height', "
+                             "'width' lines, then 'map', then the grid")
+        try:
+            rows, cols = int(header["height"]), int(header["width"])
+        except (KeyError, ValueError):
+            raise ValueError(f"{path}: the header needs integer 'height' and 'width' lines, "
+                             f"got {header}") from None
+        if rows < 1 or cols < 1:
+            raise ValueError(f"{path}: height and width must be >= 1, got {rows} x {cols}")
+        check_cells(path, rows, cols, DECODE_BYTES["movingai"])
+        # A grid line is cols characters and a line end: twice that bounds what is read, and
+        # a line's trailing blanks; more than that is refused below, unread.
+        text = fh.read(2 * rows * (cols + 2) + 64)
+        if fh.read(4096).strip():
+            raise ValueError(f"{path}: the grid is longer than the {rows} rows of {cols} "
+                             "characters the header says; fix the header or the grid")
+    grid = [line.rstrip() for line in text.splitlines()]
     while grid and not grid[-1]:
         grid.pop()
     if len(grid) != rows or any(len(line) != cols for line in grid):
@@ -286,13 +356,33 @@ def _read_movingai(path: Path) -> np.ndarray:
     return np.isin(cells, list(_MOVINGAI_BLOCKED))
 
 
+def _plain_loader():
+    """PyYAML's safe loader without aliases (`*name`): a ROS map yaml has none, and nested
+    aliases expand exponentially (a "billion laughs" file of a few hundred bytes)."""
+    import yaml
+
+    class PlainLoader(yaml.SafeLoader):
+        def compose_node(self, parent, index):
+            if self.check_event(yaml.AliasEvent):
+                event = self.peek_event()
+                raise yaml.YAMLError(f"an alias (*{event.anchor}) at line "
+                                     f"{event.start_mark.line + 1}; a ROS map yaml needs none, "
+                                     "write the value out")
+            return super().compose_node(parent, index)
+    return PlainLoader
+
+
 def _load_ros(path: Path, expected_resolution) -> OccupancyMap:
     """ROS map_server yaml + image; cells neither free nor occupied count as obstacles."""
     import yaml
+    if path.stat().st_size > ROS_YAML_MAX_BYTES:
+        raise ValueError(f"{path} holds {path.stat().st_size} bytes; a ROS map yaml is a few "
+                         f"lines (at most {ROS_YAML_MAX_BYTES} bytes here): give the map's yaml")
     try:
-        meta = yaml.safe_load(path.read_text())
-    except yaml.YAMLError as error:
-        reason = str(error).replace("\n", " ")
+        meta = yaml.load(path.read_text(), Loader=_plain_loader())
+    except (yaml.YAMLError, RecursionError) as error:
+        reason = "nested too deeply" if isinstance(error, RecursionError) else error
+        reason = str(reason).replace("\n", " ")
         raise ValueError(f"{path} is not valid YAML ({reason}); fix the file") from None
     if not isinstance(meta, dict):
         raise ValueError(f"{path} must be a YAML mapping with image, resolution, origin, "

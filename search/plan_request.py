@@ -12,6 +12,7 @@ from pathlib import Path
 
 import stepzoo
 from stepzoo.errors import UsageError
+from stepzoo.safe_parse import json_loads
 
 ENV = "STEPZOO_SERVER"       # the socket `stepzoo plan` sends to, and `stepzoo serve` listens on
 MAX_LINE = 1 << 20           # [bytes] longest message line read (a request is a few hundred)
@@ -59,7 +60,7 @@ class Messages:
             *self.lines, self.buffer = (self.buffer + chunk).split(b"\n")
             if len(self.buffer) > MAX_LINE:
                 raise ValueError(f"a message line longer than {MAX_LINE} bytes")
-        return json.loads(self.lines.pop(0))
+        return json_loads(self.lines.pop(0))
 
 
 def request(path, argv: list[str], platform: str | None = None) -> int:

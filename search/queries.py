@@ -15,6 +15,7 @@ from scipy.ndimage import label
 
 from stepzoo import dynamics
 from stepzoo.errors import UsageError
+from stepzoo.safe_parse import json_loads
 from stepzoo.search.departure import free_departure, turned
 from stepzoo.search.footprint import Footprint, poses_collide
 from stepzoo.search.maps import MAP_DIR, SUBDIV, OccupancyMap
@@ -42,7 +43,7 @@ def load_queries(path) -> list[Query]:
     """The queries of a plan-bench file; every mistake is one UsageError line."""
     path = Path(path)
     try:
-        data = json.loads(path.read_text())
+        data = json_loads(path.read_text())
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as err:
         raise UsageError(f"cannot read queries {path}: {err}") from None
     if not isinstance(data, list) or not data:

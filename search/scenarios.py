@@ -12,15 +12,13 @@ import numpy as np
 
 from stepzoo import dynamics
 from stepzoo.errors import UsageError
+from stepzoo.safe_parse import toml_loads
 from stepzoo.validate import check, check_memory
-from stepzoo.search.maps import OccupancyMap, from_array, load_map
+from stepzoo.search.maps import (MAP_BYTES_PER_CELL, OccupancyMap, from_array,
+                                 load_map)
 
 SCENARIO_DIR = Path(__file__).with_name("scenarios")
 DEFAULT_SPEED = 5.0  # [m/s] when a query names none
-# Peak memory a grid cell costs while a map is built: the occupancy, and the distance field
-# on a lattice SUBDIV times finer with the transform's intermediates (tracemalloc: 142 bytes
-# per cell on a 1000 x 1500 grid).
-MAP_BYTES_PER_CELL = 144
 
 
 @dataclass(frozen=True)
@@ -55,7 +53,7 @@ def load_scenario(name_or_path) -> Scenario:
 def scenario_from_toml(path) -> Scenario:
     path = Path(path)
     try:
-        data = tomllib.loads(path.read_text())
+        data = toml_loads(path.read_text())
     except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as err:
         raise UsageError(f"cannot read scenario {path}: {err}") from None
     missing = [k for k in ("start", "goal", "speed", "map") if k not in data]

@@ -7,6 +7,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from stepzoo.errors import UsageError
+from stepzoo.safe_parse import toml_loads
 
 
 def lookup(kind: str, fetch, name):
@@ -24,7 +25,7 @@ def read_toml(path, what: str, hint: str) -> dict:
     if not path.is_file():
         raise UsageError(f"{what} {path} not found; {hint}")
     try:
-        return tomllib.loads(path.read_text())
+        return toml_loads(path.read_text())
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as err:
         raise UsageError(f"{path}: not valid TOML ({err}); fix the file") from None
 

@@ -155,3 +155,67 @@ def test_verdict_names_the_region_past_the_predicted_limit(tmp_path, capsys):
     assert len(v["points"]) == v["n_points"] == 6 and v["stable"] == 4
     assert v["unstable_where"].startswith("k = 1000") and v["worst_error"] is None
     assert v["worst_at"]["k"] == 1000.0
+
+
+def user_config(folder: Path, module: str, code: str, params: str = "k = 600.0\n",
+                envelope: str = "k = [400.0, 600.0]\n") -> Path:
+    """A one-method sweep config of the model `module:f` whose source is `code`, in `folder`."""
+    (folder / f"{module}.py").write_text(code)
+    config = folder / f"{module}.toml"
+    config.write_text(f'name = "m"\nhorizon = 0.5\nmethods = ["rk4"]\n[model]\n'
+                      f'rhs = "{module}:f"\nstates = ["x", "v"]\npath = "{folder}"\n'
+                      f"[params]\n{params}[initial]\nx = 1.0\n[envelope]\n{envelope}"
+                      "[steps]\nh = [0.01, 0.02]\n[stability]\nsteps = 100\n")
+    return config
+
+
+OSCILLATOR = "import jax.numpy as jnp\n\n\ndef f(t, x, u, p):\n    return {}\n"
+
+
+@pytest.mark.parametrize("module, code, params, message", [
+    ("complex_model", OSCILLATOR.format('jnp.stack([x[1], -p["k"] * x[0]]) * (1 + 1j)'), None,
+     "returns complex values (complex128)"),
+    ("clash_model", OSCILLATOR.format('jnp.stack([x[1], -p["k"] * x[0]])'),
+     "k = 600.0\nv = 2.0\n", "params.v has the name of a state"),
+    ("exiting_model", "import sys\nsys.exit(0)\n", None,
+     "the model module 'exiting_model' exited during import (SystemExit 0)"),
+    ("json", "def f(t, x, u, p):\n    return x\n", None,
+     "is shadowed by Python's standard module 'json'"),
+])
+def test_a_model_that_cannot_be_swept_as_written_is_one_line_and_exit_2(
+        tmp_path, capsys, module, code, params, message):
+    config = user_config(tmp_path, module, code, *([params] if params else []))
+    assert stepzoo(["sweep", str(config), "--out", str(tmp_path / "out")]) == 2
+    captured = capsys.readouterr()
+    assert captured.out == "" and captured.err.count("\n") == 1, captured.err
+    assert message in captured.err and "Traceback" not in captured.err
+    assert not (tmp_path / "out").exists()
+
+
+def test_prints_of_a_model_leave_json_alone_and_an_unread_parameter_is_a_warning(tmp_path,
+                                                                                 capsys):
+    """A model that prints and never reads k, its envelope over k: stability's JSON on
+    stdout parses, the prints and one warning line naming k are on stderr."""
+    code = ('import jax.numpy as jnp\n\n\ndef f(t, x, u, p):\n    print("tracing f")\n'
+            '    return jnp.stack([x[1], -100.0 * x[0] + 0.0 * p["c"]])\n')
+    config = user_config(tmp_path, "printing_model", code, "k = 600.0\nc = 1.0\n",
+                         "k = [400.0, 600.0]\nc = [1.0, 2.0]\n")
+    assert stepzoo(["stability", str(config), "--format", "json"]) == 0
+    captured = capsys.readouterr()
+    assert json.loads(captured.out)["model"] == "printing_model:f"
+    warnings = [line for line in captured.err.splitlines() if "warning" in line]
+    assert len(warnings) == 1 and "params.k, which model printing_model:f never reads" \
+        in warnings[0], captured.err
+    assert "tracing f" in captured.err
+
+
+def test_a_batch_parameter_of_the_wrong_length_is_named():
+    from stepzoo.integrators import integrate_batch
+    f = lambda t, x, u, p: -p["k"] * x
+    with pytest.raises(ValueError, match=r"p\['k'\] has shape \(2,\), not one value per "
+                                         r"trajectory \(3, \.\.\.\)"):
+        integrate_batch("rk4", f, np.ones((3, 1)), p={"k": np.array([1.0, 2.0])}, h=0.01,
+                        n_steps=10)
+    x = integrate_batch("rk4", f, np.ones((3, 1)), p={"k": np.array([1.0, 2.0, 3.0])}, h=0.01,
+                        n_steps=10).x
+    assert x.shape == (3, 11, 1)

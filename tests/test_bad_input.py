@@ -7,6 +7,7 @@ import json
 import os
 import shlex
 import shutil
+import socket
 import subprocess
 import sys
 from pathlib import Path
@@ -379,3 +380,38 @@ def test_version_and_the_exit_statuses_are_documented(capsys):
     helptext = capsys.readouterr().out
     for status in ("0 ", "1 ", "2 ", "130"):
         assert f"\n  {status}" in helptext
+
+
+DEEP_TOML = "a = " + "[" * 50000 + "]" * 50000 + "\n"
+DEEP_JSON = "[" * 50000 + "]" * 50000
+
+
+def test_runaway_nesting_is_one_line_in_every_reader(finished, tmp_path, capsys):
+    """TOML and JSON nested past Python's recursion limit, given to each reader of user files
+    (a sweep config, a planner config, a scenario, plan-bench's queries, a tuned config, a
+    sweep folder's manifest for report and tune, a served plan's request): each says so in one
+    line, exit 2, or (the server) a ValueError it answers, and writes nothing."""
+    from stepzoo.search.plan_request import Messages
+    config, sweep, _ = finished
+    deep_toml, deep_json = tmp_path / "deep.toml", tmp_path / "deep.json"
+    deep_toml.write_text(DEEP_TOML)
+    deep_json.write_text(DEEP_JSON)
+    folder = tmp_path / "sweep"
+    shutil.copytree(sweep, folder)
+    (folder / "manifest.json").write_text(DEEP_JSON)
+    out = tmp_path / "out"
+    for argv in (["sweep", deep_toml, "--out", out], ["verdict", deep_toml, "--method", "rk4",
+                                                       "--h", "0.01"],
+                 ["plan", "street", "--config", deep_toml, "--out", out],
+                 ["plan", deep_toml, "--out", out], ["plan-bench", deep_json, "--out", out],
+                 ["report", sweep, "--tuned", deep_toml, "--out", out, "-q"],
+                 ["report", folder, "--out", out, "-q"],
+                 ["tune", folder, "--pos-tol", "10", "--out", tmp_path / "tuned.toml"]):
+        line = refused(capsys, *argv)
+        assert "nested deeper" in line or "damaged" in line, (argv, line)
+        assert not out.exists() and not (tmp_path / "tuned.toml").exists()
+    left, right = socket.socketpair()
+    with left, right:
+        left.sendall(DEEP_JSON.encode() + b"\n")
+        with pytest.raises(ValueError, match="nested deeper"):
+            Messages(right).next()

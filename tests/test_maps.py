@@ -1,12 +1,18 @@
 """Occupancy maps: clearance bounds the true distance, each format lands the right way up."""
 
+import struct
+import tracemalloc
+import zlib
 from pathlib import Path
 
 import numpy as np
 import pytest
 from PIL import Image
 
-from stepzoo.search.maps import MAP_DIR, OccupancyMap, from_array, load_map
+from stepzoo import validate
+from stepzoo.bench.cli import main as stepzoo
+from stepzoo.errors import UsageError
+from stepzoo.search.maps import MAP_BYTES_PER_CELL, MAP_DIR, OccupancyMap, from_array, load_map
 
 
 
@@ -299,3 +305,113 @@ def test_a_grid_seen_before_reuses_its_distance_field_and_a_changed_one_gets_its
     assert changed.distance[1, 1] == 0 and first.distance[1, 1] > 0      # cell (0, 0)
     xy = np.array([[0.3, 0.3], [1.0, 0.8], [12.0, 4.0]])
     assert np.all(changed.clearance(xy) <= true_clearance(grid, 0.5, (0.0, 0.0), xy) + 1e-12)
+
+
+def png_header(rows: int, cols: int) -> bytes:
+    """A PNG that is its signature and IHDR chunk alone: the size, no pixels."""
+    data = struct.pack(">IIBBBBB", cols, rows, 8, 0, 0, 0, 0)
+    return (b"\x89PNG\r\n\x1a\n" + struct.pack(">I", len(data)) + b"IHDR" + data
+            + struct.pack(">I", zlib.crc32(b"IHDR" + data)))
+
+
+def huge_maps(folder: Path) -> dict:
+    """20000 x 20000 cells in each format, none of them taking its size on disk: a sparse
+    .npy (its data a hole), headers without pixels, a MovingAI header without its grid."""
+    with open(folder / "big.npy", "wb") as fh:
+        np.lib.format.write_array_header_1_0(fh, {"descr": "|b1", "fortran_order": False,
+                                                  "shape": (20000, 20000)})
+        fh.truncate(fh.tell() + 20000 * 20000)
+    (folder / "big.png").write_bytes(png_header(20000, 20000))
+    (folder / "big.pgm").write_bytes(b"P5\n# a comment\n20000 20000\n255\n")
+    (folder / "big.map").write_text("type octile\nheight 20000\nwidth 20000\nmap\n")
+    ros = folder / "big.yaml"
+    ros.write_text("image: big.png\nresolution: 0.05\norigin: [0.0, 0.0, 0.0]\n"
+                   "occupied_thresh: 0.65\nfree_thresh: 0.196\n")
+    return {p.suffix: p for p in folder.iterdir()}
+
+
+@pytest.mark.parametrize("suffix", [".npy", ".png", ".pgm", ".map", ".yaml"])
+def test_a_map_past_the_memory_limit_is_refused_from_its_header_alone(tmp_path, monkeypatch,
+                                                                      suffix):
+    """20000 x 20000 cells need tens of GiB to build: refused with the size and the flag
+    that raises the limit, having allocated next to nothing (tracemalloc sees NumPy's)."""
+    monkeypatch.setattr(validate, "BUDGET", validate.Budget(memory=4 * validate.GIB))
+    path = huge_maps(tmp_path)[suffix]
+    tracemalloc.start()
+    try:
+        with pytest.raises(UsageError) as error:
+            load_map(path, cell_size=None if suffix == ".yaml" else 0.1)
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    message = str(error.value)
+    assert "20000 x 20000 cells" in message and "--max-memory" in message
+    assert "past the limit of 4 GiB" in message and "\n" not in message
+    assert peak < 1e6, peak
+
+
+def test_the_memory_limit_counts_cells_times_bytes_per_cell(tmp_path, monkeypatch):
+    """A map just under the limit loads; the same map just over it is refused."""
+    np.save(tmp_path / "m.npy", np.zeros((40, 50), np.uint8))
+    need = 40 * 50 * (MAP_BYTES_PER_CELL + 1)
+    monkeypatch.setattr(validate, "BUDGET", validate.Budget(memory=need))
+    assert load_map(tmp_path / "m.npy", cell_size=1.0).occupied.shape == (40, 50)
+    monkeypatch.setattr(validate, "BUDGET", validate.Budget(memory=need - 1))
+    with pytest.raises(UsageError, match="40 x 50 cells"):
+        load_map(tmp_path / "m.npy", cell_size=1.0)
+
+
+def test_a_huge_map_on_the_command_line_is_one_line_and_exit_2(tmp_path, capsys):
+    path = huge_maps(tmp_path)[".npy"]
+    assert stepzoo(["plan", "--map", str(path), "--cell-size", "0.1", "--start", "1,1,0",
+                    "--goal", "5,5,0", "--out", str(tmp_path / "out"), "--max-memory", "2"]) == 2
+    captured = capsys.readouterr()
+    assert captured.out == "" and captured.err.count("\n") == 1, captured.err
+    assert "20000 x 20000 cells" in captured.err and "--max-memory" in captured.err
+    assert not (tmp_path / "out").exists()
+
+
+BOMB = "".join(f"{b}: &{b} [{', '.join([f'*{a}'] * 9)}]\n"
+               for a, b in zip("abcdefgh", "bcdefghi"))
+
+
+ROS_KEYS = "image: m.pgm\nresolution: 0.1\noccupied_thresh: 0.65\nfree_thresh: 0.2\n"
+
+
+def test_a_yaml_alias_bomb_is_refused_before_it_expands(tmp_path):
+    """Nine levels of nine aliases: 387 million strings once expanded (the origin's repr
+    in an error message did expand them, into a MemoryError)."""
+    path = tmp_path / "bomb.yaml"
+    path.write_text('a: &a ["x", "x", "x", "x", "x", "x", "x", "x", "x"]\n' + BOMB
+                    + "origin: *i\n" + ROS_KEYS)
+    tracemalloc.start()
+    try:
+        with pytest.raises(ValueError, match=r"not valid YAML \(an alias \(\*a\) at line 2") \
+                as error:
+            load_map(path)
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert "\n" not in str(error.value) and peak < 1e6, peak
+
+
+def test_yaml_nested_past_the_recursion_limit_is_one_line(tmp_path):
+    path = tmp_path / "deep.yaml"
+    path.write_text("origin: " + "[" * 5000 + "]" * 5000 + "\n" + ROS_KEYS)
+    with pytest.raises(ValueError, match=r"not valid YAML \(nested too deeply\)") as error:
+        load_map(path)
+    assert "\n" not in str(error.value)
+
+
+def test_a_yaml_file_far_larger_than_a_map_yaml_is_refused_unparsed(tmp_path):
+    path = tmp_path / "big.yaml"
+    path.write_text("# padding\n" * 10000)
+    with pytest.raises(ValueError, match="a ROS map yaml is a few lines"):
+        load_map(path)
+
+
+def test_a_movingai_grid_longer_than_its_header_says_is_refused(tmp_path):
+    path = tmp_path / "long.map"
+    path.write_text("type octile\nheight 2\nwidth 2\nmap\n..\n..\n" + "..\n" * 5000)
+    with pytest.raises(ValueError, match="longer than the 2 rows"):
+        load_map(path, cell_size=1.0)
