@@ -86,7 +86,7 @@ def test_verdict_names_the_points_where_the_model_returned_nan(nan_sweep, capsys
                     "--format", "json"]) == 0
     v = json.loads(capsys.readouterr().out)["verdicts"][0]
     assert v["model_nan_where"] == "k = 400" and v["unstable_where"] == "nowhere"
-    assert v["points"] == 2 and v["stable"] == 1
+    assert v["n_points"] == 2 and v["stable"] == 1
     assert v["h_pred_min"] == pytest.approx(rk4_limit_at(600.0), rel=1e-9)
 
 
