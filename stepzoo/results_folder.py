@@ -14,7 +14,9 @@ from stepzoo.errors import UsageError
 
 LOCK = ".stepzoo.lock"
 # What each command leaves in its folder; any one of them marks the folder as that kind's.
+# plan-bench first: its folder holds a runs.parquet too.
 MARKS = {
+    "plan-bench": ("parts",),
     "sweep": ("chunks", "runs.parquet"),
     "plan": ("plan.json", "summary.json"),
     "report": ("index.html",),
