@@ -11,6 +11,7 @@ import json
 import platform
 import socket
 import sys
+import threading
 from dataclasses import dataclass
 from datetime import datetime, timezone
 from importlib.metadata import version
@@ -27,7 +28,9 @@ INTEGRATOR_COLUMNS = ["integrator", "method", "h", "role", *SUMMARY_COLUMNS,
                       "median_replay_deviation_m", "max_replay_deviation_m",
                       "replay_collisions"]
 DEFAULT_MAX_HOURS = 24.0
-_worker_finders: dict = {}     # on a Dask worker: the warmed-up planners, by finder_key
+# On a Dask worker: each thread's warmed-up planners, by finder_key (a planner is not safe to
+# share between threads, and a worker may run several).
+_worker = threading.local()
 
 
 def add_arguments(p):
@@ -132,7 +135,9 @@ def _plan_on_worker(task: Task) -> tuple[str, dict]:
     for the bench's later tasks."""
     import jax
     jax.config.update("jax_enable_x64", True)
-    return task.name, _jsonable(plan_run(task, _worker_finders))
+    if not hasattr(_worker, "finders"):
+        _worker.finders = {}
+    return task.name, _jsonable(plan_run(task, _worker.finders))
 
 
 def _jsonable(row: dict) -> dict:
