@@ -227,10 +227,13 @@ def show(records: list[dict], out, batch: bool, fmt: str = "text") -> None:
             sys.stdout.write(json.dumps(_summary_row(records[0])) + "\n")
         else:
             r = records[0]
+            deviation = r["replay"]["max_deviation_m"]
+            replayed = "" if deviation is None else f", replay deviation {deviation:.3g} m"
             sys.stdout.write(f"{r['scenario']}: {r['status']} ({r['reason']}); "
                              f"{r['stats']['expansions']} expansions, search "
                              f"{r['stats']['search_s']:.3f} s, connection "
-                             f"{r['stats']['connect_s']:.3f} s -> {out / 'plan.json'}\n")
+                             f"{r['stats']['connect_s']:.3f} s{replayed} -> "
+                             f"{out / 'plan.json'}\n")
         return
     rows = [_summary_row(r) for r in records]
     if fmt == "json":

@@ -45,12 +45,15 @@ class PlanResult:
     """What a plan found. `path_edges` are the tree shootings from the start to the node the
     path ends at (each (n_steps+1, 5) [X, Y, psi, vy, r] at steps of h), `path_steers` their
     constant steers [rad], `path_tight` whether each is a tight move (kinematic bicycle),
-    `connection` the OCP segment to the goal (exact plans only)."""
+    `path_directions` the way each was driven (+1 forwards, -1 backwards: reverse gear, on the
+    kinematic bicycle), `connection` the OCP segment to the goal (exact plans only); with
+    `vx` they are the controls that produce the path (search/replay.py)."""
     status: str                   # exact | approximate | no_path
     reason: str
     start: np.ndarray             # [X, Y, psi]
     goal: np.ndarray              # [X, Y, psi]
     h: float                      # [s] step of the tree shootings
+    vx: float = 0.0               # [m/s] the tree's constant speed
     path_edges: list = field(default_factory=list)
     path_steers: list = field(default_factory=list)
     connection: Connection | None = None
@@ -75,6 +78,7 @@ class PlanResult:
     # kinematic bicycle at parking speed, full lock included), and which path edges are.
     widened: bool = False
     path_tight: list = field(default_factory=list)
+    path_directions: list = field(default_factory=list)
 
     def path_length(self) -> float:
         """[m] along the tree edges and the connection."""
@@ -132,7 +136,7 @@ class PathFinder:
         """Plan from `start` [X, Y, psi] to `goal` [X, Y, psi] ([m, m, rad]); goal_speed [m/s]
         or None (free) is the speed the connection must end at. Deterministic for a seed."""
         start, goal = np.asarray(start, float)[:3], np.asarray(goal, float)[:3]
-        result = PlanResult(NO_PATH, "", start, goal, self.config.h)
+        result = PlanResult(NO_PATH, "", start, goal, self.config.h, self.vx)
         result.cause, result.reason = self._check_endpoints(start, goal)
         if result.cause:
             return result
@@ -668,11 +672,13 @@ class _Search:
         return improved
 
     def _set_path(self, node):
-        edges, steers, tight = [], [], []
+        edges, steers, tight, directions = [], [], [], []
         while self.parent[node] >= 0:
             edges.append(self.edges[node])
             steers.append(self.steers[node])
             tight.append(self.tight[node])
+            directions.append(self.direction[node])
             node = self.parent[node]
         res = self.result
         res.path_edges, res.path_steers, res.path_tight = edges[::-1], steers[::-1], tight[::-1]
+        res.path_directions = directions[::-1]

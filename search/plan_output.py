@@ -1,5 +1,6 @@
-"""A plan as files: plan.json (status, path, tree, stats, params), plan.png in the paper's
-colours (black obstacles, blue tree, red path) and map.npy, each written atomically."""
+"""A plan as files: plan.json (status, path, the controls that produce it and their replay,
+tree, stats, params), plan.png in the paper's colours (black obstacles, blue tree, red path)
+and map.npy, each written atomically."""
 from __future__ import annotations
 
 import io
@@ -11,6 +12,7 @@ import numpy as np
 from stepzoo.output import atomic_write
 from stepzoo.search.path_metrics import cusps
 from stepzoo.search.pathfinder import PlanResult
+from stepzoo.search.replay import controls, replay, vehicle_params
 from stepzoo.search.scenarios import Scenario
 
 MAX_GAP_M = 0.1       # no two consecutive path rows farther apart [m] (the report's contract)
@@ -54,10 +56,10 @@ def tree_polylines(result: PlanResult) -> list:
 
 def plan_record(result: PlanResult, scenario: Scenario, config, vehicle: dict, seed: int,
                 warmup_s: float) -> dict:
-    """The plan.json content."""
+    """The plan.json content, its `replay` block measured on the scenario's map."""
     rows = path_rows(result)
     conn = result.connection
-    return {
+    record = {
         "scenario": scenario.name,
         "description": scenario.description,
         "status": result.status,
@@ -70,7 +72,10 @@ def plan_record(result: PlanResult, scenario: Scenario, config, vehicle: dict, s
         # Micrometres and microradians: far below any map cell, and a third of the file size.
         "path": np.round(rows, 6).tolist(),
         "vehicle": {"name": vehicle["name"], "length": vehicle["length"],
-                    "width": vehicle["width"], "wheelbase": vehicle["Lf"] + vehicle["Lr"]},
+                    "width": vehicle["width"], "wheelbase": vehicle["Lf"] + vehicle["Lr"],
+                    **vehicle_params(vehicle)},
+        # The inputs, segment by segment, that drive the car along the path (search/replay.py).
+        "controls": controls(result, config.method),
         "stats": {
             "expansions": result.expansions,
             "nodes": result.nodes,
@@ -105,6 +110,9 @@ def plan_record(result: PlanResult, scenario: Scenario, config, vehicle: dict, s
         "map": {"file": "map.npy", "resolution": scenario.omap.resolution,
                 "origin": list(scenario.omap.origin), "source": scenario.map_source},
     }
+    # Those controls driven through the true models: how far the car strays from the path.
+    record["replay"] = replay(record, scenario.omap)
+    return record
 
 
 def render_png(record: dict, scenario: Scenario) -> bytes:

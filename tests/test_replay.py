@@ -1,0 +1,211 @@
+"""Plan fidelity: a plan's controls, replayed by SciPy's solve_ivp on right-hand sides written
+here from the paper's equations, give the replay block's deviation; a coarse step strays
+farther than the tuned one on the same query; `collides` checks the replayed path densely."""
+import json
+
+import numpy as np
+import pytest
+from scipy.integrate import solve_ivp
+
+from stepzoo import dynamics
+from stepzoo.bench.cli import main
+from stepzoo.search.footprint import poses_collide
+from stepzoo.search.maps import from_array
+from stepzoo.search.pathfinder import PathFinder
+from stepzoo.search.plan_output import plan_record
+from stepzoo.search.planner_config import load_config, make_config, with_params
+from stepzoo.search.replay import car_footprint, replay
+from stepzoo.search.scenarios import Scenario, load_scenario
+
+SCENARIO = "wall_between"  # 5 m/s, where rk4 at 0.05 s is stable (h lambda = -2.2 > -2.79)
+
+
+def plan(config):
+    """(record, result, finder) of SCENARIO with `config`, stopping at the first exact path."""
+    scenario = load_scenario(SCENARIO)
+    config = with_params(config, improve_expansions=0, max_seconds=3600.0)
+    finder = PathFinder(scenario.omap, config, scenario.vehicle, scenario.speed)
+    result = finder.plan(scenario.start, scenario.goal, scenario.goal_speed, seed=0)
+    # Through JSON, as a user reads plan.json.
+    record = json.loads(json.dumps(plan_record(result, scenario, config, finder.vehicle, 0, 0.0)))
+    return record, result, finder
+
+
+@pytest.fixture(scope="module")
+def tuned():
+    return plan(load_config())
+
+
+@pytest.fixture(scope="module")
+def coarse():
+    return plan(make_config("rk4", 0.05))
+
+
+# --- the independent replay: the paper's equations (NOTES.md), SciPy's solver ----------------
+
+def dynamic_bicycle(vx, delta, v):
+    """Paper eq. 4, linear tyres, Fxf = 0: x = [X, Y, psi, vy, r]."""
+    def f(t, x):
+        _, _, psi, vy, r = x
+        fyf = -v["Caf"] * ((vy + v["Lf"] * r) / vx - delta)
+        fyr = -v["Car"] * (vy - v["Lr"] * r) / vx
+        return [vx * np.cos(psi) - vy * np.sin(psi), vx * np.sin(psi) + vy * np.cos(psi), r,
+                (fyf * np.cos(delta) + fyr) / v["m"] - vx * r,
+                (v["Lf"] * fyf * np.cos(delta) - v["Lr"] * fyr) / v["Iz"]]
+    return f
+
+
+def kinematic_bicycle(delta, force, v):
+    """Paper eq. "pm": x = [X, Y, theta, v]."""
+    def f(t, x):
+        return [x[3] * np.cos(x[2]), x[3] * np.sin(x[2]), x[3] * np.tan(delta) / v["wheelbase"],
+                force / v["m"]]
+    return f
+
+
+def independent_deviation(record):
+    """Max distance [m] between the plan's path and its controls driven from the start, at
+    the path's rows that fall on the controls' steps."""
+    v = record["vehicle"]
+    x = np.r_[record["start"], 0.0, 0.0]
+    times, poses = [0.0], [x[:3]]
+    for seg in record["controls"]:
+        if seg["model"] == "dynamic5":
+            n = seg["steps"]
+            ts = seg["duration"] * np.arange(1, n + 1) / n
+            sol = solve_ivp(dynamic_bicycle(seg["vx"], seg["inputs"]["delta"], v),
+                            (0, seg["duration"]), x, t_eval=ts, rtol=1e-11, atol=1e-12)
+            x = sol.y[:, -1]
+            times += list(seg["t0"] + ts)
+            poses += list(sol.y[:3].T)
+        else:
+            k = np.r_[x[:3], seg["v0"]]
+            for i, (delta, force) in enumerate(zip(seg["inputs"]["delta"], seg["inputs"]["F"])):
+                sol = solve_ivp(kinematic_bicycle(delta, force, v), (0, seg["dt"]), k,
+                                rtol=1e-11, atol=1e-12)
+                k = sol.y[:, -1]
+                times.append(seg["t0"] + (i + 1) * seg["dt"])
+                poses.append(k[:3])
+            x = np.r_[k[:3], 0.0, 0.0]
+    path = np.asarray(record["path"])
+    rows = [int(np.argmin(np.abs(path[:, 0] - t))) for t in times]
+    assert np.abs(path[rows, 0] - times).max() < 1e-5
+    return float(np.hypot(*(path[rows, 1:3] - np.asarray(poses)[:, :2]).T).max())
+
+
+def test_the_controls_replayed_independently_give_the_replay_blocks_deviation(tuned, coarse):
+    for record, result, finder in (tuned, coarse):
+        assert record["status"] == "exact"
+        assert record["replay"]["max_deviation_m"] == pytest.approx(
+            independent_deviation(record), abs=1e-3)
+        # The planner's result object replays to the same block as its plan.json.
+        direct = replay(result, finder.omap, finder.vehicle_footprint, vehicle=finder.vehicle)
+        for key in ("max_deviation_m", "final_deviation_m", "goal_distance_m"):
+            assert direct[key] == pytest.approx(record["replay"][key], abs=1e-5)
+        assert direct["collides"] is record["replay"]["collides"] is False
+
+
+def kinematic_moves():
+    """Plans whose tree drives kinematic moves: a tight turn out of a yard's corner (as
+    test_planner's yard) and reverse gear away from a wall the start faces."""
+    yard = np.ones((64, 64), bool)
+    yard[2:62, 2:62] = False
+    facing = np.zeros((40, 60), bool)
+    facing[:, -2:] = facing[:, :2] = facing[:2] = facing[-2:] = True
+    for occupied, start, goal, vx, reverse in (
+            (yard, (27.5, 16.0, 0.3), (8.0, 16.0, np.pi), 5.0, 0),
+            (facing, (26.0, 10.0, 0.0), (8.0, 10.0, np.pi), 2.0, 1)):
+        omap = from_array(occupied, 0.5)
+        config = make_config(reverse=reverse, improve_expansions=0, max_seconds=3600.0)
+        finder = PathFinder(omap, config, None, vx)
+        result = finder.plan(start, goal)
+        scenario = Scenario("moves", "", omap, "generated", start, goal, None, None, vx)
+        yield json.loads(json.dumps(plan_record(result, scenario, config, finder.vehicle, 0,
+                                                0.0)))
+
+
+def test_tight_moves_and_reverse_gear_replay_on_the_kinematic_bicycle():
+    tight, reverse = kinematic_moves()
+    assert [s["move"] for s in tight["controls"]][:2] == ["tight", "tree"]
+    assert {s["move"] for s in reverse["controls"][:-1]} == {"reverse"}
+    assert reverse["controls"][0]["v0"] == -2.0
+    for record in (tight, reverse):
+        assert record["status"] == "exact"
+        # The kinematic steps are rk4 at 0.02 s: a wrong speed sign or state hand-over
+        # would put the replay metres off the path, not a fraction of a millimetre.
+        assert record["replay"]["max_deviation_m"] < 1e-3
+        assert record["replay"]["max_deviation_m"] == pytest.approx(
+            independent_deviation(record), abs=1e-6)
+
+
+def test_controls_and_vehicle_hold_what_a_user_needs_to_drive_them(tuned):
+    record = tuned[0]
+    assert {"m", "Iz", "Lf", "Lr", "Caf", "Car", "wheelbase"} <= set(record["vehicle"])
+    *edges, conn = record["controls"]
+    assert {seg["model"] for seg in edges} == {"dynamic5"}
+    assert edges[0]["t0"] == 0.0 and {"duration", "vx", "inputs"} <= set(edges[0])
+    assert conn["model"] == "kinematic" and conn["v0"] == record["speed"]
+    assert len(conn["inputs"]["delta"]) == len(conn["inputs"]["F"]) == conn["steps"]
+    # The segments follow each other in time and end when the path does.
+    ends = [s["t0"] + (s["duration"] if s["model"] == "dynamic5" else s["dt"] * s["steps"])
+            for s in record["controls"]]
+    assert [s["t0"] for s in record["controls"][1:]] == pytest.approx(ends[:-1], abs=1e-12)
+    assert ends[-1] == pytest.approx(record["path"][-1][0], abs=1e-5)
+
+
+def test_a_coarse_step_strays_farther_from_its_plan_than_the_tuned_one(tuned, coarse):
+    fine, rough = tuned[0]["replay"], coarse[0]["replay"]
+    assert (coarse[0]["stats"]["method"], coarse[0]["stats"]["h"]) == ("rk4", 0.05)
+    assert tuned[0]["stats"]["h"] < 0.05
+    assert rough["max_deviation_m"] > 3 * fine["max_deviation_m"]
+    assert rough["max_heading_deviation_rad"] > fine["max_heading_deviation_rad"]
+
+
+# --- the dense collision check ------------------------------------------------------------
+
+def wall_map():
+    """40 x 20 m at 0.5 m/cell, a wall one cell thick at x = 20..20.5 m with a 4 m door at
+    y = 14..18 m."""
+    occupied = np.zeros((40, 80), bool)
+    occupied[:28, 40] = True
+    occupied[36:, 40] = True
+    return from_array(occupied, 0.5)
+
+
+def straight(y, delta=0.0):
+    """A plan driving straight along y [m] from x = 5 to 35 m at 5 m/s, on nodes 10 m apart,
+    under controls that steer `delta` [rad] (0: the path they drive)."""
+    vehicle = dynamics.vehicle(None)
+    return {"start": [5.0, y, 0.0], "goal": [35.0, y, 0.0], "params": {"margin": 0.1},
+            "vehicle": {k: vehicle[k] for k in ("name", "length", "width", "m", "Iz", "Lf",
+                                                 "Lr", "Caf", "Car")}
+            | {"wheelbase": vehicle["Lf"] + vehicle["Lr"]},
+            "controls": [{"model": "kinematic", "t0": 0.0, "dt": 2.0, "v0": 5.0, "steps": 3,
+                          "inputs": {"delta": [delta] * 3, "F": [0.0] * 3}}],
+            "path": [[2.0 * k, 5.0 + 10.0 * k, y, 0.0] for k in range(4)]}
+
+
+def test_collides_is_a_dense_check_of_the_replayed_path():
+    omap = wall_map()
+    through_wall, through_door = straight(5.0), straight(16.0)
+    nodes = np.array(through_wall["path"])[:, 1:]
+    footprint = car_footprint(through_wall["vehicle"], 0.1)
+    assert not poses_collide(omap, footprint, nodes).any()  # the nodes alone see no wall
+    hit, miss = replay(through_wall, omap), replay(through_door, omap)
+    assert hit["collides"] is True and miss["collides"] is False
+    for block in (hit, miss):
+        assert block["max_deviation_m"] < 1e-9 and block["goal_distance_m"] < 1e-9
+    # Through the door the car's discs pass its posts at 2 m from the axis, less their radius.
+    assert miss["clearance_min_m"] == pytest.approx(2.0 - footprint.radius, abs=1e-6)
+    assert hit["clearance_min_m"] <= 0
+    # Steering a little, the car drifts 1.3 m aside by the door and meets its post, where the
+    # planned path through the door's middle is clear: the replayed path is the one checked.
+    drift = replay(straight(16.0, 0.03), omap)
+    assert drift["collides"] is True and drift["max_deviation_m"] > 1.0
+
+
+def test_plan_prints_the_replay_deviation_on_its_line(tmp_path, capsys):
+    assert main(["plan", SCENARIO, "--out", str(tmp_path)]) == 0
+    record = json.loads((tmp_path / "plan.json").read_text())
+    line = capsys.readouterr().out
+    assert f"replay deviation {record['replay']['max_deviation_m']:.3g} m" in line
