@@ -27,6 +27,10 @@ SUMMARY_COLUMNS = ["runs", "exact", "exact_rate", "median_time_s", "median_first
 INTEGRATOR_COLUMNS = ["integrator", "method", "h", "role", *SUMMARY_COLUMNS,
                       "median_replay_deviation_m", "max_replay_deviation_m",
                       "replay_collisions"]
+# plan.json's replay block (stepzoo.search.replay) as columns, spelled as there; its
+# clearance_min_m is replay_clearance_min_m beside the planned path's own.
+REPLAY_COLUMNS = ("max_deviation_m", "final_deviation_m", "max_heading_deviation_rad",
+                  "collides", "goal_distance_m")
 DEFAULT_MAX_HOURS = 24.0
 # On a Dask worker: each thread's warmed-up planners, by finder_key (a planner is not safe to
 # share between threads, and a worker may run several).
@@ -95,12 +99,14 @@ def finder_key(task: Task) -> tuple:
 
 def plan_run(task: Task, finders: dict) -> dict:
     """The table's row of one run, planned with the warmed-up planner of its (map,
-    integrator) from `finders` (made there if missing); its `progress` a JSON list of the
-    (time [s], length [m]) of each shorter path."""
+    integrator) from `finders` (made there if missing) and replayed through the true models
+    (REPLAY_COLUMNS, None without a path; replay_s [s], its time, is not in time_s); its
+    `progress` a JSON list of the (time [s], length [m]) of each shorter path."""
     from stepzoo.search.ompl_log import STATUS_OF_CAUSE
     from stepzoo.search.path_metrics import path_metrics
     from stepzoo.search.pathfinder import PathFinder
     from stepzoo.search.plan_output import path_rows
+    from stepzoo.search.replay import replay
     from stepzoo.search.scenarios import open_map
     q, config = task.q, task.config
     key = finder_key(task)
@@ -109,6 +115,9 @@ def plan_run(task: Task, finders: dict) -> dict:
         finders[key].warm_up()
     finder = finders[key]
     result = finder.plan(q.start, q.goal, None, task.seed)
+    # A plan without a path has nothing to replay.
+    fidelity = replay(result, finder.omap, vehicle=finder.vehicle) if result.path_edges \
+        else dict.fromkeys((*REPLAY_COLUMNS, "clearance_min_m", "replay_s"))
     exact = result.status == "exact"
     metrics = path_metrics(path_rows(result), finder.omap, finder.vehicle_footprint) \
         if exact else path_metrics([], None, None)
@@ -126,6 +135,9 @@ def plan_run(task: Task, finders: dict) -> dict:
         "connect_attempts": result.connect_attempts,
         "method": config.method, "h": config.h,
         "integrator": f"{config.method}:{config.h:.6g}", "role": task.role,
+        **{k: fidelity[k] for k in REPLAY_COLUMNS},
+        "replay_clearance_min_m": fidelity["clearance_min_m"],
+        "replay_s": fidelity["replay_s"],
         "progress": json.dumps(result.progress)}
 
 

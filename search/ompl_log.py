@@ -31,6 +31,9 @@ RUN_PROPERTIES = (
     ("nodes", "graph states", "INTEGER"),
     ("connect_attempts", "connection attempts", "INTEGER"),
     ("seed", "seed", "INTEGER"),
+    ("max_deviation_m", "replay max deviation", "REAL"),
+    ("final_deviation_m", "replay final deviation", "REAL"),
+    ("collides", "replay collides", "BOOLEAN"),
 )
 
 

@@ -27,7 +27,7 @@ COLUMNS = {"query", "run", "seed", "status", "time_s", "first_solution_s", "solu
            "length_m", "cusps", "clearance_min_m", "clearance_mean_m", "curvature_max",
            "curvature_mean", "smoothness", "expansions", "method", "h", "integrator", "role"}
 # Wall-clock measurements: they differ between any two runs of the same plan.
-TIMED = ["time_s", "first_solution_s", "solution_s", "progress"]
+TIMED = ["time_s", "first_solution_s", "solution_s", "replay_s", "progress"]
 TUNED = """method = "rk4"
 h = 0.05
 [[runners_up]]
@@ -89,9 +89,14 @@ def test_the_table_has_a_row_per_integrator_query_and_run_with_every_measure(ben
     assert (around["clearance_min_m"] > 0).all()
     assert (around["first_solution_s"] <= around["solution_s"]).all()
     assert (around["solution_s"] <= around["time_s"] + 1e-9).all()
+    # Each exact plan replayed through the true models: close to its plan, not colliding.
+    assert ((around["max_deviation_m"] > 0) & (around["max_deviation_m"] < 0.1)).all()
+    assert (around["final_deviation_m"] <= around["max_deviation_m"]).all()
+    assert (around["max_heading_deviation_rad"] > 0).all() and not around["collides"].any()
+    assert (around["goal_distance_m"] < 0.1).all() and (around["replay_s"] > 0).all()
     walled = table[table["query"] == "walled"]
     assert (walled["status"] == "no_path").all() and (walled["cause"] == "walled_off").all()
-    assert walled["length_m"].isna().all()
+    assert walled["length_m"].isna().all() and walled["max_deviation_m"].isna().all()
     assert sorted(p.name for p in (benched / "parts").iterdir()) == sorted(
         f"{i:03d}-{q:05d}-{r:04d}.json" for i in range(2) for q in range(2) for r in range(2))
 
@@ -105,6 +110,10 @@ def test_the_summary_has_a_row_per_integrator_from_its_runs(benched):
         own = table[table["integrator"] == row.integrator]
         assert row.median_time_s == np.median(own["time_s"])
         assert row.median_length_m == np.median(own["length_m"].dropna())
+        exact = own[own["solved"]]
+        assert row.median_replay_deviation_m == np.median(exact["max_deviation_m"])
+        assert row.max_replay_deviation_m == exact["max_deviation_m"].max()
+        assert row.replay_collisions == exact["collides"].sum() == 0
     assert pd.read_csv(benched / "summary.csv")["integrator"].tolist() == \
         summary["integrator"].tolist()
     manifest = json.loads((benched / "manifest.json").read_text())
