@@ -325,3 +325,28 @@ def test_a_bench_on_a_dask_cluster_gives_the_in_process_table(folder, benched, t
     pd.testing.assert_frame_equal(untimed(tmp_path / "o"), untimed(benched))
     # Every run was a task on the worker's thread, none planned here.
     assert len(_THREADS) == 8 and threading.current_thread().name not in _THREADS
+
+
+def test_the_pareto_front_holds_the_points_no_other_beats_in_both():
+    from stepzoo.reports.tradeoff import pareto
+    x = [1.0, 2.0, 3.0, 5.0, np.nan, 2.0]
+    y = [5.0, 2.0, 3.0, 1.0, 0.5, 2.0]
+    # (3, 3) is beaten by (2, 2); a tie is on the front twice; NaN never is.
+    assert pareto(x, y).tolist() == [True, True, False, True, False, True]
+
+
+def test_the_report_draws_the_tradeoff_of_a_plan_bench_folder(tiny_sweep, benched, tmp_path):
+    from stepzoo.reports.tradeoff import load_bench_summary, tradeoff_points
+    points = tradeoff_points(load_bench_summary(benched))
+    assert points["integrator"].tolist() == ["rk4:0.05", "heun:0.025"]
+    assert points["tuned"].tolist() == [True, False] and points["paper"].tolist() == [True, False]
+    faster = points["median_time_s"].idxmin()
+    closer = points["median_replay_deviation_m"].idxmin()
+    assert points["pareto"][faster] and points["pareto"][closer]
+    out = tmp_path / "report"
+    assert main(["report", str(tiny_sweep[1]), "--plan-bench", str(benched), "--out", str(out),
+                 "--no-progress"]) == 0
+    assert (out / "fig8_plan_tradeoff.png").stat().st_size > 0
+    assert "fig8_plan_tradeoff.png" in (out / "index.html").read_text()
+    manifest = json.loads((out / "manifest.json").read_text())
+    assert manifest["plan_bench"] and "fig8_plan_tradeoff.png" in manifest["files"]
