@@ -1,8 +1,8 @@
 """A plan-bench's results folder: what plan-bench writes there (OWN), whether it may start,
 continue (`--resume`) or start again (`--overwrite`) in it, and the finished runs it holds.
-A folder with anything else in it (a sweep, a user's files) is refused, never written into;
-each finished (integrator, query, run) is a file of its own, written atomically, so a killed
-plan-bench loses no finished run."""
+Which folders it may write into at all, and its lock, are stepzoo.results_folder's (one rule
+for every command); each finished (integrator, query, run) is a file of its own, written
+atomically, so a killed plan-bench loses no finished run."""
 from __future__ import annotations
 
 import json
@@ -11,60 +11,41 @@ from pathlib import Path
 
 from stepzoo.errors import UsageError
 from stepzoo.output import atomic_write, to_json
-from stepzoo.results_folder import LOCK
+from stepzoo.results_folder import MANIFEST, check_kind
 
 PARTS = "parts"                       # one JSON row per finished (integrator, query, run)
-OWN = ("manifest.json", "runs.parquet", "runs.csv", "summary.parquet", "summary.csv", "ompl",
-       PARTS, LOCK)
+OWN = (MANIFEST, "runs.parquet", "runs.csv", "summary.parquet", "summary.csv", "ompl", PARTS)
 
 
-def check_out(out) -> Path:
-    """`out` as a folder plan-bench may write into: new, empty, or holding only what
-    plan-bench writes; else UsageError naming what is there."""
-    if str(out) == "":
-        raise UsageError("--out is empty; give a folder (use . for this one)")
-    out = Path(out)
-    if out.exists() and not out.is_dir():
-        raise UsageError(f"--out {out} exists and is not a folder; give a folder")
-    manifest = _manifest(out)
-    ours = manifest is not None and manifest.get("written_by") == "plan-bench"
-    if not ours and manifest is not None and manifest.get("written_by"):
-        raise UsageError(f"--out {out} holds the results of `stepzoo "
-                         f"{manifest['written_by']}` (manifest.json); give a new or empty "
-                         "folder")
-    # Without plan-bench's manifest, even a file of one of its names is someone else's.
-    foreign = [n for n in _entries(out) if not ours or n not in OWN]
-    if foreign:
-        more = f" and {len(foreign) - 3} more" if len(foreign) > 3 else ""
-        raise UsageError(f"--out {out} holds files plan-bench did not write "
-                         f"({', '.join(foreign[:3])}{more}); give a new or empty folder")
-    return out
+def check_out(out, overwrite: bool):
+    """UsageError unless plan-bench may write into `out` (results_folder's rule: new,
+    empty, or plan-bench's; anything else only with --overwrite, and kept)."""
+    check_kind(out, "plan-bench", overwrite=overwrite)
 
 
 def start(out: Path, settings: dict, resume: bool, overwrite: bool) -> dict[str, dict]:
-    """The finished rows to keep, by part name (empty: a fresh start), with the lock held.
-    `settings` is what makes two benches the same (queries, integrators, runs, seeds,
-    planner config): --resume continues only the same bench."""
-    if resume and overwrite:
-        raise UsageError("--resume and --overwrite contradict each other (continue the "
-                         "bench, or discard it); give one")
-    check_out(out)
-    holds = _entries(out)
-    if not holds:
+    """The finished rows to keep, by part name (empty: a fresh start); called with the
+    folder claimed. `settings` is what makes two benches the same (queries, integrators,
+    runs, seeds, planner config): --resume continues only the same bench; --overwrite
+    removes what plan-bench wrote, nothing else."""
+    holds = [n for n in OWN if (out / n).exists()]
+    if not holds or overwrite:
         if resume:
             raise UsageError(f"--resume: {out} holds no plan-bench to continue; leave out "
                              "--resume to start one")
-        return {}
-    if overwrite:
         for name in holds:
             path = out / name
             shutil.rmtree(path) if path.is_dir() else path.unlink()
         return {}
     if not resume:
-        raise UsageError(f"{out} already holds a plan-bench ({', '.join(holds)}); pass "
+        raise UsageError(f"{out} already holds a plan-bench ({', '.join(holds[:3])}); pass "
                          "--resume to continue it or --overwrite to start again")
-    manifest = _manifest(out) or {}
-    if manifest.get("settings") != json.loads(to_json(settings)):
+    try:
+        manifest = json.loads((out / MANIFEST).read_text())
+    except (OSError, ValueError):
+        manifest = {}
+    if not isinstance(manifest, dict) or manifest.get("settings") != \
+            json.loads(to_json(settings)):
         raise UsageError(f"--resume: {out} holds a plan-bench of other queries, integrators, "
                          "runs or planner settings; resume with the same command, or give a "
                          "new --out")
@@ -81,20 +62,3 @@ def finished(out: Path) -> dict[str, dict]:
 def save(out: Path, name: str, row: dict) -> None:
     """One finished run, atomically."""
     atomic_write(Path(out) / PARTS / f"{name}.json", json.dumps(row) + "\n")
-
-
-def _entries(out: Path) -> list[str]:
-    """The names in `out`, less the lock and the temporary files of writes cut off."""
-    if not out.is_dir():
-        return []
-    return sorted(p.name for p in out.iterdir()
-                  if p.name != LOCK and not (p.name.startswith(".") and
-                                             p.name.endswith(".tmp")))
-
-
-def _manifest(out: Path) -> dict | None:
-    try:
-        data = json.loads((out / "manifest.json").read_text())
-    except (OSError, ValueError):
-        return None
-    return data if isinstance(data, dict) else None

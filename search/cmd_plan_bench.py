@@ -286,7 +286,7 @@ def _estimate(n_queries, integrators, runs, config, max_hours) -> str:
 
 def main(args) -> int:
     from stepzoo import environment
-    from stepzoo.results_folder import writing
+    from stepzoo.results_folder import claim
     from stepzoo.search import bench_folder
     from stepzoo.search.bench_integrators import choose, configured
     from stepzoo.search.planner_config import load_config, with_params
@@ -302,7 +302,7 @@ def main(args) -> int:
     if args.resume and args.overwrite:
         raise UsageError("--resume and --overwrite contradict each other (continue the "
                          "bench, or discard it); give one")
-    out = bench_folder.check_out(args.out)
+    bench_folder.check_out(args.out, args.overwrite)
     vx = speed(args.speed, "--speed")
     config = load_config(args.config)
     if args.reverse:
@@ -323,7 +323,7 @@ def main(args) -> int:
                             for q in queries],
                 "integrators": [[i.method, i.h, i.role] for i in integrators],
                 "runs": args.runs, "seed": args.seed, "speed": vx, "params": config.params}
-    with writing(out, "plan-bench"):
+    with claim(args.out, "plan-bench", overwrite=args.overwrite) as out:
         done = bench_folder.start(out, settings, args.resume, args.overwrite)
         if not done:
             environment.write_manifest(out, "plan-bench", started,

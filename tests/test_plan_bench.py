@@ -237,18 +237,22 @@ def test_bad_flags_are_one_line_and_exit_status_two(folder, tmp_path, capsys, fl
     assert not out.exists() or [p.name for p in out.iterdir()] == [LOCK]
 
 
-@pytest.mark.parametrize("files, complaint", [
-    ({"chunks/x": "", "runs.parquet": "a sweep's"}, "(chunks, runs.parquet)"),
-    ({"manifest.json": '{"written_by": "sweep"}', "runs.parquet": "x"}, "`stepzoo sweep`"),
-    ({"manifest.json": '{"mine": 1}', "summary.csv": "a,b\n"}, "(manifest.json, summary.csv)"),
-    ({"notes.txt": "mine"}, "(notes.txt)"),
+@pytest.mark.parametrize("files, complaint, overwrite", [
+    ({"chunks/x": "", "runs.parquet": "a sweep's"}, "results of `stepzoo sweep` (chunks)",
+     "refused"),
+    ({"manifest.json": '{"written_by": "sweep"}', "runs.parquet": "x"},
+     "results of `stepzoo sweep` (runs.parquet)", "refused"),
+    ({"manifest.json": '{"mine": 1}', "summary.csv": "a,b\n"},
+     "did not write (manifest.json, summary.csv); give an empty or new --out, or pass "
+     "--overwrite", "allowed"),
+    ({"notes.txt": "mine"}, "did not write (notes.txt)", "allowed"),
 ])
 def test_a_folder_holding_what_plan_bench_did_not_write_is_refused_and_kept(
-        folder, tmp_path, capsys, files, complaint):
+        folder, tmp_path, capsys, files, complaint, overwrite):
     for name, text in files.items():
         (tmp_path / name).parent.mkdir(exist_ok=True)
         (tmp_path / name).write_text(text)
-    for flags in ([], ["--overwrite"], ["--resume"]):
+    for flags in ([], ["--resume"], ["--overwrite"] * (overwrite == "refused")):
         assert bench(folder, tmp_path, *flags) == 2
         assert complaint in one_line(capsys)
     assert {str(p.relative_to(tmp_path)): p.read_text() for p in tmp_path.rglob("*")
@@ -261,22 +265,37 @@ def test_an_empty_out_is_refused(folder, capsys):
 
 
 def test_a_finished_bench_is_kept_unless_resumed_or_overwritten(folder, benched, capsys):
-    before = {p: p.stat().st_mtime_ns for p in benched.rglob("*") if p.is_file()}
+    def files():
+        return {p: p.stat().st_mtime_ns for p in benched.rglob("*")
+                if p.is_file() and p.name != LOCK}
+    before = files()
     assert bench(folder, benched, "--runs", "2") == 2
     assert "--resume to continue it or --overwrite" in one_line(capsys)
     # Resumed with other settings: refused, nothing touched.
     assert bench(folder, benched, "--runs", "3", "--resume") == 2
     assert "other queries, integrators, runs" in one_line(capsys)
-    assert {p: p.stat().st_mtime_ns for p in benched.rglob("*") if p.is_file()} == before
+    assert files() == before
 
 
 def test_a_second_bench_into_a_folder_in_use_is_refused(folder, tmp_path, capsys):
-    from filelock import FileLock
+    import fcntl
     tmp_path.joinpath("o").mkdir()
-    with FileLock(tmp_path / "o" / LOCK):
+    with open(tmp_path / "o" / LOCK, "w") as held:      # as a running plan-bench holds it
+        fcntl.flock(held, fcntl.LOCK_EX)
         assert bench(folder, tmp_path / "o") == 2
         assert "in use by another stepzoo command" in one_line(capsys)
     assert [p.name for p in (tmp_path / "o").iterdir()] == [LOCK]
+
+
+def test_overwrite_discards_a_bench_and_keeps_what_plan_bench_did_not_write(
+        folder, benched, tmp_path):
+    import shutil
+    out = tmp_path / "o"
+    shutil.copytree(benched, out)
+    (out / "notes.txt").write_text("mine")
+    (out / "parts" / "999-99999-9999.json").write_text("{}")   # not of this bench
+    assert bench(folder, out, "--overwrite") == 0
+    assert (out / "notes.txt").read_text() == "mine" and len(list((out / "parts").iterdir())) == 4
 
 
 def test_a_bench_cut_off_resumes_to_the_same_table(folder, benched, tmp_path, monkeypatch,
