@@ -42,12 +42,19 @@ def parse_spec(text: str) -> Integrator:
 
 
 def from_tuned(path, runners_up: int | None = None) -> list[Integrator]:
-    """The choice of a TOML written by `stepzoo tune` and its runners-up (the first
-    `runners_up` of them; None: all), in the TOML's order."""
+    """The choice of a TOML written by `stepzoo tune` and its runners-up that qualify (the
+    first `runners_up` of them; None: all), in the TOML's order. A runner-up listed without
+    a step (`qualifies = false`: no step of that method met the tolerance) is not planned."""
     from stepzoo.integrators import METHODS
     from stepzoo.validate import check, read_toml
     data = read_toml(path, "--integrators-from", "give a TOML file written by `stepzoo tune`")
-    rows = [data, *data.get("runners_up", [])[:runners_up]]
+    runners = data.get("runners_up", [])
+    if not isinstance(runners, list):
+        raise UsageError(f"--integrators-from {path}: runners_up must be a list of tables "
+                         "[[runners_up]]")
+    qualified = [r for r in runners if not isinstance(r, dict)
+                 or ("h" in r and r.get("qualifies", True) is not False)]
+    rows = [data, *qualified[:runners_up]]
     out = []
     for k, row in enumerate(rows):
         where = f"--integrators-from {path}: " + ("the choice" if k == 0 else

@@ -31,6 +31,10 @@ TIMED = ["time_s", "first_solution_s", "solution_s", "replay_s", "progress"]
 TUNED = """method = "rk4"
 h = 0.05
 [[runners_up]]
+method = "ab4"
+qualifies = false
+reason = "no step qualifies"
+[[runners_up]]
 method = "heun"
 h = 0.025
 [[runners_up]]
@@ -78,7 +82,7 @@ def untimed(out) -> pd.DataFrame:
 def test_the_table_has_a_row_per_integrator_query_and_run_with_every_measure(benched):
     table = pd.read_parquet(benched / "runs.parquet")
     assert COLUMNS <= set(table.columns) and len(table) == 8
-    # The choice and its first runner-up (--runners-up 1), the same seeds for each.
+    # The choice and its first runner-up that qualifies (--runners-up 1), the same seeds.
     assert table["integrator"].tolist() == ["rk4:0.05"] * 4 + ["heun:0.025"] * 4
     assert table["role"].tolist() == ["tuned"] * 4 + ["runner-up"] * 4
     assert table["seed"].tolist() == [0, 1, 0, 1] * 2 and set(table["h"]) == {0.05, 0.025}
