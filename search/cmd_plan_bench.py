@@ -328,7 +328,10 @@ def main(args) -> int:
         if not done:
             environment.write_manifest(out, "plan-bench", started,
                                        {"settings": settings, "complete": False})
-        todo = [t for t in tasks if t.name not in done]
+        # Interleaved, each query planned with every integrator in turn: a machine's load
+        # drifting over a long bench then slows every integrator alike, not the last ones.
+        todo = sorted((t for t in tasks if t.name not in done),
+                      key=lambda t: (t.query, t.run, t.integrator))
         if args.progress:
             sys.stderr.write(f"stepzoo plan-bench: {estimate}; {len(done)} already done\n")
         for count, (name, row) in enumerate(run_tasks(todo, args.scheduler), 1):
