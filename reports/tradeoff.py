@@ -24,12 +24,21 @@ TITLE = "Plan time against replay deviation"
 
 
 def load_bench_summary(folder) -> pd.DataFrame:
-    """The summary per integrator of a `stepzoo plan-bench` folder (summary.parquet)."""
+    """The summary per integrator of a `stepzoo plan-bench` folder (summary.parquet), with
+    the planner's collision margin [m] from its manifest in `attrs["margin_m"]` (None if
+    not recorded)."""
+    import json
     path = Path(folder) / "summary.parquet"
     if not path.is_file():
         raise UsageError(f"--plan-bench {folder} holds no summary.parquet; give a folder "
                          "written by `stepzoo plan-bench`")
-    return pd.read_parquet(path)
+    summary = pd.read_parquet(path)
+    try:
+        manifest = json.loads((Path(folder) / "manifest.json").read_text())
+        summary.attrs["margin_m"] = float(manifest["settings"]["params"]["margin"])
+    except (OSError, ValueError, KeyError, TypeError):
+        summary.attrs["margin_m"] = None
+    return summary
 
 
 def pareto(x, y) -> np.ndarray:
@@ -48,7 +57,8 @@ def tradeoff_points(summary: pd.DataFrame, tuned: dict | None = None) -> pd.Data
     """A row per integrator: integrator, method, h [s], median_time_s, the median and largest
     replay deviation [m] of its exact plans, exact_rate, and whether it is the tuned choice
     (the bench's role "tuned", or the (method, h) of `tuned`, a tuned TOML's table), the
-    paper's method, and on the Pareto front of (deviation, time)."""
+    paper's method, and on the Pareto front of (deviation, time). `attrs["margin_m"]`: the
+    planner's collision margin, as the summary's."""
     out = summary[["integrator", "method", "h", "median_time_s", "median_replay_deviation_m",
                    "max_replay_deviation_m", "exact_rate", "role"]].copy()
     out["tuned"] = out["role"] == "tuned"
@@ -57,7 +67,9 @@ def tradeoff_points(summary: pd.DataFrame, tuned: dict | None = None) -> pd.Data
                                                                          float(tuned["h"]))
     out["paper"] = out["method"] == PAPER_METHOD
     out["pareto"] = pareto(out["median_replay_deviation_m"], out["median_time_s"])
-    return out.reset_index(drop=True)
+    out = out.reset_index(drop=True)
+    out.attrs["margin_m"] = summary.attrs.get("margin_m")
+    return out
 
 
 def _caption(points: pd.DataFrame) -> str:
@@ -68,7 +80,10 @@ def _caption(points: pd.DataFrame) -> str:
             "reference; the thin line reaches the largest), the marker's area its exact "
             "rate. The dashed line is the Pareto front, the integrators no other beats in "
             "both time and deviation: " + ", ".join(front["integrator"]) + ". The tuned "
-            "choice is ringed black; the paper's method (RK4) is a square.")
+            "choice is ringed black; the paper's method (RK4) is a square"
+            + ("; the dotted line is the planner's collision margin, the inflation of the "
+               "footprint that a deviation beyond it may eat through."
+               if points.attrs.get("margin_m") else "."))
 
 
 def tradeoff_png(points: pd.DataFrame, out_dir: Path, number: int = NUMBER) -> Shown:
@@ -89,15 +104,22 @@ def tradeoff_png(points: pd.DataFrame, out_dir: Path, number: int = NUMBER) -> S
                     xytext=(6, 6), textcoords="offset points", fontsize=8)
     front = drawn[drawn["pareto"]].sort_values("median_replay_deviation_m")
     ax.plot(front["median_replay_deviation_m"], front["median_time_s"], "k--", lw=1.0)
+    margin = points.attrs.get("margin_m")
+    if margin:
+        ax.axvline(margin, color="black", ls=":", lw=1.0)
     ax.set_xscale("log")
     ax.set_yscale("log")
     ax.set_xlabel("median replay deviation of the exact plans [m] (line: to the largest)")
     ax.set_ylabel("median plan time [s]")
     ax.grid(True, which="major", lw=0.3)
-    ax.legend([Line2D([], [], marker="o", color="grey", ls="", mec="black", mew=2, ms=10),
+    handles = [Line2D([], [], marker="o", color="grey", ls="", mec="black", mew=2, ms=10),
                Line2D([], [], marker="s", color="grey", ls="", ms=10),
-               Line2D([], [], color="black", ls="--")],
-              ["tuned choice", "the paper's RK4", "Pareto front"], fontsize=8, loc="best")
+               Line2D([], [], color="black", ls="--")]
+    labels = ["tuned choice", "the paper's RK4", "Pareto front"]
+    if margin:
+        handles.append(Line2D([], [], color="black", ls=":"))
+        labels.append(f"the planner's margin {margin:g} m")
+    ax.legend(handles, labels, fontsize=8, loc="best")
     name = _save(fig, out_dir, f"fig{number}_plan_tradeoff.png")
     return Shown(number, TITLE, _caption(points), [(name, "")])
 

@@ -365,6 +365,7 @@ def test_the_report_draws_the_tradeoff_of_a_plan_bench_folder(tiny_sweep, benche
     points = tradeoff_points(load_bench_summary(benched))
     assert points["integrator"].tolist() == ["rk4:0.05", "heun:0.025"]
     assert points["tuned"].tolist() == [True, False] and points["paper"].tolist() == [True, False]
+    assert points.attrs["margin_m"] == 0.1          # the planner's default margin
     faster = points["median_time_s"].idxmin()
     closer = points["median_replay_deviation_m"].idxmin()
     assert points["pareto"][faster] and points["pareto"][closer]
