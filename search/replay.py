@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import math
 from functools import cache
-from time import perf_counter
 
 import numpy as np
 
@@ -92,25 +91,20 @@ def replay(plan, omap: OccupancyMap, footprint: Footprint | None = None,
     along the replay (<= 0 touches); goal_distance_m [m]: replayed end to the goal position.
     A plan without a path gets these as None; `segments`, `nodes`, `samples` count what was
     compared, `end` is the replayed end pose [X, Y, psi]."""
-    t_start = perf_counter()
     if isinstance(plan, PlanResult):
         if vehicle is None:
             raise TypeError("replay of a PlanResult needs vehicle=PathFinder.vehicle")
-        segs = controls(plan)
-        start, goal = plan.start, plan.goal
-        planned = _result_nodes(plan)
-        margin = None
+        segs, start, goal, margin = controls(plan), plan.start, plan.goal, None
     else:
-        segs = plan["controls"]
+        segs, start, goal = plan["controls"], plan["start"], plan["goal"]
         vehicle = {**plan["vehicle"], **(vehicle or {})}
-        start, goal = plan["start"], plan["goal"]
-        planned = _path_nodes(np.asarray(plan["path"], float), segs) if segs else None
         margin = plan.get("params", {}).get("margin")
     block = {"method": METHOD, "rtol": RTOL, "atol": ATOL, "segments": len(segs),
              **dict.fromkeys(METRICS), "nodes": 0, "samples": 0, "end": None}
     if not segs:
-        block["replay_s"] = perf_counter() - t_start
         return block
+    planned = (_result_nodes(plan) if isinstance(plan, PlanResult)
+               else _path_nodes(np.asarray(plan["path"], float), segs))
     if footprint is None:
         footprint = car_footprint(vehicle, margin)
     nodes, samples = drive(segs, start, vehicle)
@@ -126,8 +120,7 @@ def replay(plan, omap: OccupancyMap, footprint: Footprint | None = None,
         "clearance_min_m": float(distance_to_obstacles(omap, centres).min()
                                  - footprint.radius),
         "nodes": len(nodes), "samples": len(samples),
-        "end": [float(v) for v in samples[-1]],
-        "replay_s": perf_counter() - t_start})
+        "end": [float(v) for v in samples[-1]]})
     return block
 
 
@@ -148,7 +141,7 @@ def drive(segs: list[dict], start, vehicle: dict) -> tuple[np.ndarray, np.ndarra
     state = np.r_[np.asarray(start, float)[:3], 0.0, 0.0]  # [X, Y, psi, vy, r]
     for seg in segs:
         if seg["model"] == "dynamic5":
-            n = int(seg.get("steps") or 1)
+            n = int(seg["steps"])
             p = dict(_params("dynamic5", vehicle), vx=float(seg["vx"]))
             x, seg_nodes, seg_samples = _solve(
                 "dynamic5", state, [float(seg["inputs"]["delta"])], p, float(seg["duration"]),
@@ -197,8 +190,7 @@ def _solve(model: str, x0, u, p, duration, steps, speed):
     # 10% above the largest speed: a dynamic bicycle's lateral speed adds a little to vx.
     m = max(1, math.ceil(1.1 * speed * duration / CHECK_SPACING_M))
     fine = duration * np.arange(1, m + 1) / m
-    nodes = sol.sol(at).T
-    return nodes[-1], nodes[:, :3], sol.sol(fine).T[:, :3]
+    return sol.y[:, -1], sol.sol(at).T[:, :3], sol.sol(fine).T[:, :3]
 
 
 @cache

@@ -204,6 +204,21 @@ def test_collides_is_a_dense_check_of_the_replayed_path():
     assert drift["collides"] is True and drift["max_deviation_m"] > 1.0
 
 
+def test_a_plan_without_a_path_has_a_replay_block_of_nulls():
+    occupied = np.zeros((40, 80), bool)
+    occupied[:, 40] = True  # a wall from edge to edge: the goal is walled off
+    omap = from_array(occupied, 0.5)
+    start, goal = (5.0, 10.0, 0.0), (35.0, 10.0, 0.0)
+    config = load_config()
+    finder = PathFinder(omap, config, None, 5.0)
+    result = finder.plan(start, goal)
+    scenario = Scenario("walled", "", omap, "generated", start, goal, None, None, 5.0)
+    record = plan_record(result, scenario, config, finder.vehicle, 0, 0.0)
+    assert (result.status, record["controls"]) == ("no_path", [])
+    for block in (record["replay"], replay(result, omap, vehicle=finder.vehicle)):
+        assert block["max_deviation_m"] is block["collides"] is block["goal_distance_m"] is None
+
+
 def test_plan_prints_the_replay_deviation_on_its_line(tmp_path, capsys):
     assert main(["plan", SCENARIO, "--out", str(tmp_path)]) == 0
     record = json.loads((tmp_path / "plan.json").read_text())
