@@ -95,23 +95,25 @@ def check_path(folder, flag: str = "--out") -> Path:
 
 def check_kind(folder, kind: str, flag: str = "--out", *, overwrite: bool | None = None) -> Path:
     """`folder` if `kind` may write its results there (check_path, then what it holds):
-    nothing, or what `kind` itself wrote (its manifest, or its lock file with no manifest
-    yet). A folder of another command's results is refused; one of anything else too,
-    unless `overwrite` is True. `overwrite` None: the command has no --overwrite flag."""
+    nothing, or what `kind` itself wrote (its manifest says so; without one, its lock file
+    or its result files, MARKS). A folder of another command's results is refused; one of
+    anything else too, unless `overwrite` is True. `overwrite` None: the command has no
+    --overwrite flag."""
     folder = check_path(folder, flag)
     if not folder.is_dir():
         return folder
     entries = [p.name for p in folder.iterdir() if p.name != LOCK and not _temporary(p.name)]
     if not entries:
         return folder
-    writer = written_by(folder)
+    # Without a recorded writer, the files it holds tell (a folder of a stepzoo that did not
+    # record its writer in the manifest yet).
+    writer = written_by(folder) or kind_of(folder)
     if writer == kind:
         return folder
-    other = writer or kind_of(folder)     # a mark of `kind` alone, without its lock: not ours
-    if other is not None and other != kind:
-        found = next((m for m in (*MARKS.get(other, ()), MANIFEST) if (folder / m).exists()),
+    if writer is not None:
+        found = next((m for m in (*MARKS.get(writer, ()), MANIFEST) if (folder / m).exists()),
                      LOCK)
-        raise UsageError(f"{flag} {folder} holds the results of `stepzoo {other}` ({found}), "
+        raise UsageError(f"{flag} {folder} holds the results of `stepzoo {writer}` ({found}), "
                          f"not of `stepzoo {kind}`; give another {flag} (or remove that folder "
                          "first)")
     if overwrite:
