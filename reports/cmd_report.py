@@ -10,7 +10,7 @@ from pathlib import Path
 
 from stepzoo import environment
 from stepzoo.errors import UsageError
-from stepzoo.results_folder import check_kind, writing
+from stepzoo.results_folder import check_kind, replacing
 from stepzoo.validate import DEFAULT_MARGIN
 
 # Used for the summary table's cost column when no tuned config gives them.
@@ -26,6 +26,8 @@ def add_arguments(p):
     p.add_argument("--plans", metavar="DIR", help="a plan folder from `stepzoo plan`, or a "
                    "folder of them from `stepzoo plan --all` (default: RESULTS/plans of a run "
                    "folder, if there)")
+    p.add_argument("--plan-bench", metavar="DIR", help="a folder from `stepzoo plan-bench`: "
+                   "adds its trade-off figure, plan time against replay deviation")
     p.add_argument("--out", required=True, metavar="DIR", help="report folder to write")
     p.add_argument("--verdict", action="append", default=[], metavar="METHOD:H",
                    help="add the per-point verdict of this (method, step [s]) on the sweep's "
@@ -107,14 +109,17 @@ def parse_verdicts(specs) -> list[tuple[str, float]]:
     return pairs
 
 
-def build(results, out, tuned_path=None, plans_dir=None, progress=False, verdicts=()):
+def build(results, out, tuned_path=None, plans_dir=None, progress=False, verdicts=(),
+          bench_dir=None):
     """Load every input, draw the figures (static and interactive), write the report and its
     manifest.json; returns (index, summary, shown). `progress`: a line per stage to stderr;
-    `verdicts`: (method, h [s]) pairs whose per-point verdict the report adds."""
+    `verdicts`: (method, h [s]) pairs whose per-point verdict the report adds; `bench_dir`:
+    a plan-bench folder, whose trade-off is Figure 8."""
     # Imported here, not with the module: pandas, matplotlib and plotly take seconds to
     # import, which `stepzoo report --help` (and `stepzoo run` before its sweep) need not wait.
     from stepzoo.reports import suite_report
     from stepzoo.reports.load import load_plans, load_sweep, load_tuned
+    from stepzoo.reports.tradeoff import load_bench_summary
     started = environment.now()
     say = _progress(progress)
     sweep_dir, tuned_path, plans_dir = resolve(results, tuned_path, plans_dir)
@@ -139,13 +144,16 @@ def build(results, out, tuned_path=None, plans_dir=None, progress=False, verdict
                          f"{sweep_dir}; it has {', '.join(sorted(set(sweep.runs['method'])))}")
     tuned = load_tuned(tuned_path) if tuned_path is not None else None
     plan_list = load_plans(plans_dir) if plans_dir is not None else []
+    bench = load_bench_summary(bench_dir) if bench_dir is not None else None
     say(f"read the sweep ({len(sweep.runs)} runs), "
         + (f"{len(plan_list)} plan(s)" if plan_list else "no plans") + (", the tuned config"
                                                                         if tuned else "")
         + f" in {time.perf_counter() - t0:.1f} s")
-    with writing(out, "report"):
-        return _draw(sweep, tuned, tuned_path, plan_list, plans_dir, out, started, say,
-                     verdicts)
+    # Drawn into a new folder that replaces `out` whole: a kill leaves the old report whole.
+    with replacing(out, "report") as into:
+        index, md, shown = _draw(sweep, tuned, tuned_path, plan_list, plans_dir, out, into,
+                                 started, say, verdicts, bench, bench_dir)
+    return out / index.name, out / md.name, shown
 
 
 def _tolerance(sweep, tuned):
@@ -157,7 +165,9 @@ def _tolerance(sweep, tuned):
     return view, tol, margin
 
 
-def _draw(sweep, tuned, tuned_path, plan_list, plans_dir, out, started, say, verdicts=()):
+def _draw(sweep, tuned, tuned_path, plan_list, plans_dir, out, into, started, say,
+          verdicts=(), bench=None, bench_dir=None):
+    """The report of the folder `out`, written into the folder `into` (which becomes it)."""
     from stepzoo.reports import figures, interactive, recompute, tables
     from stepzoo.reports.html import write_report
     from stepzoo.reports.load import load_manifest
@@ -170,17 +180,22 @@ def _draw(sweep, tuned, tuned_path, plan_list, plans_dir, out, started, say, ver
         say(f"ran Figures 1-2's runs at {point}, where the tuned choice binds, in "
             f"{time.perf_counter() - t0:.1f} s")
     # (static figure, its interactive plots), drawn in the report's order.
-    draw = [(lambda: figures.yaw_rate(at, out, why), lambda: interactive.yaw_rate(at, tuned)),
-            (lambda: figures.xy_paths(at, out, why), lambda: interactive.xy_paths(at, tuned)),
-            (lambda: figures.stability_regions(sweep, tuned, out),
+    draw = [(lambda: figures.yaw_rate(at, into, why), lambda: interactive.yaw_rate(at, tuned)),
+            (lambda: figures.xy_paths(at, into, why), lambda: interactive.xy_paths(at, tuned)),
+            (lambda: figures.stability_regions(sweep, tuned, into),
              lambda: interactive.stability_regions(sweep, tuned)),
-            (lambda: figures.error_vs_step(sweep, out, verdicts),
+            (lambda: figures.error_vs_step(sweep, into, verdicts),
              lambda: interactive.error_vs_step(sweep, tuned, verdicts)),
-            (lambda: figures.work_precision(sweep, tuned, out),
+            (lambda: figures.work_precision(sweep, tuned, into),
              lambda: interactive.work_precision(sweep, tuned)),
-            (lambda: figures.stable_step_vs_speed(sweep, out, verdicts),
+            (lambda: figures.stable_step_vs_speed(sweep, into, verdicts),
              lambda: interactive.stable_step_vs_speed(sweep, tuned, verdicts)),
-            (lambda: figures.plans(plan_list, out), lambda: interactive.plans(plan_list))]
+            (lambda: figures.plans(plan_list, into), lambda: interactive.plans(plan_list))]
+    if bench is not None:
+        from stepzoo.reports import tradeoff
+        points = tradeoff.tradeoff_points(bench, tuned)
+        draw.append((lambda: tradeoff.tradeoff_png(points, into),
+                     lambda: tradeoff.tradeoff_plot(points)))
     shown, plots = [], {}
     for static, live in draw:
         t0 = time.perf_counter()
@@ -215,24 +230,28 @@ def _draw(sweep, tuned, tuned_path, plan_list, plans_dir, out, started, say, ver
     manifests = {"sweep": sweep.manifest}
     if plans_dir is not None:
         manifests["plans"] = load_manifest(plans_dir)
+    if bench_dir is not None:
+        manifests["plan-bench"] = load_manifest(bench_dir)
     manifests["this report"] = own
     appendix = [environment_table(manifests, out)]
-    index, md = write_report(out, "stepzoo report", facts, [decision, summary,
-                                                             *verdict_tables], shown, plots,
+    index, md = write_report(into, "stepzoo report", facts, [decision, summary,
+                                                              *verdict_tables], shown, plots,
                              interactive.plotly_js(), appendix)
-    environment.write_manifest(out, "report", started, {
+    environment.write_manifest(into, "report", started, {
         "sweep": public_path(sweep.folder, out),
         "tuned": public_path(tuned_path, out) if tuned_path is not None else None,
         "plans": public_path(plans_dir, out) if plans_dir is not None else None,
+        "plan_bench": public_path(bench_dir, out) if bench_dir is not None else None,
         "files": ["index.html", "summary.md", *[n for f in shown for n, _ in f.images]]})
-    say(f"wrote {index} ({index.stat().st_size / 2 ** 20:.1f} MiB, figures inline) and "
-        f"{md.name}")
+    say(f"wrote {out / index.name} ({index.stat().st_size / 2 ** 20:.1f} MiB, figures "
+        f"inline) and {md.name}")
     return index, md, shown
 
 
 def main(args) -> int:
     index, md, shown = build(args.results, args.out, args.tuned, args.plans,
-                             progress=args.progress, verdicts=args.verdict)
+                             progress=args.progress, verdicts=args.verdict,
+                             bench_dir=args.plan_bench)
     if args.format == "json":
         files = [name for s in shown for name, _ in s.images]
         sys.stdout.write(json.dumps({"index": str(index), "summary": str(md),

@@ -2,7 +2,9 @@
 planner's programs compiled, the connection's solver built, the plotting library loaded), then
 answers `stepzoo plan ... --server SOCKET` requests on a Unix socket, one at a time in order of
 arrival, each run as that command would run in the asking process: in its folder, with its
-command line, its stdout and stderr sent back as written, and its exit status."""
+command line, its stdout and stderr sent back as written, and its exit status. It serves
+only its own user (the peer's credentials, SO_PEERCRED), gives each connection a deadline for
+its whole request, and answers a bad request with one line and serves on."""
 import io
 import os
 import select
@@ -20,19 +22,24 @@ from pathlib import Path
 
 from stepzoo.bench import cli
 from stepzoo.errors import UsageError
-from stepzoo.search.plan_request import ENV, Messages, default_socket, identity, send
+from stepzoo.search.plan_request import (ENV, Messages, check_request, default_socket,
+                                         identity, not_private, peer_uid, send)
 
 WARM_UP_SCENARIO = "open_field"   # planned at start-up unless told: it compiles what plans use
 # The signal by which a plan is stopped when its asker goes: its handler raises what Ctrl-C
 # raises. Not SIGINT itself, which a server started in the background may ignore.
 STOP = signal.SIGUSR1
-REQUEST_S = 10.0                  # [s] a connection has to send its request line
+REQUEST_S = 10.0                  # [s] a connection has to send its whole request line
 
 
 def add_arguments(p):
     p.add_argument("--socket", metavar="PATH", help="Unix socket to listen on (default: "
                    f"${ENV}, else $XDG_RUNTIME_DIR/stepzoo-plan.sock, else "
-                   "~/.cache/stepzoo/plan.sock); only this user may connect")
+                   "~/.cache/stepzoo/plan.sock, in a folder made private); only this user "
+                   "may connect")
+    p.add_argument("--request-timeout", type=float, default=REQUEST_S, metavar="S",
+                   help="seconds a connection has to send its whole request, however slowly "
+                   f"it sends (default {REQUEST_S:g}); then it is cut off and the next served")
     p.add_argument("--config", metavar="FILE", help="planner config TOML to warm up with "
                    "(default: the shipped one); requests may name any config")
     p.add_argument("--warm-up", metavar="SCENARIO", default=WARM_UP_SCENARIO,
@@ -42,7 +49,13 @@ def add_arguments(p):
 
 
 def main(args) -> int:
-    path = Path(args.socket or default_socket()).absolute()
+    if not args.request_timeout > 0:
+        raise UsageError(f"--request-timeout must be a number of seconds above 0, got "
+                         f"{args.request_timeout}")
+    given = args.socket or os.environ.get(ENV)
+    path = Path(given or default_socket()).absolute()
+    if not given:
+        _private(path.parent)
     listener, inode = _listen(path)
     signal.signal(STOP, _interrupt)
     # `kill` (SIGTERM) ends the server as Ctrl-C does, through the `finally` that removes the
@@ -58,17 +71,41 @@ def main(args) -> int:
         while True:
             connection, _ = listener.accept()
             with connection:
-                _answer(connection)
+                uid = peer_uid(connection, path)
+                if uid != os.geteuid():
+                    _refuse(connection, f"this server serves only its own user (uid "
+                                        f"{os.geteuid()}), not uid {uid}")
+                    continue
+                _answer(connection, args.request_timeout)
     finally:
         listener.close()
         if path.exists() and path.stat().st_ino == inode:   # not a successor's socket
             path.unlink()
 
 
+def _private(folder: Path) -> None:
+    """Make `folder` (the default socket's) a private folder of this user: created with mode
+    0700 where missing; UsageError where it is another user's or others may write into it,
+    since whoever may write there may put a socket of their own in the server's place."""
+    folder.mkdir(mode=0o700, parents=True, exist_ok=True)
+    why = not_private(folder)
+    if why:
+        raise UsageError(f"{folder}, the default socket's folder, is not private: {why}; "
+                         "give --socket PATH in a folder only you may write")
+
+
 def _listen(path: Path) -> tuple[socket.socket, int]:
     """A socket listening at `path` that only this user may connect to, and its inode. A
-    socket file left by a server that died is replaced; anything else there is kept."""
+    socket file left by a server of this user that died is replaced; anything else there is
+    kept, and another user's file is refused (a squatted path: the server's clients would
+    find that user's socket)."""
     if path.is_symlink() or path.exists():
+        owner = path.lstat().st_uid
+        if owner != os.geteuid():
+            raise UsageError(f"{path} belongs to another user (uid {owner}); a server there "
+                             "would not be yours, and your plans would not reach you: give "
+                             "--socket in a folder only you may write (or leave it out: the "
+                             "default is private)")
         if not stat.S_ISSOCK(path.lstat().st_mode):
             raise UsageError(f"{path} exists and is not a socket; give another --socket")
         probe = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
@@ -80,7 +117,7 @@ def _listen(path: Path) -> tuple[socket.socket, int]:
             else:
                 raise UsageError(f"a stepzoo server already listens at {path}; stop it first "
                                  "or give another --socket")
-    path.parent.mkdir(parents=True, exist_ok=True)
+    path.parent.mkdir(mode=0o700, parents=True, exist_ok=True)
     listener = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
     umask = os.umask(0o177)          # the file is born rw for the user only: no window open
     try:
@@ -90,7 +127,8 @@ def _listen(path: Path) -> tuple[socket.socket, int]:
         if err.errno is None:        # e.g. "AF_UNIX path too long"
             raise UsageError(f"cannot listen at {path}: {err}; give a shorter --socket") \
                 from None
-        raise
+        raise UsageError(f"cannot listen at {path}: {err.strerror}; give another --socket") \
+            from None
     finally:
         os.umask(umask)
     listener.listen()
@@ -128,21 +166,34 @@ def _plan(argv: list[str]) -> int:
     return cli.run(args, argv)
 
 
-def _answer(connection: socket.socket) -> None:
-    """Read one request from `connection`, run its plan here, send back what it printed and
-    its exit status. Its folder is the asking process's for the duration, and closing the
-    asking side stops the plan as Ctrl-C would (exit status 130)."""
-    connection.settimeout(REQUEST_S)  # a peer that connects and says nothing blocks no one
+def _answer(connection: socket.socket, request_s: float) -> None:
+    """Read one request from `connection` within `request_s` seconds, run its plan here, send
+    back what it printed and its exit status. Its folder is the asking process's for the
+    duration, and closing the asking side stops the plan as Ctrl-C would (exit status 130).
+    A request that is late, not JSON or not a request is refused in one line."""
     try:
-        asked = Messages(connection).next()
-    except (OSError, ValueError):
-        return                        # not a stepzoo client: nothing to answer
+        # The deadline is the whole request's, not each read's: a peer that sends a byte
+        # now and then without ending its line holds the server no longer than one that
+        # says nothing.
+        asked = Messages(connection).next(time.monotonic() + request_s)
+    except TimeoutError:
+        _refuse(connection, f"no whole request line within {request_s:g} s")
+        return
+    except (ValueError, RecursionError):
+        _refuse(connection, "a request is one line of JSON")
+        return
+    except OSError:
+        return                        # the peer has gone: nobody is left to tell
     connection.settimeout(None)
-    if not isinstance(asked, dict) or "argv" not in asked:
+    if asked is None:
+        return                        # connected and closed without a word
+    problem = check_request(asked)
+    if problem:
+        _refuse(connection, f"not a stepzoo request: {problem}")
         return
     mine = identity()
-    if asked.get("stepzoo") != mine:
-        theirs = asked.get("stepzoo") or {}
+    if asked["stepzoo"] != mine:
+        theirs = asked["stepzoo"]
         _send(connection, {"refused": (
             f"the server at {connection.getsockname()} runs stepzoo {mine['version']} from "
             f"{mine['package']}, this is stepzoo {theirs.get('version')} from "
@@ -157,7 +208,7 @@ def _answer(connection: socket.socket) -> None:
         return
     saved = sys.stdout, sys.stderr, sys.argv
     sys.stdout, sys.stderr = _Forward(connection, "stdout"), _Forward(connection, "stderr")
-    sys.argv = list(asked.get("command_line") or ["stepzoo"])
+    sys.argv = asked.get("command_line") or ["stepzoo"]
     watch = _Watch(connection)
     try:
         code = _stoppable(list(asked["argv"]), watch)
@@ -187,6 +238,13 @@ def _stoppable(argv: list[str], watch) -> int:
         watch.stop()
         code = cli.INTERRUPTED
     return code
+
+
+def _refuse(connection, why: str) -> None:
+    """Answer `why` in one line (the asker prints it, exit status 2), and log it here."""
+    _send(connection, {"refused": f"{why}; ask with `stepzoo plan ... --server SOCKET`"})
+    sys.stderr.write(f"stepzoo serve: refused a connection: {why}\n")
+    sys.stderr.flush()
 
 
 def _interrupt(signum, frame):

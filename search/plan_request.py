@@ -7,7 +7,10 @@ from __future__ import annotations
 import json
 import os
 import socket
+import stat
+import struct
 import sys
+import time
 from pathlib import Path
 
 import stepzoo
@@ -23,14 +26,68 @@ NO_SIGPIPE = getattr(socket, "MSG_NOSIGNAL", 0)
 
 def default_socket() -> Path:
     """Where `stepzoo serve` listens unless told: $STEPZOO_SERVER, else the user's runtime
-    folder ($XDG_RUNTIME_DIR, private to the user), else the user's cache folder."""
+    folder ($XDG_RUNTIME_DIR) when it is private, else the user's cache folder's stepzoo/
+    (which `stepzoo serve` makes private: no other user can put a socket there)."""
     if os.environ.get(ENV):
         return Path(os.environ[ENV])
     runtime = os.environ.get("XDG_RUNTIME_DIR")
-    if runtime:
+    if runtime and not not_private(runtime):
         return Path(runtime) / "stepzoo-plan.sock"
     base = os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache"
     return Path(base) / "stepzoo" / "plan.sock"
+
+
+def not_private(folder) -> str | None:
+    """Why `folder` is not a private one of this user (None: it is): a folder, not a link,
+    owned by this user, that no other user may write into (so none can replace a socket
+    there)."""
+    try:
+        st = os.lstat(folder)
+    except OSError as err:
+        return f"it cannot be read ({err.strerror})"
+    if not stat.S_ISDIR(st.st_mode):
+        return "it is not a folder"
+    if st.st_uid != os.geteuid():
+        return f"it belongs to another user (uid {st.st_uid})"
+    if st.st_mode & 0o022:
+        return "other users may write into it"
+    return None
+
+
+def peer_uid(sock: socket.socket, path) -> int:
+    """The user id of the process at the other end of the Unix socket `sock`: its
+    credentials as the kernel recorded them (SO_PEERCRED, Linux); elsewhere the owner of the
+    socket file `path`, whose mode lets no one else connect."""
+    if hasattr(socket, "SO_PEERCRED"):
+        size = struct.calcsize("3i")
+        _, uid, _ = struct.unpack("3i", sock.getsockopt(socket.SOL_SOCKET, socket.SO_PEERCRED,
+                                                        size))
+        return uid
+    return os.stat(path).st_uid
+
+
+def check_request(asked) -> str | None:
+    """What is wrong with the request `asked` (None: nothing): a JSON object with "argv" (a
+    list of strings), "cwd" (an absolute path), "stepzoo" (the asker's identity) and,
+    optionally, "command_line" (a list of strings); no string holds a NUL byte."""
+    if not isinstance(asked, dict):
+        return "a request is a JSON object"
+
+    def strings(value):
+        return isinstance(value, list) and all(isinstance(a, str) and "\0" not in a
+                                               for a in value)
+    if not strings(asked.get("argv")):
+        return '"argv" must be a list of strings (the arguments of `stepzoo`)'
+    cwd = asked.get("cwd")
+    if not (isinstance(cwd, str) and "\0" not in cwd and os.path.isabs(cwd)):
+        return '"cwd" must be an absolute path (the asking process\'s folder)'
+    if "command_line" in asked and not strings(asked["command_line"]):
+        return '"command_line" must be a list of strings'
+    theirs = asked.get("stepzoo")
+    if not (isinstance(theirs, dict) and all(isinstance(theirs.get(k), str)
+                                             for k in ("version", "package"))):
+        return '"stepzoo" must name the asker\'s version and package'
+    return None
 
 
 def identity() -> dict:
@@ -52,8 +109,15 @@ class Messages:
     def __init__(self, sock: socket.socket):
         self.sock, self.buffer, self.lines = sock, b"", []
 
-    def next(self) -> dict | None:
+    def next(self, deadline: float | None = None) -> dict | None:
+        """The next message; `deadline` (time.monotonic() [s]): TimeoutError once it
+        passes, however slowly the peer sends."""
         while not self.lines:
+            if deadline is not None:
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    raise TimeoutError("no whole message line before the deadline")
+                self.sock.settimeout(left)
             chunk = self.sock.recv(65536)
             if not chunk:
                 return None
@@ -85,13 +149,23 @@ def request(path, argv: list[str], platform: str | None = None) -> int:
         except OSError as err:
             raise UsageError(f"cannot reach a stepzoo server at {path}: "
                              f"{err.strerror or err}") from None
+        uid = peer_uid(sock, path)
+        if uid != os.geteuid():
+            # Nothing is sent: the request names this process's folder and arguments.
+            raise UsageError(f"the server at {path} runs as another user (uid {uid}), not "
+                             "as you; a plan is sent only to a server of your own: start "
+                             "one with `stepzoo serve` (its default socket is in a folder "
+                             "only you may write) and give its socket")
         send(sock, {"argv": list(argv), "cwd": os.getcwd(), "command_line": list(sys.argv),
                     "stepzoo": identity()})
         answers, cancelled = Messages(sock), False
         while True:
             try:
                 answer = answers.next()
-            except ValueError:
+                if not (answer is None or isinstance(answer, dict) and
+                        isinstance(answer.get("exit", 0), int)):
+                    raise ValueError("not an answer")
+            except (ValueError, RecursionError):
                 raise UsageError(f"{path} answered something that is not a stepzoo server's "
                                  "answer; check that it is a `stepzoo serve` socket") from None
             except KeyboardInterrupt:

@@ -415,3 +415,61 @@ def test_runaway_nesting_is_one_line_in_every_reader(finished, tmp_path, capsys)
         left.sendall(DEEP_JSON.encode() + b"\n")
         with pytest.raises(ValueError, match="nested deeper"):
             Messages(right).next()
+
+
+# ---- output folders that are not the command's to write -----------------------------------
+
+def _folder_commands(finished):
+    """The commands that write a folder, each with what --out follows and whether it has
+    --overwrite."""
+    config, sweep, _ = finished
+    return [(["sweep", config], True), (["sweep", config, "--resume"], True),
+            (["plan", "street"], False), (["report", sweep], False),
+            (["run", "--config", config], False)]
+
+
+def test_a_folder_of_the_users_own_files_is_refused_and_kept(finished, tmp_path, capsys):
+    """The issue's case: a folder holding the user's manifest.json, config.toml and
+    summary.csv (names stepzoo writes too) is named, never written into."""
+    mine = tmp_path / "mine"
+    mine.mkdir()
+    for name in ("manifest.json", "config.toml", "summary.csv"):
+        (mine / name).write_text(f"the user's own {name}\n")
+    before = digest(mine)
+    for argv, overwrite in _folder_commands(finished):
+        line = refused(capsys, *argv, "--out", mine)
+        assert line == (f"stepzoo {argv[0]}: error: --out {mine} holds files that `stepzoo "
+                        f"{argv[0]}` did not write (config.toml, manifest.json, summary.csv); "
+                        "give an empty or new --out"
+                        + (", or pass --overwrite to write into it anyway" if overwrite else ""))
+    assert digest(mine) == before and not (mine / ".stepzoo.lock").exists()
+
+
+def test_an_empty_out_is_refused_and_nothing_is_written_here(finished, tmp_path, monkeypatch,
+                                                              capsys):
+    monkeypatch.chdir(tmp_path)
+    for argv, _ in _folder_commands(finished):
+        assert refused(capsys, *argv, "--out", "") == (
+            f"stepzoo {argv[0]}: error: --out is empty; give the name of a folder, such as "
+            "--out results")
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_an_out_through_a_symbolic_link_is_refused_unless_the_resolved_path_is_given(
+        finished, tmp_path, capsys):
+    """A link as --out, or on its way, could lead anywhere (as root, into a system folder):
+    refused, naming where it leads, so the user who means it can give that path."""
+    elsewhere = tmp_path / "elsewhere"
+    elsewhere.mkdir()
+    (tmp_path / "link").symlink_to(elsewhere)
+    for argv, _ in _folder_commands(finished):
+        for out, real in ((tmp_path / "link", elsewhere),
+                          (tmp_path / "link" / "sub", elsewhere / "sub")):
+            assert refused(capsys, *argv, "--out", out) == (
+                f"stepzoo {argv[0]}: error: --out {out} leads through a symbolic link to "
+                f"{real}; stepzoo writes only to a path without links: give --out {real} if "
+                "that is the folder meant")
+    assert list(elsewhere.iterdir()) == []
+    from stepzoo.results_folder import claim
+    with claim(elsewhere / "sub", "plan") as folder:       # the resolved path is taken
+        assert folder == elsewhere / "sub" and folder.is_dir()

@@ -1,7 +1,8 @@
 """A results folder is never silently lost: one writer at a time (a second one is refused in
 one line, exit 2, while a killed writer's lock is taken over), a folder of another command's
 results is refused, the sweep's tables are written only when every chunk its config implies
-is there, and tune and report refuse a sweep folder that is incomplete or inconsistent."""
+is there, tune and report refuse a sweep folder that is incomplete or inconsistent, and a
+report stopped or killed midway leaves the old report whole."""
 import json
 import os
 import signal
@@ -18,7 +19,8 @@ from stepzoo.bench.cli import main as stepzoo
 from stepzoo.bench.sweep import chunk_ids, run_sweep
 from stepzoo.bench.sweep_config import load
 from stepzoo.errors import UsageError
-from stepzoo.results_folder import LOCK, writing
+from stepzoo.results_folder import LOCK, claim, replacing
+from test_report import write_sweep, write_tuned
 
 ROOT = Path(__file__).resolve().parents[1]
 TABLES = ("runs", "limits", "eigenvalues", "trajectories", "summary")
@@ -30,6 +32,16 @@ def cli(*args, timeout=120):
     proc = subprocess.run([sys.executable, "-m", "stepzoo", *map(str, args)],
                           capture_output=True, text=True, timeout=timeout, cwd=ROOT)
     return proc.returncode, proc.stdout, proc.stderr
+
+
+# `python -m stepzoo ARGS` with SIGINT's default action back: Python then installs its Ctrl-C
+# handler. A parent that ignores SIGINT (a background job of a shell script) passes the
+# ignoring on, and the command rightly keeps it there (that Ctrl-C is meant for another job);
+# these tests play the user at the terminal, whose Ctrl-C does reach the command. An exec
+# rather than a function run between fork and exec: JAX, loaded here, warns of its threads.
+CTRL_C_REACHES = [sys.executable, "-c", "import os, signal, sys; signal.signal(signal.SIGINT, "
+                  "signal.SIG_DFL); os.execv(sys.executable, [sys.executable, *sys.argv[1:]])",
+                  "-m", "stepzoo"]
 
 
 def one_line(err: str) -> str:
@@ -48,7 +60,7 @@ def tables(folder):
 
 def test_a_second_writer_is_refused_in_one_line_while_the_first_holds_the_folder(tmp_path):
     out = tmp_path / "out"
-    with writing(out, "sweep"):
+    with claim(out, "sweep"):
         code, _, err = cli("sweep", ROOT / "bench" / "configs" / "small.toml", "--out", out,
                            "--resume")
     assert code == 2 and "in use by another stepzoo command" in one_line(err)
@@ -58,19 +70,42 @@ def test_a_second_writer_is_refused_in_one_line_while_the_first_holds_the_folder
 def test_a_killed_writers_lock_is_taken_over(tmp_path):
     out = tmp_path / "out"
     holder = subprocess.Popen(
-        [sys.executable, "-c", "import sys, time\nfrom stepzoo.results_folder import writing\n"
-         f"with writing({str(out)!r}, 'sweep'):\n    print('held', flush=True)\n"
+        [sys.executable, "-c", "import sys, time\nfrom stepzoo.results_folder import claim\n"
+         f"with claim({str(out)!r}, 'sweep'):\n    print('held', flush=True)\n"
          "    time.sleep(120)"], stdout=subprocess.PIPE, text=True)
     try:
         assert holder.stdout.readline().strip() == "held"
-        with pytest.raises(UsageError, match="in use"), writing(out, "sweep"):
+        with pytest.raises(UsageError, match="in use"), claim(out, "sweep"):
             pass
     finally:
         holder.send_signal(signal.SIGKILL)
         holder.wait()
     assert (out / LOCK).exists()          # the lock file stays; its lock died with the holder
-    with writing(out, "sweep"):
+    with claim(out, "sweep"):
         pass
+
+
+def test_a_folder_is_the_commands_own_by_its_manifest_or_its_lock(tmp_path):
+    """A sweep stopped before its manifest (its config.toml written) goes on in its folder,
+    which its lock file names as a sweep's; a plan is refused there. The same file without
+    stepzoo's lock is the user's: refused, unless the command's --overwrite says so."""
+    out = tmp_path / "out"
+    with claim(out, "sweep", overwrite=False):
+        (out / "config.toml").write_text("the sweep's")
+    with claim(out, "sweep", overwrite=False):
+        pass
+    with pytest.raises(UsageError, match=r"holds the results of `stepzoo sweep` \(\.stepzoo"), \
+            claim(out, "plan"):
+        pass
+    mine = tmp_path / "mine"
+    mine.mkdir()
+    (mine / "config.toml").write_text("the user's")
+    with pytest.raises(UsageError, match=r"did not write \(config.toml\); .* --overwrite"), \
+            claim(mine, "sweep", overwrite=False):
+        pass
+    assert sorted(p.name for p in mine.iterdir()) == ["config.toml"]
+    with claim(mine, "sweep", overwrite=True) as folder:
+        assert (folder / "config.toml").read_text() == "the user's"
 
 
 def test_racing_sweeps_leave_the_first_ones_tables_whole(tiny_sweep, tmp_path):
@@ -106,9 +141,8 @@ def test_an_interrupted_sweep_says_how_to_resume_and_resumes_to_the_same_tables(
                                                                               tmp_path):
     path, whole = tiny_sweep
     out = tmp_path / "out"
-    proc = subprocess.Popen([sys.executable, "-m", "stepzoo", "sweep", str(path), "--out",
-                             str(out), "--no-progress"], cwd=ROOT, stderr=subprocess.PIPE,
-                            text=True)
+    proc = subprocess.Popen([*CTRL_C_REACHES, "sweep", str(path), "--out", str(out),
+                             "--no-progress"], cwd=ROOT, stderr=subprocess.PIPE, text=True)
     deadline = time.monotonic() + 120
     while not any((out / "chunks").glob("euler-*")) and time.monotonic() < deadline:
         time.sleep(0.05)
@@ -212,9 +246,9 @@ def test_a_folder_of_another_commands_results_is_refused(tiny_sweep, tmp_path, c
 def test_ctrl_c_stops_a_run_with_one_line_and_status_130(tiny_sweep, tmp_path):
     path, _ = tiny_sweep
     out = tmp_path / "results"
-    proc = subprocess.Popen([sys.executable, "-m", "stepzoo", "run", "--config", str(path),
-                             "--out", str(out), "-q"], cwd=ROOT, stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True)
+    proc = subprocess.Popen([*CTRL_C_REACHES, "run", "--config", str(path), "--out", str(out),
+                             "-q"], cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True)
     deadline = time.monotonic() + 120
     while not any((out / "sweep" / "chunks").glob("euler-*")) and time.monotonic() < deadline:
         time.sleep(0.05)
@@ -223,3 +257,52 @@ def test_ctrl_c_stops_a_run_with_one_line_and_status_130(tiny_sweep, tmp_path):
     assert proc.returncode == 130 and stdout == ""
     assert one_line(err) == ("stepzoo run: interrupted; resume: run it again, the same "
                              "command (finished sweep chunks are kept)")
+
+
+def report_files(folder) -> dict:
+    return {p.name: p.read_bytes() for p in folder.iterdir() if p.name != LOCK}
+
+
+def test_a_report_stopped_or_killed_midway_leaves_the_old_report_whole(tmp_path, monkeypatch):
+    """A second report (with a tuned config, so its page and figures differ from the first's)
+    stopped by Ctrl-C at Figure 6 of 7, then one killed (kill -9) at Figure 3: each time the
+    folder holds the old report byte for byte, never new figures beside the old index.html.
+    The stopped one leaves nothing beside it; the killed one's hidden folder is removed by
+    the next report into that folder."""
+    sweep = write_sweep(tmp_path / "sweep")
+    tuned = write_tuned(tmp_path / "tuned.toml")
+    out = tmp_path / "report"
+    assert stepzoo(["report", str(sweep), "--out", str(out), "-q"]) == 0
+    old = report_files(out)
+    again = ["report", str(sweep), "--tuned", str(tuned), "--out", str(out)]
+    from stepzoo.reports import figures
+
+    def ctrl_c(*args, **kwargs):
+        raise KeyboardInterrupt
+    with monkeypatch.context() as patch:
+        patch.setattr(figures, "stable_step_vs_speed", ctrl_c)
+        assert stepzoo([*again, "-q"]) == 130
+    assert report_files(out) == old
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["report", "sweep", "tuned.toml"]
+
+    proc = subprocess.Popen([sys.executable, "-m", "stepzoo", *again], cwd=ROOT,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        for line in proc.stderr:                # bounded: the report ends by itself
+            if line.startswith("stepzoo report: [3/7]"):
+                proc.send_signal(signal.SIGKILL)
+                break
+    finally:
+        proc.kill()
+        proc.wait(timeout=60)
+    assert proc.returncode == -signal.SIGKILL
+    assert report_files(out) == old
+    left = [p for p in tmp_path.iterdir() if p.name.startswith(".report.")]
+    assert len(left) == 1 and {"index.html", "manifest.json"}.isdisjoint(
+        p.name for p in left[0].iterdir())      # the killed one had drawn figures only
+    with replacing(out, "report") as into:      # the next report: stale folder gone, the
+        for name, data in old.items():          # new results swapped in whole
+            (into / name).write_bytes(data)
+        (into / "index.html").write_text("new")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["report", "sweep", "tuned.toml"]
+    assert report_files(out) == {**old, "index.html": b"new"}
