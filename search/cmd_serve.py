@@ -30,6 +30,7 @@ WARM_UP_SCENARIO = "open_field"   # planned at start-up unless told: it compiles
 # raises. Not SIGINT itself, which a server started in the background may ignore.
 STOP = signal.SIGUSR1
 REQUEST_S = 10.0                  # [s] a connection has to send its whole request line
+LINGER_S = 1.0                    # [s] a refused connection is read (and dropped) at most
 
 
 def add_arguments(p):
@@ -241,10 +242,20 @@ def _stoppable(argv: list[str], watch) -> int:
 
 
 def _refuse(connection, why: str) -> None:
-    """Answer `why` in one line (the asker prints it, exit status 2), and log it here."""
+    """Answer `why` in one line (the asker prints it, exit status 2), and log it here. What
+    the asker still sends is read and dropped for up to LINGER_S: a socket closed with bytes
+    unread resets the connection, and the asker would lose the line."""
     _send(connection, {"refused": f"{why}; ask with `stepzoo plan ... --server SOCKET`"})
     sys.stderr.write(f"stepzoo serve: refused a connection: {why}\n")
     sys.stderr.flush()
+    deadline = time.monotonic() + LINGER_S
+    try:
+        connection.shutdown(socket.SHUT_WR)
+        connection.settimeout(LINGER_S)
+        while time.monotonic() < deadline and connection.recv(65536):
+            pass
+    except OSError:
+        pass                          # gone, or still sending at the end: closed anyway
 
 
 def _interrupt(signum, frame):

@@ -139,8 +139,12 @@ class _Lock:
                              f"{flag}") from None
 
     def mark(self):
-        os.ftruncate(self.fd, 0)
-        os.pwrite(self.fd, f"{self.kind}\n".encode(), 0)
+        data = f"{self.kind}\n".encode()
+        try:                         # written before the cut: a failure leaves it as it was
+            os.pwrite(self.fd, data, 0)
+            os.ftruncate(self.fd, len(data))
+        except OSError as err:       # a full disk, say: name the file, as a write does not
+            raise OSError(err.errno, err.strerror, str(self.path)) from None
 
     def release(self):
         fcntl.flock(self.fd, fcntl.LOCK_UN)
