@@ -30,6 +30,7 @@ WARM_UP_SCENARIO = "open_field"   # planned at start-up unless told: it compiles
 # raises. Not SIGINT itself, which a server started in the background may ignore.
 STOP = signal.SIGUSR1
 REQUEST_S = 10.0                  # [s] a connection has to send its whole request line
+MAX_REQUEST_S = 3600.0            # [s] beyond it, a request's deadline protects no one
 LINGER_S = 1.0                    # [s] a refused connection is read (and dropped) at most
 
 
@@ -50,9 +51,10 @@ def add_arguments(p):
 
 
 def main(args) -> int:
-    if not args.request_timeout > 0:
-        raise UsageError(f"--request-timeout must be a number of seconds above 0, got "
-                         f"{args.request_timeout}")
+    if not 0 < args.request_timeout <= MAX_REQUEST_S:
+        raise UsageError(f"--request-timeout must be a number of seconds in (0, "
+                         f"{MAX_REQUEST_S:g}] (a client that sends nothing holds the server "
+                         f"that long), got {args.request_timeout}")
     given = args.socket or os.environ.get(ENV)
     path = Path(given or default_socket()).absolute()
     if not given:

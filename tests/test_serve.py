@@ -338,3 +338,10 @@ def test_the_default_socket_is_in_a_private_folder(tmp_path, monkeypatch, capsys
     from stepzoo.search.cmd_serve import _private
     _private(cache / "stepzoo")
     assert (cache / "stepzoo").stat().st_mode & 0o777 == 0o700
+
+
+def test_a_request_timeout_out_of_range_is_refused(capsys):
+    for value in ("0", "nan", "inf"):
+        assert main(["serve", "--request-timeout", value, "--warm-up", "nosuch"]) == 2
+        assert capsys.readouterr().err.startswith(
+            "stepzoo serve: error: --request-timeout must be a number of seconds in (0, 3600]")
