@@ -30,6 +30,8 @@ WARM_UP_SCENARIO = "open_field"   # planned at start-up unless told: it compiles
 # raises. Not SIGINT itself, which a server started in the background may ignore.
 STOP = signal.SIGUSR1
 REQUEST_S = 10.0                  # [s] a connection has to send its whole request line
+MAX_REQUEST_S = 3600.0            # [s] beyond it, a request's deadline protects no one
+LINGER_S = 1.0                    # [s] a refused connection is read (and dropped) at most
 
 
 def add_arguments(p):
@@ -49,9 +51,10 @@ def add_arguments(p):
 
 
 def main(args) -> int:
-    if not args.request_timeout > 0:
-        raise UsageError(f"--request-timeout must be a number of seconds above 0, got "
-                         f"{args.request_timeout}")
+    if not 0 < args.request_timeout <= MAX_REQUEST_S:
+        raise UsageError(f"--request-timeout must be a number of seconds in (0, "
+                         f"{MAX_REQUEST_S:g}] (a client that sends nothing holds the server "
+                         f"that long), got {args.request_timeout}")
     given = args.socket or os.environ.get(ENV)
     path = Path(given or default_socket()).absolute()
     if not given:
@@ -241,10 +244,20 @@ def _stoppable(argv: list[str], watch) -> int:
 
 
 def _refuse(connection, why: str) -> None:
-    """Answer `why` in one line (the asker prints it, exit status 2), and log it here."""
+    """Answer `why` in one line (the asker prints it, exit status 2), and log it here. What
+    the asker still sends is read and dropped for up to LINGER_S: a socket closed with bytes
+    unread resets the connection, and the asker would lose the line."""
     _send(connection, {"refused": f"{why}; ask with `stepzoo plan ... --server SOCKET`"})
     sys.stderr.write(f"stepzoo serve: refused a connection: {why}\n")
     sys.stderr.flush()
+    deadline = time.monotonic() + LINGER_S
+    try:
+        connection.shutdown(socket.SHUT_WR)
+        connection.settimeout(LINGER_S)
+        while time.monotonic() < deadline and connection.recv(65536):
+            pass
+    except OSError:
+        pass                          # gone, or still sending at the end: closed anyway
 
 
 def _interrupt(signum, frame):

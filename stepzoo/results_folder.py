@@ -14,6 +14,7 @@ import errno
 import fcntl
 import json
 import os
+import re
 import shutil
 import stat
 import tempfile
@@ -24,7 +25,7 @@ from stepzoo.errors import UsageError
 LOCK = ".stepzoo.lock"      # holds the kind of the command that took it last
 MANIFEST = "manifest.json"  # its "written_by" names the command that wrote the folder
 # What each command leaves in its folder; any one of them marks the folder as that kind's
-# (for a folder without a manifest: another command's results are refused by these).
+# where the folder records no writer (written_by).
 MARKS = {
     "plan-bench": ("ompl",),
     "sweep": ("chunks", "runs.parquet"),
@@ -50,16 +51,16 @@ def kind_of(folder) -> str | None:
 
 
 def written_by(folder) -> str | None:
-    """The command that wrote `folder`: its manifest's "written_by"; without a manifest, the
-    kind in its lock file (a writer stopped before its manifest). None: not stepzoo, as far
-    as the folder tells (a manifest.json without "written_by" is someone else's)."""
+    """The command that wrote `folder` as the folder records it: its manifest's "written_by";
+    without a manifest, the kind in its lock file (a writer stopped before its manifest).
+    None: not recorded (a manifest.json without "written_by", or none and no lock)."""
     folder = Path(folder)
     manifest = folder / MANIFEST
     if manifest.exists() or manifest.is_symlink():
         try:
             said = json.loads(manifest.read_text()).get("written_by") \
                 if manifest.is_file() and not manifest.is_symlink() else None
-        except (OSError, ValueError, AttributeError):
+        except (OSError, ValueError, AttributeError, RecursionError):
             said = None
         return said if isinstance(said, str) else None
     try:
@@ -139,8 +140,12 @@ class _Lock:
                              f"{flag}") from None
 
     def mark(self):
-        os.ftruncate(self.fd, 0)
-        os.pwrite(self.fd, f"{self.kind}\n".encode(), 0)
+        data = f"{self.kind}\n".encode()
+        try:                         # written before the cut: a failure leaves it as it was
+            os.pwrite(self.fd, data, 0)
+            os.ftruncate(self.fd, len(data))
+        except OSError as err:       # a full disk, say: name the file, as a write does not
+            raise OSError(err.errno, err.strerror, str(self.path)) from None
 
     def release(self):
         fcntl.flock(self.fd, fcntl.LOCK_UN)
@@ -174,8 +179,11 @@ def replacing(folder, kind: str, flag: str = "--out"):
     old folder must hold only what its manifest lists ("files"): nothing else is lost."""
     with claim(folder, kind, flag) as folder:
         _check_listed(folder, kind, flag)
-        for stale in folder.parent.glob(f".{folder.name}.*.tmp"):
-            if stale.is_dir() and not stale.is_symlink():     # a killed writer's
+        # A killed writer's folder; not one of a folder named alike (`report.x`'s is
+        # `.report.x.XXXXXXXX.tmp`), which another command may be writing now.
+        staged = re.compile(re.escape(f".{folder.name}.") + r"[a-z0-9_]{8}\.tmp")
+        for stale in folder.parent.iterdir():
+            if staged.fullmatch(stale.name) and stale.is_dir() and not stale.is_symlink():
                 shutil.rmtree(stale, ignore_errors=True)
         new = Path(tempfile.mkdtemp(dir=folder.parent, prefix=f".{folder.name}.",
                                     suffix=".tmp"))
@@ -190,7 +198,7 @@ def replacing(folder, kind: str, flag: str = "--out"):
 def _check_listed(folder: Path, kind: str, flag: str):
     try:
         files = json.loads((folder / MANIFEST).read_text()).get("files", [])
-    except (OSError, ValueError, AttributeError):
+    except (OSError, ValueError, AttributeError, RecursionError):
         files = []
     keep = {LOCK, MANIFEST, *(f for f in files if isinstance(f, str))}
     extra = [p.name for p in folder.iterdir() if p.name not in keep and not _temporary(p.name)]

@@ -3,6 +3,7 @@ one writes and prints the same line; bad input is the same one line with exit st
 asking process imports only the standard library; a server that is not there is one line. The
 server survives its clients: a request has a deadline for the whole of it, a bad request is
 answered in one line, and each side talks only to a peer of its own user."""
+import functools
 import json
 import os
 import pwd
@@ -13,7 +14,6 @@ import socket
 import subprocess
 import sys
 import tempfile
-import time
 
 from pathlib import Path
 
@@ -45,9 +45,18 @@ def _other_user():
     if os.geteuid() != 0:
         pytest.skip("acting as another user needs root (os.setuid in a child)")
     try:
-        return pwd.getpwnam("nobody").pw_uid
+        uid = pwd.getpwnam("nobody").pw_uid
     except KeyError:
         pytest.skip("no user `nobody` to act as")
+    if not _can_become(uid):
+        pytest.skip("this root cannot change its user id here (no CAP_SETUID/CAP_SETGID)")
+    return uid
+
+
+@functools.cache
+def _can_become(uid: int) -> bool:
+    return subprocess.run([sys.executable, "-c", AS_USER, str(uid), "pass"],
+                          capture_output=True, timeout=60).returncode == 0
 
 
 # A program that starts as root, imports what it needs (root's interpreter may sit in a folder
@@ -338,3 +347,10 @@ def test_the_default_socket_is_in_a_private_folder(tmp_path, monkeypatch, capsys
     from stepzoo.search.cmd_serve import _private
     _private(cache / "stepzoo")
     assert (cache / "stepzoo").stat().st_mode & 0o777 == 0o700
+
+
+def test_a_request_timeout_out_of_range_is_refused(capsys):
+    for value in ("0", "nan", "inf"):
+        assert main(["serve", "--request-timeout", value, "--warm-up", "nosuch"]) == 2
+        assert capsys.readouterr().err.startswith(
+            "stepzoo serve: error: --request-timeout must be a number of seconds in (0, 3600]")
