@@ -52,8 +52,8 @@ def main(args) -> int:
 
 def _write(out, name: str, text: str, table) -> None:
     from stepzoo.output import atomic_write
-    from stepzoo.results_folder import writing
-    with writing(out, "export") as folder:
+    from stepzoo.results_folder import claim
+    with claim(out, "export") as folder:
         atomic_write(folder / name, text)
         atomic_write(folder / "schedule.csv", table.to_csv(index=False))
     sys.stderr.write(f"wrote {folder / name} and {folder / 'schedule.csv'}\n")

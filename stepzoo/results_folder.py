@@ -32,6 +32,7 @@ MARKS = {
     "plan": ("plan.json", "summary.json"),
     "report": ("index.html",),
     "run": ("sweep", "plans", "report"),
+    "export": ("schedule.csv",),
 }
 SHOWN = 3                   # entries a refusal names
 
