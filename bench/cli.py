@@ -31,11 +31,11 @@ COMMANDS = {
               "no start-up per plan"),
 }
 # Commands that run long enough to show progress: they take --no-progress and -q.
-LONG = ("run", "sweep", "plan", "report")
+LONG = ("run", "sweep", "plan", "plan-bench", "report")
 # Commands that integrate: they estimate their memory and work first (--max-memory/-steps).
 INTEGRATE = ("run", "simulate", "sweep", "plan")
 # A command that resumes where an interrupted call stopped, and how.
-RESUME = {"sweep": "resume with --resume",
+RESUME = {"sweep": "resume with --resume", "plan-bench": "resume with --resume",
           "run": "resume: run it again, the same command (finished sweep chunks are kept)"}
 INTERRUPTED = 130          # the shell's status for a command ended by Ctrl-C (128 + SIGINT)
 EXIT_STATUSES = """exit status:

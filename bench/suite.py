@@ -28,7 +28,7 @@ from stepzoo.bench import metrics, schema, sweep_config, sweep_folder
 from stepzoo.bench.sweep import _finite, _parquet, run_sweep
 from stepzoo.errors import UsageError
 from stepzoo.output import atomic_write, to_json
-from stepzoo.results_folder import writing
+from stepzoo.results_folder import claim
 
 SETTINGS = {"steps", "reference", "stability", "chunks", "trajectories", "timing", "limits",
             "newton"}
@@ -167,7 +167,7 @@ def run_suite(suite: SuiteConfig, out, resume=False, overwrite=False, progress=T
         sweep_config.check_workload(cfg)
     started = time.perf_counter()
     created = environment.now()
-    with writing(out, "sweep"):
+    with claim(out, "sweep", overwrite=overwrite):
         out = Path(out)
         sweep_folder.check_start(suite, out, resume, overwrite,
                                  discard=lambda old: _discard(out, old))
@@ -176,9 +176,9 @@ def run_suite(suite: SuiteConfig, out, resume=False, overwrite=False, progress=T
         manifests = {}
         for label, cfg, merged in suite.problems:
             folder = out / label
-            folder.mkdir(exist_ok=True)
             own = folder / "config.toml"
-            atomic_write(own, _toml(merged).encode())
+            with claim(folder, "sweep", overwrite=overwrite):   # marks it the sweep's
+                atomic_write(own, _toml(merged).encode())
             manifests[label] = run_sweep(replace(cfg, source=str(own)), folder, resume=resume,
                                          overwrite=overwrite, progress=progress, runner=runner)
         tables = assemble(suite, out)

@@ -21,7 +21,7 @@ from stepzoo.bench import frozen, jit_clock, metrics, schema, sweep_folder
 from stepzoo.bench.timing import per_step
 from stepzoo.errors import UsageError
 from stepzoo.output import atomic_write, to_json, write_file
-from stepzoo.results_folder import writing
+from stepzoo.results_folder import claim
 from stepzoo.bench.sweep_config import ESTIMATES, SweepConfig, check_workload, default_solver
 
 REF_WINDOW = 64        # output times per reference call: its cost per step grows with them
@@ -586,7 +586,7 @@ def run_sweep(cfg: SweepConfig, out, resume=False, overwrite=False, progress=Tru
     folder is locked meanwhile: a second sweep into it is refused (`results_folder`)."""
     sweep_folder.check_flags(resume, overwrite)
     check_workload(cfg)
-    with writing(out, "sweep"):
+    with claim(out, "sweep", overwrite=overwrite):
         return _fill(cfg, Path(out), resume, overwrite, progress, on_chunk, runner)
 
 

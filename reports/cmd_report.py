@@ -10,7 +10,7 @@ from pathlib import Path
 
 from stepzoo import environment
 from stepzoo.errors import UsageError
-from stepzoo.results_folder import check_kind, writing
+from stepzoo.results_folder import check_kind, replacing
 from stepzoo.validate import DEFAULT_MARGIN
 
 # Used for the summary table's cost column when no tuned config gives them.
@@ -26,6 +26,8 @@ def add_arguments(p):
     p.add_argument("--plans", metavar="DIR", help="a plan folder from `stepzoo plan`, or a "
                    "folder of them from `stepzoo plan --all` (default: RESULTS/plans of a run "
                    "folder, if there)")
+    p.add_argument("--plan-bench", metavar="DIR", help="a folder from `stepzoo plan-bench`: "
+                   "adds its trade-off figure, plan time against replay deviation")
     p.add_argument("--out", required=True, metavar="DIR", help="report folder to write")
     p.add_argument("--format", choices=["text", "json"], default="text",
                    help="what is printed: the report's path, or JSON with every file")
@@ -80,13 +82,15 @@ def _progress(on: bool):
     return say
 
 
-def build(results, out, tuned_path=None, plans_dir=None, progress=False):
+def build(results, out, tuned_path=None, plans_dir=None, progress=False, bench_dir=None):
     """Load every input, draw the figures (static and interactive), write the report and its
-    manifest.json; returns (index, summary, shown). `progress`: a line per stage to stderr."""
+    manifest.json; returns (index, summary, shown). `progress`: a line per stage to stderr;
+    `bench_dir`: a plan-bench folder, whose trade-off is Figure 8."""
     # Imported here, not with the module: pandas, matplotlib and plotly take seconds to
     # import, which `stepzoo report --help` (and `stepzoo run` before its sweep) need not wait.
     from stepzoo.reports import suite_report
     from stepzoo.reports.load import load_plans, load_sweep, load_tuned
+    from stepzoo.reports.tradeoff import load_bench_summary
     started = environment.now()
     say = _progress(progress)
     sweep_dir, tuned_path, plans_dir = resolve(results, tuned_path, plans_dir)
@@ -102,31 +106,42 @@ def build(results, out, tuned_path=None, plans_dir=None, progress=False):
     sweep = load_sweep(sweep_dir)
     tuned = load_tuned(tuned_path) if tuned_path is not None else None
     plan_list = load_plans(plans_dir) if plans_dir is not None else []
+    bench = load_bench_summary(bench_dir) if bench_dir is not None else None
     say(f"read the sweep ({len(sweep.runs)} runs), "
         + (f"{len(plan_list)} plan(s)" if plan_list else "no plans") + (", the tuned config"
                                                                         if tuned else "")
         + f" in {time.perf_counter() - t0:.1f} s")
-    with writing(out, "report"):
-        return _draw(sweep, tuned, tuned_path, plan_list, plans_dir, out, started, say)
+    # Drawn into a new folder that replaces `out` whole: a kill leaves the old report whole.
+    with replacing(out, "report") as into:
+        index, md, shown = _draw(sweep, tuned, tuned_path, plan_list, plans_dir, out, into,
+                                 started, say, bench, bench_dir)
+    return out / index.name, out / md.name, shown
 
 
-def _draw(sweep, tuned, tuned_path, plan_list, plans_dir, out, started, say):
+def _draw(sweep, tuned, tuned_path, plan_list, plans_dir, out, into, started, say,
+          bench=None, bench_dir=None):
+    """The report of the folder `out`, written into the folder `into` (which becomes it)."""
     from stepzoo.reports import figures, interactive, tables
     from stepzoo.reports.html import write_report
     from stepzoo.reports.load import load_manifest, tolerance
     from stepzoo.reports.provenance import environment_table, public_path
     # (static figure, its interactive plots), drawn in the report's order.
-    draw = [(lambda: figures.yaw_rate(sweep, out), lambda: interactive.yaw_rate(sweep, tuned)),
-            (lambda: figures.xy_paths(sweep, out), lambda: interactive.xy_paths(sweep, tuned)),
-            (lambda: figures.stability_regions(sweep, tuned, out),
+    draw = [(lambda: figures.yaw_rate(sweep, into), lambda: interactive.yaw_rate(sweep, tuned)),
+            (lambda: figures.xy_paths(sweep, into), lambda: interactive.xy_paths(sweep, tuned)),
+            (lambda: figures.stability_regions(sweep, tuned, into),
              lambda: interactive.stability_regions(sweep, tuned)),
-            (lambda: figures.error_vs_step(sweep, out),
+            (lambda: figures.error_vs_step(sweep, into),
              lambda: interactive.error_vs_step(sweep, tuned)),
-            (lambda: figures.work_precision(sweep, tuned, out),
+            (lambda: figures.work_precision(sweep, tuned, into),
              lambda: interactive.work_precision(sweep, tuned)),
-            (lambda: figures.stable_step_vs_speed(sweep, out),
+            (lambda: figures.stable_step_vs_speed(sweep, into),
              lambda: interactive.stable_step_vs_speed(sweep, tuned)),
-            (lambda: figures.plans(plan_list, out), lambda: interactive.plans(plan_list))]
+            (lambda: figures.plans(plan_list, into), lambda: interactive.plans(plan_list))]
+    if bench is not None:
+        from stepzoo.reports import tradeoff
+        points = tradeoff.tradeoff_points(bench, tuned)
+        draw.append((lambda: tradeoff.tradeoff_png(points, into),
+                     lambda: tradeoff.tradeoff_plot(points)))
     shown, plots = [], {}
     for static, live in draw:
         t0 = time.perf_counter()
@@ -159,23 +174,26 @@ def _draw(sweep, tuned, tuned_path, plan_list, plans_dir, out, started, say):
     manifests = {"sweep": sweep.manifest}
     if plans_dir is not None:
         manifests["plans"] = load_manifest(plans_dir)
+    if bench_dir is not None:
+        manifests["plan-bench"] = load_manifest(bench_dir)
     manifests["this report"] = own
     appendix = [environment_table(manifests, out)]
-    index, md = write_report(out, "stepzoo report", facts, [decision, summary], shown, plots,
+    index, md = write_report(into, "stepzoo report", facts, [decision, summary], shown, plots,
                              interactive.plotly_js(), appendix)
-    environment.write_manifest(out, "report", started, {
+    environment.write_manifest(into, "report", started, {
         "sweep": public_path(sweep.folder, out),
         "tuned": public_path(tuned_path, out) if tuned_path is not None else None,
         "plans": public_path(plans_dir, out) if plans_dir is not None else None,
+        "plan_bench": public_path(bench_dir, out) if bench_dir is not None else None,
         "files": ["index.html", "summary.md", *[n for f in shown for n, _ in f.images]]})
-    say(f"wrote {index} ({index.stat().st_size / 2 ** 20:.1f} MiB, figures inline) and "
-        f"{md.name}")
+    say(f"wrote {out / index.name} ({index.stat().st_size / 2 ** 20:.1f} MiB, figures "
+        f"inline) and {md.name}")
     return index, md, shown
 
 
 def main(args) -> int:
     index, md, shown = build(args.results, args.out, args.tuned, args.plans,
-                             progress=args.progress)
+                             progress=args.progress, bench_dir=args.plan_bench)
     if args.format == "json":
         files = [name for s in shown for name, _ in s.images]
         sys.stdout.write(json.dumps({"index": str(index), "summary": str(md),

@@ -6,7 +6,7 @@ from __future__ import annotations
 import html
 from pathlib import Path
 
-from stepzoo.output import atomic_write
+from stepzoo.output import write_file
 from stepzoo.reports.tables import to_html, to_markdown
 
 STYLE = """
@@ -115,10 +115,11 @@ def summary_md(title: str, facts: list, tables: list, figures: list,
 
 def write_report(out_dir, title: str, facts: list, tables: list, figures: list,
                  interactive: dict | None = None, plotly_js: str = "", appendix: list = ()):
-    """Write index.html and summary.md into out_dir; returns their paths."""
+    """Write index.html and summary.md into out_dir, a new folder that is renamed into
+    place whole once written (results_folder.replacing); returns their paths."""
     out_dir = Path(out_dir)
-    index = atomic_write(out_dir / "index.html", index_html(
-        title, facts, tables, figures, interactive, plotly_js, appendix))
-    summary = atomic_write(out_dir / "summary.md",
-                           summary_md(title, facts, tables, figures, appendix))
+    index = write_file(out_dir / "index.html", index_html(
+        title, facts, tables, figures, interactive, plotly_js, appendix).encode())
+    summary = write_file(out_dir / "summary.md",
+                         summary_md(title, facts, tables, figures, appendix).encode())
     return index, summary

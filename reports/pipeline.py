@@ -13,7 +13,7 @@ from typing import NamedTuple
 
 from stepzoo import bench, environment
 from stepzoo.errors import NoAnswer, UsageError
-from stepzoo.results_folder import check_kind, writing
+from stepzoo.results_folder import check_kind, claim
 from stepzoo.validate import DEFAULT_MARGIN, check
 
 # Package data of bench, beside its modules (a module's file, not the package's: an editable
@@ -103,7 +103,7 @@ def run(out="results", config=None, pos_tol: float = 0.1, margin: float = DEFAUL
     check("seed", "--seed", seed)
     out = check_kind(out, "run")
     steps = stages(out, config_path(config), pos_tol, margin, seed, progress and not quiet)
-    with writing(out, "run"):
+    with claim(out, "run"):
         return _run(out, steps, progress and not quiet, quiet)
 
 

@@ -18,7 +18,7 @@ from stepzoo.reports.tables import _plain
 from stepzoo.reports.html import write_report
 from stepzoo.reports.load import load_sweep
 from stepzoo.reports.provenance import environment_table, public_path
-from stepzoo.results_folder import check_kind, writing
+from stepzoo.results_folder import check_kind, replacing
 
 ORDER_COLUMNS = [
     ("problem", "problem"), ("method", "method"), ("order_declared", "declared order"),
@@ -52,11 +52,11 @@ def build(results, manifest, out, progress_say):
     sweeps = {label: load_sweep(results / label) for label in manifest["problems"]}
     progress_say(f"read the suite's {len(sweeps)} problems")
     rows = order_rows(sweeps)
-    with writing(out, "report"):
+    with replacing(out, "report") as into:    # a kill leaves the old report whole
         shown, plots = [], {}
         for number, (label, sweep) in enumerate(sweeps.items(), 1):
             t0 = time.perf_counter()
-            fig = figures.work_precision(sweep, None, out, number=number, problem=label)
+            fig = figures.work_precision(sweep, None, into, number=number, problem=label)
             plots[number] = interactive.divs(interactive.work_precision(sweep),
                                              f"plot{number}")
             shown.append(fig)
@@ -81,13 +81,13 @@ def build(results, manifest, out, progress_say):
             "theory.", rows, ORDER_COLUMNS)
         own = environment.provenance("report", started, environment.now())
         appendix = [environment_table({"suite": manifest, "this report": own}, out)]
-        index, md = write_report(out, f"stepzoo report: suite {manifest.get('config_name')}",
+        index, md = write_report(into, f"stepzoo report: suite {manifest.get('config_name')}",
                                  facts, [table], shown, plots, interactive.plotly_js(),
                                  appendix)
-        environment.write_manifest(out, "report", started, {
+        environment.write_manifest(into, "report", started, {
             "suite": public_path(results, out), "problems": list(sweeps),
             "files": ["index.html", "summary.md", *[n for f in shown for n, _ in f.images]]})
-    return index, md, shown
+    return out / index.name, out / md.name, shown
 
 
 def order_rows(sweeps: dict) -> list[dict]:

@@ -141,7 +141,7 @@ def plan(scenarios, out, config=None, seed: int = 0, *, reverse: bool = False,
     goes into `out` itself. `stepzoo plan` and `stepzoo run` call it, e.g.
     `plan([load_scenario("street")], "plans")`."""
     from stepzoo.search.pathfinder import BAD_ENDPOINT
-    from stepzoo.results_folder import check_kind, writing
+    from stepzoo.results_folder import check_kind, claim
     from stepzoo.search.planner_config import load_config, with_params
     check("seed", "--seed", seed)
     started = environment.now()
@@ -167,7 +167,7 @@ def plan(scenarios, out, config=None, seed: int = 0, *, reverse: bool = False,
         if record["cause"] in BAD_ENDPOINT:
             # The poses are the user's input: no plan is written for a pose that cannot be.
             raise UsageError(f"{record['reason']}; choose a pose in free space on the map")
-    with writing(out, "plan"):
+    with claim(out, "plan"):
         _write(out, records, scenarios, batch)
         environment.write_manifest(out, "plan", started, {
             "scenarios": [r["scenario"] for r in records], "seed": seed,

@@ -1,6 +1,7 @@
 """OMPL's benchmark log format (the text ompl::tools::Benchmark writes and OMPL's script
 `ompl_benchmark_statistics` turns into a Planner Arena SQLite database): one experiment (a
-query) per log, one planner, a row of properties per run, and the anytime progress."""
+query) per log, a planner per integrator, a row of properties per run, and the anytime
+progress."""
 from __future__ import annotations
 
 # ompl::base::PlannerStatus, in the order of its enum (the `status` column stores the index).
@@ -30,6 +31,9 @@ RUN_PROPERTIES = (
     ("nodes", "graph states", "INTEGER"),
     ("connect_attempts", "connection attempts", "INTEGER"),
     ("seed", "seed", "INTEGER"),
+    ("max_deviation_m", "replay max deviation", "REAL"),
+    ("final_deviation_m", "replay final deviation", "REAL"),
+    ("collides", "replay collides", "BOOLEAN"),
 )
 
 
@@ -43,10 +47,11 @@ def _value(v) -> str:
 
 def benchmark_log(*, experiment: str, version: str, host: str, date: str, setup: str,
                   cpuinfo: str, seed: int, time_limit_s: float, total_s: float,
-                  planner: str, settings: dict, runs: list[dict],
+                  planners: list[tuple[str, dict, list[dict]]],
                   experiment_properties: dict | None = None) -> str:
-    """The log text of one experiment; `runs` are dicts with the RUN_PROPERTIES columns and
-    `progress`, a list of (time [s], best length [m]) pairs."""
+    """The log text of one experiment; `planners` are (name, common settings, runs), the runs
+    dicts with the RUN_PROPERTIES columns and `progress`, a list of (time [s], best length
+    [m]) pairs; every planner has the same number of runs."""
     props = experiment_properties or {}
     lines = [f"{version.split()[0]} version {version.split()[-1]}",
              f"Experiment {experiment}",
@@ -55,19 +60,20 @@ def benchmark_log(*, experiment: str, version: str, host: str, date: str, setup:
              f"Running on {host}", f"Starting at {date}",
              "<<<|", setup.rstrip("\n"), "|>>>", "<<<|", cpuinfo.rstrip("\n"), "|>>>",
              f"{seed} is the random seed", f"{time_limit_s!r} seconds per run",
-             "0 MB per run", f"{len(runs)} runs per planner",
+             "0 MB per run", f"{len(planners[0][2])} runs per planner",
              f"{total_s!r} seconds spent to collect the data",
              "1 enum types", "|".join(("status", *OMPL_STATUS)),
-             "1 planners", planner,
-             f"{len(settings)} common properties",
-             *(f"{k} = {v}" for k, v in settings.items()),
-             f"{len(RUN_PROPERTIES)} properties for each run",
-             *(f"{name} {sqltype}" for _, name, sqltype in RUN_PROPERTIES),
-             f"{len(runs)} runs"]
-    lines += ["; ".join(_value(run[col]) for col, _, _ in RUN_PROPERTIES) + "; "
-              for run in runs]
-    lines += ["2 progress properties for each run", "time REAL", "best cost REAL",
-              f"{len(runs)} runs"]
-    lines += ["".join(f"{t!r},{c!r},;" for t, c in run["progress"]) for run in runs]
-    lines.append(".")
+             f"{len(planners)} planners"]
+    for planner, settings, runs in planners:
+        lines += [planner, f"{len(settings)} common properties",
+                  *(f"{k} = {v}" for k, v in settings.items()),
+                  f"{len(RUN_PROPERTIES)} properties for each run",
+                  *(f"{name} {sqltype}" for _, name, sqltype in RUN_PROPERTIES),
+                  f"{len(runs)} runs"]
+        lines += ["; ".join(_value(run[col]) for col, _, _ in RUN_PROPERTIES) + "; "
+                  for run in runs]
+        lines += ["2 progress properties for each run", "time REAL", "best cost REAL",
+                  f"{len(runs)} runs"]
+        lines += ["".join(f"{t!r},{c!r},;" for t, c in run["progress"]) for run in runs]
+        lines.append(".")
     return "\n".join(lines) + "\n"

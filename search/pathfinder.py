@@ -144,6 +144,19 @@ class PathFinder:
 
     def _check_endpoints(self, start, goal) -> tuple[str, str]:
         """(cause, reason) why no search can start, ('', '') if it can."""
+        cause, reason = self.bad_endpoint(start, goal)
+        if cause:
+            return cause, reason
+        labels = self._corridors()
+        a, b = (labels[self._lattice(p)] for p in (start, goal))
+        if a == 0 or a != b:
+            return "walled_off", ("goal walled off from the start: no corridor as wide as the "
+                                  "vehicle joins them")
+        return self._check_boxed_in(start, goal)
+
+    def bad_endpoint(self, start, goal) -> tuple[str, str]:
+        """(cause, reason) if `start` or `goal` is off the map or its footprint (+ margin)
+        collides: one of BAD_ENDPOINT, the caller's input; ('', '') if both are free."""
         xmin, xmax, ymin, ymax = self.omap.bounds()
         for name, pose in (("start", start), ("goal", goal)):
             if not (np.all(np.isfinite(pose)) and xmin <= pose[0] <= xmax
@@ -156,12 +169,7 @@ class PathFinder:
                     f"{name} pose ({pose[0]:g}, {pose[1]:g}, {pose[2]:g}) is in collision: the "
                     f"{self.vehicle['length']:g} x {self.vehicle['width']:g} m footprint "
                     f"(+{self.config.params['margin']:g} m margin) overlaps an obstacle")
-        labels = self._corridors()
-        a, b = (labels[self._lattice(p)] for p in (start, goal))
-        if a == 0 or a != b:
-            return "walled_off", ("goal walled off from the start: no corridor as wide as the "
-                                  "vehicle joins them")
-        return self._check_boxed_in(start, goal)
+        return "", ""
 
     def turn_radius(self) -> float:
         """[m] the kinematic bicycle's tightest turn, wheelbase / tan(delta_max): the radius of

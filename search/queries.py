@@ -23,6 +23,8 @@ from stepzoo.search.scenarios import open_map, pose
 
 QUERY_DIR = Path(__file__).with_name("queries")
 STREET_QUERIES = QUERY_DIR / "streets.json"
+# An id plus ".log" stays within the 255 bytes a file name may have on common file systems.
+MAX_ID_BYTES = 200
 # The maps of the shipped test set and their cell sizes [m/cell]; 12 queries each, seeds 0..3.
 STREET_MAPS = (("Berlin_1_256.map", 1.5), ("Boston_0_256.map", 1.5), ("den312d.map", 1.5),
                ("room-64-64-8.map", 3.0))
@@ -55,6 +57,10 @@ def load_queries(path) -> list[Query]:
             raise UsageError(f"{where} must be an object with map, start and goal "
                              "(cell_size for MovingAI maps, id optional)")
         qid = str(item.get("id", k))
+        bad = id_problem(qid)
+        if bad:
+            raise UsageError(f"{where}: id {qid!r} {bad}; an id names the query's files "
+                             "(ompl/<id>.log): use letters, digits, '-', '_' and '.'")
         if qid in seen:
             raise UsageError(f"{where}: id {qid!r} appears twice; ids must be unique")
         seen.add(qid)
@@ -67,6 +73,23 @@ def load_queries(path) -> list[Query]:
                              pose(item["start"], f"start of {where}"),
                              pose(item["goal"], f"goal of {where}")))
     return queries
+
+
+def id_problem(qid: str) -> str | None:
+    """Why `qid` cannot name a file inside the output folder (None: it can): a path
+    separator, `..` or a leading dot would leave the folder or hide the file, and a NUL or
+    control character is refused by the file system or by a terminal."""
+    if not qid:
+        return "is empty"
+    if any(ord(c) < 32 or ord(c) == 127 for c in qid):
+        return "holds a NUL or control character"
+    if "/" in qid or "\\" in qid:
+        return "holds a path separator"
+    if qid.startswith("."):
+        return "starts with a dot"
+    if len(qid.encode()) > MAX_ID_BYTES:
+        return f"is longer than {MAX_ID_BYTES} bytes"
+    return None
 
 
 def random_queries(map_path, cell_size, n, seed, *, vehicle=None, margin=0.1, near=30.0,

@@ -1,25 +1,43 @@
-"""A results folder has one writer at a time and holds one command's results. `writing(folder,
-kind)` holds a lock file in the folder while a command writes there: a second writer is
-refused in one line, and since the operating system drops the lock of a process that dies
-(flock), a killed writer never leaves a stale lock behind. A folder that holds another
-command's results (a plan in a sweep folder, say) is refused before anything is written."""
+"""A results folder has one writer at a time and holds one command's results. `claim(folder,
+kind)` checks the folder, creates it if needed and holds its lock file while a command writes
+there: a second writer is refused in one line, and since the operating system drops the lock
+(flock) of a process that dies, a killed writer never leaves a stale lock behind. A folder is
+written only where the user meant it and only over what stepzoo wrote: an empty name, a path
+through a symbolic link, a folder of another command's results or of anything stepzoo did
+not write is refused, in one line, before anything is written (docs/folders-and-server.md).
+`replacing(folder, kind)` writes a folder's results anew beside it and swaps them in whole."""
 from __future__ import annotations
 
 import contextlib
+import ctypes
+import errno
+import fcntl
+import json
+import os
+import shutil
+import stat
+import tempfile
 from pathlib import Path
-
-from filelock import FileLock, Timeout
 
 from stepzoo.errors import UsageError
 
-LOCK = ".stepzoo.lock"
-# What each command leaves in its folder; any one of them marks the folder as that kind's.
+LOCK = ".stepzoo.lock"      # holds the kind of the command that took it last
+MANIFEST = "manifest.json"  # its "written_by" names the command that wrote the folder
+# What each command leaves in its folder; any one of them marks the folder as that kind's
+# (for a folder without a manifest: another command's results are refused by these).
 MARKS = {
+    "plan-bench": ("ompl",),
     "sweep": ("chunks", "runs.parquet"),
     "plan": ("plan.json", "summary.json"),
     "report": ("index.html",),
     "run": ("sweep", "plans", "report"),
 }
+SHOWN = 3                   # entries a refusal names
+
+
+def _temporary(name: str) -> bool:
+    """A file or folder being written (atomic_write's `.NAME.XXXX.tmp`, a staged folder)."""
+    return name.startswith(".") and name.endswith(".tmp")
 
 
 def kind_of(folder) -> str | None:
@@ -31,37 +49,175 @@ def kind_of(folder) -> str | None:
     return None
 
 
-def check_kind(folder, kind: str, flag: str = "--out") -> Path:
-    """`folder` if it is, or can become, a folder of `kind`'s results; else UsageError."""
+def written_by(folder) -> str | None:
+    """The command that wrote `folder`: its manifest's "written_by"; without a manifest, the
+    kind in its lock file (a writer stopped before its manifest). None: not stepzoo, as far
+    as the folder tells (a manifest.json without "written_by" is someone else's)."""
+    folder = Path(folder)
+    manifest = folder / MANIFEST
+    if manifest.exists() or manifest.is_symlink():
+        try:
+            said = json.loads(manifest.read_text()).get("written_by") \
+                if manifest.is_file() and not manifest.is_symlink() else None
+        except (OSError, ValueError, AttributeError):
+            said = None
+        return said if isinstance(said, str) else None
+    try:
+        said = (folder / LOCK).read_text().strip()
+    except (OSError, UnicodeDecodeError):
+        return None
+    return said if said in MARKS else None
+
+
+def _listing(names) -> str:
+    names = sorted(names)
+    return ", ".join(names[:SHOWN]) + (f" and {len(names) - SHOWN} more"
+                                       if len(names) > SHOWN else "")
+
+
+def check_path(folder, flag: str = "--out") -> Path:
+    """`folder` as a Path if a command may write there: a name is given, and no symbolic
+    link lies on its way (the resolved path is the given one), so results land exactly where
+    the user named, never where a link someone planted leads. Else UsageError."""
+    if not str(folder).strip():
+        raise UsageError(f"{flag} is empty; give the name of a folder, such as {flag} results")
+    given = os.path.abspath(folder)
+    real = os.path.realpath(folder)
+    if given != real:
+        raise UsageError(f"{flag} {folder} leads through a symbolic link to {real}; stepzoo "
+                         f"writes only to a path without links: give {flag} {real} if that "
+                         "is the folder meant")
     folder = Path(folder)
     if folder.exists() and not folder.is_dir():
         raise UsageError(f"{flag} {folder} exists and is not a folder; give a folder")
-    other = kind_of(folder)
-    if other not in (None, kind):
-        found = next(m for m in MARKS[other] if (folder / m).exists())
-        raise UsageError(f"{flag} {folder} holds the results of `stepzoo {other}` ({found}), "
-                         f"not of `stepzoo {kind}`; give another {flag} (or remove that folder "
-                         "first)")
     return folder
 
 
+def check_kind(folder, kind: str, flag: str = "--out", *, overwrite: bool | None = None) -> Path:
+    """`folder` if `kind` may write its results there (check_path, then what it holds):
+    nothing, or what `kind` itself wrote (its manifest, or its lock file with no manifest
+    yet). A folder of another command's results is refused; one of anything else too,
+    unless `overwrite` is True. `overwrite` None: the command has no --overwrite flag."""
+    folder = check_path(folder, flag)
+    if not folder.is_dir():
+        return folder
+    entries = [p.name for p in folder.iterdir() if p.name != LOCK and not _temporary(p.name)]
+    if not entries:
+        return folder
+    writer = written_by(folder)
+    if writer == kind:
+        return folder
+    other = writer or kind_of(folder)     # a mark of `kind` alone, without its lock: not ours
+    if other is not None and other != kind:
+        found = next((m for m in (*MARKS.get(other, ()), MANIFEST) if (folder / m).exists()),
+                     LOCK)
+        raise UsageError(f"{flag} {folder} holds the results of `stepzoo {other}` ({found}), "
+                         f"not of `stepzoo {kind}`; give another {flag} (or remove that folder "
+                         "first)")
+    if overwrite:
+        return folder
+    how = (f"give an empty or new {flag}, or pass --overwrite to write into it anyway"
+           if overwrite is False else f"give an empty or new {flag}")
+    raise UsageError(f"{flag} {folder} holds files that `stepzoo {kind}` did not write "
+                     f"({_listing(entries)}); {how}")
+
+
+class _Lock:
+    """An exclusive flock on `folder`/LOCK, not waited for; the file says `kind` once held."""
+
+    def __init__(self, folder: Path, kind: str, flag: str):
+        self.path, self.kind, self.flag = folder / LOCK, kind, flag
+        self.fd = os.open(self.path, os.O_RDWR | os.O_CREAT | os.O_NOFOLLOW, 0o644)
+        try:
+            fcntl.flock(self.fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            os.close(self.fd)
+            raise UsageError(f"{folder} is in use by another stepzoo command (it holds "
+                             f"{self.path}); wait for that one to finish, or give another "
+                             f"{flag}") from None
+
+    def mark(self):
+        os.ftruncate(self.fd, 0)
+        os.pwrite(self.fd, f"{self.kind}\n".encode(), 0)
+
+    def release(self):
+        fcntl.flock(self.fd, fcntl.LOCK_UN)
+        os.close(self.fd)
+
+
 @contextlib.contextmanager
-def writing(folder, kind: str, flag: str = "--out"):
-    """Create `folder` if needed and hold its lock while the block writes into it."""
-    folder = check_kind(folder, kind, flag)
+def claim(folder, kind: str, flag: str = "--out", *, overwrite: bool | None = None):
+    """Check `folder` for `kind` (check_kind), create it if needed and hold its lock while
+    the block writes into it; yields the folder as a Path. `overwrite`: as check_kind's (the
+    command's --overwrite flag; None where it has none). E.g. `with claim(args.out,
+    "plan-bench", overwrite=args.overwrite) as out: ...`."""
+    folder = check_kind(folder, kind, flag, overwrite=overwrite)
     folder.mkdir(parents=True, exist_ok=True)
-    lock = FileLock(folder / LOCK, blocking=False)
+    lock = _Lock(folder, kind, flag)
     try:
-        lock.acquire()
-    except Timeout:
-        raise UsageError(f"{folder} is in use by another stepzoo command (it holds "
-                         f"{folder / LOCK}); wait for that one to finish, or give another "
-                         f"{flag}") from None
-    try:
-        check_kind(folder, kind, flag)      # a writer that finished just before may have
-        yield folder                        # been another command
+        # A writer that finished just before may have been another command.
+        check_kind(folder, kind, flag, overwrite=overwrite)
+        lock.mark()
+        yield folder
     finally:
         lock.release()
+
+
+@contextlib.contextmanager
+def replacing(folder, kind: str, flag: str = "--out"):
+    """claim `folder`, then yield a new empty folder beside it (hidden, `.NAME.XXXX.tmp`) to
+    write the results into; when the block ends without an error, the new folder takes
+    `folder`'s place in one atomic exchange and the old one is removed, so a reader, a
+    failure or a kill finds the old results whole or the new ones whole, never a mix. The
+    old folder must hold only what its manifest lists ("files"): nothing else is lost."""
+    with claim(folder, kind, flag) as folder:
+        _check_listed(folder, kind, flag)
+        for stale in folder.parent.glob(f".{folder.name}.*.tmp"):
+            if stale.is_dir() and not stale.is_symlink():     # a killed writer's
+                shutil.rmtree(stale, ignore_errors=True)
+        new = Path(tempfile.mkdtemp(dir=folder.parent, prefix=f".{folder.name}.",
+                                    suffix=".tmp"))
+        try:
+            yield new
+            os.chmod(new, stat.S_IMODE(folder.stat().st_mode))   # mkdtemp makes 0700
+            _exchange(new, folder)
+        finally:
+            shutil.rmtree(new, ignore_errors=True)     # the old results, or the unfinished
+
+
+def _check_listed(folder: Path, kind: str, flag: str):
+    try:
+        files = json.loads((folder / MANIFEST).read_text()).get("files", [])
+    except (OSError, ValueError, AttributeError):
+        files = []
+    keep = {LOCK, MANIFEST, *(f for f in files if isinstance(f, str))}
+    extra = [p.name for p in folder.iterdir() if p.name not in keep and not _temporary(p.name)]
+    if extra:
+        raise UsageError(f"{flag} {folder} holds files that `stepzoo {kind}` did not write "
+                         f"({_listing(extra)}), which replacing its results would lose; move "
+                         f"them, or give another {flag}")
+
+
+_RENAME_EXCHANGE = 2                     # renameat2's flag (Linux 3.15)
+_AT_FDCWD = -100
+
+
+def _exchange(a: Path, b: Path):
+    """Swap the folders `a` and `b` atomically where the system can (Linux renameat2); else
+    by two renames, between which `b`'s old content is at `a` alone (docs: a kill there
+    leaves the old results in the hidden folder)."""
+    libc = ctypes.CDLL(None, use_errno=True)
+    swap = getattr(libc, "renameat2", None)
+    if swap is not None:
+        if swap(_AT_FDCWD, os.fsencode(a), _AT_FDCWD, os.fsencode(b), _RENAME_EXCHANGE) == 0:
+            return
+        err = ctypes.get_errno()
+        if err not in (errno.EINVAL, errno.ENOSYS, errno.EOPNOTSUPP):
+            raise OSError(err, os.strerror(err), str(b))
+    old = Path(tempfile.mkdtemp(dir=b.parent, prefix=f".{b.name}.", suffix=".tmp"))
+    os.rename(b, old / b.name)
+    os.rename(a, b)
+    os.rename(old, a)
 
 
 def check_file_target(path, flag: str = "--out") -> Path:

@@ -18,7 +18,7 @@ from stepzoo.bench.cli import main as stepzoo
 from stepzoo.bench.sweep import chunk_ids, run_sweep
 from stepzoo.bench.sweep_config import load
 from stepzoo.errors import UsageError
-from stepzoo.results_folder import LOCK, writing
+from stepzoo.results_folder import LOCK, claim
 
 ROOT = Path(__file__).resolve().parents[1]
 TABLES = ("runs", "limits", "eigenvalues", "trajectories", "summary")
@@ -30,6 +30,16 @@ def cli(*args, timeout=120):
     proc = subprocess.run([sys.executable, "-m", "stepzoo", *map(str, args)],
                           capture_output=True, text=True, timeout=timeout, cwd=ROOT)
     return proc.returncode, proc.stdout, proc.stderr
+
+
+# `python -m stepzoo ARGS` with SIGINT's default action back: Python then installs its Ctrl-C
+# handler. A parent that ignores SIGINT (a background job of a shell script) passes the
+# ignoring on, and the command rightly keeps it there (that Ctrl-C is meant for another job);
+# these tests play the user at the terminal, whose Ctrl-C does reach the command. An exec
+# rather than a function run between fork and exec: JAX, loaded here, warns of its threads.
+CTRL_C_REACHES = [sys.executable, "-c", "import os, signal, sys; signal.signal(signal.SIGINT, "
+                  "signal.SIG_DFL); os.execv(sys.executable, [sys.executable, *sys.argv[1:]])",
+                  "-m", "stepzoo"]
 
 
 def one_line(err: str) -> str:
@@ -48,7 +58,7 @@ def tables(folder):
 
 def test_a_second_writer_is_refused_in_one_line_while_the_first_holds_the_folder(tmp_path):
     out = tmp_path / "out"
-    with writing(out, "sweep"):
+    with claim(out, "sweep"):
         code, _, err = cli("sweep", ROOT / "bench" / "configs" / "small.toml", "--out", out,
                            "--resume")
     assert code == 2 and "in use by another stepzoo command" in one_line(err)
@@ -58,18 +68,18 @@ def test_a_second_writer_is_refused_in_one_line_while_the_first_holds_the_folder
 def test_a_killed_writers_lock_is_taken_over(tmp_path):
     out = tmp_path / "out"
     holder = subprocess.Popen(
-        [sys.executable, "-c", "import sys, time\nfrom stepzoo.results_folder import writing\n"
-         f"with writing({str(out)!r}, 'sweep'):\n    print('held', flush=True)\n"
+        [sys.executable, "-c", "import sys, time\nfrom stepzoo.results_folder import claim\n"
+         f"with claim({str(out)!r}, 'sweep'):\n    print('held', flush=True)\n"
          "    time.sleep(120)"], stdout=subprocess.PIPE, text=True)
     try:
         assert holder.stdout.readline().strip() == "held"
-        with pytest.raises(UsageError, match="in use"), writing(out, "sweep"):
+        with pytest.raises(UsageError, match="in use"), claim(out, "sweep"):
             pass
     finally:
         holder.send_signal(signal.SIGKILL)
         holder.wait()
     assert (out / LOCK).exists()          # the lock file stays; its lock died with the holder
-    with writing(out, "sweep"):
+    with claim(out, "sweep"):
         pass
 
 
@@ -106,9 +116,8 @@ def test_an_interrupted_sweep_says_how_to_resume_and_resumes_to_the_same_tables(
                                                                               tmp_path):
     path, whole = tiny_sweep
     out = tmp_path / "out"
-    proc = subprocess.Popen([sys.executable, "-m", "stepzoo", "sweep", str(path), "--out",
-                             str(out), "--no-progress"], cwd=ROOT, stderr=subprocess.PIPE,
-                            text=True)
+    proc = subprocess.Popen([*CTRL_C_REACHES, "sweep", str(path), "--out", str(out),
+                             "--no-progress"], cwd=ROOT, stderr=subprocess.PIPE, text=True)
     deadline = time.monotonic() + 120
     while not any((out / "chunks").glob("euler-*")) and time.monotonic() < deadline:
         time.sleep(0.05)
@@ -212,9 +221,9 @@ def test_a_folder_of_another_commands_results_is_refused(tiny_sweep, tmp_path, c
 def test_ctrl_c_stops_a_run_with_one_line_and_status_130(tiny_sweep, tmp_path):
     path, _ = tiny_sweep
     out = tmp_path / "results"
-    proc = subprocess.Popen([sys.executable, "-m", "stepzoo", "run", "--config", str(path),
-                             "--out", str(out), "-q"], cwd=ROOT, stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True)
+    proc = subprocess.Popen([*CTRL_C_REACHES, "run", "--config", str(path), "--out", str(out),
+                             "-q"], cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True)
     deadline = time.monotonic() + 120
     while not any((out / "sweep" / "chunks").glob("euler-*")) and time.monotonic() < deadline:
         time.sleep(0.05)
