@@ -23,6 +23,7 @@ COMMANDS = {
     "sweep": ("stepzoo.bench.cmd_sweep", "stability/accuracy sweep into a results folder"),
     "verdict": ("stepzoo.bench.cmd_verdict", "where a fixed (method, h) is stable and accurate"),
     "tune": ("stepzoo.bench.cmd_tune", "choose (method, h) under a tolerance -> planner config"),
+    "export": ("stepzoo.bench.cmd_export", "the tuned (method, h) for acados, diffrax or JSON"),
     "plan": ("stepzoo.search.cmd_plan", "plan a scenario (built-in, or map + start + goal)"),
     "plan-bench": ("stepzoo.search.cmd_plan_bench", "plan a file of queries N times: a table "
                    "and OMPL benchmark logs"),

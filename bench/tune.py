@@ -1,10 +1,16 @@
 """Tuning: from a sweep's tables, the cheapest (method, h) that keeps a safety margin below
 the measured largest stable step and meets a tolerance at every operating point of the
-envelope: on the position error of a vehicle model, or on the config's error norm of any. Cost is right-hand-side evaluations per simulated second (median over points); ties
-go to the smaller worst-case error (measured time is noisy, so it is only a second view)."""
+envelope: on the position error of a vehicle model, or on the config's error norm of any.
+
+Cost is measured time per simulated second (`time`, the default): each qualifying method's
+time per step, calibrated where the planner spends it (bench/calibrate.py), times its steps
+per second; candidates whose times differ by less than the calibration's spread (at most
+TIE_MAX) are a tie that the fewer right-hand-side evaluations win. `evals` ranks by
+evaluations per simulated second (median over points), ties to the smaller worst error."""
 from __future__ import annotations
 
 import json
+import os
 from dataclasses import dataclass
 from datetime import datetime, timezone
 from pathlib import Path
@@ -12,9 +18,17 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from stepzoo.bench.calibrate import ROUNDS, calibrate
 from stepzoo.bench.sweep_folder import check_finished
 from stepzoo.errors import NoAnswer, UsageError
 from stepzoo.validate import check
+
+COSTS = ("time", "evals")
+# The largest time difference, as a fraction of the fastest candidate's, that may count as a
+# tie: beyond it time decides, however noisy the calibration, so the choice is never slower
+# than the fastest qualifying candidate by more than this.
+TIE_MAX = 0.1
+
 
 def load_results(folder) -> tuple[pd.DataFrame, pd.DataFrame, dict]:
     """(runs, limits, manifest) of a finished sweep folder; UsageError if it is not one."""
@@ -83,24 +97,33 @@ def candidates(runs: pd.DataFrame, limits: pd.DataFrame, tol, margin: float,
     return table
 
 
-def check_arguments(pos_tol, margin: float, tol=None) -> Criterion:
-    """The criterion, or UsageError unless the tolerance and the margin are in range."""
+def check_arguments(pos_tol, margin: float, tol=None, cost: str = "time",
+                    rounds: int = ROUNDS) -> Criterion:
+    """The criterion, or UsageError unless the tolerance, the margin, the cost and the
+    calibration's rounds are in range."""
     crit = criterion(pos_tol, tol)
     check("margin", "--margin", margin)
+    if cost not in COSTS:
+        raise UsageError(f"--cost must be one of {', '.join(COSTS)}, got {cost!r}")
+    check("rounds", "--rounds", rounds)
     return crit
 
 
-def tune(folder, pos_tol, margin: float, tol=None) -> dict:
+def tune(folder, pos_tol, margin: float, tol=None, *, batch: int, interval_s: float,
+         cost: str = "time", rounds: int = ROUNDS) -> dict:
     """The tuned config as a dict (the TOML's content): under --pos-tol (pos_tol [m]) or
-    --tol (tol, in the sweep's error norm)."""
-    crit = check_arguments(pos_tol, margin, tol)
+    --tol (tol, in the sweep's error norm), ranked by `cost` ("time" or "evals"). Each
+    qualifying method is calibrated at its largest qualifying step in calls of `batch`
+    trajectories over `interval_s` [s] (the planner's shooting; the command passes the
+    planner's), `rounds` rounds: both costs are recorded whichever ranks."""
+    crit = check_arguments(pos_tol, margin, tol, cost, rounds)
     runs, limits, manifest = load_results(folder)
     col = crit.column
     if col not in runs:
         raise UsageError(f"{folder} has no {col} column: its model has no position (X, Y); "
                          "tune it with --tol E, the config's error norm")
     table = candidates(runs, limits, crit.tol, margin, col)
-    ok = table[table["ok"]].sort_values(["cost_evals_per_s", col, "method"], kind="stable")
+    ok = table[table["ok"]].copy()
     if ok.empty:
         best = table[table["in_margin"]].sort_values(col).head(1)
         hint = (f"the smallest worst-case error within the margin is "
@@ -109,15 +132,31 @@ def tune(folder, pos_tol, margin: float, tol=None) -> dict:
         raise NoAnswer(f"no (method, h) of {folder} is stable with margin {margin:g} and "
                        f"within {crit.show(crit.tol)} at every point: {hint}; loosen "
                        f"{crit.flag} or sweep smaller steps")
-    per_method = ok.groupby("method", sort=False).head(1)      # each method's cheapest step
+    cal = _calibrate(folder, ok, batch, interval_s, rounds)
+    per_step = ok["method"].map(lambda m: cal[m].per_step_s)
+    ok["cost_time_per_s"] = per_step / ok["h"]
+    ok["cost_time_spread_per_s"] = ok["method"].map(lambda m: cal[m].spread_s) / ok["h"]
+    ok["spread"] = ok["method"].map(lambda m: cal[m].spread)
+    ranked, fastest = _rank(ok, cost, col)
+    per_method = ranked.groupby("method", sort=False).head(1)  # each method's cheapest step
     choice = per_method.iloc[0]
     n_points = int(choice["points"])
-    why = (f"{choice['method']} at h = {choice['h']:g} s is the cheapest step that stays "
-           f"within {1 - margin:g} x the measured largest stable step and within "
+    why = (f"{choice['method']} at h = {choice['h']:g} s is the "
+           f"{'fastest (within the measured spread)' if cost == 'time' else 'cheapest'} step "
+           "that stays within "
+           f"{1 - margin:g} x the measured largest stable step and within "
            f"{crit.show(crit.tol)} at all {n_points} operating points: "
-           f"{choice['cost_evals_per_s']:.4g} RHS evaluations per simulated second, worst "
-           f"{crit.what} {crit.show(choice[col])}")
-    runners = [_runner(r, choice, crit) for _, r in per_method.iloc[1:].iterrows()]
+           + (f"{choice['cost_time_per_s']:.3g} s of wall time per simulated second in the "
+              f"planner's call ({batch} trajectories of {interval_s:g} s, the fastest of "
+              f"{rounds} rounds), {choice['cost_evals_per_s']:.4g} RHS evaluations"
+              if cost == "time" else
+              f"{choice['cost_evals_per_s']:.4g} RHS evaluations per simulated second")
+           + f", worst {crit.what} {crit.show(choice[col])}")
+    if cost == "time" and fastest != choice.name:
+        f = ranked.loc[fastest]
+        why += (f"; {f['method']} at h = {f['h']:g} s is {f['cost_time_per_s']:.3g} s, "
+                "faster by less than the calibration's spread, with more RHS evaluations")
+    runners = [_runner(r, choice, crit, cost) for _, r in per_method.iloc[1:].iterrows()]
     for name in sorted(set(table["method"]) - set(per_method["method"])):
         runners.append(_infeasible(table[table["method"] == name], name, crit, margin))
     sweep_name = manifest.get("config_name", "sweep")
@@ -130,30 +169,79 @@ def tune(folder, pos_tol, margin: float, tol=None) -> dict:
         "why": why,
         **limit,
         "margin": float(margin),
+        "cost": cost,
         "cost_evals_per_s": float(choice["cost_evals_per_s"]),
         "cost_time_per_s": float(choice["cost_time_per_s"]),
+        "cost_time_spread_per_s": float(choice["cost_time_spread_per_s"]),
         **worst,
         "h_meas_min_s": float(choice["h_meas_min"]),
         "horizon_s": float(manifest.get("horizon_s", float("nan"))),
         "model": str(manifest.get("model", "dynamic5")),
         "sweep_config_sha256": manifest["config_sha256"],
+        "sweep": str(Path(folder).resolve()),
         "provenance": (f"stepzoo tune {folder} {crit.flag} {crit.tol:g} --margin {margin:g} "
-                       f"at {datetime.now(timezone.utc).isoformat(timespec='seconds')}, from "
+                       f"--cost {cost} at "
+                       f"{datetime.now(timezone.utc).isoformat(timespec='seconds')}, from "
                        f"the sweep '{sweep_name}' created {manifest.get('created', '?')}"),
         "envelope": {**{v: [float(runs[v].min()), float(runs[v].max())] for v in variables
                         if v in runs}, "points": n_points},
+        "calibration": _calibration_record(cal, batch, interval_s, rounds),
         "runners_up": runners,
     }
 
 
-def _runner(row, choice, crit) -> dict:
-    factor = row["cost_evals_per_s"] / choice["cost_evals_per_s"]
-    return {"method": str(row["method"]), "h": float(row["h"]),
+def _calibrate(folder, ok: pd.DataFrame, batch: int, interval_s: float, rounds: int) -> dict:
+    """Each qualifying method's Calibration at its largest qualifying step (its cheapest in
+    time, the per-step time being the method's), on the sweep's own model and envelope."""
+    from stepzoo.bench.sweep_config import load
+    cfg = load(Path(folder) / "config.toml")
+    steps = ok.groupby("method", sort=True)["h"].max()
+    return calibrate({str(m): float(h) for m, h in steps.items()}, cfg.spec, batch,
+                     interval_s, rounds, resolve=cfg.method)
+
+
+def _rank(ok: pd.DataFrame, cost: str, col: str) -> tuple[pd.DataFrame, object]:
+    """The qualifying rows, the chosen first, then by cost; and the fastest row's label.
+    By time: every row slower than the fastest by less than the larger of the two methods'
+    spreads (at most TIE_MAX) ties with it, and the tie goes to the fewest evaluations, then
+    to the smaller worst error."""
+    if cost == "evals":
+        ranked = ok.sort_values(["cost_evals_per_s", col, "method"], kind="stable")
+        return ranked, None
+    by_time = ok.sort_values(["cost_time_per_s", "cost_evals_per_s", col, "method"],
+                             kind="stable")
+    fastest = by_time.iloc[0]
+    window = np.minimum(np.maximum(by_time["spread"], fastest["spread"]), TIE_MAX)
+    tied = by_time[by_time["cost_time_per_s"] <= fastest["cost_time_per_s"] * (1 + window)]
+    # Equal evaluations too: the smaller worst error, which no noise can flip.
+    chosen = tied.sort_values(["cost_evals_per_s", col, "cost_time_per_s", "method"],
+                              kind="stable").index[0]
+    order = [chosen] + [i for i in by_time.index if i != chosen]
+    return by_time.loc[order], by_time.index[0]
+
+
+def _calibration_record(cal: dict, batch: int, interval_s: float, rounds: int) -> dict:
+    return {"batch": batch, "interval_s": float(interval_s), "rounds": rounds,
+            "tie_max": TIE_MAX, "xla_flags": os.environ.get("XLA_FLAGS", ""),
+            "methods": {m: {"h": c.h, "n_steps": c.n_steps, "per_step_s": c.per_step_s,
+                            "spread_s": c.spread_s} for m, c in sorted(cal.items())}}
+
+
+def _runner(row, choice, crit, cost: str) -> dict:
+    key, what = (("cost_time_per_s", "time") if cost == "time"
+                 else ("cost_evals_per_s", "RHS evaluations"))
+    factor = row[key] / choice[key]
+    if factor <= 1:      # a tie the choice won: faster within the spread, more evaluations
+        lost = (f"is {factor:.3g} x the choice in time, within the calibration's spread, "
+                "and spends more RHS evaluations")
+    else:
+        lost = f"costs {factor:.3g} x the choice in {what}"
+    return {"method": str(row["method"]), "h": float(row["h"]), "qualifies": True,
             "cost_evals_per_s": float(row["cost_evals_per_s"]),
             "cost_time_per_s": float(row["cost_time_per_s"]),
+            "cost_time_spread_per_s": float(row["cost_time_spread_per_s"]),
             "reason": (f"qualifies at h = {row['h']:g} s (worst error "
-                       f"{crit.show(row[crit.column])}) but costs {factor:.3g} x the choice in "
-                       "RHS evaluations")}
+                       f"{crit.show(row[crit.column])}) but {lost}")}
 
 
 def _infeasible(rows: pd.DataFrame, name: str, crit, margin: float) -> dict:
@@ -166,7 +254,7 @@ def _infeasible(rows: pd.DataFrame, name: str, crit, margin: float) -> dict:
         reason = (f"no step qualifies: within the margin its smallest worst-case {crit.what} "
                   f"is {crit.show(best[crit.column])} (h = {best['h']:g} s) > "
                   f"{crit.show(crit.tol)}")
-    return {"method": name, "reason": reason}
+    return {"method": name, "qualifies": False, "reason": reason}
 
 
 def write(tuned: dict, out) -> Path:

@@ -165,9 +165,7 @@ def _draw(sweep, tuned, tuned_path, plan_list, plans_dir, out, into, started, sa
         f"cost (wall time: the fastest of the timed rounds).",
         tables.method_summary(sweep, tol, margin, view.error), tables.METHOD_COLUMNS)
     decision = tables.Table(
-        "Tuning decision", "The (method, h) that `stepzoo tune` chose (rank 1) and its "
-        "runners-up, with their cost per simulated second and the reason each lost."
-        if tuned else "No tuned config was given.",
+        "Tuning decision", tables.tuning_caption(tuned) if tuned else "No tuned config was given.",
         tables.tuning_rows(tuned) if tuned else [], tables.TUNING_COLUMNS)
     facts = _facts(sweep, tuned, tuned_path, plan_list, plans_dir, out)
     own = environment.provenance("report", started, environment.now())

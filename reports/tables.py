@@ -72,6 +72,20 @@ def tuning_rows(tuned: dict) -> list[dict]:
     return [chosen, *others]
 
 
+def tuning_caption(tuned: dict) -> str:
+    """What ranked the tuning table: the cost that chose, as the tuned config records it."""
+    if tuned.get("cost", "evals") == "time":     # configs from before --cost ranked by evals
+        c = tuned.get("calibration", {})
+        by = (f"measured wall time per simulated second (each method calibrated in the "
+              f"planner's call, {c.get('batch', '?')} trajectories of {c.get('interval_s', '?')}"
+              f" s, the fastest of {c.get('rounds', '?')} rounds; a tie within the measured "
+              "spread goes to fewer RHS evaluations)")
+    else:
+        by = "RHS evaluations per simulated second"
+    return (f"The (method, h) that `stepzoo tune` chose (rank 1) and its runners-up, ranked by "
+            f"{by}, with both costs per simulated second and the reason each lost.")
+
+
 def _plain(v):
     """numpy scalars to Python; NaN to None."""
     if isinstance(v, np.generic):

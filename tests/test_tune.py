@@ -1,6 +1,8 @@
 """The tuned (method, h) is the cheapest that the sweep shows stable with the margin and within
-the tolerance everywhere, it holds at 20 seeded operating points the sweep never saw, and the
-file carries what the planner reads; mistakes are one line, exit 2."""
+the tolerance everywhere: in calibrated time (the default; a tie within the measured spread
+to fewer RHS evaluations) or in RHS evaluations (--cost evals). It holds at 20 seeded
+operating points the sweep never saw, and the file carries what the planner reads; mistakes
+are one line, exit 2."""
 import tomllib
 from pathlib import Path
 
@@ -25,13 +27,24 @@ POS_TOL, MARGIN = 0.01, 0.1        # [m], fraction
 
 
 @pytest.fixture(scope="module")
-def tuned(tmp_path_factory):
+def tuned_both(tmp_path_factory):
+    """(sweep folder, {cost: tuned TOML}) of the small sweep, tuned by time and by evals."""
     folder = tmp_path_factory.mktemp("tune")
     run_sweep(load(SMALL), folder / "sweep", progress=False)
-    out = folder / "tuned.toml"
-    assert stepzoo(["tune", str(folder / "sweep"), "--pos-tol", str(POS_TOL), "--margin",
-                    str(MARGIN), "--out", str(out)]) == 0
-    return folder / "sweep", tomllib.loads(out.read_text())
+    files = {}
+    for cost in ("time", "evals"):
+        out = folder / f"tuned_{cost}.toml"
+        flag = [] if cost == "time" else ["--cost", "evals"]      # time is the default
+        assert stepzoo(["tune", str(folder / "sweep"), "--pos-tol", str(POS_TOL), "--margin",
+                        str(MARGIN), "--out", str(out), *flag]) == 0
+        files[cost] = tomllib.loads(out.read_text())
+    return folder / "sweep", files
+
+
+@pytest.fixture(scope="module")
+def tuned(tuned_both):
+    sweep, files = tuned_both
+    return sweep, files["time"]
 
 
 def test_tuned_file_says_what_why_and_from_which_sweep(tuned):
@@ -45,8 +58,10 @@ def test_tuned_file_says_what_why_and_from_which_sweep(tuned):
     assert {r["method"] for r in t["runners_up"]} | {t["method"]} == set(load(SMALL).methods)
 
 
-def test_choice_is_the_cheapest_that_qualifies(tuned):
-    sweep, t = tuned
+def test_cost_evals_chooses_the_fewest_evaluations_that_qualify(tuned_both):
+    sweep, files = tuned_both
+    t = files["evals"]
+    assert t["cost"] == "evals" and files["time"]["cost"] == "time"
     runs = pd.read_parquet(sweep / "runs.parquet")
     limits = pd.read_parquet(sweep / "limits.parquet")
     rows = runs.merge(limits[["method", "point", "h_meas"]], on=["method", "point"])
@@ -55,6 +70,49 @@ def test_choice_is_the_cheapest_that_qualifies(tuned):
     assert (mine["err_pos"] <= POS_TOL).all()
     table = candidates(runs, limits, POS_TOL, MARGIN)
     assert table[table["ok"]]["cost_evals_per_s"].min() == pytest.approx(t["cost_evals_per_s"])
+
+
+def test_the_reports_tuning_table_says_which_cost_chose(tuned_both):
+    from stepzoo.reports.tables import tuning_caption, tuning_rows
+    _, files = tuned_both
+    assert "ranked by measured wall time" in tuning_caption(files["time"])
+    assert "ranked by RHS evaluations" in tuning_caption(files["evals"])
+    rows = tuning_rows(files["time"])
+    assert rows[0]["method"] == files["time"]["method"] and rows[1]["cost_time_per_s"] > 0
+
+
+def _qualifying(t) -> list[dict]:
+    return [{k: t[k] for k in ("method", "h", "cost_time_per_s", "cost_evals_per_s")},
+            *[r for r in t["runners_up"] if r["qualifies"]]]
+
+
+def test_cost_time_chooses_the_fastest_within_the_measured_spread(tuned):
+    """Behaviour, not speed: each qualifying method's best step (its largest qualifying h) is
+    priced as steps per second x its calibrated time per step, and the choice is the argmin of
+    those prices up to the spread (never more than 10% slower), where fewer evaluations win."""
+    sweep, t = tuned
+    runs = pd.read_parquet(sweep / "runs.parquet")
+    limits = pd.read_parquet(sweep / "limits.parquet")
+    table = candidates(runs, limits, POS_TOL, MARGIN)
+    largest = table[table["ok"]].groupby("method")["h"].max()
+    cal, tie_max = t["calibration"]["methods"], t["calibration"]["tie_max"]
+    rows = _qualifying(t)
+    assert {r["method"]: r["h"] for r in rows} == pytest.approx(largest.to_dict())
+    assert set(cal) == set(largest.index) and t["calibration"]["batch"] == 40
+    for r in rows:
+        c = cal[r["method"]]
+        assert c["n_steps"] == round(t["calibration"]["interval_s"] / r["h"])
+        assert r["cost_time_per_s"] == pytest.approx(c["per_step_s"] / r["h"], rel=1e-12)
+    fastest = min(rows, key=lambda r: r["cost_time_per_s"])
+    rel = lambda r: cal[r["method"]]["spread_s"] / cal[r["method"]]["per_step_s"]
+    window = lambda r: min(max(rel(r), rel(fastest)), tie_max)
+    best = fastest["cost_time_per_s"]
+    tied = [r for r in rows if r["cost_time_per_s"] <= best * (1 + window(r))]
+    assert t["method"] in {r["method"] for r in tied}
+    assert t["cost_time_per_s"] <= 1.1 * best
+    assert t["cost_evals_per_s"] == min(r["cost_evals_per_s"] for r in tied)
+    later = [r["cost_time_per_s"] for r in rows[1:]]
+    assert later == sorted(later)
 
 
 def test_tuned_step_holds_at_20_unseen_operating_points(tuned):
@@ -94,6 +152,7 @@ def test_an_impossible_tolerance_is_no_answer_one_line_and_exit_1(tuned, tmp_pat
 @pytest.mark.parametrize("args,message", [
     (["--pos-tol", "0.1", "--margin", "1.5"], "--margin must be a stability margin"),
     (["--pos-tol", "-1"], "--pos-tol must be a position tolerance"),
+    (["--pos-tol", "0.1", "--rounds", "0"], "--rounds must be a number of timed rounds"),
 ])
 def test_bad_flags_are_one_line_and_exit_2(tuned, tmp_path, capsys, args, message):
     sweep, _ = tuned

@@ -1,0 +1,203 @@
+"""`stepzoo export` takes the tuned (method, h) where it is used: acados' settings reproduce the
+tuned step with acados' own tableau of the same method, the diffrax snippet runs and equals
+stepzoo's fixed step, the step schedule is the largest step that qualifies per envelope value;
+mistakes are one line and exit 2."""
+import contextlib
+import importlib.util
+import io
+import json
+import tomllib
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from stepzoo.bench import export
+from stepzoo.bench.cli import main as stepzoo
+from stepzoo.errors import NoAnswer
+from stepzoo.integrators import integrate
+from stepzoo.integrators.methods import TABLEAUS
+
+POS_TOL = 1.0       # [m] loose: on the tiny sweep, euler qualifies (the choice) and heun too
+
+
+@pytest.fixture(scope="module")
+def tuned(tiny_sweep, tmp_path_factory):
+    """(tuned file, its content, the sweep folder) of the tiny sweep, tuned in time."""
+    _, sweep = tiny_sweep
+    out = tmp_path_factory.mktemp("export") / "tuned.toml"
+    assert stepzoo(["tune", str(sweep), "--pos-tol", str(POS_TOL), "--out", str(out)]) == 0
+    return out, tomllib.loads(out.read_text()), sweep
+
+
+@pytest.fixture(scope="module")
+def exported(tuned, tmp_path_factory):
+    """The JSON of `export --to json --interval 0.095 --out DIR`, and DIR."""
+    path, _, _ = tuned
+    folder = tmp_path_factory.mktemp("exported")
+    buf = io.StringIO()
+    with contextlib.redirect_stdout(buf):
+        assert stepzoo(["export", str(path), "--to", "json", "--interval", "0.095", "--out",
+                        str(folder)]) == 0
+    return json.loads(buf.getvalue()), folder
+
+
+def test_tuned_config_records_its_sweep_folder(tuned):
+    _, t, sweep = tuned
+    assert t["sweep"] == str(sweep.resolve()) and export.sweep_of(t) == sweep.resolve()
+
+
+@pytest.mark.parametrize("interval", ["whole", 0.095])
+def test_acados_steps_reproduce_the_tuned_step(tuned, interval):
+    """S a whole number of h: S / num_steps is h; otherwise the largest step below h that
+    divides S (one step fewer would be longer than h)."""
+    _, t, _ = tuned
+    h = t["h"]
+    S = 8 * h if interval == "whole" else interval
+    a = export.acados(t, S)
+    n = a["sim_method_num_steps"]
+    assert a["method"] == t["method"] and a["h_tuned_s"] == h
+    if interval == "whole":
+        assert n == 8 and S / n == pytest.approx(h, rel=1e-15)
+    else:
+        assert S / n <= h < S / (n - 1)
+    assert a["step_s"] == S / n
+
+
+# acados' explicit tableaus (acados/sim/sim_erk_integrator.c, get_explicit_butcher_tableau):
+# (A rows, b) for 1 to 4 stages.
+ACADOS_ERK = {1: ([[0]], [1]), 2: ([[0, 0], [0.5, 0]], [0, 1]),
+              3: ([[0, 0, 0], [0.5, 0, 0], [-1, 2, 0]], [1 / 6, 2 / 3, 1 / 6]),
+              4: ([[0, 0, 0, 0], [0.5, 0, 0, 0], [0, 0.5, 0, 0], [0, 0, 1, 0]],
+                  [1 / 6, 1 / 3, 1 / 3, 1 / 6])}
+
+
+def _collocation(c):
+    """The collocation tableau on nodes c: a_ij = integral of the j-th Lagrange basis
+    polynomial from 0 to c_i, b_j the same to 1."""
+    s = len(c)
+    A, b = np.zeros((s, s)), np.zeros(s)
+    for j in range(s):
+        basis = np.poly1d([1.0])
+        for k in range(s):
+            if k != j:
+                basis *= np.poly1d([1.0, -c[k]]) / (c[j] - c[k])
+        integral = basis.integ()
+        A[:, j] = integral(np.asarray(c)) - integral(0.0)
+        b[j] = integral(1.0) - integral(0.0)
+    return A, b
+
+
+def _nodes(kind, s):
+    if kind == "GAUSS_LEGENDRE":          # roots of the Legendre polynomial on [0, 1]
+        return (np.polynomial.legendre.leggauss(s)[0] + 1) / 2
+    # Radau IIA: the roots of P_s - P_{s-1} on [-1, 1] (its right end included), on [0, 1]
+    coef = np.zeros(s + 1)
+    coef[s], coef[s - 1] = 1.0, -1.0
+    return (np.sort(np.polynomial.legendre.legroots(coef)) + 1) / 2
+
+
+@pytest.mark.parametrize("name", sorted(export.ACADOS))
+def test_each_acados_setting_is_the_same_tableau_as_the_method(name):
+    kind, stages, collocation = export.ACADOS[name]
+    t = TABLEAUS[name]
+    if kind == "ERK":
+        A, b = ACADOS_ERK[stages]
+    else:
+        A, b = _collocation(_nodes(collocation, stages))
+    np.testing.assert_allclose(t.a, A, atol=1e-14)
+    np.testing.assert_allclose(t.b, b, atol=1e-14)
+
+
+def test_a_choice_acados_lacks_goes_to_the_cheapest_qualifying_method_it_has():
+    t = {"method": "heun", "h": 0.01, "runners_up": [
+        {"method": "ab2", "h": 0.005, "qualifies": True},
+        {"method": "rk4", "qualifies": False, "reason": "too inaccurate"},
+        {"method": "midpoint", "h": 0.0125, "qualifies": True},
+        {"method": "rk3", "h": 0.016, "qualifies": True}]}
+    a = export.acados(t, 0.1)
+    assert a["method"] == "midpoint"
+    assert (a["integrator_type"], a["sim_method_num_stages"]) == ("ERK", 2)
+    assert a["sim_method_num_steps"] == 8 and "rank 3" in a["why"]
+    with pytest.raises(NoAnswer):
+        export.acados({"method": "heun", "h": 0.01, "runners_up": t["runners_up"][:2]}, 0.1)
+
+
+@pytest.mark.skipif(importlib.util.find_spec("diffrax") is None,
+                    reason="diffrax is not installed (pip install stepzoo[bench])")
+@pytest.mark.parametrize("method", ["choice", "rk4"])
+def test_diffrax_snippet_runs_and_equals_stepzoos_fixed_step(tuned, method):
+    """The tuned choice (a solver of diffrax's own) and rk4 (written from stepzoo's tableau)."""
+    _, t, sweep = tuned
+    if method != "choice":
+        t = dict(t, method=method, h=0.05)
+    code = export.diffrax_snippet(t, sweep, 0.3)
+    scope = {}
+    with contextlib.redirect_stdout(io.StringIO()) as printed:
+        exec(compile(code, "diffrax_snippet.py", "exec"), scope)
+    assert "X" in printed.getvalue()
+    d = export.diffrax_settings(t, 0.3)
+    assert d["n_steps"] * d["dt0"] == pytest.approx(0.3) and d["dt0"] <= t["h"]
+    spec = scope["spec"]
+    point = json.loads((sweep / "manifest.json").read_text())["trajectory_point"]
+    x0, u, p = spec.arrays([tuple(point.values())])
+    ours = integrate(t["method"], spec.rhs, x0[0], u[0], {k: v[0] for k, v in p.items()},
+                     d["dt0"], d["n_steps"])
+    np.testing.assert_allclose(scope["x_end"], np.asarray(ours.x[-1]), rtol=1e-12, atol=1e-12)
+
+
+def test_step_schedule_is_the_largest_qualifying_step_per_envelope_value(tuned, exported):
+    _, t, sweep = tuned
+    data, folder = exported
+    csv = pd.read_csv(folder / "schedule.csv")
+    assert json.loads((folder / "export.json").read_text()) == data
+    runs = pd.read_parquet(sweep / "runs.parquet")
+    limits = pd.read_parquet(sweep / "limits.parquet")
+    rows = runs[runs["method"] == t["method"]].merge(
+        limits[["method", "point", "h_meas"]], on=["method", "point"])
+    rows["ok"] = (rows["stable"] & (rows["h"] <= (1 - t["margin"]) * rows["h_meas"])
+                  & (rows["err_pos"] <= POS_TOL))
+    for var in ("vx", "delta"):
+        values = sorted(runs[var].unique())
+        assert [r["value"] for r in data["schedule"][var]] == values
+        for r in data["schedule"][var]:
+            ok = rows[rows[var] == r["value"]].groupby("h")["ok"].all()
+            assert r["h_safe_s"] == ok[ok].index.max()
+            line = csv[(csv["variable"] == var) & np.isclose(csv["value"], r["value"])]
+            assert line["h_safe_s"].item() == r["h_safe_s"]
+    assert min(r["h_safe_s"] for r in data["schedule"]["vx"]) >= t["h"]
+    a = data["acados"]
+    assert a["interval_s"] == 0.095 and a["integrator_type"] == "ERK"
+    assert data["diffrax"]["method"] == t["method"]
+
+
+@pytest.mark.parametrize("args,words", [
+    (["--to", "json"], "not found"),
+    (["--to", "acados"], "needs --interval"),
+    (["--to", "acados", "--interval", "0"], "--interval must be"),
+    (["--to", "acados", "--interval", "-1"], "--interval must be"),
+    (["--to", "json", "--interval", "nan"], "--interval must be"),
+])
+def test_bad_input_is_one_line_and_exit_2(tuned, tmp_path, capsys, args, words):
+    path, _, _ = tuned
+    target = str(tmp_path / "missing.toml") if words == "not found" else str(path)
+    assert stepzoo(["export", target, *args]) == 2
+    captured = capsys.readouterr()
+    assert captured.out == "" and captured.err.count("\n") == 1 and words in captured.err
+
+
+@pytest.mark.parametrize("args", [["--to", "casadi"], ["--to", "json", "--interval", "abc"]])
+def test_unknown_target_or_a_word_for_the_interval_is_one_line_and_exit_2(tuned, capsys,
+                                                                         args):
+    path, _, _ = tuned
+    with pytest.raises(SystemExit) as exit_:
+        stepzoo(["export", str(path), *args])
+    assert exit_.value.code == 2
+    assert capsys.readouterr().err.count("\n") == 1
+
+
+def test_a_file_that_is_no_tuned_config_is_one_line_and_exit_2(tiny_sweep, capsys):
+    config, _ = tiny_sweep
+    assert stepzoo(["export", str(config), "--to", "json"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "not a tuned config" in err
