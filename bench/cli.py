@@ -32,7 +32,7 @@ COMMANDS = {
               "no start-up per plan"),
 }
 # Commands that run long enough to show progress: they take --no-progress and -q.
-LONG = ("run", "sweep", "plan", "plan-bench", "report")
+LONG = ("run", "sweep", "tune", "plan", "plan-bench", "report")
 # Commands that integrate: they estimate their memory and work first (--max-memory/-steps).
 INTEGRATE = ("run", "simulate", "sweep", "plan")
 # A command that resumes where an interrupted call stopped, and how.
