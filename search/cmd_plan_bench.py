@@ -12,7 +12,6 @@ import platform
 import socket
 import sys
 import threading
-import time
 from dataclasses import dataclass
 from datetime import datetime, timezone
 from importlib.metadata import version

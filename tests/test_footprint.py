@@ -1,7 +1,6 @@
 """Footprint collision: the disc cover contains the car, paths cannot jump walls, and the
 centre screen that spares most poses the per-disc check never changes an answer."""
 
-from pathlib import Path
 
 import numpy as np
 import pytest

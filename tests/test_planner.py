@@ -1,7 +1,6 @@
 """The tree planner: the five scenarios plan to exact paths that an independent dense check
 (reference integrator, sampled footprint, raw occupancy cells) finds collision-free; the same
 inputs give the same path; bad endpoints, walled-off goals, budgets and blow-up end cleanly."""
-from pathlib import Path
 
 import numpy as np
 import pytest

@@ -81,7 +81,6 @@ def diffrax_rk4(n, h):
 
     import diffrax
     import jax
-    import jax.numpy as jnp
 
     from stepzoo.bench.perf.workload import MODEL
 
