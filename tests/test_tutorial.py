@@ -90,7 +90,8 @@ def test_the_sweep_prints_the_page_s_table_and_flags_the_clamp_where_it_is_reach
 def test_the_casadi_model_measures_the_jax_model_s_limits_bit_for_bit(loop):
     folder, out = loop
     assert said("f is not smooth") in out["casadi"].splitlines()
-    jax_, casadi = (pd.read_csv(folder / name / "limits.csv") for name in ("sweep", "sweep_casadi"))
+    jax_, casadi = (pd.read_csv(folder / name / "limits.csv")
+                    for name in ("sweep", "sweep_casadi"))
     for column in ("h_pred", "h_meas", "nonsmooth_t", "order_fit"):
         assert jax_[column].equals(casadi[column]), column
 
