@@ -126,6 +126,10 @@ def test_tune_and_the_exports_carry_the_same_numbers(loop):
     assert acados["sim_method_num_steps"] == math.ceil(0.1 / rk4["h"])
     assert acados["step_s"] * acados["sim_method_num_steps"] == pytest.approx(0.1)
     assert acados["step_s"] <= rk4["h"]
+    # acados runs rk4, so its block has rk4's schedule, as `--to acados` prints it.
+    assert acados["schedule"]["v"][0]["h_safe_s"] == rk4["h"]
+    assert {r["method"] for r in acados["schedule"]["v"]} == {"rk4"}
+    assert "schedule" not in diffrax                      # diffrax runs the tuned heun
     assert (exported["method"], exported["h"], diffrax["dt0"]) == ("heun", 0.025, 0.025)
     schedule = pd.read_csv(folder / "exported" / "schedule.csv")
     page_schedule = [line for line in PAGE.splitlines()
