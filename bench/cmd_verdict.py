@@ -46,6 +46,7 @@ def verdicts(cfg, pairs, column: str, tol: float, margin: float, unit: str = "")
             "inaccurate_where": region(table, table["stable"] & ~table["accurate"], variables),
             "worst_error": float(worst["error"]),
             "worst_at": {v: float(worst[v]) for v in variables},
+            "worst_cause": str(worst["cause"]),
             "h_pred_min": float(table["h_pred"].min()),
             "h_meas_min": float(table["h_meas"].min()),
             "tolerance": {column: tol},
@@ -113,12 +114,22 @@ def main(args) -> int:
 
 def _show(cfg, v, table, tol, unit) -> None:
     variables = list(cfg.spec.variables)
-    worst = ("inf (blows up)" if math.isinf(v["worst_error"])
-             else f"{v['worst_error']:.3g}{unit}")
+    # An infinite error is a run that is not stable: say why (a failed solve is no blow-up).
+    first = v["worst_cause"].split("; ")[0]
+    worst = (f"inf ({'blows up' if first == 'unstable' else first})"
+             if math.isinf(v["worst_error"]) else f"{v['worst_error']:.3g}{unit}")
+    # As the sweep's summary does, a limit where a nonlinear solve failed is the solver's,
+    # told apart from the measured stability limits.
+    solver = table["limit_cause"] == "solver failed"
+    own = table.loc[~solver, "h_meas"]
+    measured = f"smallest measured {own.min():.4g} s" if len(own) else "no measured limit"
+    if solver.any():
+        measured += (f"; a nonlinear solve failed above {table.loc[solver, 'h_meas'].min():.4g}"
+                     f" s at {int(solver.sum())} point(s)")
     print(f"{v['method']} at h = {v['h']:g} s on {cfg.model} ({v['points']} points): "
           f"stable at {v['stable']} ({v['stable_with_margin']} with margin {v['margin']:g}), "
           f"within {tol:g}{unit} at {v['accurate']}; smallest predicted limit "
-          f"{v['h_pred_min']:.4g} s, smallest measured {v['h_meas_min']:.4g} s")
+          f"{v['h_pred_min']:.4g} s, {measured}")
     rows = [{**{k: r[k] for k in variables},
              **{"h/h_meas": r["h_over_h_meas"], "stable": "yes" if r["stable"] else "no",
                 "error": r["error"], "accurate": "yes" if r["accurate"] else "no",

@@ -250,5 +250,11 @@ def as_json(tuned: dict, path, sweep: Path, table,
         out["diffrax"] = diffrax_settings(tuned, interval_s)
     except NoAnswer as err:
         out["diffrax"] = {"error": str(err)}
+    # A tool that runs another method than the tuned one (acados has no Heun) gets that
+    # method's schedule with its settings, as `--to acados` and `--to diffrax` print it.
+    for tool in ("acados", "diffrax"):
+        other = (out[tool] or {}).get("method", tuned["method"])
+        if other != tuned["method"]:
+            out[tool]["schedule"] = schedule_records(schedule(tuned, sweep, other))
     out["schedule"] = schedule_records(table)
     return out

@@ -117,8 +117,8 @@ def orders_matched(statuses, tol: float = ORDER_TOL) -> str:
 def order_status(observed: float, declared: float, note: str,
                  h_rho: float = float("nan"), nonsmooth: bool = False) -> str:
     """How an observed order compares with the declared one: "matches" (within ORDER_TOL on
-    an asymptotic range), "limited by non-smooth f" (it does not match, and f is not smooth
-    along the references, `nonsmooth`: bench.nonsmooth; the error at such a point falls
+    an asymptotic range), "limited by non-smooth f" (it is below the declared one, and f is
+    not smooth along the references, `nonsmooth`: bench.nonsmooth; the error at such a point falls
     like h or h^2 whatever the method), "stiff range" (it does not match, and even the
     finest step of the fit has h * rho(J) > STIFF_H_RHO, `h_rho`, rho the largest spectral
     radius of the Jacobian along the reference: the classical order is a statement about
@@ -128,7 +128,9 @@ def order_status(observed: float, declared: float, note: str,
         return "not observable"
     if note == "asymptotic" and abs(observed - declared) <= ORDER_TOL:
         return "matches"
-    if nonsmooth:
+    # A kink or jump of f lowers the observed order; it cannot be what an order above the
+    # declared one comes from.
+    if nonsmooth and observed < declared:
         return "limited by non-smooth f"
     if h_rho > STIFF_H_RHO:
         return "stiff range"

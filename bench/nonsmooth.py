@@ -198,7 +198,8 @@ def note(limits) -> str:
     whats = ", ".join(f"{w} ({k})" for w, k in
                       hit[["nonsmooth_what", "nonsmooth_kind"]].drop_duplicates()
                       .itertuples(index=False))
-    t = hit["nonsmooth_t"]
+    first, last = f"{hit['nonsmooth_t'].min():.4g}", f"{hit['nonsmooth_t'].max():.4g}"
+    when = first if first == last else f"{first}..{last}"
     return (f"f is not smooth along the reference at {len(hit)} of {len(per_point)} points "
-            f"(t = {t.min():.4g}..{t.max():.4g} s; {whats}): the fitted orders there are "
+            f"(t = {when} s; {whats}): the fitted orders there are "
             f"the model's, not the methods'; {REMEDY}")

@@ -51,7 +51,7 @@ TIMING = ["chunk", "method", "compile_s", "ref_compile_s", "reference_s", "integ
 # nonsmooth_t [s]: the first time where f is not smooth along the point's reference (NaN
 # where it is smooth), nonsmooth_what the state or input that jumps, nonsmooth_kind "jump"
 # (f itself) or "kink" (its Jacobian), nonsmooth_events how many such points (rule:
-# bench.nonsmooth.RULE). Where most points have one and the order misses, summary's
+# bench.nonsmooth.RULE). Where most points have one and the order falls short, summary's
 # order_status says "limited by non-smooth f"; its nonsmooth_points counts them and
 # nonsmooth_note says where and the remedy.
 NONSMOOTH_TAIL = ["nonsmooth_t", "nonsmooth_what", "nonsmooth_kind", "nonsmooth_events"]

@@ -17,6 +17,7 @@ from matplotlib.collections import LineCollection
 from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
 
+from stepzoo.bench.sweep_config import ESTIMATES
 from stepzoo.integrators import METHODS
 from stepzoo.reports.load import tolerance
 from stepzoo.output import atomic_write
@@ -347,7 +348,9 @@ def error_vs_step(sweep, out_dir: Path, verdicts=()) -> Shown:
         ax.legend(fontsize=6)
     name = _save(fig, out_dir, "fig4_error_vs_step.png")
     errs = sweep.view.error_states
-    caption = ("Worst error over the envelope (largest over its operating points and the run "
+    final = sweep.manifest.get("error_estimate") == ESTIMATES["final"]
+    over = "at the end of the run" if final else "over the run"
+    caption = (f"Worst error over the envelope (largest over its operating points, {over}, "
                f"of |error| / scale of the error states {', '.join(errs)}, against the "
                "reference; the error the sweep fits its orders on) against step "
                "size, log-log, for every step stable at all points; the dashed line has the "

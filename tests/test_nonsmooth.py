@@ -128,3 +128,12 @@ def test_the_commonroad_steering_stop_is_a_jump_of_f_where_delta_reaches_it():
     assert abs(stop.t - (p["delta_max"] - 0.7) / 0.3) <= ts[1]
     assert (stop.what, stop.kind, stop.count) == ("delta", "jump", 1)
     assert np.isnan(still.t) and still.count == 0
+
+
+def test_an_order_above_the_declared_one_is_not_blamed_on_non_smooth_f():
+    """A kink lowers the observed order; rk4 fitted at 4.3 where f has one is not 'limited'."""
+    from stepzoo.bench.metrics import order_status
+    assert order_status(2.1, 4, "asymptotic", nonsmooth=True) == "limited by non-smooth f"
+    assert order_status(4.3, 4, "no asymptotic range: x", nonsmooth=True) == \
+        "no asymptotic range"
+    assert order_status(4.5, 4, "asymptotic", nonsmooth=True) == "above declared"

@@ -188,6 +188,10 @@ def test_a_failed_solve_is_reported_apart_from_measured_limits(failed_solve, tmp
     assert [p["cause"] for p in v["points"]] == ["solver failed"]
     assert v["solver_failed_where"] == "y1 = 1.5" and v["unstable_where"] == "nowhere"
     assert v["points"][0]["limit_cause"] == "solver failed"
+    # The text says so too: no measured stability limit, and no blow-up as the worst error.
+    text = _run(["verdict", str(config), "--method", "backward_euler", "--h", "10"])
+    assert "no measured limit; a nonlinear solve failed above " in text.splitlines()[0]
+    assert "inf (solver failed) at y1 = 1.5" in text and v["worst_cause"] == "solver failed"
 
 
 def test_figures_1_2_show_the_point_where_the_tuned_choice_binds(tiny_sweep, tmp_path):
