@@ -12,7 +12,7 @@ import numpy as np
 from stepzoo.output import atomic_write
 from stepzoo.search.path_metrics import cusps
 from stepzoo.search.pathfinder import PlanResult
-from stepzoo.search.replay import controls, replay, vehicle_params
+from stepzoo.search.replay import controls, path_nodes, replay, vehicle_params
 from stepzoo.search.scenarios import Scenario
 
 MAX_GAP_M = 0.1       # no two consecutive path rows farther apart [m] (the report's contract)
@@ -24,18 +24,9 @@ def path_rows(result: PlanResult) -> np.ndarray:
     """(K, 4) [t s, X m, Y m, psi rad] along the tree edges and the connection, filled by
     linear interpolation so that rows are at most ROW_SPACING_M apart. The chord of a gap of
     s on a turn of radius R strays s^2 / (8 R) from it: below 1 mm for R >= 1 m."""
-    pieces, t0 = [], 0.0
-    for edge in result.path_edges:
-        t = t0 + result.h * np.arange(len(edge))
-        pieces.append(np.column_stack([t, edge[:, :3]]))
-        t0 = t[-1]
-    if result.connection is not None:
-        conn = result.connection
-        pieces.append(np.column_stack([t0 + conn.t, conn.states[:, :3]]))
-    if not pieces:
-        return np.zeros((0, 4))
-    # Each piece starts where the previous ended: drop the repeated joint row.
-    rows = np.vstack([pieces[0]] + [p[1:] for p in pieces[1:]])
+    rows = path_nodes(result)
+    if not len(rows):
+        return rows
     gap = np.hypot(*np.diff(rows[:, 1:3], axis=0).T)
     parts = np.maximum(np.ceil(gap / ROW_SPACING_M), 1).astype(int)
     owner = np.repeat(np.arange(len(gap)), parts)

@@ -103,7 +103,7 @@ def replay(plan, omap: OccupancyMap, footprint: Footprint | None = None,
              **dict.fromkeys(METRICS), "nodes": 0, "samples": 0, "end": None}
     if not segs:
         return block
-    planned = (_result_nodes(plan) if isinstance(plan, PlanResult)
+    planned = (path_nodes(plan) if isinstance(plan, PlanResult)
                else _path_nodes(np.asarray(plan["path"], float), segs))
     if footprint is None:
         footprint = car_footprint(vehicle, margin)
@@ -208,8 +208,9 @@ def _params(model: str, vehicle: dict) -> dict:
     return dict(p, Fxf=0.0) if model == "dynamic5" else dict(p, L=p["Lf"] + p["Lr"])
 
 
-def _result_nodes(result: PlanResult) -> np.ndarray:
-    """(K, 4) [t s, X, Y, psi] the planned path at its nodes, each joint once."""
+def path_nodes(result: PlanResult) -> np.ndarray:
+    """(K, 4) [t s, X m, Y m, psi rad] the planned path at its nodes (the integrator's steps
+    along the tree edges, the connection's intervals), each joint once; (0, 4) for none."""
     pieces, t0 = [], 0.0
     for edge in result.path_edges:
         t = t0 + result.h * np.arange(len(edge))
@@ -218,6 +219,9 @@ def _result_nodes(result: PlanResult) -> np.ndarray:
     if result.connection is not None:
         conn = result.connection
         pieces.append(np.column_stack([t0 + conn.t, conn.states[:, :3]]))
+    if not pieces:
+        return np.zeros((0, 4))
+    # Each piece starts where the previous ended: drop the repeated joint row.
     return np.vstack([pieces[0]] + [p[1:] for p in pieces[1:]])
 
 
