@@ -176,14 +176,18 @@ def _solve(model: str, x0, u, p, duration, steps, speed):
     """One smooth piece: `model` from x0 under constant inputs u for `duration` [s]; (end
     state, poses (steps, 3) at duration * k / steps for k = 1..steps, poses (m, 3) at most
     CHECK_SPACING_M apart for a speed up to `speed` [m/s], the start excluded)."""
+    import jax
     import jax.numpy as jnp
     from scipy.integrate import solve_ivp
     fun = _rhs(model)
-    # JAX arrays once here: converting Python numbers at every call would double its cost.
-    u, pv = jnp.asarray(u, float), {k: jnp.asarray(v, float) for k, v in p.items()}
-    sol = solve_ivp(lambda t, x: np.asarray(fun(t, x, u, pv)), (0.0, duration),
-                    np.asarray(x0, float), method=METHOD, rtol=RTOL, atol=ATOL,
-                    dense_output=True)
+    # The replay is the float64 truth whatever precision the caller computes in: float64 in
+    # this block only, no global setting changed.
+    with jax.enable_x64(True):
+        # JAX arrays once here: converting Python numbers at every call would double its cost.
+        u, pv = jnp.asarray(u, float), {k: jnp.asarray(v, float) for k, v in p.items()}
+        sol = solve_ivp(lambda t, x: np.asarray(fun(t, x, u, pv)), (0.0, duration),
+                        np.asarray(x0, float), method=METHOD, rtol=RTOL, atol=ATOL,
+                        dense_output=True)
     if not sol.success:
         raise RuntimeError(f"replay of a {model} segment failed: {sol.message}")
     at = duration * np.arange(1, steps + 1) / steps
@@ -195,11 +199,8 @@ def _solve(model: str, x0, u, p, duration, steps, speed):
 
 @cache
 def _rhs(model: str):
-    """The model's right-hand side, compiled once."""
+    """The model's right-hand side, compiled once (per precision: _solve calls it in float64)."""
     import jax
-    if not jax.config.jax_enable_x64:
-        raise RuntimeError("a replay needs float64: jax.config.update('jax_enable_x64', True) "
-                           "first (the `stepzoo` command does)")
     return jax.jit(dynamics.model(model).rhs)
 
 

@@ -224,3 +224,34 @@ def test_plan_prints_the_replay_deviation_on_its_line(tmp_path, capsys):
     record = json.loads((tmp_path / "plan.json").read_text())
     line = capsys.readouterr().out
     assert f"replay deviation {record['replay']['max_deviation_m']:.3g} m" in line
+
+
+REPLAY_IN_FLOAT32 = """
+import json, sys
+import jax
+from stepzoo.search.maps import from_array
+from stepzoo.search.replay import replay
+record = json.load(open(sys.argv[1]))
+omap = from_array(json.load(open(sys.argv[2])), 0.5, (0.0, 0.0))
+block = replay(record, omap)
+print(json.dumps([jax.config.jax_enable_x64, block["max_deviation_m"], block["collides"]]))
+"""
+
+
+def test_a_caller_in_float32_gets_the_float64_replay_and_keeps_its_setting(tuned, tmp_path):
+    """The library leaves the caller's precision alone: a process that never turned float64
+    on replays a plan to the same deviation, bit for bit, and is still in float32 after."""
+    import subprocess
+    import sys
+    record, result, finder = tuned
+    (tmp_path / "plan.json").write_text(json.dumps(record))
+    (tmp_path / "map.json").write_text(json.dumps(finder.omap.occupied.astype(int).tolist()))
+    assert finder.omap.resolution == 0.5 and tuple(finder.omap.origin) == (0.0, 0.0)
+    proc = subprocess.run([sys.executable, "-c", REPLAY_IN_FLOAT32, tmp_path / "plan.json",
+                           tmp_path / "map.json"], capture_output=True, text=True, timeout=300,
+                          env={k: v for k, v in __import__("os").environ.items()
+                               if not k.startswith("JAX_")})
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    x64, deviation, collides = json.loads(proc.stdout.strip().splitlines()[-1])
+    assert x64 is False
+    assert deviation == record["replay"]["max_deviation_m"] and collides is False
