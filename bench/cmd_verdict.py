@@ -99,9 +99,10 @@ def main(args) -> int:
         for v, _ in results:
             v = dict(v)
             v["points"], v["n_points"] = v.pop("points_list"), v["points"]
-            # JSON has no inf: a blown-up worst error, an unbounded limit, is null.
+            # JSON has neither inf nor NaN: a blown-up worst error, an unbounded limit, a limit
+            # where the model returned NaN, is null.
             for key in ("worst_error", "h_meas_min", "h_pred_min"):
-                v[key] = None if math.isinf(v[key]) else v[key]
+                v[key] = v[key] if math.isfinite(v[key]) else None
             out.append(v)
         print(to_json({"model": cfg.model, "config": str(args.config), "verdicts": out}))
         return 0
@@ -122,6 +123,7 @@ def _show(cfg, v, table, tol, unit) -> None:
     # told apart from the measured stability limits.
     solver = table["limit_cause"] == "solver failed"
     own = table.loc[~solver, "h_meas"]
+    own = own[own.map(math.isfinite)]              # inf: no blow-up up to h_probe_max; NaN: model NaN
     measured = f"smallest measured {own.min():.4g} s" if len(own) else "no measured limit"
     if solver.any():
         measured += (f"; a nonlinear solve failed above {table.loc[solver, 'h_meas'].min():.4g}"

@@ -88,6 +88,13 @@ def test_verdict_names_the_points_where_the_model_returned_nan(nan_sweep, capsys
     assert v["model_nan_where"] == "k = 400" and v["unstable_where"] == "nowhere"
     assert v["n_points"] == 2 and v["stable"] == 1
     assert v["h_pred_min"] == pytest.approx(rk4_limit_at(600.0), rel=1e-9)
+    # Where the model is NaN at every point, no limit exists: null in JSON, not a traceback.
+    only_nan = config.with_name("only_nan.toml")
+    only_nan.write_text(CONFIG.replace("k = [400.0, 600.0]", "k = [400.0, 450.0]"))
+    assert stepzoo(["verdict", str(only_nan), "--method", "rk4", "--h", "0.01",
+                    "--format", "json"]) == 0
+    v = json.loads(capsys.readouterr().out)["verdicts"][0]
+    assert v["stable"] == 0 and v["h_pred_min"] is None and v["h_meas_min"] is None
 
 
 def test_stability_says_the_jacobian_is_not_finite_instead_of_no_limit(nan_sweep, capsys):
