@@ -4,11 +4,10 @@ side (dynamics.casadi_model) that the sweep uses as any JAX model."""
 from __future__ import annotations
 
 import hashlib
-import importlib
 import re
-import sys
 from pathlib import Path
 
+from stepzoo.bench.model_spec import import_user_module
 from stepzoo.errors import UsageError
 
 FUNCTION_REF = re.compile(r"^[A-Za-z_][\w.]*:[A-Za-z_]\w*$")
@@ -30,18 +29,7 @@ def casadi_function(ref: str, folder: Path, source: str):
             raise UsageError(f"{source}: model.casadi: {path} is not a file written by "
                              f"casadi.Function.save ({_last_line(err)})") from None
     module_name, func_name = ref.split(":")
-    sys.path.insert(0, str(folder))
-    try:
-        module = importlib.import_module(module_name)
-    except ModuleNotFoundError as err:
-        raise UsageError(f"{source}: model.casadi names module {module_name!r}, which is not "
-                         f"in {folder} nor installed ({err}); set model.path to its folder") \
-            from None
-    except Exception as err:   # the user's module failing at import: say so in one line
-        raise UsageError(f"{source}: importing {module_name!r} failed: "
-                         f"{type(err).__name__}: {_last_line(err)}") from None
-    finally:
-        sys.path.remove(str(folder))
+    module = import_user_module(module_name, folder, source, "casadi")
     make = getattr(module, func_name, None)
     if not callable(make):
         raise UsageError(f"{source}: {module_name!r} has no function {func_name!r} (model.casadi "

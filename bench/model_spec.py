@@ -136,24 +136,7 @@ def load_function(ref: str, folder: Path, source: str):
     module_name, _, func_name = ref.partition(":")
     if not module_name or not func_name:
         raise UsageError(f"{source}: model.rhs must be \"module:function\", got {ref!r}")
-    sys.path.insert(0, str(folder))
-    try:
-        with _prints_to_stderr():
-            module = importlib.import_module(module_name)
-    except ModuleNotFoundError as err:
-        raise UsageError(f"{source}: model.rhs names module {module_name!r}, which is not in "
-                         f"{folder} nor installed ({err}); set model.path to its folder") \
-            from None
-    except SystemExit as err:  # sys.exit() at import would end stepzoo with its status
-        raise UsageError(f"{source}: the model module {module_name!r} exited during import "
-                         f"(SystemExit {err.code!r}); a model module defines functions, it "
-                         "does not run a program at import") from None
-    except Exception as err:   # the user's module failing at import: say so in one line
-        raise UsageError(f"{source}: importing {module_name!r} failed: "
-                         f"{type(err).__name__}: {err}") from None
-    finally:
-        sys.path.remove(str(folder))
-    shadowed(module, module_name, folder, source)
+    module = import_user_module(module_name, folder, source, "rhs")
     fn = getattr(module, func_name, None)
     if fn is None:
         raise UsageError(f"{source}: {module_name!r} has no function {func_name!r} (model.rhs "
@@ -168,7 +151,33 @@ def load_function(ref: str, folder: Path, source: str):
     return _Quiet(fn), hashlib.sha256(text).hexdigest()
 
 
-def shadowed(module, module_name: str, folder: Path, source: str):
+def import_user_module(module_name: str, folder: Path, source: str, key: str):
+    """The user's module `module_name`, imported with `folder` first on the import path and
+    its prints sent to stderr; UsageError (one line) when it is missing, exits or fails at
+    import, or when a module of that name from elsewhere shadows it. `key`: the [model] key
+    that names it (rhs, casadi), for the messages."""
+    sys.path.insert(0, str(folder))
+    try:
+        with _prints_to_stderr():
+            module = importlib.import_module(module_name)
+    except ModuleNotFoundError as err:
+        raise UsageError(f"{source}: model.{key} names module {module_name!r}, which is not in "
+                         f"{folder} nor installed ({err}); set model.path to its folder") \
+            from None
+    except SystemExit as err:  # sys.exit() at import would end stepzoo with its status
+        raise UsageError(f"{source}: the model module {module_name!r} exited during import "
+                         f"(SystemExit {err.code!r}); a model module defines functions, it "
+                         "does not run a program at import") from None
+    except Exception as err:   # the user's module failing at import: say so in one line
+        raise UsageError(f"{source}: importing {module_name!r} failed: "
+                         f"{type(err).__name__}: {err}") from None
+    finally:
+        sys.path.remove(str(folder))
+    _shadowed(module, module_name, folder, source, key)
+    return module
+
+
+def _shadowed(module, module_name: str, folder: Path, source: str, key: str):
     """UsageError when `folder` holds the module's file but the import found another module
     of that name (Python's own, or one imported or installed earlier): the model would be
     looked up in the wrong module."""
@@ -180,9 +189,10 @@ def shadowed(module, module_name: str, folder: Path, source: str):
     if found and Path(found).resolve().is_relative_to(folder.resolve()):
         return
     whose = "Python's standard module" if top in sys.stdlib_module_names else "the module"
-    raise UsageError(f"{source}: model.rhs names module {top!r}, but {folder / (top + '.py')} "
-                     f"is shadowed by {whose} {top!r} ({found or 'built in'}); rename your "
-                     "file (and model.rhs) to a name of its own")
+    raise UsageError(f"{source}: model.{key} names module {top!r}, but "
+                     f"{folder / (top + '.py')} is shadowed by {whose} {top!r} "
+                     f"({found or 'built in'}); rename your file (and model.{key}) to a name "
+                     "of its own")
 
 
 @contextlib.contextmanager

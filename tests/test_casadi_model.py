@@ -142,7 +142,9 @@ def one_input():
     ("nowhere.casadi", "names no file"),
 ])
 def test_a_casadi_model_that_cannot_be_had_is_one_line_and_exit_2(tmp_path, capsys, model,
-                                                                  words):
+                                                                  words, monkeypatch):
+    # Each case writes its own bad_casadi.py: the one an earlier case imported would shadow it.
+    monkeypatch.delitem(sys.modules, "bad_casadi", raising=False)
     (tmp_path / "bad_casadi.py").write_text(BAD_MODULE)
     config = casadi_config(tmp_path, model).read_text().replace(str(USER), str(tmp_path))
     (tmp_path / "bad.toml").write_text(config)
@@ -166,3 +168,17 @@ def test_a_casadi_table_that_mixes_keys_is_one_line_and_exit_2(tmp_path, capsys,
     captured = capsys.readouterr()
     lines = captured.err.strip().splitlines()
     assert captured.out == "" and len(lines) == 1 and words in lines[0], captured.err
+
+
+def test_a_casadi_module_that_exits_or_prints_at_import_is_told_as_an_rhs_module(tmp_path,
+                                                                                 capsys):
+    """The import guards of JAX models hold for CasADi ones: sys.exit at import is one line
+    and exit 2 (not stepzoo ending with the module's status), and nothing reaches stdout."""
+    (tmp_path / "exiting_casadi.py").write_text("print('hello')\nimport sys\nsys.exit(0)\n")
+    config = casadi_config(tmp_path, "exiting_casadi:f").read_text().replace(str(USER),
+                                                                              str(tmp_path))
+    (tmp_path / "exit.toml").write_text(config)
+    assert stepzoo(["sweep", str(tmp_path / "exit.toml"), "--out", str(tmp_path / "o")]) == 2
+    captured = capsys.readouterr()
+    assert captured.out == "" and "exited during import (SystemExit 0)" in captured.err
+    assert not (tmp_path / "o").exists()
