@@ -22,19 +22,33 @@ PAPER_METHOD = "rk4"           # the paper plans with the classical Runge-Kutta 
 SIZE_PT2 = 300.0               # [pt^2] marker area of an exact rate of 1
 TITLE = "Plan time against replay deviation"
 
+# The columns of plan-bench's summary.csv this figure reads.
+SUMMARY_COLUMNS = ["integrator", "method", "h", "median_time_s", "median_replay_deviation_m",
+                   "max_replay_deviation_m", "exact_rate", "role"]
+
 
 def load_bench_summary(folder) -> pd.DataFrame:
     """The summary per integrator of a `stepzoo plan-bench` folder (summary.parquet), with
     the planner's collision margin [m] from its manifest in `attrs["margin_m"]` (None if
     not recorded)."""
-    import json
+    from stepzoo.safe_parse import json_loads
     path = Path(folder) / "summary.parquet"
     if not path.is_file():
         raise UsageError(f"--plan-bench {folder} holds no summary.parquet; give a folder "
                          "written by `stepzoo plan-bench`")
-    summary = pd.read_parquet(path)
     try:
-        manifest = json.loads((Path(folder) / "manifest.json").read_text())
+        summary = pd.read_parquet(path)
+    except OSError:
+        raise                     # unreadable, not damaged: the command says which
+    except Exception as err:      # damaged bytes raise many types from pyarrow
+        raise UsageError(f"--plan-bench {folder}: summary.parquet is damaged "
+                         f"({type(err).__name__}); rerun `stepzoo plan-bench`") from None
+    missing = [c for c in SUMMARY_COLUMNS if c not in summary]
+    if missing:
+        raise UsageError(f"--plan-bench {folder}: summary.parquet lacks {', '.join(missing)}; "
+                         "give a folder written by `stepzoo plan-bench --integrator ...`")
+    try:
+        manifest = json_loads((Path(folder) / "manifest.json").read_text())
         summary.attrs["margin_m"] = float(manifest["settings"]["params"]["margin"])
     except (OSError, ValueError, KeyError, TypeError):
         summary.attrs["margin_m"] = None
@@ -59,8 +73,7 @@ def tradeoff_points(summary: pd.DataFrame, tuned: dict | None = None) -> pd.Data
     (the bench's role "tuned", or the (method, h) of `tuned`, a tuned TOML's table), the
     paper's method, and on the Pareto front of (deviation, time). `attrs["margin_m"]`: the
     planner's collision margin, as the summary's."""
-    out = summary[["integrator", "method", "h", "median_time_s", "median_replay_deviation_m",
-                   "max_replay_deviation_m", "exact_rate", "role"]].copy()
+    out = summary[SUMMARY_COLUMNS].copy()
     out["tuned"] = out["role"] == "tuned"
     if tuned:
         out["tuned"] |= (out["method"] == tuned["method"]) & np.isclose(out["h"],

@@ -12,6 +12,7 @@ from pathlib import Path
 from stepzoo.errors import UsageError
 from stepzoo.output import atomic_write, to_json
 from stepzoo.results_folder import MANIFEST, check_kind
+from stepzoo.safe_parse import json_loads
 
 PARTS = "parts"                       # one JSON row per finished (integrator, query, run)
 OWN = (MANIFEST, "runs.parquet", "runs.csv", "summary.parquet", "summary.csv", "ompl", PARTS)
@@ -41,7 +42,7 @@ def start(out: Path, settings: dict, resume: bool, overwrite: bool) -> dict[str,
         raise UsageError(f"{out} already holds a plan-bench ({', '.join(holds[:3])}); pass "
                          "--resume to continue it or --overwrite to start again")
     try:
-        manifest = json.loads((out / MANIFEST).read_text())
+        manifest = json_loads((out / MANIFEST).read_text())
     except (OSError, ValueError):
         manifest = {}
     if not isinstance(manifest, dict) or manifest.get("settings") != \
@@ -55,8 +56,18 @@ def start(out: Path, settings: dict, resume: bool, overwrite: bool) -> dict[str,
 def finished(out: Path) -> dict[str, dict]:
     """The rows of every finished run in `out`, by part name; a part cut off mid-write
     cannot exist (parts are renamed into place), so every file read is whole."""
-    parts = Path(out) / PARTS
-    return {p.stem: json.loads(p.read_text()) for p in sorted(parts.glob("*.json"))}
+    rows = {}
+    for path in sorted((Path(out) / PARTS).glob("*.json")):
+        try:
+            row = json_loads(path.read_text())
+        except (OSError, ValueError) as err:
+            raise UsageError(f"--resume: {path} is not a run plan-bench saved ({err}); remove "
+                             "it to plan that run again") from None
+        if not isinstance(row, dict):
+            raise UsageError(f"--resume: {path} is not a run plan-bench saved (not a JSON "
+                             "object); remove it to plan that run again")
+        rows[path.stem] = row
+    return rows
 
 
 def save(out: Path, name: str, row: dict) -> None:

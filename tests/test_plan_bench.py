@@ -5,6 +5,7 @@ off resumes to the same table, a Dask cluster gives the same table, and no query
 or start pose makes it write where it must not; the shipped street queries are the seeded
 generator's output."""
 import json
+import shutil
 import sqlite3
 import subprocess
 import sys
@@ -327,6 +328,28 @@ def test_a_bench_cut_off_resumes_to_the_same_table(folder, benched, tmp_path, mo
     assert {n: (out / "parts" / n).stat().st_ino for n in kept} == kept
     whole = untimed(benched)
     pd.testing.assert_frame_equal(untimed(out), whole[whole["run"] == 0].reset_index(drop=True))
+
+
+def test_a_damaged_saved_run_or_summary_is_one_line(folder, benched, tiny_sweep, tmp_path,
+                                                    capsys):
+    """A part file that is not a saved run stops --resume in one line naming it, and a
+    damaged or foreign summary stops the report's Figure 8 in one line: no traceback."""
+    out = tmp_path / "o"
+    shutil.copytree(benched, out)
+    (out / "parts" / "000-00000-0000.json").write_text("[" * 50000)
+    assert bench(folder, out, "--runs", "2", "--resume") == 2
+    assert "000-00000-0000.json is not a run plan-bench saved" in one_line(capsys)
+    summary = tmp_path / "s"
+    shutil.copytree(benched, summary)
+    (summary / "summary.parquet").write_bytes(b"not parquet")
+    assert main(["report", str(tiny_sweep[1]), "--plan-bench", str(summary), "--out",
+                 str(tmp_path / "r"), "--no-progress"]) == 2
+    assert "summary.parquet is damaged" in one_line(capsys)
+    pd.DataFrame({"integrator": ["rk4:0.05"]}).to_parquet(summary / "summary.parquet")
+    assert main(["report", str(tiny_sweep[1]), "--plan-bench", str(summary), "--out",
+                 str(tmp_path / "r"), "--no-progress"]) == 2
+    assert "summary.parquet lacks method, h" in one_line(capsys)
+    assert not (tmp_path / "r").exists()
 
 
 _THREADS = []                     # the thread each task of the Dask test ran on
