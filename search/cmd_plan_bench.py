@@ -138,7 +138,7 @@ def plan_run(task: Task, finders: dict) -> dict:
         "integrator": f"{config.method}:{config.h:.6g}", "role": task.role,
         **{k: fidelity[k] for k in REPLAY_COLUMNS},
         "replay_clearance_min_m": fidelity["clearance_min_m"],
-        "replay_s": replay_s if result.path_edges else None,
+        "replay_s": replay_s if fidelity["segments"] else None,   # a path to replay
         "progress": json.dumps(result.progress)}
 
 
