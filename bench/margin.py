@@ -7,11 +7,6 @@ import math
 
 import numpy as np
 
-RULE = ("stable with margin: stable by the blow-up test and h <= (1 - margin) x h_meas, the "
-        "measured largest stable step at the point (h_meas = inf, nothing failed up to "
-        "h_probe_max, leaves every stable step with margin)")
-
-
 def stable_with_margin(stable, h, h_meas, margin: float):
     """Where a stable step h [s] keeps `margin` (a fraction) below h_meas [s]; scalars or
     arrays alike."""

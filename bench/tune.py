@@ -135,8 +135,7 @@ def tune(folder, pos_tol, margin: float, tol=None, *, batch: int = PLANNER_BATCH
                        f"within {crit.show(crit.tol)} at every point: {hint}; loosen "
                        f"{crit.flag} or sweep smaller steps")
     cal = _calibrate(folder, ok, batch, interval_s, rounds)
-    per_step = ok["method"].map(lambda m: cal[m].per_step_s)
-    ok["cost_time_per_s"] = per_step / ok["h"]
+    ok["cost_time_per_s"] = [cal[m].per_sim_s(h) for m, h in zip(ok["method"], ok["h"])]
     ok["cost_time_spread_per_s"] = ok["method"].map(lambda m: cal[m].spread_s) / ok["h"]
     ok["spread"] = ok["method"].map(lambda m: cal[m].spread)
     ranked, fastest = _rank(ok, cost, col)
