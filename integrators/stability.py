@@ -62,10 +62,14 @@ def schur_inside(coeffs, radius: float) -> np.ndarray:
     is p reversed and conjugated."""
     c = np.asarray(coeffs, dtype=complex) * radius ** np.arange(np.shape(coeffs)[-1])
     ok = np.ones(c.shape[0], bool)
-    while c.shape[1] > 1:
-        a0, an = c[:, :1], c[:, -1:]
-        ok &= np.abs(a0[:, 0]) < np.abs(an[:, 0])
-        c = (np.conj(an) * c - a0 * np.conj(c[:, ::-1]))[:, 1:]
+    with np.errstate(divide="ignore", invalid="ignore"):    # NaN rows: not shown inside
+        while c.shape[1] > 1:
+            # Scaled to a largest coefficient of 1 (roots unchanged): the products square
+            # the coefficients' size at every degree and would overflow at large |z|.
+            c = c / np.abs(c).max(axis=1, keepdims=True)
+            a0, an = c[:, :1], c[:, -1:]
+            ok &= np.abs(a0[:, 0]) < np.abs(an[:, 0])
+            c = (np.conj(an) * c - a0 * np.conj(c[:, ::-1]))[:, 1:]
     return ok
 
 
