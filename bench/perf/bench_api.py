@@ -1,8 +1,9 @@
 """The library through its Python API against the `stepzoo` command on the same work: rk4 on
 the benchmark problem (workload.py) at batch BATCH, STEPS steps, each side in a fresh process
-with the same XLA_FLAGS but for the command's loop option (cli.XLA_OPTION), which a library
-user does not have and the library never sets. `python -m stepzoo.bench.perf.bench_api`
-is one side's worker: it prints its best and median time [s] as JSON."""
+as a user runs it: one host device (run.py's device count taken out), and only the command
+with its loop option (cli.XLA_OPTION), which the library never sets. `python -m
+stepzoo.bench.perf.bench_api` is one side's worker: it prints its best and median time [s]
+as JSON."""
 import json
 import os
 import re
@@ -17,20 +18,22 @@ ROUNDS = 5          # timed calls per process, after one that compiles
 PROCESSES = 2       # fresh processes per side, alternating API and command
 
 
-def without_option(flags: str) -> str:
-    """`flags` with the command's loop option taken out of --xla_backend_extra_options."""
+def as_user(flags: str) -> str:
+    """`flags` without the command's loop option (out of --xla_backend_extra_options) and
+    without a forced host device count."""
     name = XLA_OPTION.split("=")[0]
 
     def strip(found):
         kept = [o for o in found.group(1).split(",") if not o.startswith(name + "=")]
         return f"--xla_backend_extra_options={','.join(kept)}" if kept else ""
-    return re.sub(r"--xla_backend_extra_options=(\S+)", strip, flags).strip()
+    flags = re.sub(r"--xla_force_host_platform_device_count=\S+", "", flags)
+    return " ".join(re.sub(r"--xla_backend_extra_options=(\S+)", strip, flags).split())
 
 
 def side(command: bool) -> dict:
     """One worker process's {best_s, median_s}: as the command runs (its option set) or as
     the API runs (without it)."""
-    flags = without_option(os.environ.get("XLA_FLAGS", ""))
+    flags = as_user(os.environ.get("XLA_FLAGS", ""))
     env = dict(os.environ, XLA_FLAGS=with_xla_option(flags) if command else flags)
     done = subprocess.run([sys.executable, "-m", "stepzoo.bench.perf.bench_api"], env=env,
                           capture_output=True, text=True, check=True)
