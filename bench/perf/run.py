@@ -30,7 +30,10 @@ TARGETS = {"rk4_b1e5_vs_numba_fastmath": (">=", 0.7), "rk4_b1e5_vs_diffrax": (">
            "trapezoidal_b1e4_vs_rk4_per_eval": (">=", 0.25),
            "backward_euler_b1e4_vs_rk4_per_eval": (">=", 0.25),
            # Issue 26: the library as fast as the command without its XLA option.
-           "api_vs_command_rk4_b1e4": (">=", 0.9)}
+           "api_vs_command_rk4_b1e4": (">=", 0.9),
+           # ... and one stability or verdict answer in 2 s with the cache warm.
+           "stability_one_point_s": ("<=", 2.0), "stability_user_model_s": ("<=", 2.0),
+           "verdict_one_point_s": ("<=", 2.0)}
 LABEL = {1: "1", 100: "100", 10_000: "1e4", 100_000: "1e5"}
 
 
@@ -102,7 +105,7 @@ def figures_of(benchmarks: list[dict]) -> dict:
         elif kind == "interleaved":
             for name, s in info["best_s"].items():
                 fig[f"interleaved_{info['method']}_b{LABEL[info['batch']]}_{name}_s"] = s
-        elif kind in ("distributed", "api_vs_command"):
+        elif kind in ("distributed", "api_vs_command", "one_point"):
             fig.update(info["figures"])
     return fig
 
