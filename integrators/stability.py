@@ -161,6 +161,8 @@ def _ray_exit(amp, theta: float, scan_amp=None) -> float:
     lo, hi = rs[i - 1], rs[i]
     for _ in range(BISECT):
         mid = 0.5 * (lo + hi)
+        if mid == lo or mid == hi:      # adjacent floats: no later step would move lo
+            break
         if np.nan_to_num(amp(np.array([mid * d])), nan=np.inf)[0] <= 1.0 + TOL:
             lo = mid
         else:
