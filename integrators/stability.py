@@ -173,6 +173,8 @@ def _ray_exit(amp, theta: float, scan_amp=None) -> float:
 @cache
 def ray_exit(m: Method, theta: float, route: str = "theory") -> float:
     """First exit |z| along the ray of angle theta [rad] by `route` ('theory' or 'empirical')."""
+    if route == "theory" and not m.is_multistep and theta > np.pi / 2 and a_stable(m):
+        return float("inf")          # the left half-plane, by the maximum principle
     amp = {"theory": amplification_theory, "empirical": amplification_empirical}[route]
     scan = None
     if route == "theory" and m.is_multistep:
