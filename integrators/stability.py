@@ -140,9 +140,10 @@ def amplification_empirical(m: Method, z):
 
 def _ray_exit(amp, theta: float, scan_amp=None) -> float:
     """Smallest r > 0 at which r e^{i theta} leaves the region; inf if it never does;
-    `scan_amp` (default amp) for the scan, amp for the bisection. The scan runs in chunks of SCAN_CHUNK radii and stops at the first chunk with a point
-    outside: the same points and the same first exit as one whole scan, at a fraction of
-    its cost where the exit is near (amp of a point does not depend on its neighbours)."""
+    `scan_amp` (default amp) for the scan, amp for the bisection. The scan runs in chunks of
+    SCAN_CHUNK radii and stops at the first chunk with a point outside: the same points and
+    the same first exit as one whole scan, at a fraction of its cost where the exit is near
+    (amp of a point does not depend on its neighbours)."""
     d = np.exp(1j * theta)
     rs = np.concatenate([np.linspace(0.0, R_FINE, N_FINE + 1)[1:],
                          np.geomspace(R_FINE, R_FAR, N_FAR)[1:]])
