@@ -34,7 +34,7 @@ CHUNK = 8
 # fewer bytes than its xla_cpu_small_while_loop_byte_threshold (1 kB unless XLA_FLAGS raise
 # it, as the `stepzoo` command does); otherwise every operation of every step is a runtime
 # call, whose cost a bigger chunk spreads over more trajectories. This many trajectories
-# per chunk then: rk4 at batch 1e4 ran as fast as with the option and chunks of CHUNK.
+# per chunk then: rk4 at batch 1e4 ran about as fast as with the option and chunks of CHUNK.
 CHUNK_CALLS = 128
 # Implicit methods keep Newton's loop outside the compiled step loop (it calls LAPACK), so
 # they favour few large chunks: trapezoidal at batch 100 ran 1.45x faster in one chunk than
