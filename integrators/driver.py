@@ -5,13 +5,14 @@ With `max_steps` given, the step count may be a run-time value: the scan runs in
 `BLOCK` steps inside a loop, so one compilation serves every step size (output rows past the
 last step are NaN).
 
-A batch of at least `SMALL_BATCH` trajectories runs in chunks of `CHUNK` with the batch as
+A batch of at least `SMALL_BATCH` trajectories runs in chunks (`chunk_size`) with the batch as
 the last axis of the carried state: each component is then a contiguous row that XLA
 vectorises, and a chunk's state stays in registers and L1 through all its steps. A smaller
 batch is a plain vmap of the one-trajectory loop. With several host devices, batches of at
 least `SHARE` trajectories per device are shared out among them, one core each: see
 `use_all_cores`."""
 import os
+import re
 from typing import NamedTuple
 
 import jax
@@ -29,6 +30,12 @@ BLOCK = 32
 # 1.7e7 / 1.6e7 / 1.3e7 for chunks of 4 / 8 / 16 / 32 / 256; dopri5 1.1e7 / 1.2e7 / 1.3e7
 # for 4 / 8 / 16; ab4 1.6e7 for 4 and 8, 1.2e7 for 16.
 CHUNK = 8
+# XLA:CPU compiles a chunk's step loop into one native function only when the loop touches
+# fewer bytes than its xla_cpu_small_while_loop_byte_threshold (1 kB unless XLA_FLAGS raise
+# it, as the `stepzoo` command does); otherwise every operation of every step is a runtime
+# call, whose cost a bigger chunk spreads over more trajectories. This many trajectories
+# per chunk then: rk4 at batch 1e4 ran about as fast as with the option and chunks of CHUNK.
+CHUNK_CALLS = 128
 # Implicit methods keep Newton's loop outside the compiled step loop (it calls LAPACK), so
 # they favour few large chunks: trapezoidal at batch 100 ran 1.45x faster in one chunk than
 # in chunks of 8, and alike at batch 2000.
@@ -158,6 +165,22 @@ def _chunk(method, f, x0, u, p, h, n_steps, t0, max_steps, libm):
     return jnp.moveaxis(xs, -1, 0), state["evals"], state["converged"], far
 
 
+def loops_native() -> bool:
+    """Whether XLA, as it was started, compiles the chunks' step loops natively: XLA_FLAGS
+    raise xla_cpu_small_while_loop_byte_threshold to at least a megabyte. Only read here;
+    the library never sets it."""
+    found = re.search(r"xla_cpu_small_while_loop_byte_threshold=(\d+)",
+                      os.environ.get("XLA_FLAGS", ""))
+    return found is not None and int(found.group(1)) >= 1 << 20
+
+
+def chunk_size(method) -> int:
+    """Trajectories per chunk of a batch of at least SMALL_BATCH (see the module doc)."""
+    if method.implicit:
+        return CHUNK_IMPLICIT
+    return CHUNK if loops_native() else CHUNK_CALLS
+
+
 def _split(a, n_chunks, size):
     """(B, ...) -> (n_chunks, ..., size), padding the batch with copies of its first row."""
     a = jnp.asarray(a)
@@ -186,7 +209,7 @@ def _batch(method, f, x0, u, p, h, n_steps, t0, max_steps, libm):
     # check off two devices hung in Newton's loop (XLA CPU, jax 0.10.2).
     shareable = not method.implicit and max_steps is None
     shards = len(devices) if shareable and batch >= SHARE * len(devices) else 1
-    size = min(CHUNK_IMPLICIT if method.implicit else CHUNK, -(-batch // shards))
+    size = min(chunk_size(method), -(-batch // shards))
     n_chunks = -(-batch // (size * shards)) * shards
     args = jax.tree.map(lambda a: _split(a, n_chunks, size), (x0, u, p))
     h_chunks = _split(h, n_chunks, size) if jnp.ndim(h) else jnp.broadcast_to(h, (n_chunks,))

@@ -28,7 +28,12 @@ TARGETS = {"rk4_b1e5_vs_numba_fastmath": (">=", 0.7), "rk4_b1e5_vs_diffrax": (">
            "plan_served_before_search_s": ("<=", 0.5),
            # Issue 14: implicit steps at batch 1e4, per right-hand-side evaluation.
            "trapezoidal_b1e4_vs_rk4_per_eval": (">=", 0.25),
-           "backward_euler_b1e4_vs_rk4_per_eval": (">=", 0.25)}
+           "backward_euler_b1e4_vs_rk4_per_eval": (">=", 0.25),
+           # Issue 26: the library as fast as the command without its XLA option.
+           "api_vs_command_rk4_b1e4": (">=", 0.9),
+           # ... and one stability or verdict answer in 2 s with the cache warm.
+           "stability_one_point_s": ("<=", 2.0), "stability_user_model_s": ("<=", 2.0),
+           "verdict_one_point_s": ("<=", 2.0)}
 LABEL = {1: "1", 100: "100", 10_000: "1e4", 100_000: "1e5"}
 
 
@@ -100,7 +105,7 @@ def figures_of(benchmarks: list[dict]) -> dict:
         elif kind == "interleaved":
             for name, s in info["best_s"].items():
                 fig[f"interleaved_{info['method']}_b{LABEL[info['batch']]}_{name}_s"] = s
-        elif kind == "distributed":
+        elif kind in ("distributed", "api_vs_command", "one_point"):
             fig.update(info["figures"])
     return fig
 
@@ -139,6 +144,9 @@ def ratios_of(fig: dict) -> dict:
             out[f"{name}_b{batch}_vs_rk4_per_eval"] = (None if steps is None or evals is None
                                                        else steps * evals)
     out["sweep_vs_driver"] = ratio("sweep_integration_s", "sweep_driver_replay_s")
+    # The Python API (no XLA option set) over the command, in throughput: 1 is as fast.
+    out["api_vs_command_rk4_b1e4"] = ratio("api_rk4_b1e4_steps_per_s",
+                                           "command_rk4_b1e4_steps_per_s")
     # Shares of the envelope sweep's wall time, and the persistent cache's effect on it.
     out["sweep_compile_share"] = ratio("sweep_compile_s", "sweep_wall_s")
     out["sweep_stability_share"] = ratio("sweep_stability_s", "sweep_wall_s")

@@ -1,0 +1,52 @@
+"""Without the command's XLA loop option the library runs bigger chunks (driver.chunk_size),
+with the same trajectories to round-off; it only reads XLA_FLAGS."""
+import jax
+import numpy as np
+import pytest
+
+from stepzoo import dynamics
+from stepzoo.bench.cli import XLA_OPTION
+from stepzoo.integrators import driver, method
+
+MODEL = dynamics.model("dynamic5")
+BATCH = driver.CHUNK_CALLS + 5         # several chunks of CHUNK, two padded ones of CHUNK_CALLS
+
+
+def traced_fresh(monkeypatch, flags):
+    """_batch traced anew (a new function, so no cached trace) with XLA_FLAGS = flags."""
+    monkeypatch.setenv("XLA_FLAGS", flags)
+    rng = np.random.default_rng(3)
+    p = {k: np.full(BATCH, float(v)) for k, v in MODEL.params(None, 15.0).items()}
+    p["vx"] = rng.uniform(5.0, 25.0, BATCH)
+    x0 = np.zeros((BATCH, 5))
+    x0[:, 3] = rng.uniform(-1.0, 1.0, BATCH)
+    u = rng.uniform(-0.5, 0.5, (BATCH, 1))
+    fresh = jax.jit(lambda m, f, x0, u, p, h, n, t0, mx, libm:
+                    driver._batch(m, f, x0, u, p, h, n, t0, mx, libm),
+                    static_argnames=("m", "f", "n", "mx", "libm"))
+    tr, far = fresh(m=method("rk4"), f=MODEL.rhs, x0=x0, u=u, p=p, h=0.01, n=40, t0=0.0,
+                    mx=None, libm=False)
+    assert not bool(far)
+    return tr
+
+
+def test_library_chunks_give_the_command_s_trajectories(monkeypatch):
+    assert driver.chunk_size(method("rk4")) == driver.CHUNK       # conftest set the option
+    command = traced_fresh(monkeypatch, f"--xla_backend_extra_options={XLA_OPTION}")
+    library = traced_fresh(monkeypatch, "")
+    assert driver.chunk_size(method("rk4")) == driver.CHUNK_CALLS
+    x, ref = np.asarray(library.x), np.asarray(command.x)
+    scale = np.abs(ref).max(axis=-2, keepdims=True)
+    assert np.all(np.abs(x - ref) <= 1e-12 * scale)
+    np.testing.assert_array_equal(library.evals, command.evals)
+
+
+@pytest.mark.parametrize("flags, native", [
+    ("", False), ("--xla_backend_extra_options=xla_cpu_small_while_loop_byte_threshold=1000",
+                  False),
+    (f"--xla_force_host_platform_device_count=2 --xla_backend_extra_options=a=1,{XLA_OPTION}",
+     True)])
+def test_native_loops_are_read_from_xla_flags(monkeypatch, flags, native):
+    monkeypatch.setenv("XLA_FLAGS", flags)
+    assert driver.loops_native() is native
+    assert driver.chunk_size(method("bdf2")) == driver.CHUNK_IMPLICIT
