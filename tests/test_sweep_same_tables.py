@@ -1,0 +1,74 @@
+"""The faster sweep gives the tables of the sweep before it (issue 26): on bench/configs/
+small.toml every measured limit within the narrowing tolerance rel_tol of the one recorded
+from the earlier code, with the same cause, and every run's stability, blow-up time and error
+the same to round-off."""
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from stepzoo.bench.sweep import run_sweep
+from stepzoo.bench.sweep_config import load
+
+SMALL = Path(__file__).resolve().parents[1] / "bench" / "configs" / "small.toml"
+INF = float("inf")
+# Recorded from the sweep of small.toml at commit edfaba4 (the bracket ladder, 5 timing
+# rounds of every run): h_meas [s] per point, in point order.
+H_MEAS = {
+    "ab2": [0.0193745, 0.01864375, 0.0193745, 0.06914429, 0.06525317, 0.06914429, 0.1104505,
+            0.1118628, 0.1104505],
+    "euler": [0.03863299, 0.03717586, 0.03863299, 0.1340749, 0.1301156, 0.1340749, 0.2025017,
+              0.2230557, 0.2025017],
+    "heun": [0.03863299, 0.03717586, 0.03863299, 0.1422567, 0.1301156, 0.1422567, 0.2373898,
+             0.2230557, 0.2373898],
+    "rk4": [0.05374836, 0.05172112, 0.05374836, 0.1953182, 0.1810241, 0.1953182, 0.3170234,
+            0.3103275, 0.3170234],
+    "trapezoidal": [INF] * 9,
+}
+# Per method over its 90 runs: stable runs, sum of blow-up times [s], sum of log10 err (err > 0), and
+# right-hand-side evaluations (explicit methods only: an implicit method's count is Newton's,
+# which may change without changing an error beyond its tolerance).
+RUNS = {
+    "ab2": (74, 22.9533783784, -12.5385469758, 13059),
+    "euler": (81, 6.25, -11.3810248156, 12609),
+    "heun": (81, 5.18333333333, -54.3994691363, 25218),
+    "rk4": (84, 1.73333333333, -196.755145349, 50436),
+    "trapezoidal": (90, 0.0, -116.09843113, None),
+}
+
+
+@pytest.fixture(scope="module")
+def small(tmp_path_factory):
+    cfg = load(SMALL)
+    out = tmp_path_factory.mktemp("small")
+    run_sweep(cfg, out, progress=False)
+    return cfg, pd.read_parquet(out / "runs.parquet"), pd.read_parquet(out / "limits.parquet")
+
+
+def test_measured_limits_agree_with_the_recorded_ones_to_rel_tol(small):
+    cfg, _, limits = small
+    for name, recorded in H_MEAS.items():
+        lim = limits[limits["method"] == name].sort_values("point")
+        h = lim["h_meas"].to_numpy(float)
+        old = np.array(recorded)
+        assert np.array_equal(np.isinf(h), np.isinf(old)), name
+        fin = np.isfinite(old)
+        # Both brackets hold the limit and are rel_tol wide (the recorded ones to 7 digits).
+        assert np.all(np.abs(np.log(h[fin] / old[fin])) <= np.log1p(cfg.rel_tol) + 1e-6), name
+        assert set(lim["limit_cause"]) == {"none" if not fin.any() else "unstable"}, name
+
+
+def test_runs_are_stable_and_accurate_as_recorded(small):
+    _, runs, _ = small
+    assert len(runs) == 5 * 10 * 9
+    for name, (stable, blowup, log_err, evals) in RUNS.items():
+        r = runs[runs["method"] == name]
+        err = r["err"].to_numpy(float)
+        # Straight ahead (delta = 0) the lateral states stay at rest: error 0, exactly.
+        assert np.isfinite(err).all() and (err == 0).sum() == 30, name
+        assert int(r["stable"].sum()) == stable, name
+        assert np.nansum(r["blowup_t"]) == pytest.approx(blowup, rel=1e-9, abs=1e-12), name
+        assert np.log10(err[err > 0]).sum() == pytest.approx(log_err, abs=1e-6), name
+        if evals is not None:
+            assert int(r["evals"].sum()) == evals, name
