@@ -318,8 +318,9 @@ class _Work:
         """(largest stable step [s], cause) per lane: bracketed by the grid (extended by
         doubling up to h_probe_max, or halving below it), then narrowed to rel_tol, starting
         at the predicted limit pred [s] of each lane (see `_candidates`). inf: nothing failed
-        up to h_probe_max; 0: unstable even at the smallest probe. The cause says what failed
-        just above the limit: 'unstable', 'solver failed' or 'none'."""
+        up to h_probe_max (one probe there where pred is inf, the doubling ladder where that
+        fails or pred is finite); 0: unstable even at the smallest probe. The cause says what
+        failed just above the limit: 'unstable', 'solver failed' or 'none'."""
         cfg, hs = self.cfg, np.asarray(self.cfg.hs)
         B = len(self.x0)
         lo, hi = np.full(B, np.nan), np.full(B, np.nan)
@@ -332,6 +333,13 @@ class _Work:
 
         up = [hs[-1] * 2.0 ** k for k in range(1, 64) if hs[-1] * 2.0 ** k < cfg.h_probe_max]
         rising = np.where(np.isnan(lo) & grid_ok[:, -1])[0]
+        # Where nothing is predicted to bound the step, one probe at h_probe_max says so; the
+        # ladder climbs only to the lanes that fail there, where the prediction is off.
+        unbounded = rising[np.isinf(pred[rising])]
+        if len(unbounded):
+            ok, _, _ = self.stable_at(meth, unbounded, np.array([cfg.h_probe_max]))
+            lo[unbounded[ok[:, 0]]] = hi[unbounded[ok[:, 0]]] = np.inf
+            rising = np.setdiff1d(rising, unbounded[ok[:, 0]])
         if len(rising):
             ladder = np.array([*up, cfg.h_probe_max])
             ok, _, conv = self.stable_at(meth, rising, ladder)
