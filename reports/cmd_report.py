@@ -61,7 +61,10 @@ def _facts(sweep, tuned, tuned_path, plan_list, plans_dir, out) -> list:
     if notes:                      # where f is not smooth, and the remedy (bench.nonsmooth)
         facts.append(("non-smooth f", notes[0]))
     rounds = sweep.manifest.get("timing_rounds")
-    facts.append(("timing", f"each run timed in {rounds} rounds after compilation; figures "
+    rule = sweep.manifest.get("timing_rule")
+    facts.append(("timing", f"{rule}; figures use the fastest, the tables' hover and Figure 5 "
+                  "give the spread" if rule else
+                  f"each run timed in {rounds} rounds after compilation; figures "
                   "use the fastest, the tables' hover and Figure 5 give the spread"
                   if rounds else "each run timed once (a sweep of an older stepzoo)"))
     if tuned:

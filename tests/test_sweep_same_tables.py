@@ -10,6 +10,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
+from stepzoo.bench import timing
 from stepzoo.bench.sweep import _Work, run_sweep
 from stepzoo.bench.sweep_config import load
 
@@ -107,3 +108,35 @@ def test_an_unbounded_prediction_is_checked_by_one_probe_and_the_ladder_where_it
     probe, ladder = block.ran[0], block.ran[1]
     assert np.all(probe == 2.0) and np.all(ladder < 2.0 + 1e-12)   # only lanes 1, 2 climbed
     assert len(ladder) == 2 * len(np.unique(ladder))
+
+
+def test_every_run_is_priced_by_its_methods_calibrated_run(small):
+    """One run per method (the grid's nearest CALIBRATION_STEPS steps) is timed in rounds;
+    every other run's time per step is its, scaled by the busiest lane's evaluations per
+    step: equal across an explicit method's steps, Newton's ratio for trapezoidal."""
+    _, runs, _ = small
+    for name, r in runs.groupby("method"):
+        by_h = r.groupby("h").agg(t=("time_per_step_s", "first"),
+                                  spread=("time_per_step_max_s", "nunique"),
+                                  work=("evals", "max"), n=("n_steps", "first"))
+        assert (by_h["spread"] == 1).all(), name            # one price per run
+        work = by_h["work"] / by_h["n"]
+        j = int(np.argmin(np.abs(by_h["n"].to_numpy() - timing.CALIBRATION_STEPS)))
+        np.testing.assert_allclose(by_h["t"] / by_h["t"].iloc[j], work / work.iloc[j],
+                                   rtol=1e-12, err_msg=name)
+        np.testing.assert_allclose(r["time_s"], r["time_per_step_s"] * r["n_steps"])
+        assert (r["timing_rounds"] == 5).all()
+    rk4 = runs[runs["method"] == "rk4"].groupby("h")["time_per_step_s"].first()
+    assert np.ptp(rk4) <= 1e-12 * rk4.max()
+    trap = runs[runs["method"] == "trapezoidal"].groupby("h")["time_per_step_s"].first()
+    assert trap.iloc[-1] > trap.iloc[0]        # more Newton iterations at the largest step
+
+
+def test_calibrated_scales_every_wall_clock_column_by_the_work():
+    cols = timing.calibrated([0.2, 0.4, 0.3, 0.5, 0.6], 10, 2.0)
+    assert cols["time_per_step_s"] == pytest.approx(0.04)
+    assert cols["time_per_step_median_s"] == pytest.approx(0.08)
+    assert cols["time_per_step_max_s"] == pytest.approx(0.12)
+    assert cols["time_per_step_iqr_s"] == pytest.approx(0.04)   # (0.5 - 0.3) / 10 x 2
+    assert cols["timing_rounds"] == 5
+    assert timing.busiest_per_step([8, 12, 10], 4) == 3.0
