@@ -62,8 +62,8 @@ def _facts(sweep, tuned, tuned_path, plan_list, plans_dir, out) -> list:
         facts.append(("non-smooth f", notes[0]))
     rounds = sweep.manifest.get("timing_rounds")
     rule = sweep.manifest.get("timing_rule")
-    facts.append(("timing", f"{rule}; figures use the fastest, the tables' hover and Figure 5 "
-                  "give the spread" if rule else
+    facts.append(("timing", f"{rule} (timing_rounds = {rounds}); figures use the fastest, "
+                  "the tables' hover and Figure 5 give the spread" if rule else
                   f"each run timed in {rounds} rounds after compilation; figures "
                   "use the fastest, the tables' hover and Figure 5 give the spread"
                   if rounds else "each run timed once (a sweep of an older stepzoo)"))
