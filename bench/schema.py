@@ -19,7 +19,8 @@ SORT = {"runs": ["method", "h", "point"], "limits": ["method", "point"],
 RUN_STATUS = ["stable", "blowup_t"]
 VEHICLE_ERRORS = ["err_pos", "err_final"]          # [m], models with X and Y only
 # evals: right-hand-side evaluations of the run; time_s [s]: its wall time, the fastest of
-# the timed rounds (time_per_step_s x n_steps): the two costs of a work-precision diagram.
+# the timed rounds as the method's calibration prices it (time_per_step_s x n_steps; see
+# timing.RULE): the two costs of a work-precision diagram.
 RUN_TAIL = ["evals_per_s", *timing.COLUMNS, "n_steps", "ref_ok", "converged", "err", "evals",
             "time_s"]
 # `limits`: one row per (method, point). h_pred [s] from the frozen-Jacobian eigenvalues

@@ -19,7 +19,8 @@ import pandas as pd
 from stepzoo import environment
 from stepzoo.bench import (frozen, jit_clock, metrics, model_nan, nonsmooth, schema,
                            sweep_folder)
-from stepzoo.bench.timing import per_step
+from stepzoo.bench.timing import CALIBRATION_STEPS, busiest_per_step, calibrated
+from stepzoo.bench.timing import RULE as TIMING_RULE
 from stepzoo.errors import UsageError
 from stepzoo.output import atomic_write, to_json, write_file
 from stepzoo.results_folder import claim
@@ -318,8 +319,9 @@ class _Work:
         """(largest stable step [s], cause) per lane: bracketed by the grid (extended by
         doubling up to h_probe_max, or halving below it), then narrowed to rel_tol, starting
         at the predicted limit pred [s] of each lane (see `_candidates`). inf: nothing failed
-        up to h_probe_max; 0: unstable even at the smallest probe. The cause says what failed
-        just above the limit: 'unstable', 'solver failed' or 'none'."""
+        up to h_probe_max (one probe there where pred is inf, the doubling ladder where that
+        fails or pred is finite); 0: unstable even at the smallest probe. The cause says what
+        failed just above the limit: 'unstable', 'solver failed' or 'none'."""
         cfg, hs = self.cfg, np.asarray(self.cfg.hs)
         B = len(self.x0)
         lo, hi = np.full(B, np.nan), np.full(B, np.nan)
@@ -332,6 +334,13 @@ class _Work:
 
         up = [hs[-1] * 2.0 ** k for k in range(1, 64) if hs[-1] * 2.0 ** k < cfg.h_probe_max]
         rising = np.where(np.isnan(lo) & grid_ok[:, -1])[0]
+        # Where nothing is predicted to bound the step, one probe at h_probe_max says so; the
+        # ladder climbs only to the lanes that fail there, where the prediction is off.
+        unbounded = rising[np.isinf(pred[rising])]
+        if len(unbounded):
+            ok, _, _ = self.stable_at(meth, unbounded, np.array([cfg.h_probe_max]))
+            lo[unbounded[ok[:, 0]]] = hi[unbounded[ok[:, 0]]] = np.inf
+            rising = np.setdiff1d(rising, unbounded[ok[:, 0]])
         if len(rising):
             ladder = np.array([*up, cfg.h_probe_max])
             ok, _, conv = self.stable_at(meth, rising, ladder)
@@ -484,16 +493,17 @@ class _Work:
 
     def _accuracy_runs(self, meth) -> tuple[list[dict], np.ndarray]:
         """Per grid step, the columns of `runs` for every lane (stability columns to come),
-        and per lane the largest scaled size of the reference's error states."""
+        and per lane the largest scaled size of the reference's error states. Each run is
+        integrated once; its timing columns are the method's calibration (`_calibrate`)."""
         cfg, spec, out = self.cfg, self.spec, []
         scale = np.zeros(len(self.x0))
+        walls, work = [], []
         for h in cfg.hs:
             n = round(cfg.horizon / h)
+            # Compiled already (method_chunk): the wall time is the computation's alone.
             x, evals, conv, wall = self.integrate(meth, self.x0, self.u, self.p, h, n)
-            # Compiled already (method_chunk): every round times the computation alone.
-            walls = [wall] + [self.integrate(meth, self.x0, self.u, self.p, h, n)[3]
-                              for _ in range(cfg.timing_rounds - 1)]
-            self.timing["integration_s"] += sum(walls)
+            self.timing["integration_s"] += wall
+            walls.append(wall)
             ref, ok = self._cached(("accuracy", h), lambda: self.reference(h, n))
             t0 = time.perf_counter()
             scale = np.maximum(scale, spec.scaled(ref).max(axis=1))
@@ -508,15 +518,31 @@ class _Work:
                 col["err_pos"], col["err_final"] = pos.max(axis=1), pos[:, -1]
             col["err"] = metrics.run_error(spec, x, ref, cfg.error_estimate)
             col["evals_per_s"] = evals / (n * h)
-            col.update(per_step(walls, n * len(self.x0)))
             col["n_steps"] = n
             col["ref_ok"] = ok
             col["converged"] = conv
             col["evals"] = evals
-            col["time_s"] = col["time_per_step_s"] * n
+            work.append(busiest_per_step(evals, n))
             self.timing["metrics_s"] += time.perf_counter() - t0
             out.append(col)
+        cal, j = self._calibrate(meth, walls)
+        for col, w in zip(out, work):
+            col.update(calibrated(cal, out[j]["n_steps"] * len(self.x0), w / work[j]))
+            col["time_s"] = col["time_per_step_s"] * col["n_steps"]
         return out, scale
+
+    def _calibrate(self, meth, walls) -> tuple[list[float], int]:
+        """(wall times [s] of timing_rounds calls, index of the grid step timed): the grid's
+        run nearest CALIBRATION_STEPS steps, its first call (`walls`: one per grid step) and
+        timing_rounds - 1 more. One run prices the method: repeating every run would cost
+        the rounds over again, an implicit method's runs most of all."""
+        cfg = self.cfg
+        steps = np.array([round(cfg.horizon / h) for h in cfg.hs])
+        j = int(np.argmin(np.abs(steps - CALIBRATION_STEPS)))
+        more = [self.integrate(meth, self.x0, self.u, self.p, cfg.hs[j], int(steps[j]))[3]
+                for _ in range(cfg.timing_rounds - 1)]
+        self.timing["integration_s"] += sum(more)
+        return [walls[j], *more], j
 
     def _trajectories(self, meth) -> pd.DataFrame:
         """Figure runs at the trajectory point: fractions of the predicted limit (of the
@@ -775,6 +801,7 @@ def _write_manifest(cfg, out: Path, created, done, timing, complete) -> dict:
         "newton": cfg.newton_options,
         "model_spec": schema.model_record(cfg.spec),
         "stepzoo_version": ver, "timing_rounds": cfg.timing_rounds,
+        "timing_rule": TIMING_RULE,
         **environment.provenance("sweep", created[1], environment.now() if complete else None),
     }
     atomic_write(out / "manifest.json", to_json(_finite(manifest)) + "\n")

@@ -351,7 +351,9 @@ def _plan_figure(plan) -> go.Figure:
                          opacity=0.9)
     if rec["tree"]:
         pieces = [np.vstack([np.asarray(e, float), [np.nan, np.nan]]) for e in rec["tree"]]
-        tree = np.vstack(pieces)
+        # Single precision: a tree holds thousands of edges, and float32 places them to well
+        # under a pixel on any map, at half the page's bytes.
+        tree = np.vstack(pieces).astype(np.float32)
         fig.add_trace(go.Scatter(x=tree[:, 0], y=tree[:, 1], mode="lines", name="tree",
                                  line=dict(color="blue", width=1), hoverinfo="skip"))
     if rec["path"]:
