@@ -200,14 +200,14 @@ def _draw(sweep, tuned, tuned_path, plan_list, plans_dir, out, into, started, sa
         draw.append((lambda: tradeoff.tradeoff_png(points, into),
                      lambda: tradeoff.tradeoff_plot(points)))
     # The PNGs are drawn in worker processes meanwhile (the slow part: Matplotlib's layout).
+    drawing = concurrent.Drawing([static for static, _ in draw])
+    lives = [live() for _, live in draw]
     shown, plots = [], {}
-    with concurrent.Drawing([static for static, _ in draw]) as drawing:
-        lives = [live() for _, live in draw]
-        for (fig, took), live in zip(drawing.results(), lives):
-            plots[fig.number] = interactive.divs(live, f"plot{fig.number}")
-            shown.append(fig)
-            say(f"[{len(shown)}/{len(draw)}] Figure {fig.number}. {fig.title}: "
-                f"{len(fig.images)} image(s) in {took:.1f} s")
+    for (fig, took), live in zip(drawing.results(), lives):
+        plots[fig.number] = interactive.divs(live, f"plot{fig.number}")
+        shown.append(fig)
+        say(f"[{len(shown)}/{len(draw)}] Figure {fig.number}. {fig.title}: "
+            f"{len(fig.images)} image(s) in {took:.1f} s")
     unit = f" {view.error_unit}" if view.error_unit else ""
     t0 = time.perf_counter()
     verdict_tables = recompute.verdict_tables(sweep, verdicts, view, tol, margin)

@@ -32,8 +32,7 @@ def workers() -> int:
 class Drawing:
     """Starts every job at once; `results()` yields (figure, seconds it took) in the jobs'
     order. The jobs run in forked workers: they must only draw with Matplotlib and NumPy
-    and write files (a forked child must not call JAX, whose threads it lacks). A context
-    manager: leaving it stops the workers, whatever became of the jobs."""
+    and write files (a forked child must not call JAX, whose threads it lacks)."""
 
     def __init__(self, jobs: list[Callable]):
         global _JOBS
@@ -49,19 +48,15 @@ class Drawing:
             self.futures = [self.pool.submit(_timed, i) for i in range(len(jobs))]
 
     def results(self) -> Iterator[tuple]:
+        global _JOBS
         if self.pool is None:
             for job in self.jobs:
                 t0 = time.perf_counter()
                 yield job(), time.perf_counter() - t0
             return
-        for f in self.futures:
-            yield f.result()
-
-    def __enter__(self):
-        return self
-
-    def __exit__(self, *exc):
-        global _JOBS
-        if self.pool is not None:
+        try:
+            for f in self.futures:
+                yield f.result()
+        finally:
             self.pool.shutdown(cancel_futures=True)
             _JOBS = []

@@ -17,8 +17,8 @@ def _where(i):
 
 
 def test_drawing_yields_each_result_in_order_from_worker_processes():
-    with concurrent.Drawing([lambda i=i: _where(i) for i in range(5)]) as drawing:
-        got = [r for r, took in drawing.results()]
+    drawing = concurrent.Drawing([lambda i=i: _where(i) for i in range(5)])
+    got = [r for r, took in drawing.results()]
     assert [v for v, _ in got] == [0, 1, 4, 9, 16]
     elsewhere = {pid for _, pid in got} - {os.getpid()}
     assert bool(elsewhere) == (concurrent.workers() >= 2)
@@ -29,9 +29,9 @@ def _bad():
 
 
 def test_a_jobs_error_reaches_the_caller():
+    drawing = concurrent.Drawing([lambda: 1, _bad, lambda: 3])
     with pytest.raises(UsageError, match="disk full"):
-        with concurrent.Drawing([lambda: 1, _bad, lambda: 3]) as drawing:
-            list(drawing.results())
+        list(drawing.results())
 
 
 def test_the_interactive_tree_is_every_edge_in_single_precision(tmp_path):
