@@ -171,7 +171,7 @@ def _tolerance(sweep, tuned):
 def _draw(sweep, tuned, tuned_path, plan_list, plans_dir, out, into, started, say,
           verdicts=(), bench=None, bench_dir=None):
     """The report of the folder `out`, written into the folder `into` (which becomes it)."""
-    from stepzoo.reports import concurrent, figures, interactive, recompute, tables
+    from stepzoo.reports import figures, interactive, recompute, tables
     from stepzoo.reports.html import write_report
     from stepzoo.reports.load import load_manifest
     from stepzoo.reports.provenance import environment_table, public_path
@@ -199,15 +199,14 @@ def _draw(sweep, tuned, tuned_path, plan_list, plans_dir, out, into, started, sa
         points = tradeoff.tradeoff_points(bench, tuned)
         draw.append((lambda: tradeoff.tradeoff_png(points, into),
                      lambda: tradeoff.tradeoff_plot(points)))
-    # The PNGs are drawn in worker processes meanwhile (the slow part: Matplotlib's layout).
-    drawing = concurrent.Drawing([static for static, _ in draw])
-    lives = [live() for _, live in draw]
     shown, plots = [], {}
-    for (fig, took), live in zip(drawing.results(), lives):
-        plots[fig.number] = interactive.divs(live, f"plot{fig.number}")
+    for static, live in draw:
+        t0 = time.perf_counter()
+        fig = static()
+        plots[fig.number] = interactive.divs(live(), f"plot{fig.number}")
         shown.append(fig)
         say(f"[{len(shown)}/{len(draw)}] Figure {fig.number}. {fig.title}: "
-            f"{len(fig.images)} image(s) in {took:.1f} s")
+            f"{len(fig.images)} image(s) in {time.perf_counter() - t0:.1f} s")
     unit = f" {view.error_unit}" if view.error_unit else ""
     t0 = time.perf_counter()
     verdict_tables = recompute.verdict_tables(sweep, verdicts, view, tol, margin)
