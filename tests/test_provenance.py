@@ -1,7 +1,7 @@
 """Reproducible results: every manifest.json records the environment (machine, OS, Python,
 library versions, JAX backend, devices and precision, stepzoo's version, the command line,
-start and end), and each accuracy run is timed in repeated rounds summarised as minimum,
-median, largest and interquartile range."""
+start and end), and each method's calibrated run is timed in repeated rounds summarised as
+minimum, median, largest and interquartile range, which price every run of the method."""
 import dataclasses
 import json
 from datetime import datetime
@@ -59,7 +59,7 @@ def small_sweep(tmp_path_factory):
     return cfg, out
 
 
-def test_sweep_times_every_run_in_the_configured_rounds(small_sweep):
+def test_sweep_prices_every_run_from_the_configured_rounds(small_sweep):
     cfg, out = small_sweep
     runs = pd.read_parquet(out / "runs.parquet")
     assert (runs["timing_rounds"] == 3).all()
