@@ -84,9 +84,14 @@ class Trial:
         order = sorted(range(len(entries)), key=lambda i: _rank(evidence[i]))
         out["runners_up"] = [_runner(entries[i], evidence[i]) for i in order if i != won] \
             + [r for r in tuned["runners_up"] if r not in entries]
-        from stepzoo.search.planner_config import DEFAULT_CONFIG
+        from stepzoo.search.planner_config import DEFAULT_CONFIG, PARAMS
         planner = ("" if self.config.source == str(DEFAULT_CONFIG)
                    else f" --planner-config {self.config.source}")
+        # The planner settings the choice was measured with go with it: a planner reading
+        # this file plans as the evidence did (its margin, its budgets).
+        overrides = {k: v for k, v in self.config.params.items() if v != PARAMS[k].default}
+        if overrides:
+            out["planner"] = overrides
         out["provenance"] = (f"{tuned['provenance']}; chosen for plans by --for-plans "
                              f"{self.path} --replay-tol {self.tol_m:g}{planner} --runs "
                              f"{self.runs} --seed {self.seed} at "

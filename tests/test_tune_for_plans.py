@@ -72,6 +72,11 @@ def test_the_choice_is_the_fastest_planner_within_the_margin_at_the_best_exact_r
     assert [r["method"] for r in tuned["runners_up"]] == [r["method"] for r in rows
                                                          if r is not won]
     assert tuned["cost"] == "time" and tuned["err_pos_max_m"] <= float(POS_TOL)
+    # A planner reading the file plans as the evidence did: the given planner config's
+    # settings (its margin among them) go with the choice.
+    from stepzoo.search.planner_config import load_config
+    assert load_config(setup / "tuned.toml").params == plans["planner"]
+    assert tuned["planner"]["margin"] == 0.12
 
 
 def test_a_tolerance_below_a_candidates_deviation_excludes_it(setup, tuned, capsys):
