@@ -133,10 +133,10 @@ def build(results, out, tuned_path=None, plans_dir=None, progress=False, verdict
             raise UsageError(f"{sweep_dir} holds a suite of problems; --verdict belongs "
                              "with one problem's report: give its folder, such as "
                              f"{sweep_dir / suite['problems'][0]}")
-        if tuned_path is not None or plans_dir is not None:
-            raise UsageError(f"{sweep_dir} holds a suite of problems; --tuned and --plans "
-                             "belong with one problem's report: give its folder, such as "
-                             f"{sweep_dir / suite['problems'][0]}")
+        if tuned_path is not None or plans_dir is not None or bench_dir is not None:
+            raise UsageError(f"{sweep_dir} holds a suite of problems; --tuned, --plans and "
+                             "--plan-bench belong with one problem's report: give its folder, "
+                             f"such as {sweep_dir / suite['problems'][0]}")
         return suite_report.build(sweep_dir, suite, out, say)
     out = check_kind(out, "report")
     t0 = time.perf_counter()

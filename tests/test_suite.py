@@ -368,6 +368,9 @@ def test_suite_report_gives_the_orders_and_work_precision_per_problem(suite, tmp
         assert f"| {row['problem']} | {row['method']} | {row['order_declared']} |" in text
     with pytest.raises(UsageError, match="suite of problems; --tuned"):
         build(out, tmp_path / "other", tuned_path=tmp_path / "tuned.toml")
+    with pytest.raises(UsageError, match="suite of problems; .*--plan-bench belong"):
+        build(out, tmp_path / "other", bench_dir=tmp_path)
+    assert not (tmp_path / "other").exists()
 
 
 def test_method_selectors_follow_the_stability_theory():
