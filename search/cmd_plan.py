@@ -19,7 +19,7 @@ from stepzoo.search.plan_request import ENV
 from stepzoo.validate import check
 
 SUMMARY_COLUMNS = ["scenario", "status", "expansions", "nodes", "search_s", "connect_s",
-                   "path_length_m", "connect_tf_s"]
+                   "path_length_m", "connect_tf_s", "max_deviation_m"]
 
 
 REVERSE_HELP = ("reverse gear: the tree and the connection may drive backwards, each change "
@@ -128,7 +128,8 @@ def _plan_on_worker(scenario, config, seed):
 def _summary_row(record):
     stats = record["stats"]
     return {"scenario": record["scenario"], "status": record["status"],
-            **{k: stats[k] for k in SUMMARY_COLUMNS[2:]}}
+            **{k: stats[k] for k in SUMMARY_COLUMNS[2:-1]},
+            "max_deviation_m": record["replay"]["max_deviation_m"]}
 
 
 def plan(scenarios, out, config=None, seed: int = 0, *, reverse: bool = False,

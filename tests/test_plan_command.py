@@ -16,7 +16,7 @@ from stepzoo.search.scenarios import builtin_names, load_scenario
 STATS = {"expansions", "nodes", "search_s", "connect_s", "path_length_m", "connect_tf_s",
          "seed", "method", "h"}
 SUMMARY = ["scenario", "status", "expansions", "nodes", "search_s", "connect_s",
-           "path_length_m", "connect_tf_s"]
+           "path_length_m", "connect_tf_s", "max_deviation_m"]
 
 
 def run(*argv):
@@ -108,6 +108,7 @@ def test_all_plans_every_scenario_and_writes_the_summary(tmp_path, capsys):
         assert {p.name for p in folder.iterdir()} == {"plan.json", "plan.png", "map.npy"}
         assert row["status"] == read(folder)["status"] == "exact"
         assert float(row["search_s"]) > 0 and float(row["connect_s"]) > 0
+        assert float(row["max_deviation_m"]) == read(folder)["replay"]["max_deviation_m"]
         assert row["scenario"] in printed
 
 
