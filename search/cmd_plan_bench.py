@@ -117,7 +117,8 @@ def plan_run(task: Task, finders: dict) -> dict:
     finder = finders[key]
     result = finder.plan(q.start, q.goal, None, task.seed)
     t0 = perf_counter()
-    fidelity = replay(result, finder.omap, vehicle=finder.vehicle)
+    fidelity = replay(result, finder.omap, vehicle=finder.vehicle,
+                      margin=finder.config.params["margin"])
     replay_s = perf_counter() - t0
     exact = result.status == "exact"
     metrics = path_metrics(path_rows(result), finder.omap, finder.vehicle_footprint) \

@@ -72,12 +72,14 @@ def vehicle_params(vehicle: dict) -> dict:
 
 
 def replay(plan, omap: OccupancyMap, footprint: Footprint | None = None,
-           vehicle: dict | None = None) -> dict:
-    """replay(plan, omap, footprint=None, vehicle=None) -> dict, plan.json's `replay` block.
+           vehicle: dict | None = None, margin: float | None = None) -> dict:
+    """replay(plan, omap, footprint=None, vehicle=None, margin=None) -> dict, plan.json's
+    `replay` block.
 
     `plan`: the plan.json record (a dict with controls, vehicle, start, goal, path and
     params) or a PlanResult (then `vehicle`, the planner's vehicle set, PathFinder.vehicle,
-    is needed). The controls are driven open loop from the start pose, segment after segment,
+    is needed, and `margin` [m], the planner's collision margin, sizes the disc cover as the
+    planner's does; a record brings its own in params). The controls are driven open loop from the start pose, segment after segment,
     by DOP853 at rtol 1e-10: the dynamic bicycle's state carried across tree edges; a
     kinematic segment starting from the pose reached at its v0; a tree edge after a
     kinematic one from that pose with vy = r = 0, as the planner starts it.
@@ -94,11 +96,11 @@ def replay(plan, omap: OccupancyMap, footprint: Footprint | None = None,
     if isinstance(plan, PlanResult):
         if vehicle is None:
             raise TypeError("replay of a PlanResult needs vehicle=PathFinder.vehicle")
-        segs, start, goal, margin = controls(plan), plan.start, plan.goal, None
+        segs, start, goal = controls(plan), plan.start, plan.goal
     else:
         segs, start, goal = plan["controls"], plan["start"], plan["goal"]
         vehicle = {**plan["vehicle"], **(vehicle or {})}
-        margin = plan.get("params", {}).get("margin")
+        margin = plan.get("params", {}).get("margin", margin)
     block = {"method": METHOD, "rtol": RTOL, "atol": ATOL, "segments": len(segs),
              **dict.fromkeys(METRICS), "nodes": 0, "samples": 0, "end": None}
     if not segs:

@@ -255,3 +255,17 @@ def test_a_caller_in_float32_gets_the_float64_replay_and_keeps_its_setting(tuned
     x64, deviation, collides = json.loads(proc.stdout.strip().splitlines()[-1])
     assert x64 is False
     assert deviation == record["replay"]["max_deviation_m"] and collides is False
+
+
+def test_a_plan_result_replays_to_its_plan_json_block(tuned):
+    """plan-bench replays the planner's result, plan.json its record: the same block (to the
+    rounding of plan.json's path rows, well under a micrometre), the disc cover sized with
+    the planner's margin in both."""
+    record, result, finder = tuned
+    block = replay(result, finder.omap, vehicle=finder.vehicle,
+                   margin=finder.config.params["margin"])
+    for key in ("collides", "nodes", "samples"):
+        assert block[key] == record["replay"][key], key
+    for key in ("max_deviation_m", "final_deviation_m", "max_heading_deviation_rad",
+                "clearance_min_m", "goal_distance_m"):
+        assert block[key] == pytest.approx(record["replay"][key], abs=1e-6), key
