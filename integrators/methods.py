@@ -91,13 +91,8 @@ class Method:
         return self.scheme.stages
 
     def init_state(self, y0):
-        """Evaluations spent, and whether every nonlinear solve so far converged; with a
-        Newton solve of its own, the Jacobian kept between steps (none yet)."""
-        state = {"evals": jnp.zeros((), y0.dtype), "converged": jnp.asarray(True)}
-        if self.implicit and not self.is_rosenbrock:
-            d = jnp.shape(y0)[0]
-            state.update(jac=jnp.zeros((d, d), y0.dtype), reuse=jnp.asarray(False))
-        return state
+        """Evaluations spent, and whether every nonlinear solve so far converged."""
+        return {"evals": jnp.zeros((), y0.dtype), "converged": jnp.asarray(True)}
 
     def step(self, fun, t, y, h, state):
         """One step from (t, y): returns (y_next, state)."""

@@ -20,23 +20,17 @@ class NewtonOptions:
     `res_tol` times 1 + |h A (x) J| (the residual of an iterate is the iteration matrix times
     its error: with res_tol = 1 it is no larger than an error within tolerance makes it).
     At most `max_iter` simplified iterations, then, where they fail, at most `max_iter_full`
-    of the full-Newton retry (0: none). A step keeps its Jacobian for the next one while
-    its simplified iteration converged at a rate theta <= `reuse_theta` (RADAU5's rule;
-    0: a new Jacobian every step); where the kept one fails, the step is solved again with
-    a new one."""
+    of the full-Newton retry (0: none)."""
     rtol: float = 1e-10
     atol: float = 1e-10
     res_tol: float = 1.0
     max_iter: int = 10
     max_iter_full: int = 40
-    reuse_theta: float = 0.1
 
     def __post_init__(self):
         if not (self.rtol >= 0 and self.atol >= 0 and self.rtol + self.atol > 0):
             raise ValueError(f"Newton tolerances must be >= 0, not both 0: rtol={self.rtol!r}, "
                              f"atol={self.atol!r}")
-        if not 0 <= self.reuse_theta < 1:
-            raise ValueError(f"need 0 <= reuse_theta < 1, got {self.reuse_theta!r}")
         if not (self.res_tol > 0 and int(self.max_iter) == self.max_iter >= 1
                 and int(self.max_iter_full) == self.max_iter_full >= 0):
             raise ValueError(f"need res_tol > 0 and integers max_iter >= 1, max_iter_full >= 0:"
@@ -93,9 +87,9 @@ def lu_solve(factors, r):
     for k, p in enumerate(pivots):
         r = _swap(r, rows, k, p)
     for i in range(1, n):
-        r = r.at[i].add(-lu[i, :i] @ r[:i])
+        r = r.at[i].add(-jnp.sum(lu[i, :i] * r[:i]))
     for i in range(n - 1, -1, -1):
-        r = r.at[i].set((r[i] - lu[i, i + 1:] @ r[i + 1:]) / lu[i, i])
+        r = r.at[i].set((r[i] - jnp.sum(lu[i, i + 1:] * r[i + 1:])) / lu[i, i])
     return r
 
 
@@ -110,18 +104,18 @@ def factorised(mat):
 def _iterate(residual, solver, z0, y_scale, opts, fresh, done0):
     """One Newton iteration loop from z0, skipped where `done0`; `solver(z)` gives (solve,
     size) of the iteration matrix, made once from z0 or, with `fresh`, anew at every iterate.
-    Returns (z, iterations, converged, the last rate of convergence theta)."""
+    Returns (z, iterations, converged)."""
     w = opts.atol + opts.rtol * y_scale
     eps = jnp.finfo(z0.dtype).eps
     fixed = None if fresh else solver(z0)
     limit = opts.max_iter_full if fresh else opts.max_iter
 
     def cond(st):
-        _, k, _, done, _, _ = st
+        _, k, _, done, _ = st
         return (~done) & (k < limit)
 
     def body(st):
-        z, k, prev, _, _, _ = st
+        z, k, prev, _, _ = st
         solve, size = solver(z) if fresh else fixed
         r = residual(z)
         dz = solve(r)
@@ -143,12 +137,11 @@ def _iterate(residual, solver, z0, y_scale, opts, fresh, done0):
                                      (theta ** (limit - 1 - k) / (1 - theta) * n > 1))
         hopeless = hopeless & (not fresh)
         done = ok | ~finite | hopeless
-        return z - dz, k + 1, n, done, ok, jnp.where(later, theta, 0.0)
+        return z - dz, k + 1, n, done, ok
 
-    init = (z0, jnp.asarray(0), jnp.asarray(jnp.inf, z0.dtype), done0, jnp.asarray(False),
-            jnp.asarray(0.0, z0.dtype))
-    z, k, _, _, ok, theta = lax.while_loop(cond, body, init)
-    return z, k, ok, theta
+    init = (z0, jnp.asarray(0), jnp.asarray(jnp.inf, z0.dtype), done0, jnp.asarray(False))
+    z, k, _, _, ok = lax.while_loop(cond, body, init)
+    return z, k, ok
 
 
 def newton_solve(residual, solver, z0, y_scale, opts: NewtonOptions):
@@ -158,12 +151,10 @@ def newton_solve(residual, solver, z0, y_scale, opts: NewtonOptions):
     the solution's, as at Robertson's first step) the solve is retried from z0 with full
     Newton, the exact Jacobian of the residual refactorised at every iterate; the retry
     costs nothing when every trajectory of a batch converged. `y_scale` is |y| tiled like
-    z. Returns (z, simplified iterations, full iterations, converged, the simplified
-    iteration's last rate of convergence: infinite where it failed)."""
-    z1, k1, ok1, theta = _iterate(residual, solver, z0, y_scale, opts, False, jnp.asarray(False))
+    z. Returns (z, simplified iterations, full iterations, converged)."""
+    z1, k1, ok1 = _iterate(residual, solver, z0, y_scale, opts, False, jnp.asarray(False))
     # Not lax.cond: under vmap it would run the retry for every trajectory; a loop that
     # starts done is skipped unless some trajectory of the batch needs it.
     exact = lambda z: factorised(jax.jacfwd(residual)(z))
-    z2, k2, ok2, _ = _iterate(residual, exact, jnp.where(ok1, z1, z0), y_scale, opts, True,
-                              ok1)
-    return jnp.where(ok1, z1, z2), k1, k2, ok1 | ok2, jnp.where(ok1, theta, jnp.inf)
+    z2, k2, ok2 = _iterate(residual, exact, jnp.where(ok1, z1, z0), y_scale, opts, True, ok1)
+    return jnp.where(ok1, z1, z2), k1, k2, ok1 | ok2

@@ -6,12 +6,9 @@ returns (y_next, state) and counts its evaluations in state["evals"] (implicit: 
 counts as d evaluations, one per column). An implicit step whose solve fails returns NaN and
 clears state["converged"]; a step from a state that has already blown up (the method's own
 instability) is no solver failure."""
-import dataclasses
-
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jax import lax
 
 from stepzoo.integrators.newton import factorised, newton_solve
 
@@ -62,54 +59,15 @@ def _finish(y, y_next, ok, state, evals):
     return y_next, dict(state, evals=evals, converged=state["converged"] & ~failed)
 
 
-def _where_needed(need, make, default):
-    """make() where `need`, else `default` (same structure). A loop of at most one pass
-    rather than lax.cond, which under vmap would run `make` for every trajectory: the pass
-    runs only when some trajectory of the batch needs it."""
-    return lax.while_loop(lambda c: c[0], lambda c: (jnp.zeros_like(c[0]), make()),
-                          (need, default))[1]
-
-
-def _solve_reusing(attempt, opts, fun, t, y, state):
-    """An implicit step's solve with RADAU5's Jacobian reuse. `attempt(jac, opts)` solves the
-    step with iteration matrices built from `jac`: (y_next, converged, evaluations, rate of
-    convergence). The Jacobian kept in the state (`jac`, valid where `reuse`) is tried first,
-    without the full-Newton retry; where it is not valid or fails, a new one at (t, y) and
-    today's solve with it (retry included), whose outcome is the step's. Returns (y_next,
-    converged, evaluations, state with the Jacobian to keep). A state without `jac` (a
-    single step outside the driver) takes a new Jacobian."""
-    d = y.shape[0]
-    if "jac" not in state:
-        y_next, ok, evals, _ = attempt(jacobian(fun, t, y), opts)
-        return y_next, ok, evals + d, state
-    reuse, kept = state["reuse"], state["jac"]
-    quick = dataclasses.replace(opts, max_iter_full=0)
-    none = jax.tree.map(lambda v: jnp.zeros(v.shape, v.dtype),
-                        jax.eval_shape(lambda j: attempt(j, opts), kept))
-    y_a, ok_a, evals_a, theta_a = _where_needed(reuse, lambda: attempt(kept, quick), none)
-    fresh = ~(reuse & ok_a)
-    jac = _where_needed(fresh, lambda: jacobian(fun, t, y), kept)
-    y_b, ok_b, evals_b, theta_b = _where_needed(fresh, lambda: attempt(jac, opts), none)
-    pick = lambda b, a: jnp.where(fresh, b, a)
-    ok, theta = pick(ok_b, ok_a), pick(theta_b, theta_a)
-    evals = jnp.where(reuse, evals_a, 0) + jnp.where(fresh, evals_b + d, 0)
-    state = dict(state, jac=jac, reuse=ok & (theta <= opts.reuse_theta))
-    return pick(y_b, y_a), ok, evals, state
-
-
 def implicit_rk_step(tab, opts, fun, t, y, h, state):
     """One step of an implicit tableau. A diagonally implicit one (a_ij = 0 for j > i) solves
     its stages one by one, each with I - h a_ii J (one factorisation per distinct a_ii);
     any other solves all stages at once with I - h A (x) J."""
-    attempt = _dirk_attempt if tab.diagonally_implicit else _collocation_attempt
-    y_next, ok, evals, state = _solve_reusing(
-        lambda jac, o: attempt(tab, o, fun, t, y, h, jac), opts, fun, t, y, state)
-    return _finish(y, y_next, ok, state, state["evals"] + evals)
-
-
-def _collocation_attempt(tab, opts, fun, t, y, h, jac):
-    """All s stages at once with I - h A (x) J: (y_next, converged, evaluations, rate)."""
     d = y.shape[0]
+    jac = jacobian(fun, t, y)
+    eye = jnp.eye(d, dtype=y.dtype)
+    if tab.diagonally_implicit:
+        return _dirk_step(tab, opts, fun, t, y, h, state, jac, eye)
     s = tab.stages
     a = jnp.asarray(tab.a, y.dtype)
 
@@ -121,10 +79,10 @@ def _collocation_attempt(tab, opts, fun, t, y, h, jac):
         return z - h * (a @ stage_f(z)).reshape(-1)
 
     solver = lambda z: factorised(jnp.eye(s * d, dtype=y.dtype) - h * jnp.kron(a, jac))
-    z, k1, k2, ok, theta = newton_solve(residual, solver, jnp.zeros(s * d, y.dtype),
-                                        jnp.tile(jnp.abs(y), s), opts)
+    z, k1, k2, ok = newton_solve(residual, solver, jnp.zeros(s * d, y.dtype),
+                                 jnp.tile(jnp.abs(y), s), opts)
     zz = z.reshape(s, d)
-    evals = k1 * s + k2 * (s + s * d)
+    evals = state["evals"] + d + k1 * s + k2 * (s + s * d)
     if np.linalg.matrix_rank(tab.a) == s:
         # y + h b^T F = y + b^T A^-1 Z: no evaluation of f, whose h*lambda-sized values
         # would cancel badly on stiff problems.
@@ -132,16 +90,13 @@ def _collocation_attempt(tab, opts, fun, t, y, h, jac):
     else:
         y_next = y + h * (jnp.asarray(tab.b, y.dtype) @ stage_f(z))
         evals = evals + s
-    return y_next, ok, jnp.asarray(evals, y.dtype), theta
+    return _finish(y, y_next, ok, state, evals)
 
 
-def _dirk_attempt(tab, opts, fun, t, y, h, jac):
+def _dirk_step(tab, opts, fun, t, y, h, state, jac, eye):
     """Stages in order: Y_i = y + h sum_{j<i} a_ij k_j + z_i with z_i = h a_ii f(Y_i); the
-    slope k_i = z_i / (h a_ii) costs no evaluation. (y_next, converged, evaluations, the
-    slowest stage's rate)."""
-    eye = jnp.eye(y.shape[0], dtype=y.dtype)
-    ks, ok, evals, theta = [], jnp.asarray(True), jnp.asarray(0.0, y.dtype), \
-        jnp.asarray(0.0, y.dtype)
+    slope k_i = z_i / (h a_ii) costs no evaluation."""
+    ks, ok, evals = [], jnp.asarray(True), state["evals"] + y.shape[0]
     solvers = {}        # one factorisation per distinct diagonal entry
     for i in range(tab.stages):
         known = y
@@ -155,17 +110,16 @@ def _dirk_attempt(tab, opts, fun, t, y, h, jac):
             continue
         if gii not in solvers:
             solvers[gii] = factorised(eye - (h * gii) * jac)
-        z, k1, k2, ok_i, theta_i = newton_solve(lambda z: z - (h * gii) * fun(ti, known + z),
-                                                lambda _, f=solvers[gii]: f,
-                                                jnp.zeros_like(y), jnp.abs(y), opts)
+        z, k1, k2, ok_i = newton_solve(lambda z: z - (h * gii) * fun(ti, known + z),
+                                       lambda _, f=solvers[gii]: f, jnp.zeros_like(y),
+                                       jnp.abs(y), opts)
         ks.append(z / (h * gii))
         ok, evals = ok & ok_i, evals + k1 + k2 * (1 + y.shape[0])
-        theta = jnp.maximum(theta, theta_i)
     if tab.stiffly_accurate:
         y_next = known + z          # the last stage is the solution: no cancellation
     else:
         y_next = y + h * weighted(tab.b, ks)
-    return y_next, ok, evals, theta
+    return _finish(y, y_next, ok, state, evals)
 
 
 def rosenbrock_step(ros, fun, t, y, h, state):
@@ -218,16 +172,13 @@ def multistep_step(lmm, opts, fun, t, y, h, state):
         y_next, state = known, dict(state, evals=evals)
     else:
         bk = float(lmm.beta[k])
-        guess = jnp.tensordot(jnp.asarray(lmm.predictor, y.dtype), ys, 1)
-
-        def attempt(jac, o):
-            fixed = factorised(jnp.eye(y.shape[0], dtype=y.dtype) - (h * bk) * jac)
-            v, k1, k2, ok, theta = newton_solve(lambda v: v - (h * bk) * fun(t_next, v) - known,
-                                                lambda _: fixed, guess, jnp.abs(y), o)
-            return v, ok, jnp.asarray(k1 + k2 * (1 + y.shape[0]), y.dtype), theta
-
-        y_next, ok, spent, state = _solve_reusing(attempt, opts, fun, t, y, state)
-        y_next, state = _finish(y, y_next, ok, state, evals + spent)
+        d = y.shape[0]
+        fixed = factorised(jnp.eye(d, dtype=y.dtype) - (h * bk) * jacobian(fun, t, y))
+        y_next, k1, k2, ok = newton_solve(lambda v: v - (h * bk) * fun(t_next, v) - known,
+                                          lambda _: fixed,
+                                          jnp.tensordot(jnp.asarray(lmm.predictor, y.dtype), ys, 1),
+                                          jnp.abs(y), opts)
+        y_next, state = _finish(y, y_next, ok, state, evals + d + k1 + k2 * (1 + d))
     f_next = fun(t_next, y_next)
     ys = jnp.concatenate([ys[1:], y_next[None]])
     fs = jnp.concatenate([fs[1:], f_next[None]])
