@@ -49,48 +49,59 @@ SMALL = 8
 
 
 def lu_factor(mat):
-    """(lu, pivots): Gaussian elimination with partial pivoting of a small square matrix,
-    unrolled over its columns in whole-array operations. Under vmap every operation is
-    elementwise across the batch, where LAPACK's getrf would take the tiny matrices one at a
-    time behind a transpose. `pivots[k]` is the row swapped with row k at column k; `lu`
-    holds the unit lower factor below the diagonal and the upper factor on and above it."""
+    """Gaussian elimination with partial pivoting of a square matrix: (lu, pivots), the unit
+    lower factor below the diagonal and the upper one on and above it, `pivots[k]` the row
+    swapped with row k at column k. Up to order SMALL it is unrolled over the entries, held
+    as nested lists of scalars: under vmap every operation, pivot search and row swaps
+    included, is then elementwise across the batch, where LAPACK's getrf (or updates of
+    slices of an array) would take the tiny matrices one at a time."""
     n = mat.shape[0]
     if n > SMALL:
         return linalg.lu_factor(mat)
-    rows = jnp.arange(n)
+    a = [[mat[i, j] for j in range(n)] for i in range(n)]
     pivots = []
     for k in range(n - 1):
-        p = k + jnp.argmax(jnp.abs(mat[k:, k]))
-        mat = _swap(mat, rows, k, p)
-        col = mat[k + 1:, k] / mat[k, k]
-        mat = mat.at[k + 1:, k].set(col)
-        mat = mat.at[k + 1:, k + 1:].add(-col[:, None] * mat[k, k + 1:][None, :])
+        p, largest = jnp.asarray(k), jnp.abs(a[k][k])
+        for i in range(k + 1, n):
+            larger = jnp.abs(a[i][k]) > largest
+            p, largest = jnp.where(larger, i, p), jnp.where(larger, jnp.abs(a[i][k]), largest)
+        a[k:] = _swap(a[k:], k, p)
+        for i in range(k + 1, n):
+            a[i][k] = a[i][k] / a[k][k]
+            for j in range(k + 1, n):
+                a[i][j] = a[i][j] - a[i][k] * a[k][j]
         pivots.append(p)
-    return mat, pivots
+    return a, pivots
 
 
-def _swap(a, rows, k, p):
-    """a with rows k and p (a traced index, p >= k) exchanged, by selection rather than a
-    gather, so that a batch of swaps stays elementwise."""
-    at_p = (rows == p).reshape((-1,) + (1,) * (a.ndim - 1))
-    row_p = jnp.sum(jnp.where(at_p, a, 0), axis=0)
-    return jnp.where(at_p, a[k], a.at[k].set(row_p))
+def _swap(rows, k, p):
+    """rows (rows k, k+1, ... of a matrix or vector) with the first, row k, exchanged with
+    row p >= k (a traced index), by selection rather than indexing, so that a batch of swaps
+    stays elementwise."""
+    first = rows[0]
+    for i in range(1, len(rows)):
+        first = jax.tree.map(lambda f, r, i=i: jnp.where(p == k + i, r, f), first, rows[i])
+    return [first] + [jax.tree.map(lambda r, f, i=i: jnp.where(p == k + i, f, r),
+                                   rows[i], rows[0]) for i in range(1, len(rows))]
 
 
 def lu_solve(factors, r):
     """mat^-1 r from `lu_factor(mat)`: the row swaps, then forward and back substitution."""
     lu, pivots = factors
-    n = lu.shape[0]
-    if n > SMALL:
+    if not isinstance(lu, list):
         return linalg.lu_solve(factors, r)
-    rows = jnp.arange(n)
-    for k, p in enumerate(pivots):
-        r = _swap(r, rows, k, p)
-    for i in range(1, n):
-        r = r.at[i].add(-jnp.sum(lu[i, :i] * r[:i]))
+    n = len(lu)
+    x = [r[i] for i in range(n)]
+    for k in range(n - 1):
+        x[k:] = _swap(x[k:], k, pivots[k])
+    for i in range(n):
+        for j in range(i):
+            x[i] = x[i] - lu[i][j] * x[j]
     for i in range(n - 1, -1, -1):
-        r = r.at[i].set((r[i] - jnp.sum(lu[i, i + 1:] * r[i + 1:])) / lu[i, i])
-    return r
+        for j in range(i + 1, n):
+            x[i] = x[i] - lu[i][j] * x[j]
+        x[i] = x[i] / lu[i][i]
+    return jnp.stack(x)
 
 
 def factorised(mat):
