@@ -178,3 +178,18 @@ def test_small_lu_solves_as_numpy_does_batched_and_with_row_swaps():
         x = np.asarray(solve(jnp.asarray(a.transpose(1, 2, 0)), jnp.asarray(b.T))).T
         np.testing.assert_allclose(x, np.linalg.solve(a, b[..., None])[..., 0], rtol=0,
                                    atol=1e-12)
+
+
+@pytest.mark.parametrize("name", ["trapezoidal", "backward_euler", "bdf3"])
+def test_unrolled_elimination_steps_as_lapack_does(monkeypatch, name):
+    """Robertson's steps with the unrolled elimination land where LAPACK's (newton.SMALL = 0,
+    the route of every order before) land, to the Newton tolerance (1e-10, weighted by
+    1 + |y|), and agree on convergence. Another step count, so that the LAPACK run compiles
+    afresh."""
+    from stepzoo.integrators import newton
+    ours = integrate(method(name), robertson, Y0, jnp.zeros(1), {}, 0.1, 30)
+    monkeypatch.setattr(newton, "SMALL", 0)
+    lapack = integrate(method(name), robertson, Y0, jnp.zeros(1), {}, 0.1, 31)
+    assert bool(ours.converged) and bool(lapack.converged)
+    x, ref = np.asarray(ours.x), np.asarray(lapack.x[:31])
+    assert np.max(np.abs(x - ref) / (1 + np.abs(ref))) <= 1e-10
