@@ -10,7 +10,7 @@ from dataclasses import dataclass
 import jax
 import jax.numpy as jnp
 from jax import lax
-from jax.scipy.linalg import lu_factor, lu_solve
+from jax.scipy import linalg
 
 
 @dataclass(frozen=True)
@@ -41,6 +41,68 @@ class NewtonOptions:
 # Increments this many ulps of the iterate are round-off: the iteration has converged as far
 # as the arithmetic allows, whatever the rate estimate says (it is noise at that level).
 ROUND_OFF_ULPS = 8
+
+
+# Matrices up to this order are factorised by the unrolled elimination below; larger ones
+# (Radau IIA 5's 3d stage system) by LAPACK: an unrolled n^3 of operations at order 15 did
+# not finish compiling in minutes.
+SMALL = 8
+
+
+def lu_factor(mat):
+    """Gaussian elimination with partial pivoting of a square matrix: (lu, pivots), the unit
+    lower factor below the diagonal and the upper one on and above it, `pivots[k]` the row
+    swapped with row k at column k. Up to order SMALL it is unrolled over the entries, held
+    as nested lists of scalars: under vmap every operation, pivot search and row swaps
+    included, is then elementwise across the batch, where LAPACK's getrf (or updates of
+    slices of an array) would take the tiny matrices one at a time."""
+    n = mat.shape[0]
+    if n > SMALL:
+        return linalg.lu_factor(mat)
+    a = [[mat[i, j] for j in range(n)] for i in range(n)]
+    pivots = []
+    for k in range(n - 1):
+        p, largest = jnp.asarray(k), jnp.abs(a[k][k])
+        for i in range(k + 1, n):
+            larger = jnp.abs(a[i][k]) > largest
+            p, largest = jnp.where(larger, i, p), jnp.where(larger, jnp.abs(a[i][k]), largest)
+        a[k:] = _swap(a[k:], k, p)
+        for i in range(k + 1, n):
+            a[i][k] = a[i][k] / a[k][k]
+            for j in range(k + 1, n):
+                a[i][j] = a[i][j] - a[i][k] * a[k][j]
+        pivots.append(p)
+    return a, pivots
+
+
+def _swap(rows, k, p):
+    """rows (rows k, k+1, ... of a matrix or vector) with the first, row k, exchanged with
+    row p >= k (a traced index), by selection rather than indexing, so that a batch of swaps
+    stays elementwise."""
+    first = rows[0]
+    for i in range(1, len(rows)):
+        first = jax.tree.map(lambda f, r, i=i: jnp.where(p == k + i, r, f), first, rows[i])
+    return [first] + [jax.tree.map(lambda r, f, i=i: jnp.where(p == k + i, f, r),
+                                   rows[i], rows[0]) for i in range(1, len(rows))]
+
+
+def lu_solve(factors, r):
+    """mat^-1 r from `lu_factor(mat)`: the row swaps, then forward and back substitution."""
+    lu, pivots = factors
+    if not isinstance(lu, list):
+        return linalg.lu_solve(factors, r)
+    n = len(lu)
+    x = [r[i] for i in range(n)]
+    for k in range(n - 1):
+        x[k:] = _swap(x[k:], k, pivots[k])
+    for i in range(n):
+        for j in range(i):
+            x[i] = x[i] - lu[i][j] * x[j]
+    for i in range(n - 1, -1, -1):
+        for j in range(i + 1, n):
+            x[i] = x[i] - lu[i][j] * x[j]
+        x[i] = x[i] / lu[i][i]
+    return jnp.stack(x)
 
 
 def factorised(mat):

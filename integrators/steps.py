@@ -50,6 +50,11 @@ def jacobian(fun, t, y):
     return jax.jacfwd(lambda v: fun(t, v))(y)
 
 
+def jacobian_and_slope(fun, t, y):
+    """(df/dy, f) at (t, y): f comes with the Jacobian's forward pass, at no cost."""
+    return jax.jacfwd(lambda v: (fun(t, v),) * 2, has_aux=True)(y)
+
+
 def _finish(y, y_next, ok, state, evals):
     """NaN after a failed solve. The flag is cleared only by a failure from a state below
     finfo.max^(1/4) (1e77 in float64): beyond it the method has already blown up, and its
@@ -64,10 +69,10 @@ def implicit_rk_step(tab, opts, fun, t, y, h, state):
     its stages one by one, each with I - h a_ii J (one factorisation per distinct a_ii);
     any other solves all stages at once with I - h A (x) J."""
     d = y.shape[0]
-    jac = jacobian(fun, t, y)
     eye = jnp.eye(d, dtype=y.dtype)
     if tab.diagonally_implicit:
-        return _dirk_step(tab, opts, fun, t, y, h, state, jac, eye)
+        return _dirk_step(tab, opts, fun, t, y, h, state, *jacobian_and_slope(fun, t, y), eye)
+    jac = jacobian(fun, t, y)
     s = tab.stages
     a = jnp.asarray(tab.a, y.dtype)
 
@@ -93,9 +98,11 @@ def implicit_rk_step(tab, opts, fun, t, y, h, state):
     return _finish(y, y_next, ok, state, evals)
 
 
-def _dirk_step(tab, opts, fun, t, y, h, state, jac, eye):
+def _dirk_step(tab, opts, fun, t, y, h, state, jac, f0, eye):
     """Stages in order: Y_i = y + h sum_{j<i} a_ij k_j + z_i with z_i = h a_ii f(Y_i); the
-    slope k_i = z_i / (h a_ii) costs no evaluation."""
+    slope k_i = z_i / (h a_ii) costs no evaluation. Newton starts every stage from z_i = 0:
+    a start from a slope lands stiff problems on another root. An explicit first stage at
+    (t, y) is f(t, y), the Jacobian's by-product."""
     ks, ok, evals = [], jnp.asarray(True), state["evals"] + y.shape[0]
     solvers = {}        # one factorisation per distinct diagonal entry
     for i in range(tab.stages):
@@ -105,8 +112,11 @@ def _dirk_step(tab, opts, fun, t, y, h, state, jac, eye):
                 known = known + (h * float(tab.a[i, j])) * ks[j]
         ti, gii = t + float(tab.c[i]) * h, float(tab.a[i, i])
         if gii == 0.0:
-            ks.append(fun(ti, known))
-            evals = evals + 1
+            if i == 0 and tab.c[0] == 0.0:
+                ks.append(f0)
+            else:
+                ks.append(fun(ti, known))
+                evals = evals + 1
             continue
         if gii not in solvers:
             solvers[gii] = factorised(eye - (h * gii) * jac)
