@@ -36,9 +36,8 @@ CHUNK = 8
 # call, whose cost a bigger chunk spreads over more trajectories. This many trajectories
 # per chunk then: rk4 at batch 1e4 ran about as fast as with the option and chunks of CHUNK.
 CHUNK_CALLS = 128
-# Implicit methods keep Newton's loop outside the compiled step loop (it calls LAPACK), so
-# they favour few large chunks: trapezoidal at batch 100 ran 1.45x faster in one chunk than
-# in chunks of 8, and alike at batch 2000.
+# Implicit methods run Newton's while loop inside every step, which XLA does not compile into
+# the native step loop, so they favour few large chunks over many small ones.
 CHUNK_IMPLICIT = 256
 # Below this many trajectories a plain vmap of the one-trajectory loop beats the chunks (at 64
 # steps: rk4 1.2x at batch 10 and 20, dopri5 1.5x at 10; chunks win from 40). A single
