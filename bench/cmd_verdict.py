@@ -27,36 +27,6 @@ def add_arguments(p):
     p.add_argument("--format", choices=["text", "json"], default="text")
 
 
-def verdicts(cfg, pairs, column: str, tol: float, margin: float, unit: str = ""):
-    """[(summary dict, judged per-point table)] per (method, h) of `pairs`."""
-    from stepzoo.bench.verdict import classes, judge, point_record, region, verdict
-    variables = list(cfg.spec.variables)
-    out = []
-    for name, h in pairs:
-        table = judge(verdict(cfg, name, h), h, column, tol, margin, unit)
-        worst = table.loc[table["error"].idxmax()]
-        kinds = classes(table, variables, margin)
-        out.append(({
-            "method": name, "h": h, "points": len(table), "stable": int(table["stable"].sum()),
-            "stable_with_margin": int(table["with_margin"].sum()),
-            "accurate": int(table["accurate"].sum()),
-            "unstable_where": kinds[0]["where"],
-            "solver_failed_where": kinds[1]["where"],
-            "model_nan_where": kinds[2]["where"],
-            "inaccurate_where": region(table, table["stable"] & ~table["accurate"], variables),
-            "worst_error": float(worst["error"]),
-            "worst_at": {v: float(worst[v]) for v in variables},
-            "worst_cause": str(worst["cause"]),
-            "h_pred_min": float(table["h_pred"].min()),
-            "h_meas_min": float(table["h_meas"].min()),
-            "tolerance": {column: tol},
-            "margin": margin,
-            "classes": kinds,
-            "points_list": [point_record(r, variables) for _, r in table.iterrows()],
-        }, table))
-    return out
-
-
 def _csv(path, cfg, results) -> None:
     import pandas as pd
 
@@ -72,6 +42,7 @@ def _csv(path, cfg, results) -> None:
 
 def main(args) -> int:
     from stepzoo.bench.sweep_config import load
+    from stepzoo.bench.verdict import verdicts
     from stepzoo.integrators import METHODS
     if len(args.method) != len(args.h):
         raise UsageError("give one --h per --method")
@@ -123,7 +94,8 @@ def _show(cfg, v, table, tol, unit) -> None:
     # told apart from the measured stability limits.
     solver = table["limit_cause"] == "solver failed"
     own = table.loc[~solver, "h_meas"]
-    own = own[own.map(math.isfinite)]              # inf: no blow-up up to h_probe_max; NaN: model NaN
+    # inf: no blow-up up to h_probe_max; NaN: the model returned NaN there.
+    own = own[own.map(math.isfinite)]
     measured = f"smallest measured {own.min():.4g} s" if len(own) else "no measured limit"
     if solver.any():
         measured += (f"; a nonlinear solve failed above {table.loc[solver, 'h_meas'].min():.4g}"

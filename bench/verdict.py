@@ -64,6 +64,37 @@ def verdict(cfg, method_name: str, h: float) -> pd.DataFrame:
     return pd.DataFrame(rows)
 
 
+def verdicts(cfg, pairs, column: str, tol: float, margin: float, unit: str = ""):
+    """[(summary dict, judged per-point table)] per (method, h [s]) of `pairs` on the sweep
+    config `cfg`: judged on `column` against `tol`, with `margin` (a fraction)."""
+    variables = list(cfg.spec.variables)
+    out = []
+    for name, h in pairs:
+        table = judge(verdict(cfg, name, h), h, column, tol, margin, unit)
+        worst = table.loc[table["error"].idxmax()]
+        kinds = classes(table, variables, margin)
+        where = {k["verdict"]: k["where"] for k in kinds}
+        out.append(({
+            "method": name, "h": h, "points": len(table), "stable": int(table["stable"].sum()),
+            "stable_with_margin": int(table["with_margin"].sum()),
+            "accurate": int(table["accurate"].sum()),
+            "unstable_where": where["unstable"],
+            "solver_failed_where": where["solver failed"],
+            "model_nan_where": where["model returned NaN"],
+            "inaccurate_where": where["stable, not accurate"],
+            "worst_error": float(worst["error"]),
+            "worst_at": {v: float(worst[v]) for v in variables},
+            "worst_cause": str(worst["cause"]),
+            "h_pred_min": float(table["h_pred"].min()),
+            "h_meas_min": float(table["h_meas"].min()),
+            "tolerance": {column: tol},
+            "margin": margin,
+            "classes": kinds,
+            "points_list": [point_record(r, variables) for _, r in table.iterrows()],
+        }, table))
+    return out
+
+
 def judge(table: pd.DataFrame, h: float, column: str, tol: float, margin: float,
           unit: str = "") -> pd.DataFrame:
     """The verdict's table with the per-point answer: `error` (the `column` it is judged on),

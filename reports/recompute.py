@@ -8,11 +8,12 @@ import tomllib
 
 import numpy as np
 
-from stepzoo.bench.cmd_verdict import verdicts as judge_all
 from stepzoo.bench.figure_runs import trajectories_at
 from stepzoo.bench.sweep_config import load
+from stepzoo.bench.verdict import verdicts as judge_all
 from stepzoo.errors import UsageError
 from stepzoo.reports import figures, tables
+from stepzoo.safe_parse import toml_loads
 
 
 def verdict_tables(sweep, verdicts, view, tol: float, margin: float) -> list:
@@ -35,7 +36,7 @@ def figure_point(sweep, tuned, margin):
     code when the sweep ran them elsewhere (the sweep's own runs when its config no longer
     loads); else the sweep's."""
     try:
-        raw = tomllib.loads((sweep.folder / "config.toml").read_text())
+        raw = toml_loads((sweep.folder / "config.toml").read_text())
     except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError):
         raw = {}
     named = set(raw.get("trajectories", {})) & set(sweep.view.variables)

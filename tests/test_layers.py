@@ -84,6 +84,27 @@ def test_no_module_imports_a_layer_above_its_own():
     assert not wrong, "\n".join(wrong)
 
 
+def test_no_library_module_imports_the_command_line():
+    """The command line sits on top: no module below it imports a command's module (cli,
+    cmd_*, pipeline), whichever package that module lives in."""
+    wrong = []
+    for folder in PACKAGES:
+        for path in sorted((ROOT / folder).glob("*.py")):
+            name, own = _module_layer(folder, path)
+            if own == COMMAND_LINE:
+                continue
+            for node in ast.walk(ast.parse(path.read_text())):
+                names = [a.name for a in node.names] if isinstance(node, ast.Import) else \
+                    [node.module or ""] + [f"{node.module}.{a.name}" for a in node.names] \
+                    if isinstance(node, ast.ImportFrom) else []
+                for imported in names:
+                    last = imported.split(".")[-1]
+                    if imported.startswith("stepzoo.") and (
+                            last in ("cli", "pipeline") or last.startswith("cmd_")):
+                        wrong.append(f"{name} imports {imported}")
+    assert not wrong, "\n".join(sorted(set(wrong)))
+
+
 # Libraries that take from a few hundredths of a second to seconds to import, and which
 # commands need only once they compute (JAX, SciPy, CasADi), read map files (Pillow, PyYAML)
 # or write tables and figures.

@@ -19,7 +19,7 @@ import pytest
 from stepzoo.bench.cli import main
 from stepzoo.results_folder import LOCK
 from stepzoo.search import bench_folder
-from stepzoo.search import cmd_plan_bench as cmd
+from stepzoo.search import bench_plans
 from stepzoo.search.maps import from_array
 from stepzoo.search.path_metrics import distance_to_obstacles
 from stepzoo.search.queries import STREET_QUERIES, load_queries, street_queries
@@ -353,11 +353,11 @@ def test_a_damaged_saved_run_or_summary_is_one_line(folder, benched, tiny_sweep,
 
 
 _THREADS = []                     # the thread each task of the Dask test ran on
-_ON_WORKER = cmd._plan_on_worker
+_ON_WORKER = bench_plans._plan_on_worker
 
 
 def _spied_on_worker(task):
-    """cmd._plan_on_worker, noting its thread (module-level: a task is pickled by name)."""
+    """bench_plans._plan_on_worker, noting its thread (module-level: a task is pickled by name)."""
     _THREADS.append(threading.current_thread().name)
     return _ON_WORKER(task)
 
@@ -365,7 +365,7 @@ def _spied_on_worker(task):
 def test_a_bench_on_a_dask_cluster_gives_the_in_process_table(folder, benched, tmp_path,
                                                                monkeypatch):
     distributed = pytest.importorskip("dask.distributed")
-    monkeypatch.setattr(cmd, "_plan_on_worker", _spied_on_worker)
+    monkeypatch.setattr(bench_plans, "_plan_on_worker", _spied_on_worker)
     with distributed.LocalCluster(n_workers=1, threads_per_worker=1, processes=False,
                                   dashboard_address=None) as cluster:
         assert bench(folder, tmp_path / "o", "--runs", "2", "--scheduler",
