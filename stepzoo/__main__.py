@@ -1,6 +1,6 @@
 """`python -m stepzoo`: the same as the `stepzoo` command."""
 import sys
 
-from stepzoo.bench.cli import main
+from stepzoo.cli import main
 
 sys.exit(main())

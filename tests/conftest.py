@@ -3,7 +3,7 @@ import os
 import shutil
 import tempfile
 
-from stepzoo.bench.cli import with_xla_option
+from stepzoo.cli import with_xla_option
 
 # The tests compute as the `stepzoo` command does, so that tables made in-process equal those
 # of a command run in a subprocess bit for bit: the same XLA option (it changes how loops are

@@ -12,7 +12,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from stepzoo.bench.cli import main as stepzoo
+from stepzoo.cli import main as stepzoo
 from stepzoo.bench.sweep import compute_chunk
 from stepzoo.bench.sweep_config import load
 from stepzoo.integrators import METHODS, method

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from stepzoo import dynamics
-from stepzoo.bench.cli import XLA_OPTION
+from stepzoo.cli import XLA_OPTION
 from stepzoo.integrators import driver, method
 
 MODEL = dynamics.model("dynamic5")

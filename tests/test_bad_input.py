@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from stepzoo.bench.cli import main as stepzoo
+from stepzoo.cli import main as stepzoo
 from stepzoo.validate import RANGES
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -217,7 +217,7 @@ def test_tune_finding_nothing_is_exit_1_and_keeps_the_old_file(finished, tmp_pat
 # one start-up instead of one a command. Prints [[status, stderr], ...] as JSON, each
 # command's stdout kept apart.
 EACH = """import contextlib, io, json, sys
-from stepzoo.bench.cli import main
+from stepzoo.cli import main
 done = []
 for argv in json.loads(sys.argv[1]):
     err = io.StringIO()

@@ -13,7 +13,7 @@ import pandas as pd
 import pytest
 
 from stepzoo import dynamics
-from stepzoo.bench.cli import main as stepzoo
+from stepzoo.cli import main as stepzoo
 from stepzoo.bench.sweep import run_sweep
 from stepzoo.bench.sweep_config import load
 from stepzoo.dynamics.casadi_model import rhs, to_jax

@@ -8,7 +8,7 @@ import sys
 import numpy as np
 import pytest
 
-from stepzoo.bench.cli import main as stepzoo
+from stepzoo.cli import main as stepzoo
 
 
 def run(args):

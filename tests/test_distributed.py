@@ -17,7 +17,7 @@ pytest.importorskip("dask.distributed")
 
 from stepzoo import distributed as cluster  # noqa: E402
 from stepzoo.bench import distributed, schema  # noqa: E402
-from stepzoo.bench.cli import main as stepzoo  # noqa: E402
+from stepzoo.cli import main as stepzoo  # noqa: E402
 from stepzoo.bench.sweep import chunk_ids, run_sweep  # noqa: E402
 from stepzoo.bench.sweep_config import load  # noqa: E402
 

@@ -13,7 +13,7 @@ import pandas as pd
 import pytest
 
 from stepzoo.bench import export
-from stepzoo.bench.cli import main as stepzoo
+from stepzoo.cli import main as stepzoo
 from stepzoo.errors import NoAnswer
 from stepzoo.integrators import integrate
 from stepzoo.integrators.methods import TABLEAUS

@@ -13,7 +13,7 @@ ROOT = Path(__file__).resolve().parents[1]
 PACKAGES = {"stepzoo": "stepzoo", "dynamics": "stepzoo.dynamics",
             "integrators": "stepzoo.integrators", "bench": "stepzoo.bench",
             "search": "stepzoo.search", "reports": "stepzoo.reports"}
-# Layer of each package; the command line (cli, cmd_*, pipeline, __main__) is above all.
+# Layer of each package; the command line (stepzoo/cli/, __main__) is above all.
 LAYER = {"stepzoo": 0, "stepzoo.dynamics": 1, "stepzoo.integrators": 2, "stepzoo.bench": 3,
          "stepzoo.search": 3, "stepzoo.reports": 4}
 COMMAND_LINE = 5
@@ -38,21 +38,21 @@ print(json.dumps({"before": before, "after": settings(), "names": names}))
 def test_importing_every_module_changes_no_jax_setting_nor_xla_flags(tmp_path):
     env = {k: v for k, v in os.environ.items() if not k.startswith("JAX_")}
     env["XLA_FLAGS"] = "--xla_cpu_enable_fast_math=false"
-    proc = subprocess.run([sys.executable, "-c", IMPORT_ALL % list(PACKAGES.values())],
+    packages = [*PACKAGES.values(), "stepzoo.cli"]
+    proc = subprocess.run([sys.executable, "-c", IMPORT_ALL % packages],
                           capture_output=True, text=True, cwd=tmp_path, env=env, timeout=300)
     assert proc.returncode == 0, proc.stderr[-3000:]
     seen = json.loads(proc.stdout.strip().splitlines()[-1])
     assert seen["before"] == [False, None, "--xla_cpu_enable_fast_math=false"], seen["before"]
     assert seen["after"] == seen["before"]
-    assert {"stepzoo.integrators.driver", "stepzoo.bench.cli", "stepzoo.search.connect",
-            "stepzoo.reports.pipeline", "stepzoo.dynamics.models"} <= set(seen["names"])
+    assert {"stepzoo.integrators.driver", "stepzoo.cli.sweep", "stepzoo.search.connect",
+            "stepzoo.cli.run", "stepzoo.dynamics.models"} <= set(seen["names"])
 
 
 def _module_layer(folder: str, path: Path) -> tuple[str, int]:
     package = PACKAGES[folder]
     name = f"{package}.{path.stem}"
-    command_line = path.stem in ("cli", "pipeline", "__main__") or path.stem.startswith("cmd_")
-    return name, COMMAND_LINE if command_line else LAYER[package]
+    return name, COMMAND_LINE if path.stem == "__main__" else LAYER[package]
 
 
 def _imported(tree: ast.AST) -> set[str]:
@@ -85,8 +85,8 @@ def test_no_module_imports_a_layer_above_its_own():
 
 
 def test_no_library_module_imports_the_command_line():
-    """The command line sits on top: no module below it imports a command's module (cli,
-    cmd_*, pipeline), whichever package that module lives in."""
+    """The command line sits on top: no module outside stepzoo/cli/ (and __main__) imports
+    it, at any depth of its code."""
     wrong = []
     for folder in PACKAGES:
         for path in sorted((ROOT / folder).glob("*.py")):
@@ -97,11 +97,8 @@ def test_no_library_module_imports_the_command_line():
                 names = [a.name for a in node.names] if isinstance(node, ast.Import) else \
                     [node.module or ""] + [f"{node.module}.{a.name}" for a in node.names] \
                     if isinstance(node, ast.ImportFrom) else []
-                for imported in names:
-                    last = imported.split(".")[-1]
-                    if imported.startswith("stepzoo.") and (
-                            last in ("cli", "pipeline") or last.startswith("cmd_")):
-                        wrong.append(f"{name} imports {imported}")
+                wrong += [f"{name} imports {imported}" for imported in names
+                          if imported == "stepzoo.cli" or imported.startswith("stepzoo.cli.")]
     assert not wrong, "\n".join(sorted(set(wrong)))
 
 
@@ -112,7 +109,7 @@ HEAVY = ("jax", "scipy", "casadi", "PIL", "yaml", "pandas", "pyarrow", "matplotl
          "dask", "distributed")
 IMPORTED_AFTER = """
 import json, sys
-from stepzoo.bench.cli import main
+from stepzoo.cli import main
 try:
     main(sys.argv[1:])
 except SystemExit:
@@ -129,7 +126,7 @@ def _heavy_imported(code: str, *args) -> list[str]:
 
 
 def test_help_of_every_command_imports_no_heavy_library():
-    from stepzoo.bench.cli import COMMANDS
+    from stepzoo.cli import COMMANDS
     code = IMPORTED_AFTER % (HEAVY,)
     heavy = {name: _heavy_imported(code, name, "--help") for name in ["--help", *COMMANDS]}
     assert heavy == {name: [] for name in heavy}
@@ -139,6 +136,7 @@ def test_plan_imports_before_its_search_only_what_it_searches_with():
     """The modules `stepzoo plan` runs before its search (the command, scenarios, config,
     planner) import JAX, SciPy and CasADi, and no table or plotting library."""
     code = ("import json, sys\n"
-            "from stepzoo.search import cmd_plan, pathfinder, planner_config, scenarios\n"
+            "from stepzoo.cli import plan\n"
+            "from stepzoo.search import pathfinder, planner_config, scenarios\n"
             f"print(json.dumps(sorted({{m.split('.')[0] for m in sys.modules}} & set({HEAVY!r}))))")
     assert _heavy_imported(code) == ["casadi", "jax", "scipy"]

@@ -10,7 +10,7 @@ import pytest
 from PIL import Image
 
 from stepzoo import validate
-from stepzoo.bench.cli import main as stepzoo
+from stepzoo.cli import main as stepzoo
 from stepzoo.errors import UsageError
 from stepzoo.search.maps import MAP_BYTES_PER_CELL, MAP_DIR, OccupancyMap, from_array, load_map
 

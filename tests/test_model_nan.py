@@ -10,7 +10,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from stepzoo.bench.cli import main as stepzoo
+from stepzoo.cli import main as stepzoo
 from stepzoo.bench.model_nan import first_times
 from stepzoo.integrators import method
 from stepzoo.integrators.stability import max_stable_step

@@ -92,8 +92,8 @@ def test_the_smooth_builtin_models_are_never_flagged(tiny_sweep):
 
 
 def test_the_sweep_command_and_the_report_say_where_and_the_remedy(clamp_sweep, capsys):
-    from stepzoo.bench.cmd_sweep import show
-    from stepzoo.reports.cmd_report import _facts
+    from stepzoo.cli.sweep import show
+    from stepzoo.cli.report import _facts
     from stepzoo.reports.load import load_sweep
     from stepzoo.reports.suite_report import order_rows
     _, folder = clamp_sweep

@@ -15,7 +15,7 @@ import pytest
 from test_report import check_report
 from test_results_folder import TABLES, tables
 
-from stepzoo.bench.cli import main as stepzoo
+from stepzoo.cli import main as stepzoo
 from stepzoo.integrators import METHODS
 from stepzoo.search.scenarios import builtin_names
 
@@ -107,7 +107,7 @@ def test_run_with_a_missing_config_is_one_line_and_writes_nothing(tmp_path, caps
 
 
 def test_run_default_config_is_the_shipped_envelope():
-    from stepzoo.reports.pipeline import config_path
+    from stepzoo.cli.run import config_path
     assert config_path(None).resolve() == (ROOT / "bench" / "configs" / "envelope.toml")
 
 

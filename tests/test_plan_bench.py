@@ -16,7 +16,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from stepzoo.bench.cli import main
+from stepzoo.cli import main
 from stepzoo.results_folder import LOCK
 from stepzoo.search import bench_folder
 from stepzoo.search import bench_plans

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from stepzoo.bench.cli import main
+from stepzoo.cli import main
 from stepzoo.errors import UsageError
 from stepzoo.search.planner_config import DEFAULT_CONFIG, PARAMS, load_config
 from stepzoo.search.scenarios import builtin_names, load_scenario

@@ -13,7 +13,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from stepzoo.bench.cli import main as stepzoo
+from stepzoo.cli import main as stepzoo
 from stepzoo.bench.sweep import run_sweep
 from stepzoo.bench.sweep_config import load
 from stepzoo.bench.timing import per_step

@@ -8,7 +8,7 @@ import pytest
 from scipy.integrate import solve_ivp
 
 from stepzoo import dynamics
-from stepzoo.bench.cli import main
+from stepzoo.cli import main
 from stepzoo.search.footprint import poses_collide
 from stepzoo.search.maps import from_array
 from stepzoo.search.pathfinder import PathFinder

@@ -11,7 +11,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from stepzoo.bench.cli import main as stepzoo
+from stepzoo.cli import main as stepzoo
 from stepzoo.bench.sweep_config import load
 from stepzoo.reports import tables
 from stepzoo.reports.load import load_sweep

@@ -15,7 +15,7 @@ import pandas as pd
 import pytest
 
 from stepzoo.bench import schema
-from stepzoo.bench.cli import main as stepzoo
+from stepzoo.cli import main as stepzoo
 from stepzoo.bench.sweep import chunk_ids, run_sweep
 from stepzoo.bench.sweep_config import load
 from stepzoo.errors import UsageError

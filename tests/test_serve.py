@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from stepzoo.bench.cli import main
+from stepzoo.cli import main
 from stepzoo.search.plan_request import Messages, identity, send
 from stepzoo.search.planner_config import load_config
 
@@ -29,7 +29,7 @@ from stepzoo.search.planner_config import load_config
 ASK = """
 import json, sys
 before = set(sys.modules)
-from stepzoo.bench.cli import main
+from stepzoo.cli import main
 code = main(sys.argv[2:])
 extra = {m.split(".")[0] for m in set(sys.modules) - before} - set(sys.stdlib_module_names)
 open(sys.argv[1], "w").write(json.dumps(sorted(extra - {"stepzoo"})))
@@ -344,7 +344,7 @@ def test_the_default_socket_is_in_a_private_folder(tmp_path, monkeypatch, capsys
         "private: other users may write into it; give --socket PATH in a folder only you may "
         "write\n")
     (cache / "stepzoo").rmdir()
-    from stepzoo.search.cmd_serve import _private
+    from stepzoo.cli.serve import _private
     _private(cache / "stepzoo")
     assert (cache / "stepzoo").stat().st_mode & 0o777 == 0o700
 

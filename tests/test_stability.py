@@ -7,7 +7,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from stepzoo.bench.cli import main as stepzoo
+from stepzoo.cli import main as stepzoo
 from stepzoo.integrators import METHODS, integrate, method
 from stepzoo.integrators.methods import Method, _rk
 from stepzoo.integrators.multistep import bdf

@@ -11,7 +11,7 @@ import pandas as pd
 import pytest
 
 from stepzoo.bench import metrics, schema
-from stepzoo.bench.cli import main as stepzoo
+from stepzoo.cli import main as stepzoo
 from stepzoo.bench.suite import load, run_suite
 from stepzoo.bench.tune import tune
 from stepzoo.dynamics import model
@@ -357,7 +357,7 @@ def test_a_bad_problem_is_one_line_naming_it(tmp_path, capsys, edit, message):
 
 
 def test_suite_report_gives_the_orders_and_work_precision_per_problem(suite, tmp_path):
-    from stepzoo.reports.cmd_report import build
+    from stepzoo.cli.report import build
     cfg, out, _ = suite
     index, md, shown = build(out, tmp_path / "report")
     assert [s.title for s in shown] == [f"Work-precision: {p}" for p in cfg.labels]

@@ -13,7 +13,7 @@ import pytest
 
 from stepzoo import dynamics
 from stepzoo.bench import schema
-from stepzoo.bench.cli import main as stepzoo
+from stepzoo.cli import main as stepzoo
 from stepzoo.bench.frozen import predicted_limit
 from stepzoo.bench.sweep import _Work, chunk_ids, compute_chunk, run_sweep
 from stepzoo.bench.sweep_config import load

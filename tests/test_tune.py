@@ -13,7 +13,7 @@ import pandas as pd
 import pytest
 
 from stepzoo import dynamics
-from stepzoo.bench.cli import main as stepzoo
+from stepzoo.cli import main as stepzoo
 from stepzoo.bench.sweep import run_sweep
 from stepzoo.bench.sweep_config import load
 from stepzoo.bench.tune import candidates
@@ -74,7 +74,7 @@ def test_cost_evals_chooses_the_fewest_evaluations_that_qualify(tuned_both):
 
 def test_the_calibration_defaults_are_the_planners_call():
     from stepzoo.bench.calibrate import PLANNER_BATCH, PLANNER_INTERVAL_S
-    from stepzoo.bench.cmd_tune import planner_call
+    from stepzoo.cli.tune import planner_call
     assert planner_call() == (PLANNER_BATCH, PLANNER_INTERVAL_S)
 
 

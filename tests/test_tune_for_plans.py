@@ -11,7 +11,7 @@ import tomllib
 import numpy as np
 import pytest
 
-from stepzoo.bench.cli import main as stepzoo
+from stepzoo.cli import main as stepzoo
 
 POS_TOL, MARGIN = "1", "0.2"      # on the tiny sweep: euler and heun qualify at h = 0.01 s
 # A collision margin that is no parameter's default, so the test sees where the tol comes from.

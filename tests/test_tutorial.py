@@ -17,7 +17,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from stepzoo.bench.cli import main as stepzoo
+from stepzoo.cli import main as stepzoo
 
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLE = ROOT / "docs" / "examples" / "myvehicle"

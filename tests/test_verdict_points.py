@@ -13,7 +13,7 @@ import pandas as pd
 import pytest
 
 from stepzoo.bench import tune
-from stepzoo.bench.cli import main as stepzoo
+from stepzoo.cli import main as stepzoo
 from stepzoo.bench.sweep_config import load
 from stepzoo.bench.verdict import classes, judge, region, verdict
 from stepzoo.reports.load import load_sweep
@@ -158,7 +158,7 @@ def failed_solve(tmp_path_factory):
 
 def test_a_failed_solve_is_reported_apart_from_measured_limits(failed_solve, tmp_path,
                                                                capsys):
-    from stepzoo.bench.cmd_sweep import show
+    from stepzoo.cli.sweep import show
     from stepzoo.reports import figures, interactive, tables
     config, out = failed_solve
     summary = pd.read_csv(out / "summary.csv").set_index("method")

@@ -10,7 +10,7 @@ import re
 import subprocess
 import sys
 
-from stepzoo.bench.cli import XLA_OPTION, with_xla_option
+from stepzoo.cli import XLA_OPTION, with_xla_option
 
 BATCH = 10_000
 STEPS = 200

@@ -34,7 +34,7 @@ def test_plan_all(benchmark, tmp_path):
 # time since the request arrived.
 SEARCH_STARTS = """
 import json, sys, time
-from stepzoo.search import cmd_plan, cmd_serve
+from stepzoo.cli import plan as cmd_plan, serve as cmd_serve
 answer, arrived = cmd_serve._answer, [0.0]
 def timed_answer(connection):
     arrived[0] = time.process_time()
@@ -54,7 +54,7 @@ def timed_plan_scenario(*args):
         PathFinder.plan = plan
     return plan_scenario(*args)
 cmd_plan.plan_scenario = timed_plan_scenario
-from stepzoo.bench.cli import main
+from stepzoo.cli import main
 sys.argv[0] = "stepzoo"
 sys.exit(main())
 """

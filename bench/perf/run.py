@@ -41,7 +41,7 @@ def run_benchmarks(json_path: Path, select: list[str]) -> int:
     """pytest on bench/perf with one host device per core, so that the driver can share a
     batch among them, and the command's XLA loop option (XLA reads its flags when JAX
     starts, hence the subprocess)."""
-    from stepzoo.bench.cli import with_xla_option
+    from stepzoo.cli import with_xla_option
     env = dict(os.environ)
     env["XLA_FLAGS"] = with_xla_option(
         (env.get("XLA_FLAGS", "") +

@@ -3,7 +3,7 @@ sweep that is stable with a margin and meets a tolerance everywhere, as a TOML c
 in time measured in the planner's own call (--cost time), or in RHS evaluations."""
 import sys
 
-from stepzoo.bench import cmd_tune_plans
+from stepzoo.cli import tune_plans
 from stepzoo.bench.calibrate import ROUNDS
 from stepzoo.output import text_table, to_json
 from stepzoo.results_folder import check_file_target
@@ -28,7 +28,7 @@ def add_arguments(p):
     p.add_argument("--rounds", type=int, default=None, metavar="N",
                    help="timed rounds of each method's calibration (default "
                    f"{ROUNDS}): the fastest counts")
-    cmd_tune_plans.add_arguments(p)
+    tune_plans.add_arguments(p)
     p.add_argument("--out", required=True, metavar="FILE", help="tuned planner config (TOML)")
     p.add_argument("--format", choices=["text", "json"], default="text")
 
@@ -47,7 +47,7 @@ def tune(results, pos_tol, margin: float, out, tol=None, cost: str = "time",
     or a tolerance `tol` on the config's error norm, stability margin `margin`, a fraction),
     ranked by `cost` ("time", calibrated in the planner's call, or "evals"), and write it to
     the file `out`; returns the choice, chosen among the qualifying candidates by planning
-    when `plans` (a cmd_tune_plans.Trial) is given. `stepzoo tune` and `stepzoo run` call it."""
+    when `plans` (a tune_plans.Trial) is given. `stepzoo tune` and `stepzoo run` call it."""
     from stepzoo.bench.tune import tune as choose
     from stepzoo.bench.tune import write
     out = check_file_target(out)          # before the work, not only when writing
@@ -71,12 +71,12 @@ def show(tuned: dict, out, fmt: str = "text") -> None:
             for r in tuned["runners_up"]]
     sys.stdout.write(text_table(rows, ["method", "h", "evals_per_s", "time_per_s", "reason"])
                      + "\n")
-    cmd_tune_plans.show(tuned)
+    tune_plans.show(tuned)
     print(f"wrote {out}")
 
 
 def main(args) -> int:
     tuned = tune(args.results, args.pos_tol, args.margin, args.out, args.tol, args.cost,
-                 args.rounds, cmd_tune_plans.trial(args))
+                 args.rounds, tune_plans.trial(args))
     show(tuned, args.out, args.format)
     return 0

@@ -64,26 +64,25 @@ class Run(NamedTuple):
 def stages(out: Path, config: Path, pos_tol: float, margin: float, seed: int,
            progress: bool) -> list:
     """(name, the equivalent `stepzoo` argv, call) of each stage before the report."""
-    from stepzoo.bench import cmd_sweep, cmd_tune
-    from stepzoo.search import cmd_plan
+    from stepzoo.cli import plan as plan_cmd, sweep as sweep_cmd, tune as tune_cmd
     from stepzoo.search.scenarios import builtin_names, load_scenario
     sweep, tuned, plans = out / "sweep", out / "tuned.toml", out / "plans"
 
     def plan():
-        records = cmd_plan.plan([load_scenario(n) for n in builtin_names()], plans, tuned, seed,
+        records = plan_cmd.plan([load_scenario(n) for n in builtin_names()], plans, tuned, seed,
                                 batch=True, progress=progress)
-        cmd_plan.show(records, plans, True)
-        return cmd_plan.status(records)
+        plan_cmd.show(records, plans, True)
+        return plan_cmd.status(records)
 
     return [
         # resume: a rerun reuses a finished sweep of the same config and completes an
         # interrupted one; a different config is refused by the sweep with its own line.
         ("sweep", ["sweep", str(config), "--out", str(sweep), "--resume"],
-         lambda: cmd_sweep.show(cmd_sweep.sweep(config, sweep, resume=True, progress=progress),
+         lambda: sweep_cmd.show(sweep_cmd.sweep(config, sweep, resume=True, progress=progress),
                                 sweep)),
         ("tune", ["tune", str(sweep), "--pos-tol", repr(pos_tol), "--margin", repr(margin),
                   "--out", str(tuned)],
-         lambda: cmd_tune.show(cmd_tune.tune(sweep, pos_tol, margin, tuned), tuned)),
+         lambda: tune_cmd.show(tune_cmd.tune(sweep, pos_tol, margin, tuned), tuned)),
         ("plan", ["plan", "--all", "--config", str(tuned), "--seed", str(seed),
                   "--out", str(plans)], plan),
     ]
@@ -109,7 +108,7 @@ def run(out="results", config=None, pos_tol: float = 0.1, margin: float = DEFAUL
 
 def _run(out: Path, steps, progress: bool, quiet: bool) -> Run:
     """Run the stages, then the report (made also when a plan is not exact)."""
-    from stepzoo.reports import cmd_report
+    from stepzoo.cli import report as report_cmd
     say = (lambda line: None) if quiet else _say
     total = len(steps) + 1
     exact = True
@@ -131,7 +130,7 @@ def _run(out: Path, steps, progress: bool, quiet: bool) -> Run:
         took[name] = round(time.perf_counter() - t0, 3)
         say(f"[{i}/{total}] {name} done in {took[name]:.1f} s")
     say(f"[{total}/{total}] report: stepzoo report {out} --out {out / 'report'}")
-    index, _, _ = cmd_report.build(out / "sweep", out / "report", out / "tuned.toml",
+    index, _, _ = report_cmd.build(out / "sweep", out / "report", out / "tuned.toml",
                                    out / "plans", progress=progress)
     took["report"] = round(time.perf_counter() - started - sum(took.values()), 3)
     environment.write_manifest(out, "run", began, {

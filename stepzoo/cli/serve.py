@@ -20,7 +20,7 @@ import traceback
 import _thread
 from pathlib import Path
 
-from stepzoo.bench import cli
+from stepzoo import cli
 from stepzoo.errors import UsageError
 from stepzoo.search.plan_request import (ENV, Messages, check_request, default_socket,
                                          identity, not_private, peer_uid, send)
@@ -166,7 +166,7 @@ def _plan(argv: list[str]) -> int:
         sys.stderr.write(f"stepzoo {args.command}: error: a stepzoo server runs plans only\n")
         return 2
     args.server = None
-    return cli.run(args, argv)
+    return cli.dispatch(args, argv)
 
 
 def _answer(connection: socket.socket, request_s: float) -> None:

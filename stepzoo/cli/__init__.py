@@ -16,19 +16,19 @@ from stepzoo import __version__, validate
 from stepzoo.errors import NoAnswer, UsageError
 
 COMMANDS = {
-    "run": ("stepzoo.reports.pipeline", "the whole pipeline: sweep -> tune -> plan -> report"),
-    "methods": ("stepzoo.bench.cmd_methods", "the zoo: family, order, stages, stability intervals"),
-    "simulate": ("stepzoo.bench.cmd_simulate", "one trajectory with one method (or the reference)"),
-    "stability": ("stepzoo.bench.cmd_stability", "eigenvalues and predicted largest stable step"),
-    "sweep": ("stepzoo.bench.cmd_sweep", "stability/accuracy sweep into a results folder"),
-    "verdict": ("stepzoo.bench.cmd_verdict", "where a fixed (method, h) is stable and accurate"),
-    "tune": ("stepzoo.bench.cmd_tune", "choose (method, h) under a tolerance -> planner config"),
-    "export": ("stepzoo.bench.cmd_export", "the tuned (method, h) for acados, diffrax or JSON"),
-    "plan": ("stepzoo.search.cmd_plan", "plan a scenario (built-in, or map + start + goal)"),
-    "plan-bench": ("stepzoo.search.cmd_plan_bench", "plan a file of queries N times: a table "
+    "run": ("stepzoo.cli.run", "the whole pipeline: sweep -> tune -> plan -> report"),
+    "methods": ("stepzoo.cli.methods", "the zoo: family, order, stages, stability intervals"),
+    "simulate": ("stepzoo.cli.simulate", "one trajectory with one method (or the reference)"),
+    "stability": ("stepzoo.cli.stability", "eigenvalues and predicted largest stable step"),
+    "sweep": ("stepzoo.cli.sweep", "stability/accuracy sweep into a results folder"),
+    "verdict": ("stepzoo.cli.verdict", "where a fixed (method, h) is stable and accurate"),
+    "tune": ("stepzoo.cli.tune", "choose (method, h) under a tolerance -> planner config"),
+    "export": ("stepzoo.cli.export", "the tuned (method, h) for acados, diffrax or JSON"),
+    "plan": ("stepzoo.cli.plan", "plan a scenario (built-in, or map + start + goal)"),
+    "plan-bench": ("stepzoo.cli.plan_bench", "plan a file of queries N times: a table "
                    "and OMPL benchmark logs"),
-    "report": ("stepzoo.reports.cmd_report", "build the HTML report from result folders"),
-    "serve": ("stepzoo.search.cmd_serve", "keep a planner warm for `stepzoo plan --server`: "
+    "report": ("stepzoo.cli.report", "build the HTML report from result folders"),
+    "serve": ("stepzoo.cli.serve", "keep a planner warm for `stepzoo plan --server`: "
               "no start-up per plan"),
 }
 # Commands that run long enough to show progress: they take --no-progress and -q.
@@ -147,10 +147,10 @@ def main(argv=None) -> int:
         chosen = None
     # Before any subcommand module is imported: XLA reads its flags when JAX starts.
     os.environ["XLA_FLAGS"] = with_xla_option(os.environ.get("XLA_FLAGS", ""))
-    return run(build_parser(chosen).parse_args(argv), argv)
+    return dispatch(build_parser(chosen).parse_args(argv), argv)
 
 
-def run(args, argv=None) -> int:
+def dispatch(args, argv=None) -> int:
     """Run the command parsed into `args`: here, or with `plan --server PATH` in the `stepzoo
     serve` process at PATH, which is sent `argv` (then this process never imports JAX)."""
     served = getattr(args, "server", None)

@@ -25,7 +25,7 @@ DEFAULT_MAX_HOURS = 24.0
 
 
 def add_arguments(p):
-    from stepzoo.search.cmd_plan import REVERSE_HELP, settings_help
+    from stepzoo.cli.plan import REVERSE_HELP, settings_help
     p.formatter_class = argparse.RawDescriptionHelpFormatter
     p.epilog = settings_help()
     p.add_argument("queries", metavar="QUERIES", help="JSON list of queries {map (relative to "
