@@ -88,10 +88,6 @@ def eigen_columns(variables) -> list[str]:
     return ["point", *variables, *EIGEN_TAIL]
 
 
-def trajectory_columns(states) -> list[str]:
-    return ["method", "h", "t", *states, "past_limit"]
-
-
 def model_record(spec) -> dict:
     """The manifest's "model": what a reader needs to name axes and columns."""
     return {"name": spec.name, "states": list(spec.states), "inputs": list(spec.inputs),

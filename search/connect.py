@@ -18,17 +18,11 @@ from stepzoo.integrators.methods import TABLEAUS
 from stepzoo.integrators.steps import rk_slopes, weighted
 from stepzoo.search.car_bounds import reeds_shepp_words
 
-# Measured on 40 seeded problems (3-30 m, arbitrary headings, start speed 0-10 m/s, N=50,
-# rk4, 2-core CPU, before the IPOPT options below): in a 120 m box, multiple shooting solved
-# 40/40 at a median of 17-20 ms, single shooting 40/40 at 100 ms (t_f agree to 1e-7; the same
-# with goal speed 0); in a box only 5 m beyond start and goal, multiple 40/40 (17 ms), single
-# 40/40 (85 ms, one after a retry, at a worse local optimum). With max_iter 300 and no retry,
-# single made 39/40. Multiple shooting is the default. A pure-pursuit rollout guess instead of
-# the Dubins one left multiple shooting at 29/40 and a median of 255 ms.
+# Multiple shooting solved as many seeded problems as single shooting, several times faster
+# and without retries (docs/measurements-behind-defaults.md has the study).
 DEFAULT_SHOOTING = "multiple"
-# rk4 costs what Euler costs here (~16 ms) but is faithful: the end of an rk4 re-simulation
-# 10 times finer misses the goal by 5e-6 m (median; max 5e-5), against 0.66 m (max 2.1 m)
-# for the paper's forward Euler, 2e-2 m for heun and 1.4e-4 m for rk3.
+# rk4 costs what Euler costs here (the NLP dominates) but is faithful: a re-simulation 10
+# times finer ends micrometres from the goal, against decimetres for the paper's Euler.
 DEFAULT_METHOD = "rk4"
 # The paper leaves F free, which makes minimum time degenerate (infinite force, zero time):
 # F is bounded by m * A_MAX, a firm but ordinary passenger-car acceleration/braking level.
@@ -283,18 +277,11 @@ class _Problem:
     rows: slice           # which of [X, Y, theta, v] single shooting bounds in g
 
 
-# Measured against the Opti formulation with IPOPT's defaults, multiple shooting, on the
-# scenario connections and 208 seeded problems (same solved counts; t_f agree to 2e-7 but for
-# one better optimum): bounds on T, U and the states as variable bounds instead of
-# constraints cut a solve by 25%, the adaptive barrier update cut IPOPT's iterations by 20%
-# (10% faster) and its kkt-error globalisation 15% more (scenario connections 20% faster),
-# fast_step_computation saved 8% at the same iterations, and calling nlpsol directly saved
-# Opti's 0.5 ms of set-up and read-out. Single shooting keeps the monotone update: adaptive
-# was slower there (median 118 against 89 ms) and reached a worse local optimum on 1 of 60
-# problems. mu-based bound multipliers made connections of 3-12 m from 5 m/s 25% faster but
-# those of 3-30 m 10% slower. MUMPS ordering and scaling options changed nothing, spral was
-# 4x slower, HSL's ma27/ma57 do not ship, and limited-memory Hessians were 5x slower and
-# failed more often.
+# Variable bounds instead of constraints, nlpsol instead of Opti, fast_step_computation and,
+# for multiple shooting, the adaptive barrier update with kkt-error globalisation: each was
+# faster at the same solved count on the scenario connections and seeded problems; the
+# options that were not (spral, limited-memory Hessians, mu-based bound multipliers) are left
+# out. The study: docs/measurements-behind-defaults.md.
 IPOPT_OPTIONS = {"print_level": 0, "sb": "yes", "max_iter": 100, "fast_step_computation": "yes"}
 ADAPTIVE_MU = {"mu_strategy": "adaptive", "adaptive_mu_globalization": "kkt-error"}
 

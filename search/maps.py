@@ -30,12 +30,12 @@ _FRAME = EXACT_CELLS // 2 + 1
 
 # Distance fields of the last grids seen, keyed by the grid's content (never by a file name,
 # so a changed map is never given an old field): a process that plans again and again on the
-# same map (`stepzoo serve`) transforms it once (0.39 s of CPU for 1024 x 1024 cells).
+# same map (`stepzoo serve`) transforms it once.
 FIELDS_KEPT = 2
 
 # Peak memory a grid cell costs while a map is built: the occupancy, and the distance field
-# on a lattice SUBDIV times finer with the transform's intermediates (tracemalloc: 142 bytes
-# per cell on a 1000 x 1500 grid). A file's decoding adds its own per cell (DECODE_BYTES).
+# on a lattice SUBDIV times finer with the transform's intermediates (measured with
+# tracemalloc: docs/measurements-behind-defaults.md). A file's decoding adds its own per cell (DECODE_BYTES).
 MAP_BYTES_PER_CELL = 144
 # [bytes per cell] held while decoding: an image's pixels as float64 RGB and their grey mean;
 # a MovingAI grid's one-character strings; an array's own items come from its header.

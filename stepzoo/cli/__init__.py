@@ -58,8 +58,8 @@ OS_HINTS = {errno.EACCES: "check its permissions", errno.EPERM: "check its permi
 
 # XLA:CPU compiles a while loop into one native function only when the loop touches fewer
 # bytes than this option (1 kB by default); above it, every operation of every step is a
-# separate runtime call. The integration loops touch kilobytes to megabytes: rk4 at batch 1
-# ran 2.5x and at batch 10 1.8x slower without it (jax 0.10.2), with no change at batch 1e5.
+# separate runtime call. The integration loops touch kilobytes to megabytes, and small
+# batches ran several times slower without it (docs/measurements-behind-defaults.md).
 # The command sets it for itself; the library never touches XLA_FLAGS.
 XLA_OPTION = "xla_cpu_small_while_loop_byte_threshold=100000000"
 
@@ -98,7 +98,7 @@ def configure_jax(platform: str | None) -> None:
     cache = compilation_cache_dir()
     if cache is not None:
         jax.config.update("jax_compilation_cache_dir", str(cache))
-        # The planner's programs compile in 0.1-1 s each: below JAX's default threshold of 1 s,
+        # The planner's programs each compile faster than JAX's default caching threshold,
         # yet together they are most of a plan's start-up.
         jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
 
