@@ -1,5 +1,6 @@
 """Occupancy maps: clearance bounds the true distance, each format lands the right way up."""
 
+import json
 import struct
 import tracemalloc
 import zlib
@@ -367,6 +368,20 @@ def test_a_huge_map_on_the_command_line_is_one_line_and_exit_2(tmp_path, capsys)
                     "--goal", "5,5,0", "--out", str(tmp_path / "out"), "--max-memory", "2"]) == 2
     captured = capsys.readouterr()
     assert captured.out == "" and captured.err.count("\n") == 1, captured.err
+    assert "20000 x 20000 cells" in captured.err and "--max-memory" in captured.err
+    assert not (tmp_path / "out").exists()
+
+
+def test_plan_bench_refuses_a_huge_map_naming_the_flag_it_takes(tmp_path, capsys):
+    """plan-bench loads maps too: the refusal's --max-memory is a flag it accepts."""
+    huge_maps(tmp_path)
+    queries = tmp_path / "q.json"
+    queries.write_text(json.dumps([{"map": "big.npy", "cell_size": 0.1, "start": [1, 1, 0],
+                                    "goal": [5, 5, 0]}]))
+    assert stepzoo(["plan-bench", str(queries), "--out", str(tmp_path / "out"),
+                    "--max-memory", "2"]) == 2
+    captured = capsys.readouterr()
+    assert captured.err.count("\n") == 1, captured.err
     assert "20000 x 20000 cells" in captured.err and "--max-memory" in captured.err
     assert not (tmp_path / "out").exists()
 

@@ -33,8 +33,9 @@ COMMANDS = {
 }
 # Commands that run long enough to show progress: they take --no-progress and -q.
 LONG = ("run", "sweep", "tune", "plan", "plan-bench", "report")
-# Commands that integrate: they estimate their memory and work first (--max-memory/-steps).
-INTEGRATE = ("run", "simulate", "sweep", "plan")
+# Commands that integrate or load maps: they estimate their memory and work first
+# (--max-memory/-steps), and every refusal of a budget names the flag that raises it.
+INTEGRATE = ("run", "simulate", "sweep", "tune", "plan", "plan-bench", "report", "serve")
 # A command that resumes where an interrupted call stopped, and how.
 RESUME = {"sweep": "resume with --resume", "plan-bench": "resume with --resume",
           "run": "resume: run it again, the same command (finished sweep chunks are kept)"}
