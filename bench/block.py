@@ -114,11 +114,8 @@ class Block:
 
     def stable(self, meth, H) -> Outcome:
         """Outcomes (B, K) of the stability runs at steps H (B, K) [s], row b at lane b."""
-        return self.stable_at(meth, np.arange(len(H)), np.asarray(H, float).T)
-
-    def stable_at(self, meth, lanes, hs) -> Outcome:
-        """Outcomes (L, K) of lanes (L,) at steps hs (K,) [s], or (K, L)."""
-        return limit_search.at_steps(self.stability_runs().probe(meth), lanes, hs)
+        return limit_search.at_steps(self.stability_runs().probe(meth), np.arange(len(H)),
+                                     np.asarray(H, float).T)
 
     def measured_limits(self, meth, grid: Outcome, pred) -> MeasuredLimit:
         """The largest stable step per lane [s] and its cause (limit_search.measured_limit)

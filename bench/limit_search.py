@@ -5,7 +5,8 @@ the stability test at candidate steps; these functions hold no state and run not
 from __future__ import annotations
 
 import math
-from typing import Callable, NamedTuple
+from collections.abc import Callable
+from typing import NamedTuple
 
 import numpy as np
 

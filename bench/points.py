@@ -22,7 +22,7 @@ class Points:
     variables: tuple
 
     @classmethod
-    def block(cls, cfg, block: int) -> "Points":
+    def block(cls, cfg, block: int) -> Points:
         """Block `block` of cfg's points, in lanes of cfg.points_per_chunk (fewer where the
         config has fewer points)."""
         pts = cfg.points
@@ -35,7 +35,7 @@ class Points:
                    x0, u, p, tuple(cfg.spec.variables))
 
     @classmethod
-    def repeated(cls, spec, point, size: int) -> "Points":
+    def repeated(cls, spec, point, size: int) -> Points:
         """One operating point in `size` lanes (a batch that keeps a block's compiled shape)."""
         x0, u, p = spec.arrays([point] * size)
         return cls((), (), np.tile(np.asarray(point, float), (size, 1)), x0, u, p,
