@@ -4,7 +4,6 @@ from the earlier code, with the same cause, and every run's stability, blow-up t
 the same to round-off."""
 from pathlib import Path
 
-
 import numpy as np
 import pandas as pd
 import pytest
