@@ -18,6 +18,7 @@ from stepzoo import environment
 from stepzoo.bench import (chunk_tables, frozen, limit_search, metrics, nonsmooth,
                            reference_backend, schema, sweep_folder)
 from stepzoo.bench.block import Block
+from stepzoo.bench.stopwatch import Stopwatch
 from stepzoo.bench.timing import RULE as TIMING_RULE
 from stepzoo.errors import UsageError
 from stepzoo.output import atomic_write, to_json, write_file
@@ -43,12 +44,11 @@ def compute_chunk(cfg: SweepConfig, chunk_id: str, cache_: dict | None = None) -
     if kind not in ("reference", *cfg.methods) or not block.isdigit() \
             or int(block) >= n_blocks(cfg):
         raise ValueError(f"no chunk {chunk_id!r} in this config")
-    started = time.perf_counter()
-    block_ = Block(cfg, int(block), {} if cache_ is None else cache_)
-    tables = chunk_tables.reference_chunk(block_) if kind == "reference" else \
-        chunk_tables.method_chunk(block_, kind)
-    tables["timing"] = pd.DataFrame([{**block_.watch.seconds, "chunk": chunk_id,
-                                      "method": kind,
+    started, watch = time.perf_counter(), Stopwatch()
+    part = Block(cfg, int(block), {} if cache_ is None else cache_, watch)
+    tables = chunk_tables.reference_chunk(part) if kind == "reference" else \
+        chunk_tables.method_chunk(part, kind)
+    tables["timing"] = pd.DataFrame([{**watch.seconds, "chunk": chunk_id, "method": kind,
                                       "total_s": time.perf_counter() - started}])
     return tables
 

@@ -9,6 +9,7 @@ another CPU may vectorise or fuse differently and change the last bits. An error
 difference of two states of size up to ~30 m, so its last bits are absolute: err* columns
 also pass within 1e-12. To record new tables after an intended change, run this file with
 STEPZOO_RECORD_REGRESSION=1 (the tests then write them and skip)."""
+import json
 import os
 from pathlib import Path
 
@@ -17,6 +18,7 @@ import pandas as pd
 import pytest
 
 from stepzoo.bench import schema
+from stepzoo.bench.stopwatch import KEYS
 from stepzoo.bench.suite import load as load_suite
 from stepzoo.bench.suite import run_suite
 from stepzoo.bench.sweep import run_sweep
@@ -81,3 +83,20 @@ def test_a_suite_with_exact_and_scipy_references_gives_the_stored_tables(suite):
     fresh = _tables(suite)
     fresh["orders"] = pd.read_csv(suite / "orders.csv")
     _check(fresh, DATA / "suite")
+
+
+def test_each_chunk_charges_its_time_to_the_keys_of_its_work(small):
+    """The stopwatch's keys are the timing table's and, summed, the manifest's as before; a
+    reference chunk runs no method, a method chunk integrates and runs stability tests."""
+    manifest = json.loads((small / "manifest.json").read_text())
+    assert set(manifest["timing"]) == {"compile_s", "reference_s", "integration_s",
+                                       "stability_s", "metrics_s", "total_s", "wall_s"}
+    assert set(manifest["timing"]["compile_s"]) == {"reference", *manifest["methods"]}
+    for chunk in sorted((small / "chunks").iterdir()):
+        row = pd.read_parquet(chunk / "timing.parquet").iloc[0]
+        assert list(row.index) == [*KEYS, "chunk", "method", "total_s"], chunk.name
+        assert all(row[k] >= 0 for k in KEYS) and sum(row[k] for k in KEYS) <= row["total_s"]
+        if row["method"] == "reference":
+            assert row["integration_s"] == row["stability_s"] == 0 < row["reference_s"]
+        else:
+            assert row["integration_s"] > 0 and row["stability_s"] > 0, chunk.name
