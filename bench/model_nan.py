@@ -38,11 +38,12 @@ def first_times(f, ts, xs, u, p, jac) -> np.ndarray:
 
 
 def lane_times(work) -> np.ndarray:
-    """`first_times` of a sweep block's lanes (a bench.sweep._Work) along its reference."""
+    """`first_times` of a sweep block's lanes (a bench.block.Block) along its reference."""
     def make():
-        ts, xs, _, jac = work.along()
-        return first_times(work.spec.rhs, ts, xs, work.u, work.p, jac)
-    return work._cached(COLUMN, make)
+        along = work.along()
+        return first_times(work.spec.rhs, along.ts, along.xs, work.points.u, work.points.p,
+                           along.jac)
+    return work.cached(COLUMN, make)
 
 
 def record(limits: list[dict], times) -> None:

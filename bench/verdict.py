@@ -13,7 +13,8 @@ import pandas as pd
 
 from stepzoo.bench import margin as margin_rule
 from stepzoo.bench import metrics, model_nan
-from stepzoo.bench.sweep import _Work, n_blocks
+from stepzoo.bench.block import Block
+from stepzoo.bench.sweep import n_blocks
 
 # The per-point fields of `stepzoo verdict` (CSV columns, JSON keys), after the envelope's
 # variables.
@@ -35,20 +36,21 @@ def verdict(cfg, method_name: str, h: float) -> pd.DataFrame:
     cfg = dataclasses.replace(cfg, hs=(h,), h_probe_max=max(cfg.h_probe_max, 2.0 * h))
     cache, rows = {}, []
     for block in range(n_blocks(cfg)):
-        work = _Work(cfg, block, cache)
-        work.max_steps = max(n, cfg.stab_steps)
-        ok, _, conv = work.stable(meth, np.full((len(work.x0), 1), h))
-        x, _, acc_conv, _ = work.integrate(meth, work.x0, work.u, work.p, h, n)
-        ref, _ = work.reference(h, n)
+        work = Block(cfg, block, cache, max_steps=max(n, cfg.stab_steps))
+        pts = work.points
+        grid = work.stable(meth, np.full((len(pts), 1), h))
+        ok, conv = grid.stable, grid.converged
+        run = work.run(meth, pts.x0, pts.u, pts.p, h, n)
+        x, acc_conv = run.x, run.converged
+        ref = work.reference(h, n).x
         err = metrics.run_error(cfg.spec, x, ref, cfg.error_estimate)
         predicted = work.predicted(meth)
-        h_meas, limit_cause = work.measured_limits(meth, ok, conv,
-                                                   np.array([p[0] for p in predicted]))
+        h_meas, limit_cause = work.measured_limits(meth, grid, np.array([p.h for p in predicted]))
         nan_t = model_nan.lane_times(work)
-        for lane, i in enumerate(work.ids):
-            row = {k: v[lane] for k, v in work.point_columns().items()}
+        for lane, i in enumerate(pts.ids):
+            row = {k: v[lane] for k, v in pts.columns().items()}
             stable = bool(ok[lane, 0] and acc_conv[lane])
-            row.update(point=i, h_pred=predicted[lane][0], h_meas=float(h_meas[lane]),
+            row.update(point=i, h_pred=predicted[lane].h, h_meas=float(h_meas[lane]),
                        limit_cause=str(limit_cause[lane]), stable=stable,
                        cause="" if stable else ("unstable" if conv[lane, 0] and acc_conv[lane]
                                                 else "solver failed"),

@@ -14,7 +14,8 @@ import pytest
 
 from stepzoo.bench import metrics
 from stepzoo.bench.frozen import predicted_limit
-from stepzoo.bench.sweep import _Work, compute_chunk
+from stepzoo.bench.block import Block
+from stepzoo.bench.sweep import compute_chunk
 from stepzoo.bench.sweep_config import validate
 from stepzoo.integrators import method
 from stepzoo.integrators.stability import max_stable_step
@@ -53,8 +54,8 @@ def test_saturating_tyre_limit_is_the_linearised_one_for_a_small_perturbation(pa
     assert lim["ratio"] == pytest.approx(1.0, abs=2 * pacejka.rel_tol)
     assert lim["limit_cause"] == "unstable"
     h = [[0.05], [0.05]]
-    small = _Work(pacejka, 0, {}).stable(method("rk4"), h)[0]
-    large = _Work(dataclasses.replace(pacejka, perturbation=0.1), 0, {}).stable(
+    small = Block(pacejka, 0, {}).stable(method("rk4"), h)[0]
+    large = Block(dataclasses.replace(pacejka, perturbation=0.1), 0, {}).stable(
         method("rk4"), h)[0]
     assert 0.05 > 1.9 * lim["h_pred"] and not small[0, 0] and large[0, 0]
 
@@ -71,11 +72,12 @@ def test_past_the_limit_a_turn_settles_on_a_spurious_steady_state(pacejka, chunk
     runs = chunk["runs"][chunk["runs"]["delta"] == 0.1].set_index("h")
     assert list(runs["stable"]) == [True, False, True]
     assert runs.loc[0.1, "err"] > 2.0 * 0.109                 # a wrong answer, yet stable
-    work = _Work(pacejka, 0, {})                # both lanes: the chunk's compiled program
-    x, _, _, _ = work.integrate(method("rk4"), work.x0, work.u, work.p, 0.1, pacejka.stab_steps)
+    work = Block(pacejka, 0, {})                # both lanes: the chunk's compiled program
+    pts = work.points
+    x = work.run(method("rk4"), pts.x0, pts.u, pts.p, 0.1, pacejka.stab_steps).x
     end = x[1, -1]
     assert np.allclose(x[1, -2, 3:], end[3:], atol=1e-12)     # a fixed point of the map
-    f = np.asarray(pacejka.spec.rhs(0.0, end, work.u[1], {k: v[1] for k, v in work.p.items()}))
+    f = np.asarray(pacejka.spec.rhs(0.0, end, pts.u[1], {k: v[1] for k, v in pts.p.items()}))
     assert end[3] < -0.2 and np.abs(f[3:]).max() > 1.0         # and not of the ODE
 
 

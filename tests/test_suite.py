@@ -305,9 +305,9 @@ def test_a_problem_with_no_eigenvalue_to_list_keeps_the_tables_columns(tmp_path,
     the table still has its columns, and the report reads the folder (a config without a
     name: the folder's copy names the sweep as the file's stem did). A figure run keeps at
     most TRAJ_ROWS states, spread from its first to its last, each the run's own state."""
-    from stepzoo.bench import sweep
+    from stepzoo.bench import trajectory_runs
     from stepzoo.bench.sweep import run_sweep
-    monkeypatch.setattr(sweep, "TRAJ_ROWS", 6)
+    monkeypatch.setattr(trajectory_runs, "TRAJ_ROWS", 6)
     from stepzoo.bench.sweep_config import load as load_config
     from stepzoo.reports.load import load_sweep
     (tmp_path / "a5.toml").write_text(

@@ -15,7 +15,8 @@ from stepzoo import dynamics
 from stepzoo.bench import schema
 from stepzoo.cli import main as stepzoo
 from stepzoo.bench.frozen import predicted_limit
-from stepzoo.bench.sweep import _Work, chunk_ids, compute_chunk, run_sweep
+from stepzoo.bench.block import Block
+from stepzoo.bench.sweep import chunk_ids, compute_chunk, run_sweep
 from stepzoo.bench.sweep_config import load
 from stepzoo.dynamics.linear import lateral_matrix
 from stepzoo.integrators import METHODS, method
@@ -36,18 +37,19 @@ SWEPT_UNBOUNDED = ["backward_euler", "trapezoidal", "radau_iia3", "ros2", "bdf5"
 def _lateral(work):
     """The closed-form lateral matrix A(vx, delta) of each lane: the oracle of the bicycle."""
     phys = dynamics.physical(work.cfg.vehicle)
-    return [np.asarray(lateral_matrix(v, d, phys)[0]) for v, d in work.values]
+    return [np.asarray(lateral_matrix(v, d, phys)[0]) for v, d in work.points.values]
 
 
 def _limits(cfg, name):
     """(measured, predicted from the closed-form lateral matrix) largest stable step [s] at
     every point of block 0 of cfg."""
-    work = _Work(cfg, 0, {})
+    work = Block(cfg, 0, {})
     m = method(name)
-    ok, _, conv = work.stable(m, np.tile(np.asarray(cfg.hs), (len(work.x0), 1)))
+    grid = work.stable(m, np.tile(np.asarray(cfg.hs), (len(work.points), 1)))
     pred = np.array([max_stable_step(m, np.linalg.eigvals(A)) for A in _lateral(work)])
-    guide = np.array([h for h, _, _ in work.predicted(m)])
-    return work.measured_limits(m, ok, conv, guide)[0][: work.n_real], pred[: work.n_real]
+    guide = np.array([p.h for p in work.predicted(m)])
+    n = work.points.n_real
+    return work.measured_limits(m, grid, guide).h_meas[:n], pred[:n]
 
 
 @pytest.fixture(scope="module")
@@ -87,14 +89,14 @@ def test_methods_unbounded_on_the_real_axis_never_blow_up_in_the_envelope(envelo
     m = method(name)
     if not a_stable(m):
         angles = [np.degrees(np.pi - np.abs(np.angle(np.linalg.eigvals(A))))
-                  for A in _lateral(_Work(cfg, 0, {}))]
+                  for A in _lateral(Block(cfg, 0, {}))]
         assert np.max(angles) < a_alpha(m), (name, np.max(angles))
     meas, pred = _limits(cfg, name)
     assert np.all(np.isinf(pred)) and np.all(np.isinf(meas)), (name, meas)
 
 
 def test_blowup_rule_flags_a_step_just_past_the_limit_and_not_just_below(envelope):
-    work = _Work(envelope, 0, {})
+    work = Block(envelope, 0, {})
     pred = np.array([max_stable_step(method("rk4"), np.linalg.eigvals(A))
                      for A in _lateral(work)])
     ok, t_blow, _ = work.stable(method("rk4"), np.stack([0.99 * pred, 1.02 * pred], axis=1))
@@ -102,37 +104,9 @@ def test_blowup_rule_flags_a_step_just_past_the_limit_and_not_just_below(envelop
     assert np.all((t_blow[:, 1] > 0) & (t_blow[:, 1] <= envelope.stab_steps * 1.02 * pred))
 
 
-class _Threshold:
-    """A block whose lanes are stable exactly below their `limit` [s]; counts its calls."""
-
-    def __init__(self, limit, rel_tol):
-        self.limit, self.x0, self.calls = np.asarray(limit), np.zeros((len(limit), 1)), 0
-        self.cfg = dataclasses.make_dataclass("Cfg", ["rel_tol"])(rel_tol)
-
-    def runs_at(self, meth, lanes, h):
-        self.calls += -(-len(h) // len(self.x0))
-        ok = np.asarray(h) < self.limit[lanes]
-        return ok, np.where(ok, np.nan, 1.0), np.ones(len(h), bool)
-
-
-@pytest.mark.parametrize("off", [1.0, 1.0004, 0.97, 1.2, math.nan])
-def test_narrowing_brackets_each_limit_to_rel_tol_wherever_the_prediction_is(off):
-    """From brackets of the grid's width (1.26), the limit ends within rel_tol above lo and
-    at most hi, whether the prediction is exact, 0.04% or 3% off, outside the bracket, or
-    missing; a prediction within rel_tol takes 2 calls, where bisection takes 8."""
-    limit = np.geomspace(0.01, 0.5, 25)
-    lo, hi = limit / 1.1, limit * 1.15
-    block = _Threshold(limit, 1e-3)
-    cause = np.full(25, "unstable", object)
-    _Work.narrow(block, None, lo, hi, cause, limit * off)
-    assert np.all(lo < limit) and np.all(hi >= limit) and np.all(hi / lo <= 1 + 1e-3 + 1e-12)
-    if off in (1.0, 1.0004):
-        assert block.calls == 2
-
-
 def test_predicted_limit_from_jacobians_equals_the_closed_form_lateral_one(envelope):
-    work = _Work(envelope, 0, {})
-    _, _, lam, _ = work.along()
+    work = Block(envelope, 0, {})
+    lam = work.along().lam
     for name in FINITE_LIMIT:
         m = method(name)
         for lane, A in enumerate(_lateral(work)):

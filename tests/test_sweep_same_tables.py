@@ -4,14 +4,12 @@ from the earlier code, with the same cause, and every run's stability, blow-up t
 the same to round-off."""
 from pathlib import Path
 
-import dataclasses
-
 import numpy as np
 import pandas as pd
 import pytest
 
 from stepzoo.bench import timing
-from stepzoo.bench.sweep import _Work, run_sweep
+from stepzoo.bench.sweep import run_sweep
 from stepzoo.bench.sweep_config import load
 
 SMALL = Path(__file__).resolve().parents[1] / "bench" / "configs" / "small.toml"
@@ -75,39 +73,6 @@ def test_runs_are_stable_and_accurate_as_recorded(small):
         assert np.log10(err[err > 0]).sum() == pytest.approx(log_err, abs=1e-6), name
         if evals is not None:
             assert int(r["evals"].sum()) == evals, name
-
-
-class _Threshold:
-    """A block whose lanes are stable exactly below their `limit` [s] (inf: always); it
-    records the steps it ran."""
-    stable_at, narrow, measured_limits = _Work.stable_at, _Work.narrow, _Work.measured_limits
-
-    def __init__(self, limit, hs):
-        self.limit, self.x0, self.ran = np.asarray(limit), np.zeros((len(limit), 1)), []
-        self.cfg = dataclasses.make_dataclass("Cfg", ["hs", "h_probe_max", "rel_tol"])(
-            tuple(hs), 2.0, 1e-3)
-
-    def runs_at(self, meth, lanes, h):
-        self.ran.append(np.asarray(h))
-        ok = np.asarray(h) < self.limit[lanes]
-        return ok, np.where(ok, np.nan, 1.0), np.ones(len(h), bool)
-
-
-def test_an_unbounded_prediction_is_checked_by_one_probe_and_the_ladder_where_it_fails():
-    """pred inf everywhere, grid stable everywhere: the lanes stable at h_probe_max are
-    unbounded after that one call; the others, where the prediction is off, are bracketed
-    by the doubling ladder and narrowed to rel_tol as before."""
-    hs = np.geomspace(0.001, 0.2, 5)
-    limit = np.array([np.inf, 0.7, 1.5, np.inf])
-    block = _Threshold(limit, hs)
-    grid = np.ones((4, 5), bool)
-    h_meas, cause = block.measured_limits(None, grid, grid, np.full(4, np.inf))
-    assert np.isinf(h_meas[[0, 3]]).all() and list(cause[[0, 3]]) == ["none", "none"]
-    assert np.all((h_meas[1:3] < limit[1:3]) & (h_meas[1:3] * 1.001 >= limit[1:3]))
-    assert list(cause[1:3]) == ["unstable", "unstable"]
-    probe, ladder = block.ran[0], block.ran[1]
-    assert np.all(probe == 2.0) and np.all(ladder < 2.0 + 1e-12)   # only lanes 1, 2 climbed
-    assert len(ladder) == 2 * len(np.unique(ladder))
 
 
 def test_every_run_is_priced_by_its_methods_calibrated_run(small):

@@ -90,13 +90,14 @@ def predict(cfg, point) -> dict:
     import dataclasses
 
     from stepzoo.bench import frozen, model_nan
-    from stepzoo.bench.sweep import _Work
+    from stepzoo.bench.block import Block
     from stepzoo.integrators import METHODS
     spec = dataclasses.replace(cfg.spec, envelope=tuple(
         (var, (value,)) for var, value in zip(cfg.spec.variables, point)))
     one = dataclasses.replace(cfg, spec=spec, points_per_chunk=1, traj_point=point)
-    work = _Work(one, 0, {})
-    ts, _, lam, _ = work.along()
+    work = Block(one, 0, {})
+    along = work.along()
+    ts, lam = along.ts, along.lam
     nan_t = float(model_nan.lane_times(work)[0])
     ev = lam[0, 0]
     ev = ev[np.abs(ev) > frozen.REL_ZERO * np.nanmax(np.abs(ev), initial=0.0)]
