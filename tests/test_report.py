@@ -205,11 +205,11 @@ def test_report_without_tuned_config_or_plans_still_has_every_figure(tmp_path, c
 
 
 def test_regions_caption_names_the_methods_stable_at_the_tuned_step(tmp_path):
-    from stepzoo.reports.figures import stability_regions
+    from stepzoo.reports.figure_data import stability_regions
     sweep = load_sweep(write_sweep(tmp_path / "sweep"))
     # |lambda| at 2 m/s is 32.5 1/s: h = 0.07 puts h*lambda inside RK4's region (|z| = 2.3,
     # angle 157 deg) but outside forward Euler's disc and AB4's small region.
-    shown = stability_regions(sweep, {"method": "rk4", "h": 0.07}, tmp_path)
+    shown = stability_regions(sweep, {"method": "rk4", "h": 0.07})
     safe = shown.caption.rsplit(":", 1)[1]
     assert "rk4" in safe and "backward_euler" in safe
     assert "euler," not in safe and " euler" not in safe.replace("backward_euler", "")
