@@ -2,15 +2,19 @@
 static PNG is drawn from) as Plotly figures, to zoom, hover for exact values and click a
 method in the legend to hide or show it (a double click shows it alone). `divs` turns them
 into HTML fragments that need plotly.js once in the page (`plotly_js`), so the page works
-offline."""
+offline. Both are packed (gzip, then base64): the library is most of the page's bytes, and
+the page unpacks it with the browser's own gzip (DecompressionStream), see reports.html."""
 from __future__ import annotations
 
 import base64
+import gzip
 import io
+from functools import cache
 
 import numpy as np
 import plotly.graph_objects as go
 from plotly.colors import qualitative
+from plotly.io.json import to_json_plotly
 from plotly.offline import get_plotlyjs
 from plotly.subplots import make_subplots
 
@@ -26,17 +30,28 @@ CONFIG = {"responsive": True, "displaylogo": False, "scrollZoom": False,
           "modeBarButtonsToRemove": ["select2d", "lasso2d"]}
 
 
+def pack(text: str) -> str:
+    """`text` as the page carries it: gzip, then base64 (no byte of it ends a script)."""
+    return base64.b64encode(gzip.compress(text.encode(), 9, mtime=0)).decode()
+
+
+@cache
 def plotly_js() -> str:
-    """The plotly.js library, to be inlined once in the page."""
-    return get_plotlyjs()
+    """The plotly.js library, packed, to be inlined once in the page."""
+    return pack(get_plotlyjs())
 
 
 def divs(figures: list, prefix: str) -> list[str]:
-    """HTML fragments of `figures` (ids prefix-1, prefix-2, ...), without plotly.js."""
-    return [fig.to_html(full_html=False, include_plotlyjs=False, config=CONFIG,
-                        div_id=f"{prefix}-{i}", default_width="100%",
-                        default_height=f"{fig.layout.height or HEIGHT_PX}px")
-            for i, fig in enumerate(figures, 1)]
+    """HTML fragments of `figures` (ids prefix-1, prefix-2, ...): an empty plot and its
+    packed figure (data, layout, config), which the page draws once plotly.js is unpacked."""
+    out = []
+    for i, fig in enumerate(figures, 1):
+        spec = to_json_plotly({**fig.to_plotly_json(), "config": CONFIG})
+        out.append(f'<div id="{prefix}-{i}" class="plotly-graph-div" style="height:'
+                   f'{fig.layout.height or HEIGHT_PX}px; width:100%;"></div>\n'
+                   f'<script type="application/octet-stream" class="plot-spec" '
+                   f'data-for="{prefix}-{i}">{pack(spec)}</script>')
+    return out
 
 
 def _colours(names) -> dict:
