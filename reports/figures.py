@@ -81,7 +81,9 @@ def _panels(n: int, ncols: int = NCOLS, panel=PANEL_IN, **kwargs):
 
 
 def _labels(ax, title: str, xlabel: str, ylabel: str, size: int = 9, **title_kw) -> None:
-    ax.set_title(title, fontsize=size, **title_kw)
+    # A title placed at the axes' top: left to find its place itself, it would measure
+    # every tick label of the panel at each draw to dodge labels no panel has on top.
+    ax.set_title(title, fontsize=size, y=1.0, **title_kw)
     ax.set_xlabel(xlabel, fontsize=8)
     ax.set_ylabel(ylabel, fontsize=8)
     ax.tick_params(which="both", labelsize=7)
