@@ -71,7 +71,7 @@ def binding_point(sweep, tuned, margin: float):
 
 # Figures 1-2: sampled runs against the reference.
 
-def sample_runs(traj: pd.DataFrame):
+def _sample_runs(traj: pd.DataFrame):
     """(reference run, {method: [(h, run, past its stability limit)]}) of the trajectories."""
     ref = traj[traj["method"] == "reference"].sort_values("t")
     states = [c for c in traj.columns if c not in ("method", "h", "t", "past_limit")]
@@ -92,7 +92,7 @@ def sample_runs(traj: pd.DataFrame):
 
 def _trajectory_panels(traj, xcol, ycol):
     """((reference x, y), a TrajectoryPanel per method) of ycol against xcol."""
-    ref, runs = sample_runs(traj)
+    ref, runs = _sample_runs(traj)
     ref_xy = ref[[xcol, ycol]].to_numpy(float)
     panels = []
     for name, samples in runs.items():
