@@ -1,6 +1,7 @@
 """Writing the report: a self-contained index.html (inline style, plotly.js inlined once for
 the interactive figures, static PNGs beside it, nothing fetched from a network; readable on
-a phone) and summary.md with the same facts, tables and figures."""
+a phone) and summary.md with the same facts, tables and figures. The library and each plot
+come packed (interactive.pack); the page's one script unpacks them and draws the plots."""
 from __future__ import annotations
 
 import html
@@ -26,6 +27,31 @@ dl { display: grid; grid-template-columns: max-content minmax(0, 1fr); gap: 0.2e
 dt { font-weight: bold; } dd { margin: 0; overflow-wrap: anywhere; }
 @media (max-width: 600px) { body { padding: 0 0.5em; }
   dl { grid-template-columns: minmax(0, 1fr); } dd { margin-bottom: 0.4em; } }
+"""
+
+
+# Unpacks plotly.js (gzip, base64) with the browser's own gzip, runs it, then draws every
+# plot from its packed figure. Where the browser cannot unpack, the static copies open.
+DRAW_JS = """
+(async () => {
+  const unpack = async (el) => {
+    const bytes = Uint8Array.from(atob(el.textContent), c => c.charCodeAt(0));
+    const stream = new Blob([bytes]).stream().pipeThrough(new DecompressionStream("gzip"));
+    return await new Response(stream).text();
+  };
+  try {
+    const lib = document.createElement("script");
+    lib.textContent = await unpack(document.getElementById("plotly-js"));
+    document.head.appendChild(lib);
+    for (const spec of document.querySelectorAll("script.plot-spec")) {
+      await Plotly.newPlot(spec.dataset.for, JSON.parse(await unpack(spec)));
+    }
+  } catch (err) {
+    document.querySelectorAll("details").forEach(d => { d.open = true; });
+    document.getElementById("no-plots").hidden = false;
+    throw err;
+  }
+})();
 """
 
 
@@ -66,7 +92,7 @@ def index_html(title: str, facts: list, tables: list, figures: list,
                appendix: list = ()) -> str:
     """The page: facts (label, value) about the inputs, the tables, the figures, then the
     appendix tables. `interactive` maps a figure's number to its plots' HTML fragments, which
-    need `plotly_js` (the library, inlined once in the head)."""
+    need `plotly_js` (the library, packed, inlined once in the head)."""
     interactive = interactive or {}
     facts_html = "\n".join(f"<dt>{_esc(k)}</dt><dd>{_esc(v)}</dd>" for k, v in facts)
     tables_html = "\n".join(_table_html(t) for t in tables)
@@ -79,18 +105,20 @@ def index_html(title: str, facts: list, tables: list, figures: list,
                      + "\n</div>") if appendix else ""
     if interactive and not plotly_js:
         raise ValueError("interactive figures need plotly_js")
-    # A "</script" inside the library's text would end its element early.
-    js = plotly_js.replace("</script", "<\\/script")
-    script = f'<script id="plotly-js">{js}</script>\n' if interactive else ""
+    script = (f'<script id="plotly-js" type="application/octet-stream">{plotly_js}</script>\n'
+              if interactive else "")
     how = ("<p class=\"caption\">The figures are interactive: drag to zoom (double-click "
            "resets), hover for exact values, click a legend entry to hide or show it, "
            "double-click one to show it alone. A static copy of each is beside this page.</p>\n"
+           '<p class="caption" id="no-plots" hidden>This browser cannot unpack the '
+           "interactive figures; their static copies are shown.</p>\n"
            if interactive else "")
+    draw = f"<script>{DRAW_JS}</script>\n" if interactive else ""
     return (f'<!DOCTYPE html>\n<html lang="en">\n<head>\n<meta charset="utf-8">\n'
             f'<meta name="viewport" content="width=device-width, initial-scale=1">\n'
             f"<title>{_esc(title)}</title>\n<style>{STYLE}</style>\n{script}</head>\n<body>\n"
             f"<h1>{_esc(title)}</h1>\n<dl>\n{facts_html}\n</dl>\n{how}<ul>\n{toc}\n</ul>\n"
-            f"{tables_html}\n{figures_html}\n{appendix_html}\n</body>\n</html>\n")
+            f"{tables_html}\n{figures_html}\n{appendix_html}\n{draw}</body>\n</html>\n")
 
 
 def _table_md(t) -> list:

@@ -12,7 +12,7 @@ from stepzoo.bench.figure_runs import trajectories_at
 from stepzoo.bench.sweep_config import load
 from stepzoo.bench.verdict import verdicts as judge_all
 from stepzoo.errors import UsageError
-from stepzoo.reports import figures, tables
+from stepzoo.reports import figure_data, tables
 from stepzoo.safe_parse import toml_loads
 
 
@@ -32,7 +32,7 @@ def verdict_tables(sweep, verdicts, view, tol: float, margin: float) -> list:
 def figure_point(sweep, tuned, margin):
     """(sweep whose trajectories Figures 1-2 draw, why that point): the config's own
     [trajectories] point when it names one; else, with a tuned config, the point where the
-    tuned (method, h) binds (figures.binding_point), its figure runs computed by the sweep's
+    tuned (method, h) binds (figure_data.binding_point), its figure runs computed by the sweep's
     code when the sweep ran them elsewhere (the sweep's own runs when its config no longer
     loads); else the sweep's."""
     try:
@@ -42,7 +42,7 @@ def figure_point(sweep, tuned, margin):
     named = set(raw.get("trajectories", {})) & set(sweep.view.variables)
     if named:
         return sweep, "the point the config's [trajectories] table names"
-    found = figures.binding_point(sweep, tuned, margin) if tuned else None
+    found = figure_data.binding_point(sweep, tuned, margin) if tuned else None
     if found is None:
         return sweep, ("the envelope's first point; name another in the config's "
                        "[trajectories] table, or give a tuned config to see where it binds")

@@ -6,14 +6,15 @@ timed rounds), as DiffEqDevTools users read them."""
 from __future__ import annotations
 
 import json
-import time
+from functools import partial
 from pathlib import Path
 
 from stepzoo import environment
 from stepzoo.bench import metrics
 from stepzoo.bench.sweep import most_common
 from stepzoo.errors import UsageError
-from stepzoo.reports import figures, interactive, tables
+from stepzoo.reports import figure_data, interactive, tables
+from stepzoo.reports.drawing import draw_all
 from stepzoo.reports.tables import _plain
 from stepzoo.reports.html import write_report
 from stepzoo.reports.load import load_sweep
@@ -54,15 +55,9 @@ def build(results, manifest, out, progress_say):
     progress_say(f"read the suite's {len(sweeps)} problems")
     rows = order_rows(sweeps)
     with replacing(out, "report") as into:    # a kill leaves the old report whole
-        shown, plots = [], {}
-        for number, (label, sweep) in enumerate(sweeps.items(), 1):
-            t0 = time.perf_counter()
-            fig = figures.work_precision(sweep, None, into, number=number, problem=label)
-            plots[number] = interactive.divs(interactive.work_precision(sweep),
-                                             f"plot{number}")
-            shown.append(fig)
-            progress_say(f"[{number}/{len(sweeps)}] Figure {number}. {fig.title} in "
-                         f"{time.perf_counter() - t0:.1f} s")
+        shown, plots = draw_all(
+            [partial(figure_data.work_precision, sweep, None, number, label)
+             for number, (label, sweep) in enumerate(sweeps.items(), 1)], into, progress_say)
         facts = [("suite folder", public_path(results, out)),
                  ("suite config sha256", manifest.get("config_sha256", "not recorded")),
                  ("problems", ", ".join(sweeps)),

@@ -11,7 +11,7 @@ import numpy as np
 
 from stepzoo.bench.margin import stable_with_margin
 from stepzoo.bench.metrics import own_limits
-from stepzoo.reports.figures import method_order, worst_case
+from stepzoo.reports.figure_data import method_order, worst_case
 
 
 @dataclass(frozen=True)

@@ -1,25 +1,19 @@
 """The paper's trade-off from a plan-bench folder: median plan time against replay deviation,
 a point per integrator, its exact rate as the marker's size, the tuned choice and the paper's
 RK4 marked and the Pareto front drawn. `tradeoff_points` computes the data from the folder's
-summary table; `tradeoff_png` and `tradeoff_plot` draw it (static and interactive)."""
+summary table and `tradeoff` makes it the figure's record, which both renderers draw."""
 from __future__ import annotations
 
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
-import plotly.graph_objects as go
-from matplotlib.backends.backend_agg import FigureCanvasAgg
-from matplotlib.figure import Figure
-from matplotlib.lines import Line2D
 
 from stepzoo.errors import UsageError
-from stepzoo.reports.figures import Shown, _save
-from stepzoo.reports.interactive import _layout
+from stepzoo.reports.figure_types import Tradeoff
 
 NUMBER = 8
 PAPER_METHOD = "rk4"           # the paper plans with the classical Runge-Kutta method
-SIZE_PT2 = 300.0               # [pt^2] marker area of an exact rate of 1
 TITLE = "Plan time against replay deviation"
 
 # The columns of plan-bench's summary.csv this figure reads.
@@ -99,64 +93,15 @@ def _caption(points: pd.DataFrame) -> str:
                if points.attrs.get("margin_m") else "."))
 
 
-def tradeoff_png(points: pd.DataFrame, out_dir: Path, number: int = NUMBER) -> Shown:
-    """Figure `number` as a PNG in `out_dir`."""
-    fig = Figure(figsize=(8.0, 5.5), layout="constrained")
-    FigureCanvasAgg(fig)
-    ax = fig.subplots()
+def tradeoff(points: pd.DataFrame, number: int = NUMBER) -> Tradeoff:
+    """Figure `number`'s data: the points with both medians (an integrator with no exact
+    plan has no deviation to draw)."""
     drawn = points.dropna(subset=["median_replay_deviation_m", "median_time_s"])
-    for k, row in enumerate(drawn.itertuples()):
-        colour = f"C{k % 10}"
-        ax.plot([row.median_replay_deviation_m, row.max_replay_deviation_m],
-                [row.median_time_s] * 2, color=colour, lw=0.8, alpha=0.6)
-        ax.scatter(row.median_replay_deviation_m, row.median_time_s,
-                   s=SIZE_PT2 * row.exact_rate, color=colour, alpha=0.8,
-                   marker="s" if row.paper else "o",
-                   edgecolors="black" if row.tuned else "none", linewidths=2.0)
-        ax.annotate(row.integrator, (row.median_replay_deviation_m, row.median_time_s),
-                    xytext=(6, 6), textcoords="offset points", fontsize=8)
-    front = drawn[drawn["pareto"]].sort_values("median_replay_deviation_m")
-    ax.plot(front["median_replay_deviation_m"], front["median_time_s"], "k--", lw=1.0)
-    margin = points.attrs.get("margin_m")
-    if margin:
-        ax.axvline(margin, color="black", ls=":", lw=1.0)
-    ax.set_xscale("log")
-    ax.set_yscale("log")
-    ax.set_xlabel("median replay deviation of the exact plans [m] (line: to the largest)")
-    ax.set_ylabel("median plan time [s]")
-    ax.grid(True, which="major", lw=0.3)
-    handles = [Line2D([], [], marker="o", color="grey", ls="", mec="black", mew=2, ms=10),
-               Line2D([], [], marker="s", color="grey", ls="", ms=10),
-               Line2D([], [], color="black", ls="--")]
-    labels = ["tuned choice", "the paper's RK4", "Pareto front"]
-    if margin:
-        handles.append(Line2D([], [], color="black", ls=":"))
-        labels.append(f"the planner's margin {margin:g} m")
-    ax.legend(handles, labels, fontsize=8, loc="best")
-    name = _save(fig, out_dir, f"fig{number}_plan_tradeoff.png")
-    return Shown(number, TITLE, _caption(points), [(name, "")])
 
-
-def tradeoff_plot(points: pd.DataFrame) -> list:
-    """The same figure in Plotly: hover for each integrator's numbers."""
-    drawn = points.dropna(subset=["median_replay_deviation_m", "median_time_s"])
-    fig = go.Figure()
-    for row in drawn.itertuples():
-        fig.add_trace(go.Scatter(
-            x=[row.median_replay_deviation_m], y=[row.median_time_s], mode="markers+text",
-            name=row.integrator, text=[row.integrator], textposition="top right",
-            marker=dict(size=8 + 22 * row.exact_rate, symbol="square" if row.paper else
-                        "circle", line=dict(width=3 if row.tuned else 0, color="black")),
-            error_x=dict(type="data", symmetric=False, array=[row.max_replay_deviation_m
-                                                              - row.median_replay_deviation_m],
-                         arrayminus=[0.0], thickness=1),
-            hovertemplate=(f"{row.integrator} ({row.role})<br>median plan time %{{y:.3g}} s"
-                           f"<br>replay deviation median %{{x:.3g}} m, largest "
-                           f"{row.max_replay_deviation_m:.3g} m<br>exact rate "
-                           f"{row.exact_rate:.3g}<extra></extra>")))
-    front = drawn[drawn["pareto"]].sort_values("median_replay_deviation_m")
-    fig.add_trace(go.Scatter(x=front["median_replay_deviation_m"], y=front["median_time_s"],
-                             mode="lines", name="Pareto front",
-                             line=dict(color="black", dash="dash", width=1)))
-    return [_layout(fig, "median replay deviation of the exact plans [m]",
-                    "median plan time [s]", logx=True, logy=True)]
+    def col(c, kind=float):
+        return drawn[c].to_numpy(kind)
+    return Tradeoff(number, TITLE, _caption(points), f"fig{number}_plan_tradeoff.png",
+                    [str(v) for v in drawn["integrator"]], [str(v) for v in drawn["role"]],
+                    col("median_time_s"), col("median_replay_deviation_m"),
+                    col("max_replay_deviation_m"), col("exact_rate"), col("tuned", bool),
+                    col("paper", bool), col("pareto", bool), points.attrs.get("margin_m"))

@@ -2,6 +2,8 @@
 contracts, the page is self-contained (parses, no network address, every image a PNG that
 exists, Figures 1-7 present), the tables compute what they claim, and a missing or damaged
 input is one line naming it, exit 2."""
+import base64
+import gzip
 import json
 import re
 from html.parser import HTMLParser
@@ -10,6 +12,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import pytest
+from plotly.offline import get_plotlyjs
 
 from stepzoo.cli import main as stepzoo
 from stepzoo.bench.sweep_config import load
@@ -137,6 +140,14 @@ class _Page(HTMLParser):
         self.refs += [v for k, v in attrs.items() if k in ("src", "href", "srcset") and v]
 
 
+def plots(text) -> dict:
+    """The page's interactive figures, unpacked: {plot id: {"data", "layout", "config"}}."""
+    found = re.findall(r'<script type="application/octet-stream" class="plot-spec" '
+                       r'data-for="([^"]+)">([^<]*)</script>', text)
+    return {key: json.loads(gzip.decompress(base64.b64decode(packed)))
+            for key, packed in found}
+
+
 def check_report(out, n_plans=1):
     """Assert the report in `out` is a self-contained page with Figures 1-7, each interactive
     with a static copy, plotly.js inlined once, the environment appendix, and no path of
@@ -149,14 +160,19 @@ def check_report(out, n_plans=1):
     assert '<meta name="viewport" content="width=device-width' in text
     # The library's own text names websites (licences, map styles it never loads here): the
     # page around it must name none, and nothing may load from one (browser test).
-    head, js, rest = re.split(r'<script id="plotly-js">|</script>\n</head>', text, maxsplit=2)
-    assert "Plotly" in js and text.count('<script id="plotly-js">') == 1
+    tag = '<script id="plotly-js" type="application/octet-stream">'
+    head, js, rest = re.split(f'{tag}|</script>\n</head>', text, maxsplit=2)
+    # Packed (gzip, base64), it is the whole library, once.
+    assert gzip.decompress(base64.b64decode(js)).decode() == get_plotlyjs()
+    assert text.count(tag) == 1
     assert "http://" not in head + rest and "https://" not in head + rest
     assert str(out.parent) not in text and str(Path.home()) + "/" not in text
     assert not [r for r in page.refs if r.startswith("//") or ":" in r.split("#")[0]]
     assert {f"fig{i}" for i in range(1, 8)} <= page.ids
     assert {f"plot{i}-1" for i in range(1, 7)} <= page.ids
     assert {f"plot7-{i + 1}" for i in range(n_plans)} <= page.ids
+    assert set(plots(text)) == {f"plot{i}-1" for i in range(1, 7)} | {
+        f"plot7-{i + 1}" for i in range(n_plans)}          # each plot with its figure
     assert "appendix" in page.ids and "float precision" in rest
     assert len(page.imgs) == 6 + n_plans
     for src in page.imgs:
@@ -205,11 +221,11 @@ def test_report_without_tuned_config_or_plans_still_has_every_figure(tmp_path, c
 
 
 def test_regions_caption_names_the_methods_stable_at_the_tuned_step(tmp_path):
-    from stepzoo.reports.figures import stability_regions
+    from stepzoo.reports.figure_data import stability_regions
     sweep = load_sweep(write_sweep(tmp_path / "sweep"))
     # |lambda| at 2 m/s is 32.5 1/s: h = 0.07 puts h*lambda inside RK4's region (|z| = 2.3,
     # angle 157 deg) but outside forward Euler's disc and AB4's small region.
-    shown = stability_regions(sweep, {"method": "rk4", "h": 0.07}, tmp_path)
+    shown = stability_regions(sweep, {"method": "rk4", "h": 0.07})
     safe = shown.caption.rsplit(":", 1)[1]
     assert "rk4" in safe and "backward_euler" in safe
     assert "euler," not in safe and " euler" not in safe.replace("backward_euler", "")
@@ -314,7 +330,10 @@ def test_verdict_adds_its_rows_and_draws_its_step(tiny_sweep, tmp_path, capsys):
     for n in (4, 6):
         caption = md[md.index(f"## Figure {n}."):].split("\n\n")[1]
         assert "--verdict are" in caption and "euler at 0.05 s" in caption
-    assert (out / "index.html").read_text().count("euler at h = 0.05 s (verdict)") >= 2
+    drawn = plots((out / "index.html").read_text())
+    for plot in ("plot4-1", "plot6-1"):
+        names = [t.get("name") for t in drawn[plot]["data"]]
+        assert "euler at h = 0.05 s (verdict)" in names, plot
     for bad, said in (("euler", "give METHOD:H"), ("rk4:0.01", "not a method of the sweep"),
                       ("euler:-1", "--verdict")):
         assert stepzoo(["report", str(folder), "--out", str(tmp_path / "bad"), "--verdict",

@@ -275,12 +275,12 @@ def test_a_report_stopped_or_killed_midway_leaves_the_old_report_whole(tmp_path,
     assert stepzoo(["report", str(sweep), "--out", str(out), "-q"]) == 0
     old = report_files(out)
     again = ["report", str(sweep), "--tuned", str(tuned), "--out", str(out)]
-    from stepzoo.reports import figures
+    from stepzoo.reports import figure_data
 
     def ctrl_c(*args, **kwargs):
         raise KeyboardInterrupt
     with monkeypatch.context() as patch:
-        patch.setattr(figures, "stable_step_vs_speed", ctrl_c)
+        patch.setattr(figure_data, "stable_step_vs_speed", ctrl_c)
         assert stepzoo([*again, "-q"]) == 130
     assert report_files(out) == old
     assert sorted(p.name for p in tmp_path.iterdir()) == ["report", "sweep", "tuned.toml"]

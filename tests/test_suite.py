@@ -202,11 +202,11 @@ def test_a_final_error_estimate_is_the_error_at_the_horizon(suite):
 def test_figure_4_says_which_error_it_draws(suite, tmp_path):
     """Its caption gives the error at the end of the run where the sweep's estimate is
     "final", and the largest over the run otherwise."""
-    from stepzoo.reports.figures import error_vs_step
+    from stepzoo.reports.figure_data import error_vs_step
     from stepzoo.reports.load import load_sweep
     _, out, _ = suite
-    final = error_vs_step(load_sweep(out / "b2_short"), tmp_path).caption
-    largest = error_vs_step(load_sweep(out / "detest_a1"), tmp_path).caption
+    final = error_vs_step(load_sweep(out / "b2_short")).caption
+    largest = error_vs_step(load_sweep(out / "detest_a1")).caption
     assert "at the end of the run" in final and "over the run" not in final
     assert "over the run" in largest and "at the end of the run" not in largest
 

@@ -159,7 +159,7 @@ def failed_solve(tmp_path_factory):
 def test_a_failed_solve_is_reported_apart_from_measured_limits(failed_solve, tmp_path,
                                                                capsys):
     from stepzoo.cli.sweep import show
-    from stepzoo.reports import figures, interactive, tables
+    from stepzoo.reports import figure_data, interactive, tables
     config, out = failed_solve
     summary = pd.read_csv(out / "summary.csv").set_index("method")
     be, euler = summary.loc["backward_euler"], summary.loc["euler"]
@@ -177,9 +177,9 @@ def test_a_failed_solve_is_reported_apart_from_measured_limits(failed_solve, tmp
     rows = {r["method"]: r for r in tables.method_summary(sweep, 0.1, 0.2, "err")}
     assert rows["backward_euler"]["h_meas_min"] is None
     assert rows["backward_euler"]["solver_limited_points"] == 1
-    shown = figures.stable_step_vs_speed(sweep, tmp_path)
-    assert "A solve failed first at some points of: backward_euler." in shown.caption
-    live = interactive.stable_step_vs_speed(sweep)[0]
+    data = figure_data.stable_step_vs_speed(sweep)
+    assert "A solve failed first at some points of: backward_euler." in data.caption
+    live = interactive.draw(data)[0]
     crosses = [t for t in live.data if t.marker.symbol == "x"]
     assert [t.name for t in crosses] == ["backward_euler: a nonlinear solve failed"]
     assert list(crosses[0].y) == [be["h_solver_limit_min"]]
@@ -201,12 +201,12 @@ def test_figures_1_2_show_the_point_where_the_tuned_choice_binds(tiny_sweep, tmp
     import dataclasses
 
     from stepzoo.bench.figure_runs import trajectories_at
-    from stepzoo.reports import figures
+    from stepzoo.reports import figure_data
     from stepzoo.reports.recompute import figure_point
     config, folder = tiny_sweep
     sweep = load_sweep(folder)
     tuned = {"method": "heun", "h": 0.01, "tol": TOL, "margin": 0.2}
-    point, why = figures.binding_point(sweep, tuned, 0.2)
+    point, why = figure_data.binding_point(sweep, tuned, 0.2)
     runs = sweep.runs[(sweep.runs["method"] == "heun") & (sweep.runs["h"] == 0.01)]
     tight = runs.merge(sweep.limits[sweep.limits["method"] == "heun"][["point", "h_meas"]],
                        on="point")
@@ -225,7 +225,7 @@ def test_figures_1_2_show_the_point_where_the_tuned_choice_binds(tiny_sweep, tmp
     ref = moved.trajectories[moved.trajectories["method"] == "reference"]
     ran = sweep.trajectories[sweep.trajectories["method"] == "reference"]
     assert not np.allclose(ref["r"], ran["r"])                  # another point's turn
-    assert "vx = 6 m/s" in figures.yaw_rate(moved, tmp_path, why).caption
+    assert "vx = 6 m/s" in figure_data.yaw_rate(moved, why).caption
     # At the sweep's own point, the same code gives the sweep's table bit for bit.
     again = trajectories_at(load(config), (20.0, 0.3))
     pd.testing.assert_frame_equal(again[sweep.trajectories.columns], sweep.trajectories)

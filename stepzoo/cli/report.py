@@ -171,7 +171,8 @@ def _tolerance(sweep, tuned):
 def _draw(sweep, tuned, tuned_path, plan_list, plans_dir, out, into, started, say,
           verdicts=(), bench=None, bench_dir=None):
     """The report of the folder `out`, written into the folder `into` (which becomes it)."""
-    from stepzoo.reports import figures, interactive, recompute, tables
+    from stepzoo.reports import figure_data, interactive, recompute, tables
+    from stepzoo.reports.drawing import draw_all
     from stepzoo.reports.html import write_report
     from stepzoo.reports.load import load_manifest
     from stepzoo.reports.provenance import environment_table, public_path
@@ -182,31 +183,18 @@ def _draw(sweep, tuned, tuned_path, plan_list, plans_dir, out, into, started, sa
         point = ", ".join(f"{k} = {v:g}" for k, v in at.manifest["trajectory_point"].items())
         say(f"ran Figures 1-2's runs at {point}, where the tuned choice binds, in "
             f"{time.perf_counter() - t0:.1f} s")
-    # (static figure, its interactive plots), drawn in the report's order.
-    draw = [(lambda: figures.yaw_rate(at, into, why), lambda: interactive.yaw_rate(at, tuned)),
-            (lambda: figures.xy_paths(at, into, why), lambda: interactive.xy_paths(at, tuned)),
-            (lambda: figures.stability_regions(sweep, tuned, into),
-             lambda: interactive.stability_regions(sweep, tuned)),
-            (lambda: figures.error_vs_step(sweep, into, verdicts),
-             lambda: interactive.error_vs_step(sweep, tuned, verdicts)),
-            (lambda: figures.work_precision(sweep, tuned, into),
-             lambda: interactive.work_precision(sweep, tuned)),
-            (lambda: figures.stable_step_vs_speed(sweep, into, verdicts),
-             lambda: interactive.stable_step_vs_speed(sweep, tuned, verdicts)),
-            (lambda: figures.plans(plan_list, into), lambda: interactive.plans(plan_list))]
+    # Each figure's data, in the report's order; both renderers draw it (reports.drawing).
+    computes = [lambda: figure_data.yaw_rate(at, why, tuned),
+                lambda: figure_data.xy_paths(at, why, tuned),
+                lambda: figure_data.stability_regions(sweep, tuned),
+                lambda: figure_data.error_vs_step(sweep, verdicts),
+                lambda: figure_data.work_precision(sweep, tuned),
+                lambda: figure_data.stable_step_vs_speed(sweep, verdicts),
+                lambda: figure_data.plans(plan_list)]
     if bench is not None:
         from stepzoo.reports import tradeoff
-        points = tradeoff.tradeoff_points(bench, tuned)
-        draw.append((lambda: tradeoff.tradeoff_png(points, into),
-                     lambda: tradeoff.tradeoff_plot(points)))
-    shown, plots = [], {}
-    for static, live in draw:
-        t0 = time.perf_counter()
-        fig = static()
-        plots[fig.number] = interactive.divs(live(), f"plot{fig.number}")
-        shown.append(fig)
-        say(f"[{len(shown)}/{len(draw)}] Figure {fig.number}. {fig.title}: "
-            f"{len(fig.images)} image(s) in {time.perf_counter() - t0:.1f} s")
+        computes.append(lambda: tradeoff.tradeoff(tradeoff.tradeoff_points(bench, tuned)))
+    shown, plots = draw_all(computes, into, say)
     unit = f" {view.error_unit}" if view.error_unit else ""
     t0 = time.perf_counter()
     verdict_tables = recompute.verdict_tables(sweep, verdicts, view, tol, margin)
