@@ -3,7 +3,7 @@
 Only `method` and `h` are required: a planner config written by hand is the same kind."""
 from __future__ import annotations
 
-from typing import Literal
+from typing import Annotated, Literal
 
 from pydantic import ConfigDict, Field
 
@@ -11,6 +11,8 @@ from stepzoo.config_schema import Schema, quantity
 from stepzoo.validate import Margin, PosTol, Rounds, Step, Tol
 
 Count = quantity("", "", "a count", whole=True, ge=0)
+# A measurement tune recorded: NaN where it could not be taken is a record, not a mistake.
+Measured = Annotated[float, Field(allow_inf_nan=True)]
 Rate = quantity("", "", "a fraction of the runs", ge=0.0, le=1.0)
 # Planner parameters by name; their types and ranges are the planner's (the planner kind).
 PlannerValues = dict[str, float | int | bool]
@@ -20,8 +22,8 @@ class Calibrated(Schema):
     """[calibration.methods.NAME]: one method's measured cost per step."""
     h: Step = Field(description="the step it was timed at [s]")
     n_steps: Count = Field(description="steps of one timed call")
-    per_step_s: float = Field(description="wall time per step, per trajectory [s]")
-    spread_s: float = Field(description="the spread of per_step_s over the rounds [s]")
+    per_step_s: Measured = Field(description="wall time per step, per trajectory [s]")
+    spread_s: Measured = Field(description="the spread of per_step_s over the rounds [s]")
 
 
 class Calibration(Schema):
@@ -41,11 +43,11 @@ class RunnerUp(Schema):
     h: Step | None = Field(None, description="its cheapest qualifying step [s] (absent: none "
                            "qualifies)")
     qualifies: bool = Field(True, description="some step meets the tolerance and the margin")
-    cost_evals_per_s: float | None = Field(None, description="RHS evaluations per simulated "
+    cost_evals_per_s: Measured | None = Field(None, description="RHS evaluations per simulated "
                                            "second")
-    cost_time_per_s: float | None = Field(None, description="wall time per simulated second "
+    cost_time_per_s: Measured | None = Field(None, description="wall time per simulated second "
                                           "[s]")
-    cost_time_spread_per_s: float | None = Field(None, description="its spread [s]")
+    cost_time_spread_per_s: Measured | None = Field(None, description="its spread [s]")
     reason: str = Field("", description="why it is not the choice")
 
 
@@ -57,10 +59,10 @@ class Candidate(Schema):
     runs: Count = Field(description="plans made")
     exact: Count = Field(description="plans that reached the goal exactly")
     exact_rate: Rate = Field(description="exact / runs")
-    median_time_s: float | None = Field(None, description="median plan time [s]")
-    median_replay_deviation_m: float | None = Field(None, description="median over exact "
+    median_time_s: Measured | None = Field(None, description="median plan time [s]")
+    median_replay_deviation_m: Measured | None = Field(None, description="median over exact "
                                                     "plans of the replay's deviation [m]")
-    max_replay_deviation_m: float | None = Field(None, description="largest replay deviation "
+    max_replay_deviation_m: Measured | None = Field(None, description="largest replay deviation "
                                                  "[m]")
     replay_collisions: Count = Field(0, description="replayed exact plans that collide")
     within_tol: bool = Field(description="every replay within the tolerance")
@@ -110,18 +112,18 @@ class TunedFile(Schema):
     margin: Margin | None = Field(None, description="the stability margin tuned with")
     cost: Literal["time", "evals"] | None = Field(None, description="what ranked the "
                                                   "candidates")
-    cost_evals_per_s: float | None = Field(None, description="RHS evaluations per simulated "
+    cost_evals_per_s: Measured | None = Field(None, description="RHS evaluations per simulated "
                                            "second of the choice")
-    cost_time_per_s: float | None = Field(None, description="wall time per simulated second "
+    cost_time_per_s: Measured | None = Field(None, description="wall time per simulated second "
                                           "of the choice [s]")
-    cost_time_spread_per_s: float | None = Field(None, description="its spread [s]")
-    err_pos_max_m: float | None = Field(None, description="the choice's worst position error "
+    cost_time_spread_per_s: Measured | None = Field(None, description="its spread [s]")
+    err_pos_max_m: Measured | None = Field(None, description="the choice's worst position error "
                                         "[m]")
-    err_max: float | None = Field(None, description="the choice's worst error, in the sweep's "
+    err_max: Measured | None = Field(None, description="the choice's worst error, in the sweep's "
                                   "norm")
-    h_meas_min_s: float | None = Field(None, description="the smallest measured largest "
+    h_meas_min_s: Measured | None = Field(None, description="the smallest measured largest "
                                        "stable step of the choice's method [s]")
-    horizon_s: float | None = Field(None, allow_inf_nan=True, description="the sweep's "
+    horizon_s: Measured | None = Field(None, description="the sweep's "
                                     "horizon [s] (NaN: not recorded)")
     model: str | None = Field(None, description="the swept model")
     sweep_config_sha256: str | None = Field(None, description="the sweep config's sha256")
