@@ -5,6 +5,7 @@ config by what it sets off the defaults; `kinds` lists the root models for the d
 from __future__ import annotations
 
 import difflib
+import functools
 import hashlib
 import importlib
 import json
@@ -76,8 +77,12 @@ def differing(instance) -> dict:
     """The values of a Schema (or pydantic dataclass) `instance` that differ from their
     defaults, nested tables alike, as JSON-ready data; fields declared `exclude=True` (those
     that decide no result, such as a file's path) are left out."""
-    return pydantic.TypeAdapter(type(instance)).dump_python(instance, mode="json",
-                                                             exclude_defaults=True)
+    return _adapter(type(instance)).dump_python(instance, mode="json", exclude_defaults=True)
+
+
+@functools.cache
+def _adapter(cls) -> pydantic.TypeAdapter:
+    return pydantic.TypeAdapter(cls)
 
 
 def sha256(instance) -> str:
@@ -167,14 +172,14 @@ def _line(model_cls, e: dict) -> str:
     key = ".".join(names)
     if e["type"] == "extra_forbidden":
         parent = _bare(_walk(model_cls, e["loc"][:-1])[1])
-        known = sorted(_fields_of(parent)) if _is_schema(parent) else []
+        known = sorted(parent.model_fields) if _is_schema(parent) else []
         close = difflib.get_close_matches(names[-1], known, n=1)
         hint = f" (did you mean {close[0]}?)" if close else ""
         return f"unknown key {key if len(names) > 1 else repr(key)}; known: " \
                f"{', '.join(known)}{hint}"
     if e["type"] in ("value_error", "assertion_error"):
-        # A validator's message reads after the key ("must have min <= max"), or names the
-        # keys itself ("newton.rtol and newton.atol are both 0").
+        # A validator's message reads after the key ("must be {min, max, num} with min <=
+        # max"), or names the keys itself ("newton.rtol and newton.atol are both 0").
         message = str(e.get("ctx", {}).get("error", e["msg"]))
         return message if not key or message.startswith(key) else f"{key} {message}"
     if e["type"] == "missing" and e["loc"] and isinstance(e["loc"][-1], int):
@@ -213,7 +218,8 @@ def _walk(model_cls, loc):
             info = _annotated_info(cur) or info
         elif _is_schema(cur) and part in cur.model_fields:
             info, cur = cur.model_fields[part], cur.model_fields[part].annotation
-            info = _annotated_info(_bare_optional(cur)) or info if not _ranged(info) else info
+            if not _ranged(info):             # Optional[quantity]: the range is inside
+                info = _annotated_info(_bare_optional(cur)) or info
             names.append(part)
         elif typing.get_origin(cur) is dict and isinstance(part, str):
             cur = typing.get_args(cur)[1]
@@ -289,10 +295,6 @@ def _bare(annotation):
             annotation = rest[0]
         else:
             return annotation
-
-
-def _fields_of(model) -> list[str]:
-    return [info.alias or name for name, info in model.model_fields.items()]
 
 
 def _kind_words(annotation) -> str:
