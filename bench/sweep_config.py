@@ -54,7 +54,8 @@ Fraction = quantity("a fraction of the predicted largest stable step", "", "a sa
 PastLimit = quantity("a multiple of the predicted largest stable step", "", "the sample that "
                      "blows up lies past the limit", gt=1.0)
 Scale = quantity("an error scale", "", "the error norm divides by it", gt=0.0)
-Positive = quantity("", "", "a limit of work", gt=0.0)
+Gib = quantity("", "GiB", "a limit of memory", gt=0.0)
+Work = quantity("", "", "a limit of work", gt=0.0)
 Lanes = quantity("", "", "at least one operating point per batch", whole=True, ge=1)
 
 
@@ -223,9 +224,9 @@ class ErrorNorm(Schema):
 class Limits(Schema):
     """[limits]: what the sweep may allocate and integrate before it refuses; they decide no
     result."""
-    memory_gib: Positive | None = Field(None, description="trajectory memory [GiB] (default: "
+    memory_gib: Gib | None = Field(None, description="trajectory memory [GiB] (default: "
                                         "half the machine's)")
-    steps: Positive | None = Field(None, description="integration steps summed over "
+    steps: Work | None = Field(None, description="integration steps summed over "
                                    "trajectories (default 1e11)")
 
 

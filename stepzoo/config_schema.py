@@ -122,8 +122,11 @@ def quantity_words(annotated) -> str:
 def describe(info: FieldInfo, annotation=None) -> str:
     """What a field takes, in words: "a step size: a number in (0, 100] s (why)" for a
     quantity, else from its type ("a whole number", "one of 'max', 'final'")."""
-    extra = info.json_schema_extra if isinstance(info.json_schema_extra, dict) else {}
     annotation = annotation if annotation is not None else info.annotation
+    inner = _annotated_info(_bare_optional(annotation)) if not _ranged(info) else None
+    if inner is not None:                     # Optional[quantity]: the range is inside
+        info, annotation = inner, inner.annotation
+    extra = info.json_schema_extra if isinstance(info.json_schema_extra, dict) else {}
     if "reason" not in extra:
         return _kind_words(annotation)
     whole = _bare(annotation) is int
@@ -218,8 +221,6 @@ def _walk(model_cls, loc):
             info = _annotated_info(cur) or info
         elif _is_schema(cur) and part in cur.model_fields:
             info, cur = cur.model_fields[part], cur.model_fields[part].annotation
-            if not _ranged(info):             # Optional[quantity]: the range is inside
-                info = _annotated_info(_bare_optional(cur)) or info
             names.append(part)
         elif typing.get_origin(cur) is dict and isinstance(part, str):
             cur = typing.get_args(cur)[1]
