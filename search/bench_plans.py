@@ -48,7 +48,7 @@ class Task:
 def finder_key(task: Task) -> tuple:
     c = task.config
     return (str(task.q.map_path.resolve()), task.q.cell_size, c.method, c.h,
-            tuple(sorted(c.params.items())), task.vx)
+            c.params, task.vx)
 
 
 def plan_run(task: Task, finders: dict) -> dict:
@@ -71,14 +71,14 @@ def plan_run(task: Task, finders: dict) -> dict:
     result = finder.plan(q.start, q.goal, None, task.seed)
     t0 = perf_counter()
     fidelity = replay(result, finder.omap, vehicle=finder.vehicle,
-                      margin=finder.config.params["margin"])
+                      margin=finder.config.params.margin)
     replay_s = perf_counter() - t0
     exact = result.status == "exact"
     metrics = path_metrics(path_rows(result), finder.omap, finder.vehicle_footprint) \
         if exact else path_metrics([], None, None)
     return {
         "query": q.id, "map": q.map, "cell_size": q.cell_size, "run": task.run,
-        "seed": task.seed, "status": result.status, "cause": result.cause,
+        "seed": task.seed, "status": result.status.value, "cause": result.cause.value,
         "solved": exact, "approximate": result.status == "approximate",
         "ompl_status": STATUS_OF_CAUSE[result.cause],
         "time_s": result.search_s + result.connect_s,
