@@ -10,17 +10,12 @@ from dataclasses import dataclass
 from time import perf_counter
 
 from stepzoo.errors import UsageError
+from stepzoo.search import plan_schema
+from stepzoo.search.plan_schema import REPLAY_COLUMNS, RUN_COLUMNS, ordered
 
-SUMMARY_COLUMNS = ["runs", "exact", "exact_rate", "median_time_s", "median_first_solution_s",
-                   "median_length_m"]
-# The summary per integrator: who it is, then SUMMARY_COLUMNS, then the replay's verdict.
-INTEGRATOR_COLUMNS = ["integrator", "method", "h", "role", *SUMMARY_COLUMNS,
-                      "median_replay_deviation_m", "max_replay_deviation_m",
-                      "replay_collisions"]
-# plan.json's replay block (stepzoo.search.replay) as columns, spelled as there; its
-# clearance_min_m is replay_clearance_min_m beside the planned path's own.
-REPLAY_COLUMNS = ("max_deviation_m", "final_deviation_m", "max_heading_deviation_rad",
-                  "collides", "goal_distance_m")
+# The tables' columns in their order (documented in plan_schema).
+SUMMARY_COLUMNS = list(plan_schema.SUMMARY_COLUMNS)
+INTEGRATOR_COLUMNS = list(plan_schema.INTEGRATOR_COLUMNS)
 # On a Dask worker: each thread's warmed-up planners, by finder_key (a planner is not safe to
 # share between threads, and a worker may run several).
 _worker = threading.local()
@@ -76,7 +71,7 @@ def plan_run(task: Task, finders: dict) -> dict:
     exact = result.status == "exact"
     metrics = path_metrics(path_rows(result), finder.omap, finder.vehicle_footprint) \
         if exact else path_metrics([], None, None)
-    return {
+    return ordered({
         "query": q.id, "map": q.map, "cell_size": q.cell_size, "run": task.run,
         "seed": task.seed, "status": result.status.value, "cause": result.cause.value,
         "solved": exact, "approximate": result.status == "approximate",
@@ -93,7 +88,7 @@ def plan_run(task: Task, finders: dict) -> dict:
         **{k: fidelity[k] for k in REPLAY_COLUMNS},
         "replay_clearance_min_m": fidelity["clearance_min_m"],
         "replay_s": replay_s if fidelity["segments"] else None,   # a path to replay
-        "progress": json.dumps(result.progress)}
+        "progress": json.dumps(result.progress)}, RUN_COLUMNS, "plan-bench row")
 
 
 def _plan_on_worker(task: Task) -> tuple[str, dict]:

@@ -12,6 +12,7 @@ import numpy as np
 from stepzoo.output import atomic_write
 from stepzoo.search.path_metrics import cusps
 from stepzoo.search.pathfinder import PlanResult
+from stepzoo.search.plan_schema import PLAN_KEYS, STATS_KEYS, ordered
 from stepzoo.search.replay import controls, path_nodes, replay, vehicle_params
 from stepzoo.search.scenarios import Scenario
 
@@ -67,7 +68,7 @@ def plan_record(result: PlanResult, scenario: Scenario, config, vehicle: dict, s
                     **vehicle_params(vehicle)},
         # The inputs, segment by segment, that drive the car along the path (search/replay.py).
         "controls": controls(result, config.method),
-        "stats": {
+        "stats": ordered({
             "expansions": result.expansions,
             "nodes": result.nodes,
             "search_s": result.search_s,
@@ -93,7 +94,7 @@ def plan_record(result: PlanResult, scenario: Scenario, config, vehicle: dict, s
             "method": config.method,
             "h": config.h,
             "n_steps": config.n_steps,
-        },
+        }, STATS_KEYS, "plan.json stats"),
         "params": config.params.model_dump(),
         "config": {"method": config.method, "h": config.h, "provenance": config.provenance,
                    "file": config.source},
@@ -103,7 +104,7 @@ def plan_record(result: PlanResult, scenario: Scenario, config, vehicle: dict, s
     }
     # Those controls driven through the true models: how far the car strays from the path.
     record["replay"] = replay(record, scenario.omap)
-    return record
+    return ordered(record, PLAN_KEYS, "plan.json")
 
 
 def render_png(record: dict, scenario: Scenario) -> bytes:

@@ -138,12 +138,6 @@ def street_queries(per_map=12) -> list[dict]:
     return out
 
 
-def write_street_queries() -> Path:
-    text = "[\n" + ",\n".join(json.dumps(q) for q in street_queries()) + "\n]\n"
-    STREET_QUERIES.write_text(text)
-    return STREET_QUERIES
-
-
 def _roomy_points(omap: OccupancyMap, room, half_width) -> tuple[np.ndarray, np.ndarray]:
     """(K, 2) [m] lattice points with clearance >= room, and the (K,) label of the
     8-connected region of lattice points with clearance >= half_width [m] each lies in."""

@@ -14,6 +14,7 @@ from pathlib import Path
 import pytest
 
 from stepzoo.bench.cli import main
+from stepzoo.search.plan_schema import PLAN_KEYS, STATS_KEYS
 
 ROOT = Path(__file__).resolve().parent.parent
 DATA = Path("tests/data/plan_regression")
@@ -93,6 +94,12 @@ def test_the_comparison_sees_a_changed_plan(fresh):
     changed["stats"]["expansions"] += 1
     changed["cause"] = "exhausted"
     assert len(differences(fresh["berlin_06"], changed)) == 3
+
+
+def test_plan_json_has_the_keys_of_the_plan_schema_in_its_order(fresh):
+    for record in fresh.values():
+        assert list(record) == list(PLAN_KEYS)
+        assert list(record["stats"]) == [k for k in STATS_KEYS if k not in TIMINGS]
 
 
 def test_the_cases_cover_what_they_claim(fresh):
