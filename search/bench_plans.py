@@ -7,6 +7,7 @@ from __future__ import annotations
 import json
 import threading
 from dataclasses import dataclass
+from typing import NamedTuple
 from time import perf_counter
 
 from stepzoo.errors import UsageError
@@ -40,10 +41,21 @@ class Task:
         return f"{self.integrator:03d}-{self.query:05d}-{self.run:04d}"
 
 
-def finder_key(task: Task) -> tuple:
+class FinderKey(NamedTuple):
+    """What a warmed-up planner is for: a map (file, cell size [m]), an integrator (method,
+    h [s]), the planner parameters and the speed vx [m/s]."""
+    map_file: str
+    cell_size: float
+    method: str
+    h: float
+    params: object
+    vx: float
+
+
+def finder_key(task: Task) -> FinderKey:
     c = task.config
-    return (str(task.q.map_path.resolve()), task.q.cell_size, c.method, c.h,
-            c.params, task.vx)
+    return FinderKey(str(task.q.map_path.resolve()), task.q.cell_size, c.method, c.h,
+                     c.params, task.vx)
 
 
 def plan_run(task: Task, finders: dict) -> dict:

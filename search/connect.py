@@ -7,6 +7,7 @@ from functools import cache
 import math
 from math import pi
 from time import perf_counter
+from typing import NamedTuple
 
 import casadi as ca
 import jax.numpy as jnp
@@ -18,17 +19,11 @@ from stepzoo.integrators.methods import TABLEAUS
 from stepzoo.integrators.steps import rk_slopes, weighted
 from stepzoo.search.car_bounds import reeds_shepp_words
 
-# Measured on 40 seeded problems (3-30 m, arbitrary headings, start speed 0-10 m/s, N=50,
-# rk4, 2-core CPU, before the IPOPT options below): in a 120 m box, multiple shooting solved
-# 40/40 at a median of 17-20 ms, single shooting 40/40 at 100 ms (t_f agree to 1e-7; the same
-# with goal speed 0); in a box only 5 m beyond start and goal, multiple 40/40 (17 ms), single
-# 40/40 (85 ms, one after a retry, at a worse local optimum). With max_iter 300 and no retry,
-# single made 39/40. Multiple shooting is the default. A pure-pursuit rollout guess instead of
-# the Dubins one left multiple shooting at 29/40 and a median of 255 ms.
+# Multiple shooting solved as many problems as single shooting, several times faster, and
+# the Dubins guess solves more than a pure-pursuit rollout (docs/study-connection-ocp-*.md).
 DEFAULT_SHOOTING = "multiple"
-# rk4 costs what Euler costs here (~16 ms) but is faithful: the end of an rk4 re-simulation
-# 10 times finer misses the goal by 5e-6 m (median; max 5e-5), against 0.66 m (max 2.1 m)
-# for the paper's forward Euler, 2e-2 m for heun and 1.4e-4 m for rk3.
+# rk4 costs about what forward Euler costs inside the OCP, and its connections are the ones
+# a finer re-simulation reproduces (the same study).
 DEFAULT_METHOD = "rk4"
 # The paper leaves F free, which makes minimum time degenerate (infinite force, zero time):
 # F is bounded by m * A_MAX, a firm but ordinary passenger-car acceleration/braking level.
@@ -228,7 +223,25 @@ def _runs(segs) -> list:
     return runs or [(1, [(0, 0.0)])]
 
 
-def _profile(segs, radius, start, a_max, v_max, v_goal, v_back=0.0):
+class _Guess(NamedTuple):
+    """A connection guess: a Dubins or Reeds-Shepp path driven as fast as the car can."""
+    turn: float   # [rad] net heading change
+    tf: float     # [s] its duration
+    runs: list    # the runs between cusps (_runs)
+    plans: list   # per run (start speed [m/s], (t1, t2, t_end) [s]) (_fastest_profile)
+
+
+class _Solution(NamedTuple):
+    """One OCP solve: whether it met the goal, IPOPT's status, t_f [s], the states (N+1, 4)
+    and the inputs (N, 2)."""
+    success: bool
+    status: str
+    tf: float
+    states: np.ndarray
+    inputs: np.ndarray
+
+
+def _profile(segs, radius, start, a_max, v_max, v_goal, v_back=0.0) -> _Guess:
     """Net heading change [rad], t_f [s], and the runs between cusps with their fastest
     speed profiles [(start speed [m/s], (t1, t2, t_end) [s])] of driving the path `segs`
     (signed lengths: backwards below 0) of turning radius `radius` [m]: each run from rest to
@@ -246,7 +259,7 @@ def _profile(segs, radius, start, a_max, v_max, v_goal, v_back=0.0):
             else 0.0
         plans.append((v0, _fastest_profile(sum(q for _, q in run), v0, a_max,
                                            v_max if way > 0 else v_back, v_end)))
-    return turn, float(sum(profile[2] for _, profile in plans)), runs, plans
+    return _Guess(turn, float(sum(profile[2] for _, profile in plans)), runs, plans)
 
 
 def _guess_inputs(N, runs, plans, a_max):
@@ -283,18 +296,10 @@ class _Problem:
     rows: slice           # which of [X, Y, theta, v] single shooting bounds in g
 
 
-# Measured against the Opti formulation with IPOPT's defaults, multiple shooting, on the
-# scenario connections and 208 seeded problems (same solved counts; t_f agree to 2e-7 but for
-# one better optimum): bounds on T, U and the states as variable bounds instead of
-# constraints cut a solve by 25%, the adaptive barrier update cut IPOPT's iterations by 20%
-# (10% faster) and its kkt-error globalisation 15% more (scenario connections 20% faster),
-# fast_step_computation saved 8% at the same iterations, and calling nlpsol directly saved
-# Opti's 0.5 ms of set-up and read-out. Single shooting keeps the monotone update: adaptive
-# was slower there (median 118 against 89 ms) and reached a worse local optimum on 1 of 60
-# problems. mu-based bound multipliers made connections of 3-12 m from 5 m/s 25% faster but
-# those of 3-30 m 10% slower. MUMPS ordering and scaling options changed nothing, spral was
-# 4x slower, HSL's ma27/ma57 do not ship, and limited-memory Hessians were 5x slower and
-# failed more often.
+# Each option below made solves faster at the same solved counts and optima; single shooting
+# keeps the monotone barrier update, as the adaptive one was slower there and found a worse
+# optimum; the options left out changed nothing or were slower
+# (docs/study-connection-ocp-*.md).
 IPOPT_OPTIONS = {"print_level": 0, "sb": "yes", "max_iter": 100, "fast_step_computation": "yes"}
 ADAPTIVE_MU = {"mu_strategy": "adaptive", "adaptive_mu_globalization": "kkt-error"}
 
@@ -331,7 +336,7 @@ def _problem(N: int, shooting: str, method: str, bounded: bool, speed_fixed: boo
                     rows)
 
 
-def _solve(prob, p, lo, hi, tf_range, tf_g, u_g):
+def _solve(prob, p, lo, hi, tf_range, tf_g, u_g) -> _Solution:
     """One IPOPT solve from the guess (tf_g [s], scaled inputs u_g (2, N)) with parameters p,
     states 1..N within lo..hi ([X, Y, theta, v]) and t_f within tf_range [s]:
     (success, status, tf, states, inputs)."""
@@ -352,7 +357,7 @@ def _solve(prob, p, lo, hi, tf_range, tf_g, u_g):
     target = np.r_[p[4:7], p[11:]]  # goal (, v_goal)
     end = states[-1, :len(target)] - target
     success = bool(stats["success"]) and float(np.abs(end).max()) < END_TOL
-    return success, str(stats["return_status"]), float(sol["x"][0]), states, inputs
+    return _Solution(success, str(stats["return_status"]), float(sol["x"][0]), states, inputs)
 
 
 def connect(start, goal, *, L, m, bounds=None, N=50, shooting=DEFAULT_SHOOTING,
@@ -394,28 +399,28 @@ def connect(start, goal, *, L, m, bounds=None, N=50, shooting=DEFAULT_SHOOTING,
     # Fastest guess first; forwards only, that is the shortest Dubins path first.
     # The inputs, a Python loop per interval, are built only for the guesses tried.
     guesses = sorted((_profile(segs, radius, x0, a_max, v_max, goal_speed, -v_min)
-                      for segs in paths), key=lambda guess: guess[1])
+                      for segs in paths), key=lambda guess: guess.tf)
     tried = set()
-    for turn, tf_g, runs, plans in guesses:
-        way = runs[0][0]
-        theta_g = unwrap(goal[2], start[2] + turn)
+    for guess in guesses:
+        way = guess.runs[0][0]
+        theta_g = unwrap(goal[2], start[2] + guess.turn)
         winding = round((theta_g - goal[2]) / (2 * pi))
         # One try per heading winding and first direction of travel.
         key = (winding, way)
         if key in tried:
             continue
         tried.add(key)
-        u_g = _guess_inputs(N, runs, plans, a_max)
+        u_g = _guess_inputs(N, guess.runs, guess.plans, a_max)
         p = np.r_[x0, goal_local[:2], theta_g, L, m, delta_max, a_max, v_goal]
         lo = np.array([box[0], box[2], min(start[2], theta_g) - THETA_MARGIN, v_min])
         hi = np.array([box[1], box[3], max(start[2], theta_g) + THETA_MARGIN, v_max])
-        success, status, tf, states, inputs = _solve(
-            prob, p, lo, hi, (tf_lo, tf_hi), min(max(tf_g, tf_lo), tf_hi), u_g)
-        if success or len(tried) == MAX_TRIES:
+        solved = _solve(prob, p, lo, hi, (tf_lo, tf_hi), min(max(guess.tf, tf_lo), tf_hi), u_g)
+        if solved.success or len(tried) == MAX_TRIES:
             break
-    states[:, :2] += origin
-    return Connection(success=success, status=status, tf=tf, t=np.linspace(0, tf, N + 1),
-                      states=states, inputs=inputs, solve_s=perf_counter() - t0,
+    solved.states[:, :2] += origin
+    return Connection(success=solved.success, status=solved.status, tf=solved.tf,
+                      t=np.linspace(0, solved.tf, N + 1), states=solved.states,
+                      inputs=solved.inputs, solve_s=perf_counter() - t0,
                       shooting=shooting)
 
 

@@ -11,6 +11,7 @@ import struct
 from dataclasses import dataclass, field
 from functools import lru_cache
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 from scipy.ndimage import distance_transform_edt
@@ -30,7 +31,8 @@ _FRAME = EXACT_CELLS // 2 + 1
 
 # Distance fields of the last grids seen, keyed by the grid's content (never by a file name,
 # so a changed map is never given an old field): a process that plans again and again on the
-# same map (`stepzoo serve`) transforms it once (0.39 s of CPU for 1024 x 1024 cells).
+# same map (`stepzoo serve`) transforms it once: the transform is a large part of a plan's
+# set-up on a big map.
 FIELDS_KEPT = 2
 
 # Peak memory a grid cell costs while a map is built: the occupancy, and the distance field
@@ -46,6 +48,14 @@ ROS_YAML_MAX_BYTES = 1 << 16
 _MOVINGAI_FREE = frozenset(".GS")
 _MOVINGAI_BLOCKED = frozenset("@OTW")
 _ROS_MODES = ("trinary", "scale", "raw")
+
+
+class Bounds(NamedTuple):
+    """[m] the extent of a grid (unpacks as xmin, xmax, ymin, ymax)."""
+    xmin: float
+    xmax: float
+    ymin: float
+    ymax: float
 
 
 @dataclass(frozen=True, eq=False)
@@ -77,11 +87,11 @@ class OccupancyMap:
         object.__setattr__(self, "distance", distance)
         object.__setattr__(self, "_framed", np.pad(occupied, _FRAME, constant_values=True))
 
-    def bounds(self) -> tuple[float, float, float, float]:
-        """(xmin, xmax, ymin, ymax) [m] of the grid."""
+    def bounds(self) -> Bounds:
+        """[m] the grid's extent."""
         rows, cols = self.occupied.shape
         x0, y0 = self.origin
-        return x0, x0 + cols * self.resolution, y0, y0 + rows * self.resolution
+        return Bounds(x0, x0 + cols * self.resolution, y0, y0 + rows * self.resolution)
 
     def clearance(self, xy) -> np.ndarray:
         """(..., 2) [m] -> (...) [m]: a lower bound of the distance to the nearest obstacle.

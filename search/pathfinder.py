@@ -7,6 +7,7 @@ from __future__ import annotations
 import heapq
 import math
 from time import perf_counter
+from typing import NamedTuple
 
 import numpy as np
 
@@ -153,6 +154,15 @@ class PathFinder:
         return conn, ""
 
 
+class Cell(NamedTuple):
+    """A pruning cell: position and heading cell indices, and the direction of travel (with
+    reverse gear; else 0)."""
+    x: int
+    y: int
+    heading: int
+    direction: int
+
+
 class Search:
     """One run of Algorithm 1, made anytime, on the tree's columns (search/tree.py).
 
@@ -192,13 +202,13 @@ class Search:
         self.t0 = perf_counter()
         result.lower_bound_m = self.bound(0)
 
-    def cell(self, state, direction) -> tuple[int, int, int, int]:
+    def cell(self, state, direction) -> Cell:
         """Pruning cell of a state: position cells of cell_xy, heading cells of cell_heading,
         and with reverse gear the direction it was reached in (as Hybrid A*)."""
         heading = state[2] % (2 * math.pi)
-        return (math.floor(state[0] / self.cell_xy), math.floor(state[1] / self.cell_xy),
-                math.floor(heading / self.cell_heading),
-                direction if self.prm.reverse else 0)
+        return Cell(math.floor(state[0] / self.cell_xy), math.floor(state[1] / self.cell_xy),
+                    math.floor(heading / self.cell_heading),
+                    direction if self.prm.reverse else 0)
 
     def order(self, nodes) -> list[float]:
         """The search's order of `nodes`: g + w H, w = h_weight (above 1: greedier first
