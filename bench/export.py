@@ -13,6 +13,8 @@ import math
 from pathlib import Path
 
 from stepzoo.errors import NoAnswer, UsageError
+from stepzoo.config_schema import check
+from stepzoo.tuned_file import TunedFile
 from stepzoo.validate import read_toml
 
 # stepzoo's methods that acados' sim integrators compute with the same Butcher tableau:
@@ -39,9 +41,10 @@ TARGETS = ("acados", "diffrax", "json")
 def load_tuned(path) -> dict:
     """The tuned config at `path` (written by `stepzoo tune`); UsageError if it is not one."""
     tuned = read_toml(path, "tuned config", "give a TOML file written by `stepzoo tune`")
-    if not {"method", "h", "runners_up"} <= set(tuned):
+    if not {"method", "h", "runners_up"} <= set(tuned):     # another kind of file: one line
         raise UsageError(f"{path} is not a tuned config (it lacks method, h or runners_up); "
                          "give a file written by `stepzoo tune`")
+    check(TunedFile, tuned, str(path))
     return tuned
 
 

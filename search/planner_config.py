@@ -161,16 +161,13 @@ def _check_budget(config: PlannerConfig) -> None:
 
 
 def load_config(path=None) -> PlannerConfig:
-    """Read a planner config TOML (default: the shipped tuned_default.toml); unknown top-level
-    keys (what `stepzoo tune` adds: why, pos_tol_m, runners_up, ...) are ignored."""
+    """Read a planner config TOML (default: the shipped tuned_default.toml), a tuned file
+    (stepzoo.tuned_file: what `stepzoo tune` writes; unknown keys refused)."""
+    from stepzoo.config_schema import check
+    from stepzoo.tuned_file import TunedFile
     path = Path(path) if path is not None else DEFAULT_CONFIG
     data = read_toml(path, "planner config", "give a TOML file written by `stepzoo tune`")
-    missing = [k for k in ("method", "h") if k not in data]
-    if missing:
-        raise UsageError(f"{path} lacks {' and '.join(missing)}; a planner config needs "
-                         "top-level method (a zoo name) and h (step [s])")
-    planner = data.get("planner", {})
-    if not isinstance(planner, dict):
-        raise UsageError(f"{path}: [planner] must be a table of parameter overrides")
-    provenance = data.get("provenance", data.get("why", "not stated"))
-    return make_config(data["method"], data["h"], provenance, str(path), **planner)
+    tuned = check(TunedFile, data, str(path))
+    provenance = tuned.provenance if tuned.provenance is not None else (tuned.why or
+                                                                        "not stated")
+    return make_config(tuned.method, tuned.h, provenance, str(path), **tuned.planner)

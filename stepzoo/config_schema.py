@@ -128,7 +128,7 @@ def _line(model_cls, e: dict) -> str:
         return f"{key}: {message}" if key else message
     if e["type"] == "missing":
         doc = f" ({info.description})" if info is not None and info.description else ""
-        return f"{key} is missing{doc}; give it"
+        return f"lacks {key}{doc}"
     words = describe(info, annotation) if info is not None else _error_words(e)
     return f"{'every ' if every else ''}{key} must be {words}, got {_lists(e['input'])!r}"
 

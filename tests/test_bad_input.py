@@ -165,7 +165,7 @@ def test_plan_refuses_speeds_poses_maps_and_steps_out_of_range(tmp_path, capsys)
         "start = [1, 1, 0]\ngoal = [5, 5, 0]\nspeed = 5\n")
     assert "4e+14 cells" in refused(capsys, "plan", tmp_path / "big.toml", "--out", out)
     (tmp_path / "h.toml").write_text('method = "rk4"\nh = 1e-12\n')
-    assert "planner step h must be a step size" in refused(
+    assert "h.toml: h must be a step size" in refused(
         capsys, "plan", "street", "--config", tmp_path / "h.toml", "--out", out)
     (tmp_path / "h9.toml").write_text('method = "rk4"\nh = 1e-9\n')
     assert "the planner at h = 1e-09 s would hold" in refused(

@@ -139,7 +139,7 @@ def test_a_map_query_plans_and_a_walled_off_goal_is_written_as_no_path_exit_1(tm
 def test_a_config_sets_the_integrator_and_overrides_params(tmp_path):
     config = tmp_path / "tuned.toml"
     config.write_text('method = "rk3"\nh = 0.025\nwhy = "a test"\npos_tol_m = 0.01\n'
-                      "runners_up = [1, 2]\n[planner]\nmindist = 7.5\n")
+                      '[[runners_up]]\nmethod = "rk4"\nh = 0.02\n[planner]\nmindist = 7.5\n')
     assert run("open_field", "--config", config, "--out", tmp_path / "out") == 0
     record = read(tmp_path / "out")
     assert (record["stats"]["method"], record["stats"]["h"]) == ("rk3", 0.025)
