@@ -12,7 +12,6 @@ import hashlib
 import importlib
 import inspect
 import itertools
-import math
 import sys
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -101,19 +100,6 @@ class ModelSpec:
                 "envelope": {v: list(vals) for v, vals in self.envelope},
                 "error_states": list(self.error_states),
                 "error_scales": list(self.error_scales), "source_sha256": self.source_sha256}
-
-
-def is_num(v) -> bool:
-    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
-
-
-def name_list(value, key, source, bad) -> tuple:
-    if not (isinstance(value, list) and all(isinstance(s, str) and s for s in value)):
-        bad.append(f"{source}: model.{key} must be a list of names (strings)")
-        return ()
-    if len(set(value)) != len(value):
-        bad.append(f"{source}: model.{key} lists a name twice; list each once")
-    return tuple(value)
 
 
 def builtin(name: str, vehicle: str, tyre: str | None = None):

@@ -23,7 +23,9 @@ from pathlib import Path
 
 import pandas as pd
 
-from stepzoo import environment
+from pydantic import Field
+
+from stepzoo import config_schema, environment
 from stepzoo.bench import metrics, schema, sweep_config, sweep_folder
 from stepzoo.bench.sweep import _finite, _parquet, run_sweep
 from stepzoo.errors import UsageError
@@ -34,6 +36,25 @@ SETTINGS = {"steps", "reference", "stability", "chunks", "trajectories", "timing
             "newton"}
 LABEL = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]*")
 ORDERS = "orders.csv"
+
+
+# A problem's table: a sweep config's keys, each optional (the top level's fill in); its name
+# labels the problem (default: its model's name).
+ProblemTable = config_schema.optional(
+    sweep_config.SweepFile, "ProblemTable", "[[problem]]: one problem of the suite: a sweep "
+    "config's keys, over the suite's top-level ones (the settings tables merged key by key); "
+    "name labels it and its folder (default: its model's name).")
+# The suite's top level: a sweep config's keys, every problem's defaults.
+SuiteDefaults = config_schema.optional(
+    sweep_config.SweepFile, "SuiteDefaults", "A suite's top level: a sweep config's keys, "
+    "every problem's defaults.")
+SuiteFile = config_schema.optional(
+    sweep_config.SweepFile, "SuiteFile", "A suite config file: several problems swept "
+    "into one results folder. Its top-level keys are a sweep config's, every problem's "
+    "defaults; a problem without a horizon runs over its built-in model's published "
+    "interval, one without an envelope its model's default problem.",
+    problem=(tuple[ProblemTable, ...], Field(min_length=1, description="the problems, "
+                                            "[[problem]] tables, in the order they are swept")))
 
 
 @dataclass(frozen=True)
@@ -80,9 +101,9 @@ def validate(raw: dict, source: str = "config") -> SuiteConfig:
         raise UsageError(f"{source}: problem must be a list of tables: [[problem]] with a model "
                          "each")
     top = {k: v for k, v in raw.items() if k != "problem"}
+    # The top level's mistakes once, not once per problem that inherits them.
+    config_schema.check(SuiteDefaults, top, source)
     name = top.pop("name", Path(source).stem)
-    if not isinstance(name, str):
-        raise UsageError(f"{source}: name must be a string")
     bad, out, seen = [], [], set()
     for i, prob in enumerate(problems, 1):
         merged = _merged(top, prob, source)
@@ -98,6 +119,7 @@ def validate(raw: dict, source: str = "config") -> SuiteConfig:
         seen.add(label)
         merged["name"] = label
         try:
+            config_schema.check(ProblemTable, prob, f"{source} [problem {label}]")
             _defaults(merged)
             cfg = sweep_config.validate(merged, f"{source} [problem {label}]")
         except (UsageError, KeyError) as err:

@@ -9,10 +9,10 @@ import hashlib
 import json
 import types
 import typing
-from typing import Annotated, Literal
+from typing import Annotated, Literal, Union
 
 import pydantic
-from pydantic import ConfigDict, Field
+from pydantic import ConfigDict, Discriminator, Field, Tag
 from pydantic.fields import FieldInfo
 
 from stepzoo.errors import UsageError
@@ -25,11 +25,36 @@ class Schema(pydantic.BaseModel):
 
 
 def quantity(what: str, unit: str, reason: str, *, whole: bool = False, **bounds):
-    """A number type with its range: `what` names it in messages ("a step size"), `bounds`
-    are pydantic's ge/gt/le/lt in `unit`, `reason` says why they are where they are. Declare a
-    field as `h: Step = Field(0.1, description="...")`."""
+    """A number type with its range: `what` names it in messages ("a step size"; "": the
+    number alone), `bounds` are pydantic's ge/gt/le/lt in `unit`, `reason` says why they are
+    where they are. Declare a field as `h: Step = Field(0.1, description="...")`."""
     extra = {"what": what, "unit": unit, "reason": reason}
     return Annotated[int if whole else float, Field(json_schema_extra=extra, **bounds)]
+
+
+def optional(model: type[Schema], name: str, doc: str, **more) -> type[Schema]:
+    """A table of `model`'s keys, each optional (a required one None when not given), plus
+    the fields `more` (name=(type, Field)): a table whose keys fill in or replace another's,
+    as a suite's top level and problems do a sweep config's."""
+    fields = {key: (typing.Optional[info.annotation], FieldInfo.merge_field_infos(
+        info, default=None)) if info.is_required() else (info.annotation, info)
+        for key, info in model.model_fields.items()}
+    return pydantic.create_model(name, __base__=Schema, __doc__=doc, __module__=model.__module__,
+                                 **fields, **more)
+
+
+def by_shape(**members):
+    """A key a file may write in several shapes, `value` (a number or a string), `list` or
+    `table`, each its own type: the shape written picks the one that validates it, so that
+    one mistake is one line (not one per shape it might have been)."""
+    union = Union[tuple(Annotated[t, Tag(shape)] for shape, t in members.items())]
+    return Annotated[union, Discriminator(_shape)]
+
+
+def _shape(value) -> str:
+    if isinstance(value, (dict, pydantic.BaseModel)):
+        return "table"
+    return "list" if isinstance(value, (list, tuple)) else "value"
 
 
 def check(model_cls: type[Schema], data: dict, where: str) -> Schema:
@@ -46,11 +71,18 @@ def mistakes(model_cls: type[Schema], err: pydantic.ValidationError) -> list[str
     return [_line(model_cls, e) for e in err.errors(include_url=False)]
 
 
-def sha256(instance: Schema) -> str:
-    """The hex sha256 of the values that differ from the defaults, as canonical JSON (sorted
-    keys, no spaces): writing a default out keeps a config's fingerprint."""
-    text = json.dumps(instance.model_dump(mode="json", exclude_defaults=True), sort_keys=True,
-                      separators=(",", ":"))
+def differing(instance) -> dict:
+    """The values of a Schema (or pydantic dataclass) `instance` that differ from their
+    defaults, nested tables alike, as JSON-ready data; fields declared `exclude=True` (those
+    that decide no result, such as a file's path) are left out."""
+    return pydantic.TypeAdapter(type(instance)).dump_python(instance, mode="json",
+                                                             exclude_defaults=True)
+
+
+def sha256(instance) -> str:
+    """The hex sha256 of differing(instance) as canonical JSON (sorted keys, no spaces):
+    writing a default out keeps a config's fingerprint."""
+    text = json.dumps(differing(instance), sort_keys=True, separators=(",", ":"))
     return hashlib.sha256(text.encode()).hexdigest()
 
 
@@ -66,12 +98,17 @@ def kinds() -> dict[str, type[Schema]]:
             "scenario": ScenarioFile, "tuned": TunedFile}
 
 
+def quantity_words(annotated) -> str:
+    """describe() of a quantity type on its own (no field around it)."""
+    return describe(_annotated_info(annotated), typing.get_args(annotated)[0])
+
+
 def describe(info: FieldInfo, annotation=None) -> str:
     """What a field takes, in words: "a step size: a number in (0, 100] s (why)" for a
     quantity, else from its type ("a whole number", "one of 'max', 'final'")."""
     extra = info.json_schema_extra if isinstance(info.json_schema_extra, dict) else {}
     annotation = annotation if annotation is not None else info.annotation
-    if "what" not in extra:
+    if "reason" not in extra:
         return _kind_words(annotation)
     whole = _bare(annotation) is int
     bound = {}
@@ -90,7 +127,8 @@ def describe(info: FieldInfo, annotation=None) -> str:
         ops = {"ge": ">=", "gt": ">", "le": "<=", "lt": "<"}
         span = " and ".join(f"{ops[k]} {show(v)}" for k, v in filter(None, (lo, hi)))
     unit = f" {extra['unit']}" if extra.get("unit") else ""
-    return f"{extra['what']}: a {kind} {span}{unit} ({extra['reason']})"
+    what = f"{extra['what']}: " if extra["what"] else ""
+    return f"{what}a {kind} {span}{unit} ({extra['reason']})"
 
 
 # ---------------------------------------------------------------- the words of the messages
@@ -124,8 +162,10 @@ def _line(model_cls, e: dict) -> str:
         return f"unknown key {key if len(names) > 1 else repr(key)}; known: " \
                f"{', '.join(known)}{hint}"
     if e["type"] in ("value_error", "assertion_error"):
+        # A validator's message reads after the key ("must have min <= max"), or names the
+        # keys itself ("newton.rtol and newton.atol are both 0").
         message = str(e.get("ctx", {}).get("error", e["msg"]))
-        return f"{key}: {message}" if key else message
+        return message if not key or message.startswith(key) else f"{key} {message}"
     if e["type"] == "missing":
         doc = f" ({info.description})" if info is not None and info.description else ""
         return f"lacks {key}{doc}"
@@ -153,10 +193,15 @@ def _walk(model_cls, loc):
             info = _annotated_info(cur) or info
         elif _is_schema(cur) and part in cur.model_fields:
             info, cur = cur.model_fields[part], cur.model_fields[part].annotation
+            info = _annotated_info(_bare_optional(cur)) or info if not _ranged(info) else info
             names.append(part)
         elif typing.get_origin(cur) is dict and isinstance(part, str):
             cur = typing.get_args(cur)[1]
             info = _annotated_info(cur) or info
+            names.append(part)
+        elif _is_schema(cur) and _extra_type(cur) is not None:
+            cur = _extra_type(cur)            # a key of a table that takes keys of its own
+            info = _annotated_info(cur)
             names.append(part)
         elif _is_schema(cur) or not isinstance(part, str):
             names.append(str(part))           # an unknown key, or a place not declared
@@ -166,12 +211,36 @@ def _walk(model_cls, loc):
     return info, cur, names, every
 
 
+def _extra_type(model):
+    """The type of the values of the keys a table takes beyond its fields (None: it takes
+    none)."""
+    if model.model_config.get("extra") != "allow":
+        return None
+    hint = typing.get_type_hints(model, include_extras=True).get("__pydantic_extra__")
+    return typing.get_args(hint)[1] if hint is not None else None
+
+
 def _member(union, tag: str):
     """The member of a union type that pydantic's error place names by `tag`."""
     for arg in typing.get_args(union):
-        if tag in (getattr(arg, "__name__", ""), str(arg).replace("typing.", "")):
+        tags = [m.tag for m in typing.get_args(arg)[1:] if isinstance(m, Tag)] \
+            if typing.get_origin(arg) is Annotated else []
+        if tag in (*tags, getattr(arg, "__name__", ""), str(arg).replace("typing.", "")):
             return arg
     return union
+
+
+def _ranged(info: FieldInfo) -> bool:
+    return isinstance(info.json_schema_extra, dict) and "reason" in info.json_schema_extra
+
+
+def _bare_optional(annotation):
+    """X of Optional[X] (X itself otherwise), keeping X's Annotated[...] metadata."""
+    if typing.get_origin(annotation) in (typing.Union, types.UnionType):
+        rest = [a for a in typing.get_args(annotation) if a is not type(None)]
+        if len(rest) == 1:
+            return rest[0]
+    return annotation
 
 
 def _is_schema(cls) -> bool:
@@ -209,6 +278,8 @@ def _fields_of(model) -> list[str]:
 def _kind_words(annotation) -> str:
     bare = _bare(annotation)
     origin = typing.get_origin(bare)
+    if origin in (typing.Union, types.UnionType):
+        return " or ".join(_kind_words(a) for a in typing.get_args(bare) if a is not type(None))
     if origin is Literal:
         return "one of " + ", ".join(map(repr, typing.get_args(bare)))
     if origin is tuple:

@@ -1,11 +1,17 @@
 """Checks of user input shared by the commands, each failure one UsageError line: one table
-of physical and numerical ranges (RANGES) that every command checks its numbers against."""
+of physical and numerical ranges (RANGES, config_schema quantities) that every command and
+config file checks its numbers against."""
+import functools
 import math
 import os
 import tomllib
+import typing
 from dataclasses import dataclass
 from pathlib import Path
 
+import pydantic
+
+from stepzoo.config_schema import quantity, quantity_words
 from stepzoo.errors import UsageError
 from stepzoo.safe_parse import toml_loads
 
@@ -30,101 +36,106 @@ def read_toml(path, what: str, hint: str) -> dict:
         raise UsageError(f"{path}: not valid TOML ({err}); fix the file") from None
 
 
-@dataclass(frozen=True)
-class Range:
-    """The values a quantity may take: [lo, hi] (ends excluded where `open_lo`/`open_hi`),
-    in `unit`, and why the bounds are where they are."""
-    what: str
-    lo: float
-    hi: float
-    unit: str
-    why: str
-    open_lo: bool = False
-    open_hi: bool = False
-    whole: bool = False
-
-    def holds(self, value) -> bool:
-        if isinstance(value, bool) or not isinstance(value, (int, float)):
-            return False
-        if self.whole and not float(value).is_integer():
-            return False
-        lo_ok = value > self.lo if self.open_lo else value >= self.lo
-        hi_ok = value < self.hi if self.open_hi else value <= self.hi
-        return math.isfinite(value) and lo_ok and hi_ok
-
-    def describe(self) -> str:
-        left, right = "(" if self.open_lo else "[", ")" if self.open_hi else "]"
-        unit = f" {self.unit}" if self.unit else ""
-        lo, hi = (f"{int(v)}" if self.whole else f"{v:g}" for v in (self.lo, self.hi))
-        kind = "whole number" if self.whole else "number"
-        return f"{self.what}: a {kind} in {left}{lo}, {hi}{right}{unit} ({self.why})"
-
-
 # The stability margin: h <= (1 - margin) x the measured largest stable step. 0.2, not less:
 # the limit is measured at the envelope's grid points only, and a step that close to it
 # leaves |R(h lambda)| near 1, so a perturbation decays over hundreds of steps.
 DEFAULT_MARGIN = 0.2
 
-# The one table of ranges every command checks its numbers against, so a value refused by
-# one command is refused by all, with the same words.
-RANGES = {
-    "step": Range("a step size", 1e-9, 100.0, "s", "below 1e-9 s round-off swamps the "
-                  "step; a step is at most the horizon", open_lo=False),
-    "horizon": Range("a horizon", 1e-9, 1e5, "s", "about a day of driving at most"),
-    "speed": Range("a speed", 0.1, 150.0, "m/s", "the bicycle models divide by the speed; "
-                   "150 m/s is past any road vehicle"),
-    "goal_speed": Range("a goal speed", 0.0, 150.0, "m/s", "150 m/s is past any road vehicle"),
-    "steer": Range("a steer angle", -math.pi / 2, math.pi / 2, "rad", "the wheels turn "
-                   "less than a quarter turn either way", open_lo=True, open_hi=True),
-    "rtol": Range("a relative tolerance", 1e-14, 0.1, "", "float64 resolves about 1e-16; a "
-                  "reference asked for less than 1e-14 never meets it"),
-    "atol": Range("an absolute tolerance", 1e-300, 1.0, "", "a positive float64 at most 1"),
-    "growth": Range("a blow-up growth factor", 2.0, 1e4, "", "a stability run can grow "
-                    "further only from steps far past the limit, which biases the measured "
-                    "limit upward", open_lo=True),
-    "perturbation": Range("a modal perturbation", 1e-12, 10.0, "", "a deviation that the "
-                          "lateral states resolve"),
-    "rel_tol": Range("a bisection tolerance", 1e-12, 0.1, "", "relative width of the "
-                     "bracket of the largest stable step", open_hi=True),
-    "pos_tol": Range("a position tolerance", 1e-12, 1e4, "m", "float64 resolves positions "
-                     "to about 1e-12 m over this horizon"),
-    "tol": Range("an error tolerance", 1e-14, 1e6, "", "in the sweep's error norm: the "
-                 "largest error state over its scale"),
-    "margin": Range("a stability margin", 0.0, 1.0, "", "a fraction of the measured "
-                    "largest stable step", open_hi=True),
-    "seed": Range("a seed", 0, 2**32 - 1, "", "NumPy's seed range", whole=True),
-    "position": Range("a coordinate", -1e6, 1e6, "m", "a map of 1000 km at most"),
-    "heading": Range("a heading", -2 * math.pi, 2 * math.pi, "rad", "one turn either way"),
-    "cell": Range("a cell size", 1e-3, 100.0, "m/cell", "a millimetre to 100 m per cell"),
-    "rounds": Range("a number of timed rounds", 1, 1000, "", "repeats of each timed run; "
-                    "a thousand is minutes of timing alone", whole=True),
-    # [newton]: the fields of integrators.newton.NewtonOptions, the implicit methods' solves
-    "newton_rtol": Range("a relative tolerance", 0.0, 0.1, "", "0: atol alone; below "
-                         "round-off a solve stops where its increments are round-off"),
-    "newton_atol": Range("an absolute tolerance", 0.0, 1.0, "", "0: rtol alone; in the "
-                         "states' own units"),
-    "newton_res_tol": Range("a residual tolerance", 0.0, 1e6, "", "times the residual an "
-                            "error within tolerance makes", open_lo=True),
-    "newton_max_iter": Range("an iteration limit", 1, 1000, "", "simplified Newton "
-                             "iterations per solve", whole=True),
-    "newton_max_iter_full": Range("an iteration limit", 0, 1000, "", "full Newton "
-                                  "iterations of the retry; 0: no retry", whole=True),
-}
+# The one table of ranges every command and config checks its numbers against, so a value
+# refused by one is refused by all, with the same words. Each is a config_schema quantity: a
+# config file's field is declared with it, a flag is checked against it by name (check).
+Step = quantity("a step size", "s", "below 1e-9 s round-off swamps the step; a step is at "
+                "most the horizon", ge=1e-9, le=100.0)
+Horizon = quantity("a horizon", "s", "about a day of driving at most", ge=1e-9, le=1e5)
+Speed = quantity("a speed", "m/s", "the bicycle models divide by the speed; 150 m/s is past "
+                 "any road vehicle", ge=0.1, le=150.0)
+GoalSpeed = quantity("a goal speed", "m/s", "150 m/s is past any road vehicle", ge=0.0,
+                     le=150.0)
+Steer = quantity("a steer angle", "rad", "the wheels turn less than a quarter turn either way",
+                 gt=-math.pi / 2, lt=math.pi / 2)
+Rtol = quantity("a relative tolerance", "", "float64 resolves about 1e-16; a reference asked "
+                "for less than 1e-14 never meets it", ge=1e-14, le=0.1)
+Atol = quantity("an absolute tolerance", "", "a positive float64 at most 1", ge=1e-300, le=1.0)
+Growth = quantity("a blow-up growth factor", "", "a stability run can grow further only from "
+                  "steps far past the limit, which biases the measured limit upward", gt=2.0,
+                  le=1e4)
+Perturbation = quantity("a modal perturbation", "", "a deviation that the lateral states "
+                        "resolve", ge=1e-12, le=10.0)
+RelTol = quantity("a bisection tolerance", "", "relative width of the bracket of the largest "
+                  "stable step", ge=1e-12, lt=0.1)
+PosTol = quantity("a position tolerance", "m", "float64 resolves positions to about 1e-12 m "
+                  "over this horizon", ge=1e-12, le=1e4)
+Tol = quantity("an error tolerance", "", "in the sweep's error norm: the largest error state "
+               "over its scale", ge=1e-14, le=1e6)
+Margin = quantity("a stability margin", "", "a fraction of the measured largest stable step",
+                  ge=0.0, lt=1.0)
+Seed = quantity("a seed", "", "NumPy's seed range", whole=True, ge=0, le=2**32 - 1)
+Position = quantity("a coordinate", "m", "a map of 1000 km at most", ge=-1e6, le=1e6)
+Heading = quantity("a heading", "rad", "one turn either way", ge=-2 * math.pi, le=2 * math.pi)
+Cell = quantity("a cell size", "m/cell", "a millimetre to 100 m per cell", ge=1e-3, le=100.0)
+Rounds = quantity("a number of timed rounds", "", "repeats of each timed run; a thousand is "
+                  "minutes of timing alone", whole=True, ge=1, le=1000)
+# The fields of integrators.newton.NewtonOptions, the implicit methods' solves ([newton]).
+NewtonRtol = quantity("a relative tolerance", "", "0: atol alone; below round-off a solve "
+                      "stops where its increments are round-off", ge=0.0, le=0.1)
+NewtonAtol = quantity("an absolute tolerance", "", "0: rtol alone; in the states' own units",
+                      ge=0.0, le=1.0)
+NewtonResTol = quantity("a residual tolerance", "", "times the residual an error within "
+                        "tolerance makes", gt=0.0, le=1e6)
+NewtonMaxIter = quantity("an iteration limit", "", "simplified Newton iterations per solve",
+                         whole=True, ge=1, le=1000)
+NewtonMaxIterFull = quantity("an iteration limit", "", "full Newton iterations of the retry; "
+                             "0: no retry", whole=True, ge=0, le=1000)
+
+RANGES = {"step": Step, "horizon": Horizon, "speed": Speed, "goal_speed": GoalSpeed,
+          "steer": Steer, "rtol": Rtol, "atol": Atol, "growth": Growth,
+          "perturbation": Perturbation, "rel_tol": RelTol, "pos_tol": PosTol, "tol": Tol,
+          "margin": Margin, "seed": Seed, "position": Position, "heading": Heading,
+          "cell": Cell, "rounds": Rounds, "newton_rtol": NewtonRtol,
+          "newton_atol": NewtonAtol, "newton_res_tol": NewtonResTol,
+          "newton_max_iter": NewtonMaxIter, "newton_max_iter_full": NewtonMaxIterFull}
+
+
+def describe(kind: str) -> str:
+    """The range of the quantity `kind` of RANGES in words: what, bounds, unit and why."""
+    return quantity_words(RANGES[kind])
 
 
 def problem(kind: str, name: str, value) -> str | None:
     """What is wrong with `value` for the quantity `kind` of RANGES, named `name` (None: it
     is in range)."""
-    spec = RANGES[kind]
-    return None if spec.holds(value) else f"{name} must be {spec.describe()}, got {value!r}"
+    return None if _valid(kind, value) is not None else \
+        f"{name} must be {describe(kind)}, got {value!r}"
 
 
 def check(kind: str, name: str, value) -> float:
-    """`value` as a float if it is in the range of `kind`; else UsageError naming `name`."""
-    message = problem(kind, name, value)
-    if message:
-        raise UsageError(message)
-    return int(value) if RANGES[kind].whole else float(value)
+    """`value` as a float (an int for a whole quantity) if it is in the range of `kind`; else
+    UsageError naming `name`."""
+    ok = _valid(kind, value)
+    if ok is None:
+        raise UsageError(f"{name} must be {describe(kind)}, got {value!r}")
+    return ok
+
+
+def _valid(kind: str, value):
+    """`value` validated as the quantity `kind`, or None. A flag's whole number may come as a
+    float (5.0); a bool is no number."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        return None
+    if typing.get_args(RANGES[kind])[0] is int:
+        if not float(value).is_integer():
+            return None
+        value = int(value)
+    try:
+        return _adapter(kind).validate_python(value)
+    except pydantic.ValidationError:
+        return None
+
+
+@functools.cache
+def _adapter(kind: str) -> pydantic.TypeAdapter:
+    return pydantic.TypeAdapter(RANGES[kind], config=pydantic.ConfigDict(
+        strict=True, allow_inf_nan=False))
 
 
 GIB = 2**30

@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 from stepzoo.bench.cli import main as stepzoo
-from stepzoo.validate import RANGES
+from stepzoo.validate import describe
 
 ROOT = Path(__file__).resolve().parents[1]
 SMALL = ROOT / "bench" / "configs" / "small.toml"
@@ -112,7 +112,7 @@ def config_with(tmp_path, section, key, value) -> Path:
 ])
 def test_every_command_checks_a_number_against_the_same_range(tmp_path, capsys, kind,
                                                                section, key, flag, value):
-    rule = RANGES[kind].describe()
+    rule = describe(kind)
     for argv in (with_flags(SIMULATE, **{flag[2:]: str(value)}),
                  with_flags(["stability", "--vx", "10", "--delta", "0.1"],
                             **{flag[2:]: str(value)}),
@@ -127,7 +127,8 @@ def test_every_command_checks_a_number_against_the_same_range(tmp_path, capsys, 
     ("envelope", "vx", [5.0, 1e308], "every envelope.vx must be a speed"),
     ("reference", "rtol", 1e-300, "reference.rtol must be a relative tolerance"),
     ("stability", "growth", 1e308, "stability.growth must be a blow-up growth factor"),
-    ("steps", "h", {"min": 0.01, "max": 0.1, "num": 1_000_000_000}, "1 <= num <= 10000"),
+    ("steps", "h", {"min": 0.01, "max": 0.1, "num": 1_000_000_000},
+     "steps.h.num must be a number of grid values: a whole number in [1, 10000]"),
     ("steps", "h", {"min": 1e-9, "max": 0.1, "num": 3}, "past the limit"),
     ("limits", "memory_gib", 1e-6, "past the limit of 1e-06 GiB"),
     ("limits", "steps", 10, "past the limit of 10"),

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from stepzoo.bench import suite as suite_mod
-from stepzoo.bench.sweep_config import validate
+from stepzoo.bench.sweep_config import Newton, validate
 from stepzoo.integrators import METHODS, integrate
 
 # Robertson at t = 40 s from (1, 0, 0): SciPy's Radau at rtol 1e-13, atol 1e-18 on the
@@ -41,11 +41,11 @@ def problems(tmp_path_factory):
 
 def test_a_suite_merges_newton_key_by_key_and_the_sha256_follows_the_options(problems):
     (_, rob, rob_raw), (_, a1, a1_raw) = problems
-    assert rob.newton == (("atol", 1e-14), ("rtol", 1e-12))
+    assert rob.newton == Newton(atol=1e-14, rtol=1e-12)
     assert rob.newton_options == dict(rtol=1e-12, atol=1e-14, res_tol=1.0, max_iter=10,
                                       max_iter_full=40)     # the manifest's "newton"
     # rtol = 1e-10 is NewtonOptions' default: the same results, so the same sha256 as no table.
-    assert a1.newton == ()
+    assert a1.newton == Newton()
     raw = tomllib.loads(suite_mod._toml(a1_raw))
     del raw["newton"]
     assert validate(raw, "a1").sha256 == a1.sha256
