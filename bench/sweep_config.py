@@ -289,16 +289,17 @@ class SweepFile(Schema):
     params: dict[str, float] = Field({}, description="parameter values by name, over the "
                                      "model's own")
     initial: dict[str, float] = Field({}, description="initial state values by name")
-    envelope: Envelope = Envelope()
-    error: ErrorNorm = ErrorNorm()
+    envelope: Envelope = Field(Envelope(), description="the operating grid")
+    error: ErrorNorm = Field(ErrorNorm(), description="the error norm")
     steps: Steps = Field(description="the step sizes")
-    reference: Reference = Reference()
-    limits: Limits = Limits()
-    stability: Stability = Stability()
-    chunks: Chunks = Chunks()
-    trajectories: Trajectories = Trajectories()
-    timing: Timing = Timing()
-    newton: Newton = Newton()
+    reference: Reference = Field(Reference(), description="the reference solution")
+    limits: Limits = Field(Limits(), description="what the sweep may allocate and integrate")
+    stability: Stability = Field(Stability(), description="the search for the largest stable "
+                                 "step")
+    chunks: Chunks = Field(Chunks(), description="the batches of operating points")
+    trajectories: Trajectories = Field(Trajectories(), description="the sample trajectories")
+    timing: Timing = Field(Timing(), description="the timing of the accuracy runs")
+    newton: Newton = Field(Newton(), description="the implicit methods' Newton solves")
 
 
 def _default(table: type[Schema], key: str):

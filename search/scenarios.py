@@ -7,18 +7,54 @@ import math
 import tomllib
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Annotated, Union
 
 import numpy as np
 
-from stepzoo import dynamics
+from pydantic import Discriminator, Field, Tag
+
+from stepzoo import config_schema, dynamics
+from stepzoo.config_schema import Schema, by_shape, quantity
 from stepzoo.errors import UsageError
 from stepzoo.safe_parse import toml_loads
-from stepzoo.validate import check, check_memory
+from stepzoo.validate import Cell, GoalSpeed, Heading, Position, Speed, check, check_memory
 from stepzoo.search.maps import (MAP_BYTES_PER_CELL, OccupancyMap, from_array,
                                  load_map)
 
 SCENARIO_DIR = Path(__file__).with_name("scenarios")
 DEFAULT_SPEED = 5.0  # [m/s] when a query names none
+
+MapSide = quantity("a map side", "m", "a map holds at least one cell", gt=0.0)
+Pose = tuple[Position, Position, Heading]
+PoseSpeed = tuple[Position, Position, Heading, GoalSpeed]
+
+
+class RectanglesMap(Schema):
+    """[map]: an empty grid with rectangular obstacles."""
+    size: tuple[MapSide, MapSide] = Field(description="[width, height] of the map [m]")
+    resolution: Cell = Field(description="cell size [m/cell]")
+    obstacles: tuple[tuple[float, float, float, float], ...] = Field(
+        (), description="rectangles [x0, y0, x1, y1] [m]; a cell whose centre lies in one is "
+        "occupied")
+
+
+class ScenarioFile(Schema):
+    """A planning scenario: a map, a start, a goal, a vehicle and the tree's speed."""
+    description: str = Field("", description="one line on what the scenario tests")
+    map: by_shape(value=str, table=RectanglesMap) = Field(
+        description="a map file (relative to the scenario file: an image, .npy or a ROS map "
+        "YAML), or a [map] table of rectangles")
+    cell_size: Cell | None = Field(None, description="cell size of a map file [m/cell] (a ROS "
+                                   "map YAML gives its own)")
+    start: Pose = Field(description="start pose [X m, Y m, psi rad]")
+    goal: Annotated[Union[Annotated[Pose, Tag("pose")], Annotated[PoseSpeed, Tag("speed")]],
+                    Discriminator(lambda v: "speed" if isinstance(v, (list, tuple)) and len(v) == 4
+                                  else "pose")] = Field(
+        description="goal pose [X m, Y m, psi rad], or with the speed the connection ends at "
+        "[X, Y, psi, v m/s]")
+    vehicle: str | None = Field(None, description="a vehicle set of dynamics/vehicles.toml "
+                                "(default: the default vehicle)")
+    speed: Speed = Field(description="constant longitudinal speed of the tree [m/s]")
 
 
 @dataclass(frozen=True)
@@ -51,28 +87,20 @@ def load_scenario(name_or_path) -> Scenario:
 
 
 def scenario_from_toml(path) -> Scenario:
+    """The scenario of a TOML file, checked against ScenarioFile (unknown keys refused)."""
     path = Path(path)
     try:
         data = toml_loads(path.read_text())
     except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as err:
         raise UsageError(f"cannot read scenario {path}: {err}") from None
-    missing = [k for k in ("start", "goal", "speed", "map") if k not in data]
-    if missing:
-        raise UsageError(f"scenario {path} lacks {', '.join(missing)}; it needs map, start, "
-                         "goal and speed (vehicle optional)")
-    spec = data["map"]
-    if isinstance(spec, dict):
-        omap, source = rectangles_map(spec, path), "generated"
-    elif isinstance(spec, str):
-        map_path = path.parent / spec
-        omap, source = open_map(map_path, data.get("cell_size")), str(map_path)
+    f = config_schema.check(ScenarioFile, data, f"scenario {path}")
+    if isinstance(f.map, RectanglesMap):
+        omap, source = rectangles_map(f.map, path), "generated"
     else:
-        raise UsageError(f"scenario {path}: map must be a file name or a [map] table")
-    goal = pose(data["goal"], f"goal in {path}", allow_speed=True)
-    return Scenario(path.stem, str(data.get("description", "")), omap, source,
-                    pose(data["start"], f"start in {path}"), goal[:3],
-                    goal[3] if len(goal) == 4 else None,
-                    vehicle_name(data.get("vehicle")), speed(data["speed"], f"speed in {path}"))
+        map_path = path.parent / f.map
+        omap, source = open_map(map_path, f.cell_size), str(map_path)
+    return Scenario(path.stem, f.description, omap, source, f.start, f.goal[:3],
+                    f.goal[3] if len(f.goal) == 4 else None, vehicle_name(f.vehicle), f.speed)
 
 
 def custom_scenario(map_path, cell_size, start, goal, vx, vehicle=None) -> Scenario:
@@ -93,18 +121,12 @@ def open_map(path: Path, cell_size=None) -> OccupancyMap:
         raise UsageError(str(err)) from None
 
 
-def rectangles_map(spec: dict, path: Path) -> OccupancyMap:
+def rectangles_map(spec: RectanglesMap, path: Path) -> OccupancyMap:
     """An empty grid of `size` [m] at `resolution` [m/cell] with rectangles [x0, y0, x1, y1]
     [m] as obstacles: a cell is occupied if its centre lies in a rectangle."""
-    try:
-        width, height = (float(v) for v in spec["size"])
-        res = float(spec["resolution"])
-        boxes = np.array(spec.get("obstacles", []), dtype=float).reshape(-1, 4)
-    except (KeyError, TypeError, ValueError):
-        raise UsageError(f"scenario {path}: [map] needs size = [width, height] [m], resolution "
-                         "[m/cell] and obstacles = [[x0, y0, x1, y1], ...]") from None
-    check("cell", f"scenario {path}: map resolution", res)
-    if not (math.isfinite(width) and math.isfinite(height) and width >= res and height >= res):
+    (width, height), res = spec.size, spec.resolution
+    boxes = np.array(spec.obstacles, dtype=float).reshape(-1, 4)
+    if not (width >= res and height >= res):
         raise UsageError(f"scenario {path}: map size {width} x {height} m must hold at least one "
                          f"cell of {res} m")
     cells = (width / res) * (height / res)

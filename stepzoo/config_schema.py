@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import difflib
 import hashlib
+import importlib
 import json
 import types
 import typing
@@ -86,16 +87,26 @@ def sha256(instance) -> str:
     return hashlib.sha256(text.encode()).hexdigest()
 
 
+# Every config file kind -> its root model, by name: the kinds live beside the code that
+# reads them, in packages above this one, which may not be imported from here (as with entry
+# points, a name is resolved when asked for).
+KINDS = {"sweep": "stepzoo.bench.sweep_config:SweepFile",
+         "suite": "stepzoo.bench.suite:SuiteFile",
+         "planner": "stepzoo.search.planner_config:PlannerParams",
+         "scenario": "stepzoo.search.scenarios:ScenarioFile",
+         "tuned": "stepzoo.tuned_file:TunedFile"}
+
+
 def kinds() -> dict[str, type[Schema]]:
-    """Every config file kind -> its root model (imported here, lazily: the kinds live beside
-    the code that reads them, above this module)."""
-    from stepzoo.bench.suite import SuiteFile
-    from stepzoo.bench.sweep_config import SweepFile
-    from stepzoo.bench.tune import TunedFile
-    from stepzoo.search.planner_config import PlannerParams
-    from stepzoo.search.scenarios import ScenarioFile
-    return {"sweep": SweepFile, "suite": SuiteFile, "planner": PlannerParams,
-            "scenario": ScenarioFile, "tuned": TunedFile}
+    """Every config file kind ("sweep", "suite", "planner", "scenario", "tuned") -> its root
+    model, from which the docs' config reference is generated."""
+    return {kind: kind_model(kind) for kind in KINDS}
+
+
+def kind_model(kind: str) -> type[Schema]:
+    """The root model of one config file kind of KINDS."""
+    module, _, name = KINDS[kind].partition(":")
+    return getattr(importlib.import_module(module), name)
 
 
 def quantity_words(annotated) -> str:
@@ -166,6 +177,10 @@ def _line(model_cls, e: dict) -> str:
         # keys itself ("newton.rtol and newton.atol are both 0").
         message = str(e.get("ctx", {}).get("error", e["msg"]))
         return message if not key or message.startswith(key) else f"{key} {message}"
+    if e["type"] == "missing" and e["loc"] and isinstance(e["loc"][-1], int):
+        info, annotation, names, _ = _walk(model_cls, e["loc"][:-1])    # a list too short
+        words = describe(info, annotation) if info is not None else "longer"
+        return f"{'.'.join(names)} must be {words}, got {_lists(e['input'])!r}"
     if e["type"] == "missing":
         doc = f" ({info.description})" if info is not None and info.description else ""
         return f"lacks {key}{doc}"
@@ -189,7 +204,12 @@ def _walk(model_cls, loc):
     for part in loc:
         cur = _bare(cur)
         if isinstance(part, int) and typing.get_origin(cur) is tuple:
-            cur, every = typing.get_args(cur)[0], True
+            args = typing.get_args(cur)
+            if len(args) == 2 and args[1] is Ellipsis:
+                cur, every = args[0], True
+            else:                             # a fixed list: name the place, key[i]
+                cur = args[part] if part < len(args) else args[-1]
+                names[-1:] = [f"{names[-1] if names else ''}[{part}]"]
             info = _annotated_info(cur) or info
         elif _is_schema(cur) and part in cur.model_fields:
             info, cur = cur.model_fields[part], cur.model_fields[part].annotation
@@ -283,7 +303,11 @@ def _kind_words(annotation) -> str:
     if origin is Literal:
         return "one of " + ", ".join(map(repr, typing.get_args(bare)))
     if origin is tuple:
-        return f"a list of {_plural(typing.get_args(bare)[0])}"
+        args = typing.get_args(bare)
+        if len(args) == 2 and args[1] is Ellipsis:
+            return f"a list of {_plural(args[0])}"
+        kinds = {_plural(a) for a in args}
+        return f"a list of {len(args)} {kinds.pop() if len(kinds) == 1 else 'values'}"
     if origin is dict:
         return f"a table of {_plural(typing.get_args(bare)[1])}"
     if isinstance(bare, type) and issubclass(bare, Schema):

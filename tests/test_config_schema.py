@@ -55,3 +55,42 @@ def test_writing_a_default_out_keeps_the_fingerprint():
     assert sha256(plain) == sha256(spelled)
     assert sha256(plain) != sha256(check(Outer, {"horizon": 2.0, "inner": {"rounds": 6}}, "f"))
     assert sha256(check(Outer, {}, "f")) == sha256(Outer())
+
+
+def _tables(model, seen=None):
+    """`model` and every table declared inside it."""
+    import typing
+    seen = seen if seen is not None else {}
+    if model.__name__ in seen:
+        return seen
+    seen[model.__name__] = model
+    for info in model.model_fields.values():
+        stack = [info.annotation]
+        while stack:
+            t = stack.pop()
+            if isinstance(t, type) and issubclass(t, Schema):
+                _tables(t, seen)
+            stack.extend(typing.get_args(t))
+    return seen
+
+
+def test_every_key_of_every_kind_has_a_doc_line_and_every_range_a_reason():
+    from stepzoo.config_schema import KINDS, kind_model
+    found = set()
+    for kind in KINDS:
+        try:
+            root = kind_model(kind)
+        except AttributeError:       # the planner's PlannerParams comes with branch planner
+            assert kind == "planner"
+            continue
+        for table in _tables(root).values():
+            properties = table.model_json_schema()["properties"]
+            for key, info in table.model_fields.items():
+                found.add(f"{table.__name__}.{key}")
+                assert info.description, f"{kind}: {table.__name__}.{key} has no doc line"
+                text = repr(properties[key])
+                if any(b in text for b in ("'minimum'", "'maximum'", "'exclusiveM")):
+                    assert "'reason'" in text, f"{table.__name__}.{key}: a range without reason"
+    # The keys a newcomer had to find in the tests and envelope.toml are declared.
+    assert {"Stability.h_probe_max", "Chunks.points", "Stability.growth",
+            "Trajectories.fractions", "Trajectories.past_limit"} <= found

@@ -1,0 +1,89 @@
+"""Every config file kind, read by its command: an unknown key is refused in one line (exit
+2, nothing written), every mistake of a file is named at once with the range's unit, and a
+sweep's sha256 is what its values say, not how the file spells them."""
+import tomllib
+from pathlib import Path
+
+import pytest
+import tomli_w
+
+from stepzoo.bench.cli import main as stepzoo
+from stepzoo.bench.sweep_config import load
+
+ROOT = Path(__file__).resolve().parents[1]
+SMALL = ROOT / "bench" / "configs" / "small.toml"
+SCENARIO = ROOT / "search" / "scenarios" / "street.toml"
+TUNED = ROOT / "search" / "tuned_default.toml"
+SUITE = ('methods = ["rk4"]\nhorizon = 1.0\nsteps.h = [0.1]\n'
+         '[[problem]]\nmodel = "detest_a1"\n[[problem]]\nmodel = "detest_a2"\n')
+
+
+def refused(capsys, argv, out=None) -> list[str]:
+    """The lines `stepzoo ARGV` prints on stderr when it refuses with exit status 2."""
+    assert stepzoo([str(a) for a in argv]) == 2
+    captured = capsys.readouterr()
+    assert captured.out == "" and (out is None or not out.exists())
+    return captured.err.strip().splitlines()
+
+
+def written(path: Path, text: str) -> Path:
+    path.write_text(text)
+    return path
+
+
+def with_key(source: Path, tmp_path: Path, line: str, table: str | None = None) -> Path:
+    """`source` with `line` added at its top level (or at the end of [table])."""
+    text = source.read_text()
+    text = line + "\n" + text if table is None else text + f"\n[{table}]\n{line}\n"
+    return written(tmp_path / source.name, text)
+
+
+@pytest.mark.parametrize("argv, where", [
+    (lambda t: ["sweep", with_key(SMALL, t, "colour = 3"), "--out", t / "out"],
+     "unknown key 'colour'"),
+    (lambda t: ["sweep", written(t / "suite.toml", SUITE + "colour = 3\n"), "--out",
+                t / "out"], "[problem detest_a2]: unknown key 'colour'"),
+    (lambda t: ["plan", with_key(SCENARIO, t, "colour = 3"), "--out", t / "out"],
+     "unknown key 'colour'"),
+    (lambda t: ["plan", "street", "--config", with_key(TUNED, t, "colour = 3"), "--out",
+                t / "out"], "tuned_default.toml: unknown key 'colour'"),
+    (lambda t: ["export", with_key(TUNED, t, "colour = 3"), "--to", "json", "--out",
+                t / "out"], "tuned_default.toml: unknown key 'colour'"),
+    (lambda t: ["plan", "street", "--config", written(
+        t / "planner.toml", 'method = "rk4"\nh = 0.02\n[planner]\ncolour = 3\n'), "--out",
+        t / "out"], "colour"),
+], ids=["sweep", "suite", "scenario", "tuned by plan", "tuned by export", "planner"])
+def test_every_kind_refuses_an_unknown_key_in_one_line(tmp_path, capsys, argv, where):
+    lines = refused(capsys, argv(tmp_path), tmp_path / "out")
+    assert len(lines) == 1 and where in lines[0], lines
+
+
+def test_a_sweep_config_names_every_mistake_at_once_with_the_unit(tmp_path, capsys):
+    raw = tomllib.loads(SMALL.read_text())
+    raw["stability"]["h_probe_max"] = 500.0
+    raw["stability"]["steps"] = 10
+    raw["chunks"]["point"] = 9
+    raw["reference"]["solver"] = "rk45"
+    path = written(tmp_path / "bad.toml", tomli_w.dumps(raw))
+    lines = refused(capsys, ["sweep", path, "--out", tmp_path / "out"], tmp_path / "out")
+    assert len(lines) == 4, lines
+    text = "\n".join(lines)
+    assert "stability.h_probe_max must be a step size: a number in [1e-09, 100] s (" in text
+    assert "stability.steps must be a whole number in [50, 100000]" in text
+    assert "unknown key chunks.point; known: points (did you mean points?)" in text
+    assert "reference.solver must be one of '', 'dopri5', 'LSODA'" in text
+
+
+def test_a_default_written_out_keeps_the_sweep_sha256_and_a_change_moves_it(tmp_path):
+    plain = load(SMALL)
+    raw = tomllib.loads(SMALL.read_text())
+    raw["timing"] = {"rounds": 5}
+    raw["newton"] = {"rtol": 1e-10, "max_iter": 10}
+    raw["reference"].update(solver="dopri5", exact=False)
+    raw["error"] = {"estimate": "max", "states": ["vy", "r"], "scales": [1.0, 1.0]}
+    raw["limits"] = {"memory_gib": 64.0}            # decides no result
+    raw["steps"]["h"] = {"values": list(plain.hs)}  # the same steps, written out
+    spelled = load(written(tmp_path / "spelled.toml", tomli_w.dumps(raw)))
+    assert spelled.sha256 == plain.sha256 and spelled == plain
+    raw["timing"]["rounds"] = 4
+    assert load(written(tmp_path / "other.toml", tomli_w.dumps(raw))).sha256 != plain.sha256
