@@ -4,7 +4,17 @@ bench_plans write by it (search/plan_output.py, search/bench_plans.py); a key na
 a contract."""
 from __future__ import annotations
 
-from stepzoo.search.path_metrics import NAMES as PATH_METRICS
+# Measures of an exact plan's path (search/path_metrics.py), as planner benchmarks report them.
+PATH_METRICS = {
+    "length_m": "[m] along the path",
+    "cusps": "changes of the direction of travel",
+    "clearance_min_m": "[m] least distance of the car's disc cover to an obstacle or the "
+                       "map's edge (<= 0 touches)",
+    "clearance_mean_m": "[m] its mean over the path's rows",
+    "curvature_max": "[1/m] largest |curvature|",
+    "curvature_mean": "[1/m] length-weighted mean |curvature|",
+    "smoothness": "[1/m] integral of curvature^2 over length",
+}
 
 # plan.json, in the order it is written.
 PLAN_KEYS = {
@@ -77,7 +87,7 @@ RUN_COLUMNS = {
     "time_s": "[s] search and connections, warm-up excluded",
     "first_solution_s": "[s] to the first exact path",
     "solution_s": "[s] to the path returned",
-    **{name: "path measure (path_metrics), null without an exact path" for name in PATH_METRICS},
+    **PATH_METRICS,                  # null without an exact path
     "expansions": "nodes expanded",
     "nodes": "nodes in the tree",
     "budget_bound": "the budget that cut the search short, null: none",
