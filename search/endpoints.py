@@ -25,7 +25,7 @@ def bad_endpoint(omap: OccupancyMap, checker: ValidityChecker, start, goal,
             return Cause(f"{name}_off_map"), (
                 f"{name} ({pose[0]:g}, {pose[1]:g}) is off the map "
                 f"(x {xmin:g}..{xmax:g}, y {ymin:g}..{ymax:g} m)")
-        if not checker.valid(pose):
+        if not checker.is_valid(pose):
             return Cause(f"{name}_in_collision"), (
                 f"{name} pose ({pose[0]:g}, {pose[1]:g}, {pose[2]:g}) is in collision: the "
                 f"{car} overlaps an obstacle")

@@ -14,7 +14,7 @@ from stepzoo.search.maps import OccupancyMap
 class ValidityChecker(Protocol):
     """Batched validity of poses [X, Y, psi] ([m, m, rad]; extra columns ignored)."""
 
-    def valid(self, poses) -> np.ndarray:
+    def is_valid(self, poses) -> np.ndarray:
         """(..., 3+) poses -> bool (...): the pose is allowed (non-finite poses are not)."""
 
     def first_invalid(self, paths) -> np.ndarray:
@@ -30,7 +30,7 @@ class FootprintChecker:
     def __init__(self, omap: OccupancyMap, footprint: Footprint):
         self.omap, self.footprint = omap, footprint
 
-    def valid(self, poses) -> np.ndarray:
+    def is_valid(self, poses) -> np.ndarray:
         return ~poses_collide(self.omap, self.footprint, poses)
 
     def first_invalid(self, paths) -> np.ndarray:
