@@ -19,11 +19,11 @@ from stepzoo.integrators.methods import TABLEAUS
 from stepzoo.integrators.steps import rk_slopes, weighted
 from stepzoo.search.car_bounds import reeds_shepp_words
 
-# Multiple shooting solved as many problems as single shooting, several times faster, and
-# the Dubins guess solves more than a pure-pursuit rollout (docs/study-connection-ocp-*.md).
+# Multiple shooting solved as many seeded problems as single shooting, several times faster
+# and without retries (docs/measurements-behind-defaults.md has the study).
 DEFAULT_SHOOTING = "multiple"
-# rk4 costs about what forward Euler costs inside the OCP, and its connections are the ones
-# a finer re-simulation reproduces (the same study).
+# rk4 costs what Euler costs here (the NLP dominates) but is faithful: a re-simulation 10
+# times finer ends micrometres from the goal, against decimetres for the paper's Euler.
 DEFAULT_METHOD = "rk4"
 # The paper leaves F free, which makes minimum time degenerate (infinite force, zero time):
 # F is bounded by m * A_MAX, a firm but ordinary passenger-car acceleration/braking level.
@@ -296,10 +296,11 @@ class _Problem:
     rows: slice           # which of [X, Y, theta, v] single shooting bounds in g
 
 
-# Each option below made solves faster at the same solved counts and optima; single shooting
-# keeps the monotone barrier update, as the adaptive one was slower there and found a worse
-# optimum; the options left out changed nothing or were slower
-# (docs/study-connection-ocp-*.md).
+# Variable bounds instead of constraints, nlpsol instead of Opti, fast_step_computation and,
+# for multiple shooting, the adaptive barrier update with kkt-error globalisation: each was
+# faster at the same solved count on the scenario connections and seeded problems; the
+# options that were not (spral, limited-memory Hessians, mu-based bound multipliers) are left
+# out. The study: docs/measurements-behind-defaults.md.
 IPOPT_OPTIONS = {"print_level": 0, "sb": "yes", "max_iter": 100, "fast_step_computation": "yes"}
 ADAPTIVE_MU = {"mu_strategy": "adaptive", "adaptive_mu_globalization": "kkt-error"}
 

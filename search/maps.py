@@ -31,8 +31,7 @@ _FRAME = EXACT_CELLS // 2 + 1
 
 # Distance fields of the last grids seen, keyed by the grid's content (never by a file name,
 # so a changed map is never given an old field): a process that plans again and again on the
-# same map (`stepzoo serve`) transforms it once: the transform is a large part of a plan's
-# set-up on a big map.
+# same map (`stepzoo serve`) transforms it once.
 FIELDS_KEPT = 2
 
 # Peak memory a grid cell costs while a map is built: the occupancy, and the distance field
