@@ -41,7 +41,14 @@ def settings_help() -> str:
 
 def add_arguments(p):
     p.formatter_class = argparse.RawDescriptionHelpFormatter
-    p.epilog = settings_help()
+    shown = p.format_help
+
+    def format_help():
+        # The settings come from their schema (pydantic), imported only when help is shown:
+        # `plan --server` builds this parser and must not pay for it.
+        p.epilog = settings_help()
+        return shown()
+    p.format_help = format_help
     p.add_argument("scenario", nargs="*", metavar="SCENARIO",
                    help="a built-in scenario name or a scenario .toml file; several are a "
                    "batch, written like --all")
