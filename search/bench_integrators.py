@@ -90,4 +90,4 @@ def configured(config, integrator: Integrator):
     """`config` (planner parameters) with `integrator`'s method and step, validated."""
     from stepzoo.search.planner_config import make_config
     return make_config(integrator.method, integrator.h, config.provenance, config.source,
-                       **config.params)
+                       **config.params.model_dump())

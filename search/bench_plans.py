@@ -7,20 +7,16 @@ from __future__ import annotations
 import json
 import threading
 from dataclasses import dataclass
+from typing import NamedTuple
 from time import perf_counter
 
 from stepzoo.errors import UsageError
+from stepzoo.search import plan_schema
+from stepzoo.search.plan_schema import REPLAY_COLUMNS, RUN_COLUMNS, ordered
 
-SUMMARY_COLUMNS = ["runs", "exact", "exact_rate", "median_time_s", "median_first_solution_s",
-                   "median_length_m"]
-# The summary per integrator: who it is, then SUMMARY_COLUMNS, then the replay's verdict.
-INTEGRATOR_COLUMNS = ["integrator", "method", "h", "role", *SUMMARY_COLUMNS,
-                      "median_replay_deviation_m", "max_replay_deviation_m",
-                      "replay_collisions"]
-# plan.json's replay block (stepzoo.search.replay) as columns, spelled as there; its
-# clearance_min_m is replay_clearance_min_m beside the planned path's own.
-REPLAY_COLUMNS = ("max_deviation_m", "final_deviation_m", "max_heading_deviation_rad",
-                  "collides", "goal_distance_m")
+# The tables' columns in their order (documented in plan_schema).
+SUMMARY_COLUMNS = list(plan_schema.SUMMARY_COLUMNS)
+INTEGRATOR_COLUMNS = list(plan_schema.INTEGRATOR_COLUMNS)
 # On a Dask worker: each thread's warmed-up planners, by finder_key (a planner is not safe to
 # share between threads, and a worker may run several).
 _worker = threading.local()
@@ -45,10 +41,21 @@ class Task:
         return f"{self.integrator:03d}-{self.query:05d}-{self.run:04d}"
 
 
-def finder_key(task: Task) -> tuple:
+class FinderKey(NamedTuple):
+    """What a warmed-up planner is for: a map (file, cell size [m]), an integrator (method,
+    h [s]), the planner parameters and the speed vx [m/s]."""
+    map_file: str
+    cell_size: float
+    method: str
+    h: float
+    params: object
+    vx: float
+
+
+def finder_key(task: Task) -> FinderKey:
     c = task.config
-    return (str(task.q.map_path.resolve()), task.q.cell_size, c.method, c.h,
-            tuple(sorted(c.params.items())), task.vx)
+    return FinderKey(str(task.q.map_path.resolve()), task.q.cell_size, c.method, c.h,
+                     c.params, task.vx)
 
 
 def plan_run(task: Task, finders: dict) -> dict:
@@ -71,14 +78,14 @@ def plan_run(task: Task, finders: dict) -> dict:
     result = finder.plan(q.start, q.goal, None, task.seed)
     t0 = perf_counter()
     fidelity = replay(result, finder.omap, vehicle=finder.vehicle,
-                      margin=finder.config.params["margin"])
+                      margin=finder.config.params.margin)
     replay_s = perf_counter() - t0
     exact = result.status == "exact"
     metrics = path_metrics(path_rows(result), finder.omap, finder.vehicle_footprint) \
         if exact else path_metrics([], None, None)
-    return {
+    return ordered({
         "query": q.id, "map": q.map, "cell_size": q.cell_size, "run": task.run,
-        "seed": task.seed, "status": result.status, "cause": result.cause,
+        "seed": task.seed, "status": result.status.value, "cause": result.cause.value,
         "solved": exact, "approximate": result.status == "approximate",
         "ompl_status": STATUS_OF_CAUSE[result.cause],
         "time_s": result.search_s + result.connect_s,
@@ -93,7 +100,7 @@ def plan_run(task: Task, finders: dict) -> dict:
         **{k: fidelity[k] for k in REPLAY_COLUMNS},
         "replay_clearance_min_m": fidelity["clearance_min_m"],
         "replay_s": replay_s if fidelity["segments"] else None,   # a path to replay
-        "progress": json.dumps(result.progress)}
+        "progress": json.dumps(result.progress)}, RUN_COLUMNS, "plan-bench row")
 
 
 def _plan_on_worker(task: Task) -> tuple[str, dict]:

@@ -7,6 +7,7 @@ from functools import cache
 import math
 from math import pi
 from time import perf_counter
+from typing import NamedTuple
 
 import casadi as ca
 import jax.numpy as jnp
@@ -222,7 +223,25 @@ def _runs(segs) -> list:
     return runs or [(1, [(0, 0.0)])]
 
 
-def _profile(segs, radius, start, a_max, v_max, v_goal, v_back=0.0):
+class _Guess(NamedTuple):
+    """A connection guess: a Dubins or Reeds-Shepp path driven as fast as the car can."""
+    turn: float   # [rad] net heading change
+    tf: float     # [s] its duration
+    runs: list    # the runs between cusps (_runs)
+    plans: list   # per run (start speed [m/s], (t1, t2, t_end) [s]) (_fastest_profile)
+
+
+class _Solution(NamedTuple):
+    """One OCP solve: whether it met the goal, IPOPT's status, t_f [s], the states (N+1, 4)
+    and the inputs (N, 2)."""
+    success: bool
+    status: str
+    tf: float
+    states: np.ndarray
+    inputs: np.ndarray
+
+
+def _profile(segs, radius, start, a_max, v_max, v_goal, v_back=0.0) -> _Guess:
     """Net heading change [rad], t_f [s], and the runs between cusps with their fastest
     speed profiles [(start speed [m/s], (t1, t2, t_end) [s])] of driving the path `segs`
     (signed lengths: backwards below 0) of turning radius `radius` [m]: each run from rest to
@@ -240,7 +259,7 @@ def _profile(segs, radius, start, a_max, v_max, v_goal, v_back=0.0):
             else 0.0
         plans.append((v0, _fastest_profile(sum(q for _, q in run), v0, a_max,
                                            v_max if way > 0 else v_back, v_end)))
-    return turn, float(sum(profile[2] for _, profile in plans)), runs, plans
+    return _Guess(turn, float(sum(profile[2] for _, profile in plans)), runs, plans)
 
 
 def _guess_inputs(N, runs, plans, a_max):
@@ -318,7 +337,7 @@ def _problem(N: int, shooting: str, method: str, bounded: bool, speed_fixed: boo
                     rows)
 
 
-def _solve(prob, p, lo, hi, tf_range, tf_g, u_g):
+def _solve(prob, p, lo, hi, tf_range, tf_g, u_g) -> _Solution:
     """One IPOPT solve from the guess (tf_g [s], scaled inputs u_g (2, N)) with parameters p,
     states 1..N within lo..hi ([X, Y, theta, v]) and t_f within tf_range [s]:
     (success, status, tf, states, inputs)."""
@@ -339,7 +358,7 @@ def _solve(prob, p, lo, hi, tf_range, tf_g, u_g):
     target = np.r_[p[4:7], p[11:]]  # goal (, v_goal)
     end = states[-1, :len(target)] - target
     success = bool(stats["success"]) and float(np.abs(end).max()) < END_TOL
-    return success, str(stats["return_status"]), float(sol["x"][0]), states, inputs
+    return _Solution(success, str(stats["return_status"]), float(sol["x"][0]), states, inputs)
 
 
 def connect(start, goal, *, L, m, bounds=None, N=50, shooting=DEFAULT_SHOOTING,
@@ -381,28 +400,28 @@ def connect(start, goal, *, L, m, bounds=None, N=50, shooting=DEFAULT_SHOOTING,
     # Fastest guess first; forwards only, that is the shortest Dubins path first.
     # The inputs, a Python loop per interval, are built only for the guesses tried.
     guesses = sorted((_profile(segs, radius, x0, a_max, v_max, goal_speed, -v_min)
-                      for segs in paths), key=lambda guess: guess[1])
+                      for segs in paths), key=lambda guess: guess.tf)
     tried = set()
-    for turn, tf_g, runs, plans in guesses:
-        way = runs[0][0]
-        theta_g = unwrap(goal[2], start[2] + turn)
+    for guess in guesses:
+        way = guess.runs[0][0]
+        theta_g = unwrap(goal[2], start[2] + guess.turn)
         winding = round((theta_g - goal[2]) / (2 * pi))
         # One try per heading winding and first direction of travel.
         key = (winding, way)
         if key in tried:
             continue
         tried.add(key)
-        u_g = _guess_inputs(N, runs, plans, a_max)
+        u_g = _guess_inputs(N, guess.runs, guess.plans, a_max)
         p = np.r_[x0, goal_local[:2], theta_g, L, m, delta_max, a_max, v_goal]
         lo = np.array([box[0], box[2], min(start[2], theta_g) - THETA_MARGIN, v_min])
         hi = np.array([box[1], box[3], max(start[2], theta_g) + THETA_MARGIN, v_max])
-        success, status, tf, states, inputs = _solve(
-            prob, p, lo, hi, (tf_lo, tf_hi), min(max(tf_g, tf_lo), tf_hi), u_g)
-        if success or len(tried) == MAX_TRIES:
+        solved = _solve(prob, p, lo, hi, (tf_lo, tf_hi), min(max(guess.tf, tf_lo), tf_hi), u_g)
+        if solved.success or len(tried) == MAX_TRIES:
             break
-    states[:, :2] += origin
-    return Connection(success=success, status=status, tf=tf, t=np.linspace(0, tf, N + 1),
-                      states=states, inputs=inputs, solve_s=perf_counter() - t0,
+    solved.states[:, :2] += origin
+    return Connection(success=solved.success, status=solved.status, tf=solved.tf,
+                      t=np.linspace(0, solved.tf, N + 1), states=solved.states,
+                      inputs=solved.inputs, solve_s=perf_counter() - t0,
                       shooting=shooting)
 
 

@@ -11,6 +11,7 @@ import struct
 from dataclasses import dataclass, field
 from functools import lru_cache
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 from scipy.ndimage import distance_transform_edt
@@ -48,6 +49,14 @@ _MOVINGAI_BLOCKED = frozenset("@OTW")
 _ROS_MODES = ("trinary", "scale", "raw")
 
 
+class Bounds(NamedTuple):
+    """[m] the extent of a grid (unpacks as xmin, xmax, ymin, ymax)."""
+    xmin: float
+    xmax: float
+    ymin: float
+    ymax: float
+
+
 @dataclass(frozen=True, eq=False)
 class OccupancyMap:
     """A grid of obstacle cells; row 0 is the bottom row (y from origin_y to origin_y + res)."""
@@ -77,11 +86,11 @@ class OccupancyMap:
         object.__setattr__(self, "distance", distance)
         object.__setattr__(self, "_framed", np.pad(occupied, _FRAME, constant_values=True))
 
-    def bounds(self) -> tuple[float, float, float, float]:
-        """(xmin, xmax, ymin, ymax) [m] of the grid."""
+    def bounds(self) -> Bounds:
+        """[m] the grid's extent."""
         rows, cols = self.occupied.shape
         x0, y0 = self.origin
-        return x0, x0 + cols * self.resolution, y0, y0 + rows * self.resolution
+        return Bounds(x0, x0 + cols * self.resolution, y0, y0 + rows * self.resolution)
 
     def clearance(self, xy) -> np.ndarray:
         """(..., 2) [m] -> (...) [m]: a lower bound of the distance to the nearest obstacle.

@@ -8,7 +8,7 @@ from __future__ import annotations
 OMPL_STATUS = ("Unknown status", "Invalid start", "Invalid goal", "Unrecognized goal type",
                "Timeout", "Approximate solution", "Exact solution", "Crash", "Abort",
                "Infeasible")
-# Our causes (pathfinder.CAUSES) as OMPL statuses.
+# Our causes (plan_result.Cause) as OMPL statuses.
 STATUS_OF_CAUSE = {"start_off_map": 1, "start_in_collision": 1, "goal_off_map": 2,
                    "goal_in_collision": 2, "walled_off": 9, "start_boxed_in": 9,
                    "goal_boxed_in": 9, "exhausted": 9, "budget": 5,

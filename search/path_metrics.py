@@ -7,9 +7,7 @@ from scipy.spatial import cKDTree
 
 from stepzoo.search.footprint import Footprint
 from stepzoo.search.maps import OccupancyMap
-
-NAMES = ("length_m", "cusps", "clearance_min_m", "clearance_mean_m", "curvature_max",
-         "curvature_mean", "smoothness")
+from stepzoo.search.plan_schema import PATH_METRICS
 
 
 def path_metrics(rows, omap: OccupancyMap, footprint: Footprint) -> dict:
@@ -20,7 +18,7 @@ def path_metrics(rows, omap: OccupancyMap, footprint: Footprint) -> dict:
     length-weighted mean; smoothness = integral of curvature^2 ds [1/m]. None for no path."""
     rows = np.asarray(rows, float)
     if len(rows) < 2:
-        return dict.fromkeys(NAMES)
+        return dict.fromkeys(PATH_METRICS)
     step = np.diff(rows[:, 1:3], axis=0)
     ds = np.hypot(step[:, 0], step[:, 1])
     turn = np.remainder(np.diff(rows[:, 3]) + np.pi, 2 * np.pi) - np.pi

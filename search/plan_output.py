@@ -12,6 +12,7 @@ import numpy as np
 from stepzoo.output import atomic_write
 from stepzoo.search.path_metrics import cusps
 from stepzoo.search.pathfinder import PlanResult
+from stepzoo.search.plan_schema import PLAN_KEYS, STATS_KEYS, ordered
 from stepzoo.search.replay import controls, path_nodes, replay, vehicle_params
 from stepzoo.search.scenarios import Scenario
 
@@ -53,9 +54,9 @@ def plan_record(result: PlanResult, scenario: Scenario, config, vehicle: dict, s
     record = {
         "scenario": scenario.name,
         "description": scenario.description,
-        "status": result.status,
+        "status": result.status.value,
         "reason": result.reason,
-        "cause": result.cause,
+        "cause": result.cause.value,
         "start": [float(v) for v in scenario.start],
         "goal": [float(v) for v in scenario.goal],
         "goal_speed": scenario.goal_speed,
@@ -67,7 +68,7 @@ def plan_record(result: PlanResult, scenario: Scenario, config, vehicle: dict, s
                     **vehicle_params(vehicle)},
         # The inputs, segment by segment, that drive the car along the path (search/replay.py).
         "controls": controls(result, config.method),
-        "stats": {
+        "stats": ordered({
             "expansions": result.expansions,
             "nodes": result.nodes,
             "search_s": result.search_s,
@@ -93,8 +94,8 @@ def plan_record(result: PlanResult, scenario: Scenario, config, vehicle: dict, s
             "method": config.method,
             "h": config.h,
             "n_steps": config.n_steps,
-        },
-        "params": dict(config.params),
+        }, STATS_KEYS, "plan.json stats"),
+        "params": config.params.model_dump(),
         "config": {"method": config.method, "h": config.h, "provenance": config.provenance,
                    "file": config.source},
         "tree": tree_polylines(result),
@@ -103,7 +104,7 @@ def plan_record(result: PlanResult, scenario: Scenario, config, vehicle: dict, s
     }
     # Those controls driven through the true models: how far the car strays from the path.
     record["replay"] = replay(record, scenario.omap)
-    return record
+    return ordered(record, PLAN_KEYS, "plan.json")
 
 
 def render_png(record: dict, scenario: Scenario) -> bytes:

@@ -1,5 +1,6 @@
 """The planner's configuration: the integrator (method, step h) that `stepzoo tune` writes, and
-every planner parameter declared once by name, default, range and unit, so runs can log them.
+the planner parameters declared once (`PlannerParams`: name, default, range, unit, reason and
+doc line), so runs can log them and the docs list them.
 
 A config TOML has top-level `method` and `h`; an optional `[planner]` table overrides params."""
 from __future__ import annotations
@@ -8,67 +9,103 @@ import math
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from pydantic import Field, field_validator
+
+from stepzoo.config_schema import Schema, check, quantity
 from stepzoo.errors import UsageError
-from stepzoo.validate import check, check_budget, read_toml
+from stepzoo.validate import check as check_value
+from stepzoo.validate import check_budget, read_toml
 
 DEFAULT_CONFIG = Path(__file__).with_name("tuned_default.toml")
 
-
-@dataclass(frozen=True)
-class Param:
-    """One planner parameter: default, closed range [lo, hi], unit and meaning."""
-    name: str
-    default: float | int
-    lo: float
-    hi: float
-    unit: str
-    doc: str
-
-    @property
-    def integer(self) -> bool:
-        return isinstance(self.default, int)
+Steer = quantity("a steer limit", "rad", "above 0.05 the arc holds distinct points; below "
+                 "1.5 (86 degrees) tan(delta) and the turning radius stay finite", ge=0.05,
+                 le=1.5)
+Count = quantity("a count", "", "at least one; the upper bound keeps one expansion's batch "
+                 "within memory", whole=True, ge=1, le=64)
+Switch = quantity("a switch", "", "0 off, 1 on (true and false read as 1 and 0)", whole=True,
+                  ge=0, le=1)
 
 
-PARAMS = {p.name: p for p in (
-    Param("delta_max", math.pi / 4, 0.05, 1.5, "rad",
-          "steer limit; the point-selector arc spans psi +- delta_max"),
-    Param("arc_radius", 4.0, 0.5, 50.0, "m", "radius of the point-selector arc ahead of a node"),
-    Param("n_arc", 7, 1, 64, "1", "equally spaced points on the arc"),
-    Param("n_random", 3, 0, 64, "1", "seeded random points around the destination, per expansion"),
-    Param("random_spread", 3.0, 0.0, 100.0, "m", "radius of the disc the random points fill"),
-    Param("horizon", 0.8, 0.01, 10.0, "s", "duration of one shooting (rounded to whole steps)"),
-    Param("mindist", 6.0, 0.5, 100.0, "m", "a node this close to the goal triggers a connection"),
-    Param("connect_radius", 12.0, 0.5, 200.0, "m",
-          "tree nodes this close to the goal are connection candidates, shortest Dubins first"),
-    Param("h_weight", 2.0, 1.0, 10.0, "1",
-          "w in the search order f = g + w H (1: the paper's sum; above 1 finds a first path "
-          "sooner, which the improvement then shortens)"),
-    Param("cell_xy", 1.0, 0.05, 20.0, "m", "position cell of duplicate pruning"),
-    Param("cell_heading", math.pi / 8, 0.01, math.pi, "rad", "heading cell of duplicate pruning"),
-    Param("margin", 0.1, 0.0, 5.0, "m",
-          "footprint inflation on every side: covers integration error and cell rounding"),
-    Param("max_expansions", 1_000_000, 1, 10_000_000, "1",
-          "budget of expansions (the default is far beyond what max_seconds allows: the time "
-          "bounds the plan)"),
-    Param("max_seconds", 20.0, 0.001, 3600.0, "s", "budget of wall time, search and connections"),
-    Param("connect_tries", 64, 1, 10_000, "1", "connection attempts before giving up"),
-    Param("improve_expansions", 300, 0, 10_000_000, "1",
-          "after the first exact path, expansions without a shorter one before the plan ends "
-          "(0: stop at the first, as the paper)"),
-    Param("reverse", 0, 0, 1, "1",
-          "1: reverse gear (expansions backwards too, the connection may reverse); 0: forward "
-          "only, as the paper"),
-    Param("tight_moves", 1, 0, 1, "1",
-          "1: when the tree exhausts unsolved, expand every node again with tight moves too "
-          "(the kinematic bicycle, out to full lock), which chain until the tree's own moves "
-          "take over; 0: the tree's own moves only, as the paper"),
-    Param("cusp_cost", 5.0, 0.0, 1000.0, "m",
-          "added to the cost g at each change of direction (with reverse = 1)"),
-    Param("connect_N", 50, 5, 1000, "1", "input intervals of the connection OCP"),
-    Param("batch_nodes", 4, 1, 64, "1",
-          "nodes expanded together, best f first, their shootings integrated in one call "
-          "(1: one node at a time, as the paper)"),
-)}
+class PlannerParams(Schema):
+    """The tree planner's parameters (a planner config's `[planner]` table), frozen: a plan
+    reads them as attributes and logs them whole."""
+    delta_max: Steer = Field(math.pi / 4, description=(
+        "steer limit; the point-selector arc spans psi +- delta_max [rad]"))
+    arc_radius: quantity("a radius", "m", "from about a car's width to a block's length: "
+                         "shorter arcs stall, longer ones jump walls", ge=0.5, le=50.0) = Field(
+        4.0, description="radius of the point-selector arc ahead of a node [m]")
+    n_arc: Count = Field(7, description="equally spaced points on the arc [1]")
+    n_random: quantity("a count", "", "0 turns the random points off; the upper bound keeps "
+                       "one expansion's batch within memory", whole=True, ge=0, le=64) = Field(
+        3, description="seeded random points around the destination, per expansion [1]")
+    random_spread: quantity("a radius", "m", "0 puts every random point on the goal; beyond "
+                            "100 m they no longer lead towards it", ge=0.0, le=100.0) = Field(
+        3.0, description="radius of the disc the random points fill [m]")
+    horizon: quantity("a duration", "s", "at least one short step; beyond 10 s a shooting "
+                      "crosses a map without branching", ge=0.01, le=10.0) = Field(
+        0.8, description="duration of one shooting (rounded to whole steps) [s]")
+    mindist: quantity("a distance", "m", "within the reach of the connection OCP, which "
+                      "ignores obstacles", ge=0.5, le=100.0) = Field(
+        6.0, description="a node this close to the goal triggers a connection [m]")
+    connect_radius: quantity("a distance", "m", "from the car's size to a long street: the "
+                             "OCP ignores obstacles, so far candidates rarely connect",
+                             ge=0.5, le=200.0) = Field(12.0, description=(
+                                 "tree nodes this close to the goal are connection candidates, "
+                                 "shortest Dubins first [m]"))
+    h_weight: quantity("a weight", "", "1 is the paper's sum; above 10 the search ignores "
+                       "the distance travelled", ge=1.0, le=10.0) = Field(2.0, description=(
+                           "w in the search order f = g + w H (1: the paper's sum; above 1 "
+                           "finds a first path sooner, which the improvement then shortens) [1]"))
+    cell_xy: quantity("a cell size", "m", "finer than integration noise prunes nothing; "
+                      "coarser than a street merges its lanes", ge=0.05, le=20.0) = Field(
+        1.0, description="position cell of duplicate pruning [m]")
+    cell_heading: quantity("a cell size", "rad", "up to a half turn; below 0.01 rad "
+                           "headings that differ by noise count as new", ge=0.01,
+                           le=math.pi) = Field(math.pi / 8, description=(
+                               "heading cell of duplicate pruning [rad]"))
+    margin: quantity("a margin", "m", "0 trusts the integration exactly; beyond 5 m no "
+                     "street is wide enough", ge=0.0, le=5.0) = Field(0.1, description=(
+                         "footprint inflation on every side: covers integration error and cell "
+                         "rounding [m]"))
+    max_expansions: quantity("a budget", "", "at least one expansion; the upper bound keeps "
+                             "the tree within memory", whole=True, ge=1, le=10_000_000) = Field(
+        1_000_000, description=("budget of expansions (the default is far beyond what "
+                                "max_seconds allows: the time bounds the plan) [1]"))
+    max_seconds: quantity("a budget", "s", "from a millisecond to an hour", ge=0.001,
+                          le=3600.0) = Field(20.0, description=(
+                              "budget of wall time, search and connections [s]"))
+    connect_tries: quantity("a count", "", "at least one OCP; each costs a solve",
+                            whole=True, ge=1, le=10_000) = Field(64, description=(
+                                "connection attempts before giving up [1]"))
+    improve_expansions: quantity("a count", "", "0 stops at the first path", whole=True,
+                                 ge=0, le=10_000_000) = Field(300, description=(
+                                     "after the first exact path, expansions without a shorter "
+                                     "one before the plan ends (0: stop at the first, as the "
+                                     "paper) [1]"))
+    reverse: Switch = Field(0, description=(
+        "1: reverse gear (expansions backwards too, the connection may reverse); 0: forward "
+        "only, as the paper [1]"))
+    tight_moves: Switch = Field(1, description=(
+        "1: when the tree exhausts unsolved, expand every node again with tight moves too (the "
+        "kinematic bicycle, out to full lock), which chain until the tree's own moves take "
+        "over; 0: the tree's own moves only, as the paper [1]"))
+    cusp_cost: quantity("a length", "m", "0 makes cusps free; beyond 1 km one forbids them",
+                        ge=0.0, le=1000.0) = Field(5.0, description=(
+                            "added to the cost g at each change of direction (with reverse = "
+                            "1) [m]"))
+    connect_N: quantity("a count", "", "at least five intervals resolve a turn; the upper "
+                        "bound keeps one OCP solve short", whole=True, ge=5, le=1000) = Field(
+        50, description="input intervals of the connection OCP [1]")
+    batch_nodes: Count = Field(4, description=(
+        "nodes expanded together, best f first, their shootings integrated in one call (1: one "
+        "node at a time, as the paper) [1]"))
+
+    @field_validator("reverse", "tight_moves", mode="before")
+    @classmethod
+    def _switch(cls, value):
+        """A switch written `true` or `false` reads as 1 or 0."""
+        return int(value) if isinstance(value, bool) else value
 
 
 @dataclass(frozen=True)
@@ -76,29 +113,22 @@ class PlannerConfig:
     """Integrator (method, h [s]) plus planner params; `provenance` says where they came from."""
     method: str = "rk4"
     h: float = 0.02
-    params: dict = field(default_factory=lambda: {k: p.default for k, p in PARAMS.items()})
+    params: PlannerParams = field(default_factory=PlannerParams)
     provenance: str = "built-in defaults"
     source: str = ""
 
     @property
     def n_steps(self) -> int:
         """Integration steps per shooting: the horizon rounded to whole steps, at least one."""
-        return max(1, round(self.params["horizon"] / self.h))
+        return max(1, round(self.params.horizon / self.h))
 
 
-def check_param(name: str, value):
-    """`value` of planner param `name`, validated against its declared range; else UsageError."""
-    if name not in PARAMS:
-        raise UsageError(f"unknown planner parameter {name!r}; known: {', '.join(PARAMS)}")
-    spec = PARAMS[name]
-    if spec.lo == 0 and spec.hi == 1 and spec.integer and isinstance(value, bool):
-        value = int(value)  # a switch: `reverse = true` reads as 1
-    ok_type = isinstance(value, int) if spec.integer else isinstance(value, (int, float))
-    if isinstance(value, bool) or not ok_type or not (spec.lo <= value <= spec.hi):
-        kind = "a whole number" if spec.integer else "a number"
-        raise UsageError(f"planner parameter {name} must be {kind} in [{spec.lo}, {spec.hi}] "
-                         f"[{spec.unit}], got {value!r}")
-    return int(value) if spec.integer else float(value)
+def planner_params(overrides: dict, base: PlannerParams | None = None,
+                   where: str = "planner parameters") -> PlannerParams:
+    """`base` (default: the defaults) with `overrides` by name, validated: UsageError naming
+    every unknown key and out-of-range value at once."""
+    values = (base or PlannerParams()).model_dump()
+    return check(PlannerParams, {**values, **overrides}, where)
 
 
 def make_config(method="rk4", h=0.02, provenance="built-in defaults", source="",
@@ -108,23 +138,26 @@ def make_config(method="rk4", h=0.02, provenance="built-in defaults", source="",
     if not isinstance(method, str) or method not in METHODS:
         raise UsageError(f"unknown integration method {method!r} in the planner config; "
                          f"use one of {', '.join(METHODS)}")
-    check("step", "planner step h", h)
-    params = {k: p.default for k, p in PARAMS.items()}
-    params.update({k: check_param(k, v) for k, v in overrides.items()})
-    config = PlannerConfig(method, float(h), params, str(provenance), str(source))
-    # One call shoots n_arc + n_random trajectories of n_steps from each of batch_nodes nodes,
-    # the 5 states kept.
-    batch = params["batch_nodes"] * (params["n_arc"] + params["n_random"])
-    check_budget(f"the planner at h = {h:g} s", config.n_steps + 1, batch, 5,
-                 calls=params["max_expansions"])
+    check_value("step", "planner step h", h)
+    where = f"{source} [planner]" if source else "planner parameters"
+    config = PlannerConfig(method, float(h), planner_params(overrides, where=where),
+                           str(provenance), str(source))
+    _check_budget(config)
     return config
 
 
 def with_params(config: PlannerConfig, **overrides) -> PlannerConfig:
     """`config` with params overridden by name (validated), e.g. from command-line flags."""
-    params = dict(config.params)
-    params.update({k: check_param(k, v) for k, v in overrides.items()})
+    params = planner_params(overrides, config.params)
     return PlannerConfig(config.method, config.h, params, config.provenance, config.source)
+
+
+def _check_budget(config: PlannerConfig) -> None:
+    """UsageError if one integration call of the planner would not fit in memory: it shoots
+    n_arc + n_random trajectories of n_steps from each of batch_nodes nodes, 5 states kept."""
+    prm = config.params
+    check_budget(f"the planner at h = {config.h:g} s", config.n_steps + 1,
+                 prm.batch_nodes * (prm.n_arc + prm.n_random), 5, calls=prm.max_expansions)
 
 
 def load_config(path=None) -> PlannerConfig:

@@ -19,7 +19,7 @@ from stepzoo.safe_parse import json_loads
 from stepzoo.search.departure import free_departure, turned
 from stepzoo.search.footprint import Footprint, poses_collide
 from stepzoo.search.maps import MAP_DIR, SUBDIV, OccupancyMap
-from stepzoo.search.planner_config import PARAMS
+from stepzoo.search.planner_config import PlannerParams
 from stepzoo.search.scenarios import open_map, pose
 
 QUERY_DIR = Path(__file__).with_name("queries")
@@ -106,7 +106,7 @@ def random_queries(map_path, cell_size, n, seed, *, vehicle=None, margin=0.1, ne
     spec = dynamics.vehicle(vehicle)
     length, width = spec["length"] + 2 * margin, spec["width"] + 2 * margin
     footprint = Footprint.from_vehicle(length, width, 2 * math.ceil(length / width))
-    radius = (spec["Lf"] + spec["Lr"]) / math.tan(PARAMS["delta_max"].default)
+    radius = (spec["Lf"] + spec["Lr"]) / math.tan(PlannerParams().delta_max)
     rng = np.random.default_rng(seed)
     points, region = _roomy_points(omap, room, spec["width"] / 2 + margin)
     name = Path(map_path).stem
@@ -136,12 +136,6 @@ def street_queries(per_map=12) -> list[dict]:
     for seed, (name, cell) in enumerate(STREET_MAPS):
         out += random_queries(MAP_DIR / name, cell, per_map, seed, rel_to=QUERY_DIR)
     return out
-
-
-def write_street_queries() -> Path:
-    text = "[\n" + ",\n".join(json.dumps(q) for q in street_queries()) + "\n]\n"
-    STREET_QUERIES.write_text(text)
-    return STREET_QUERIES
 
 
 def _roomy_points(omap: OccupancyMap, room, half_width) -> tuple[np.ndarray, np.ndarray]:

@@ -14,6 +14,7 @@ bicycle (moving along the heading), as in `departure`."""
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numpy as np
 
@@ -30,8 +31,16 @@ WINDOW_M = 7.0        # [m] half side of the square window around the pose
 QUADRATURE = 400      # points of the displacement bounds' integrals
 
 
-def _displacement_box(turn_lo, turn_hi, step, radius) -> tuple[float, float, float, float]:
-    """(ahead_lo, ahead_hi, left_lo, left_hi) [m]: bounds of the displacement, in the start's
+class _Box(NamedTuple):
+    """[m] bounds of a displacement in the start's frame: ahead and to the left."""
+    ahead_lo: float
+    ahead_hi: float
+    left_lo: float
+    left_hi: float
+
+
+def _displacement_box(turn_lo, turn_hi, step, radius) -> _Box:
+    """Bounds of the displacement [m], in the start's
     frame, of every path of length `step` and curvature <= 1/radius whose heading turns by an
     angle in [turn_lo, turn_hi] [rad] (with step / radius <= pi / 2, so sin grows with the
     heading change and cos falls with its size)."""
@@ -46,8 +55,8 @@ def _displacement_box(turn_lo, turn_hi, step, radius) -> tuple[float, float, flo
     # Midpoint sums of functions with slope <= 1/radius: off by at most step^2/(24 radius N^2)
     # per unit; the pad covers that many times over.
     pad = 1e-6 + step * step / (radius * QUADRATURE)
-    return (float(np.cos(farthest).sum() * dt) - pad, float(np.cos(nearest).sum() * dt) + pad,
-            float(np.sin(low).sum() * dt) - pad, float(np.sin(top).sum() * dt) + pad)
+    return _Box(float(np.cos(farthest).sum() * dt) - pad, float(np.cos(nearest).sum() * dt) + pad,
+                float(np.sin(low).sum() * dt) - pad, float(np.sin(top).sum() * dt) + pad)
 
 
 def _dilate(grid, lo, hi, axis) -> np.ndarray:
@@ -107,8 +116,9 @@ def forward_reach(omap: OccupancyMap, footprint: Footprint, pose, radius):
     # of the bin (within half a bin of the middle) adds; a pose anywhere in its cell adds
     # one cell on the high side.
     shifts = {}
-    for d, (a_lo, a_hi, l_lo, l_hi) in boxes.items():
-        corners = np.array([(u, v) for u in (a_lo, a_hi) for v in (l_lo, l_hi)])
+    for d, box in boxes.items():
+        corners = np.array([(u, v) for u in (box.ahead_lo, box.ahead_hi)
+                            for v in (box.left_lo, box.left_hi)])
         pad = np.hypot(*corners.T).max() * bin_size / 2
         x = np.cos(headings)[:, None] * corners[:, 0] - np.sin(headings)[:, None] * corners[:, 1]
         y = np.sin(headings)[:, None] * corners[:, 0] + np.cos(headings)[:, None] * corners[:, 1]

@@ -1,6 +1,6 @@
 """Shooting (paper Algorithm 3): the pure-pursuit steer angle towards each selected point, all
 shootings of one expansion integrated in one vectorised call of the zoo's driver, and for each
-its travelled distance g, its distance H to the destination and its collision verdict."""
+its travelled distance g, its distance H to the destination and its validity verdict."""
 from typing import NamedTuple
 
 import jax.numpy as jnp
@@ -8,8 +8,7 @@ import numpy as np
 
 from stepzoo import dynamics
 from stepzoo.integrators import integrate_batch, method
-from stepzoo.search.footprint import Footprint, first_collision
-from stepzoo.search.maps import OccupancyMap
+from stepzoo.search.validity import ValidityChecker
 
 
 CHECK_SPACING_M = 0.2  # [m] at most between the poses of a shooting checked for collision
@@ -46,13 +45,13 @@ class Shooter:
     L / tan(delta) where eq. 4's understeer at vx widens the turn (3.3 m instead of 2.6 m at
     full lock for the default car at 5 m/s)."""
 
-    def __init__(self, omap: OccupancyMap, footprint: Footprint, vehicle: str, vx: float,
-                 method_name: str, h: float, n_steps: int, batch: int, delta_max: float,
-                 reverse: bool = False, tight: bool = False):
+    def __init__(self, checker: ValidityChecker, vehicle: str, vx: float, method_name: str,
+                 h: float, n_steps: int, batch: int, delta_max: float, reverse: bool = False,
+                 tight: bool = False):
         self.reverse = reverse
         self.kinematic = reverse or tight
         self.model = dynamics.model("kinematic" if self.kinematic else "dynamic5")
-        self.omap, self.footprint = omap, footprint
+        self.checker = checker
         self.method = method(method_name)
         self.h, self.n_steps, self.batch, self.delta_max = h, n_steps, batch, delta_max
         p = self.model.params(vehicle, vx)
@@ -111,7 +110,7 @@ class Shooter:
             # s = CHECK_SPACING_M on the tightest turn (R = 2.6 m), far inside the margin.
             stride = max(1, int(CHECK_SPACING_M / max(self.vx * self.h, 1e-12)))
             checked = np.unique(np.r_[np.arange(0, rows, stride), rows - 1])
-            hit = first_collision(self.omap, self.footprint, states[:, checked])
+            hit = self.checker.first_invalid(states[:, checked])
             # Rows before the last checked pose that is clear are clear.
             first = np.where(hit > 0, checked[np.maximum(hit - 1, 0)] + 1,
                              np.where(hit == 0, 0, -1))

@@ -161,10 +161,11 @@ def test_the_trees_dynamic_shootings_from_a_boxed_in_start_collide_too():
     From the boxed start every one of its shootings (full lock either way, and between)
     collides before the length the proof names."""
     from stepzoo.search.shooting import Shooter
+    from stepzoo.search.validity import FootprintChecker
     omap, fp = facing_wall_map(), footprint()
     start = np.array([26.0, 10.0, 0.0, 0.0, 0.0])
     boxed, longest = boxed_in(omap, fp, start, RADIUS)
-    shooter = Shooter(omap, fp, None, 5.0, "rk4", 0.01, 60, 9, math.pi / 4)
+    shooter = Shooter(FootprintChecker(omap, fp), None, 5.0, "rk4", 0.01, 60, 9, math.pi / 4)
     fan = np.linspace(-math.pi / 2, math.pi / 2, 9)
     ahead = start[:2] + 2.0 * np.column_stack([np.cos(fan), np.sin(fan)])
     shots = shooter.shoot(start, ahead, np.zeros(2))

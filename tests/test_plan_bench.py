@@ -22,6 +22,7 @@ from stepzoo.search import bench_folder
 from stepzoo.search import bench_plans
 from stepzoo.search.maps import from_array
 from stepzoo.search.path_metrics import distance_to_obstacles
+from stepzoo.search.plan_schema import RUN_COLUMNS
 from stepzoo.search.queries import STREET_QUERIES, load_queries, street_queries
 
 COLUMNS = {"query", "run", "seed", "status", "time_s", "first_solution_s", "solution_s",
@@ -83,6 +84,7 @@ def untimed(out) -> pd.DataFrame:
 def test_the_table_has_a_row_per_integrator_query_and_run_with_every_measure(benched):
     table = pd.read_parquet(benched / "runs.parquet")
     assert COLUMNS <= set(table.columns) and len(table) == 8
+    assert list(table.columns) == list(RUN_COLUMNS)
     # The choice and its first runner-up that qualifies (--runners-up 1), the same seeds.
     assert table["integrator"].tolist() == ["rk4:0.05"] * 4 + ["heun:0.025"] * 4
     assert table["role"].tolist() == ["tuned"] * 4 + ["runner-up"] * 4

@@ -10,7 +10,7 @@ from PIL import Image
 
 from stepzoo.cli import main
 from stepzoo.errors import UsageError
-from stepzoo.search.planner_config import DEFAULT_CONFIG, PARAMS, load_config
+from stepzoo.search.planner_config import DEFAULT_CONFIG, PlannerParams, load_config
 from stepzoo.search.scenarios import builtin_names, load_scenario
 
 STATS = {"expansions", "nodes", "search_s", "connect_s", "path_length_m", "connect_tf_s",
@@ -54,7 +54,7 @@ def test_plan_json_holds_the_contract(planned):
     assert (record["stats"]["method"], record["stats"]["h"]) == (shipped.method, shipped.h)
     assert record["vehicle"]["length"] == 4.508 and record["vehicle"]["width"] == 1.61
     assert record["start"] == list(scenario.start) and record["goal"] == list(scenario.goal)
-    assert set(record["params"]) == set(PARAMS)
+    assert set(record["params"]) == set(PlannerParams.model_fields)
     path = np.array(record["path"])
     assert path.shape[1] == 4
     assert np.hypot(*np.diff(path[:, 1:3], axis=0).T).max() <= 0.1
@@ -172,7 +172,7 @@ def test_the_shipped_default_is_a_tune_output_stable_across_the_default_envelope
     ('method = "rk4"\nh = -1\n', "h must be"),
     ('h = 0.02\n', "lacks method"),
     ('method = "rk4"\nh = 0.02\n[planner]\nn_arc = 0\n', "n_arc"),
-    ('method = "rk4"\nh = 0.02\n[planner]\nmindst = 3\n', "unknown planner parameter"),
+    ('method = "rk4"\nh = 0.02\n[planner]\nmindst = 3\n', "unknown key 'mindst'"),
     ('method = rk4\n', "not valid TOML"),
 ])
 def test_a_bad_config_is_a_usage_error(tmp_path, text, words):

@@ -134,8 +134,8 @@ def test_no_two_tree_nodes_share_a_pruning_cell(plans):
     scenario, result = plans["wall_between"]
     prm = CONFIG.params
     ends = np.array([scenario.start] + [e[-1, :3] for e in result.tree])
-    cells = np.column_stack([np.floor(ends[:, :2] / prm["cell_xy"]),
-                             np.floor(ends[:, 2] % (2 * np.pi) / prm["cell_heading"])])
+    cells = np.column_stack([np.floor(ends[:, :2] / prm.cell_xy),
+                             np.floor(ends[:, 2] % (2 * np.pi) / prm.cell_heading)])
     assert len(np.unique(cells, axis=0)) == len(ends) == result.nodes
 
 
@@ -195,7 +195,7 @@ def test_a_dead_end_the_car_cannot_turn_in_is_proved_boxed_in_once_the_search_ex
     finder = PathFinder(from_array(occupied, 0.5), CONFIG, None, 5.0)
     result = finder.plan((30.0, 14.75, 0.0), (7.0, 15.0, 0.0))
     assert (result.status, result.cause, result.widened) == ("no_path", "start_boxed_in", True)
-    assert 0 < result.expansions < CONFIG.params["max_expansions"]
+    assert 0 < result.expansions < CONFIG.params.max_expansions
 
 
 def test_a_start_the_tree_cannot_turn_out_of_is_left_by_tight_moves():
@@ -357,8 +357,8 @@ def test_a_start_facing_a_wall_needs_reverse_gear_and_reports_its_cusps():
 
 
 def test_reverse_is_a_setting_that_reads_true_as_one():
-    from stepzoo.search.planner_config import PARAMS, check_param
-    assert PARAMS["reverse"].default == 0 and check_param("reverse", True) == 1
+    from stepzoo.search.planner_config import PlannerParams, with_params
+    assert PlannerParams().reverse == 0 and with_params(CONFIG, reverse=True).params.reverse == 1
 
 
 @pytest.mark.parametrize("qid", ["Berlin_1_256-01", "Boston_0_256-03", "den312d-02",

@@ -263,7 +263,7 @@ def test_a_plan_result_replays_to_its_plan_json_block(tuned):
     the planner's margin in both."""
     record, result, finder = tuned
     block = replay(result, finder.omap, vehicle=finder.vehicle,
-                   margin=finder.config.params["margin"])
+                   margin=finder.config.params.margin)
     for key in ("collides", "nodes", "samples"):
         assert block[key] == record["replay"][key], key
     for key in ("max_deviation_m", "final_deviation_m", "max_heading_deviation_rad",

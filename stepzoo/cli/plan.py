@@ -29,17 +29,26 @@ REVERSE_HELP = ("reverse gear: the tree and the connection may drive backwards, 
 
 def settings_help() -> str:
     """The planner settings as `--help` lists them: a config's [planner] table sets them."""
-    from stepzoo.search.planner_config import PARAMS
-    lines = ["planner settings (a config TOML's [planner] table; name = default [unit] range):"]
-    for prm in PARAMS.values():
-        lines.append(f"  {prm.name} = {prm.default:g} [{prm.unit}] in [{prm.lo:g}, {prm.hi:g}]")
-        lines += [f"      {line}" for line in textwrap.wrap(prm.doc, 80)]
+    from stepzoo.config_schema import describe
+    from stepzoo.search.planner_config import PlannerParams
+    lines = ["planner settings (a config TOML's [planner] table; name = default, range, doc):"]
+    for name, info in PlannerParams.model_fields.items():
+        lines += textwrap.wrap(f"{name} = {info.default:g}: {describe(info)}", 84,
+                               initial_indent="  ", subsequent_indent="      ")
+        lines += [f"      {line}" for line in textwrap.wrap(info.description, 80)]
     return "\n".join(lines)
 
 
 def add_arguments(p):
     p.formatter_class = argparse.RawDescriptionHelpFormatter
-    p.epilog = settings_help()
+    shown = p.format_help
+
+    def format_help():
+        # The settings come from their schema (pydantic), imported only when help is shown:
+        # `plan --server` builds this parser and must not pay for it.
+        p.epilog = settings_help()
+        return shown()
+    p.format_help = format_help
     p.add_argument("scenario", nargs="*", metavar="SCENARIO",
                    help="a built-in scenario name or a scenario .toml file; several are a "
                    "batch, written like --all")
@@ -112,8 +121,11 @@ def plan_scenario(scenario, config, seed):
     from stepzoo.search.pathfinder import PathFinder
     from stepzoo.search.plan_output import plan_record
     finder = PathFinder(scenario.omap, config, scenario.vehicle, scenario.speed)
-    warmup_s = finder.warm_up(scenario.goal_speed is not None)
-    result = finder.plan(scenario.start, scenario.goal, scenario.goal_speed, seed)
+    result = finder.refuse(scenario.start, scenario.goal)  # a bad pose, before compiling
+    warmup_s = 0.0
+    if result is None:
+        warmup_s = finder.warm_up(scenario.goal_speed is not None)
+        result = finder.plan(scenario.start, scenario.goal, scenario.goal_speed, seed)
     return plan_record(result, scenario, config, finder.vehicle, seed, warmup_s)
 
 

@@ -82,14 +82,14 @@ def write_logs(out, queries, rows, configs, seed):
             runs = [dict(r, progress=json.loads(r["progress"])) for r in rows
                     if r["query"] == q.id and r["integrator"] == label]
             name = PLANNER if len(configs) == 1 else f"{PLANNER}[{label}]"
-            planners.append((name, {"method": config.method, "h": config.h, **config.params},
-                             runs))
+            planners.append((name, {"method": config.method, "h": config.h,
+                                    **config.params.model_dump()}, runs))
         setup = json.dumps({"map": q.map, "cell_size": q.cell_size, "start": list(q.start),
                             "goal": list(q.goal), "config": configs[0].source or "built-in"})
         text = benchmark_log(
             experiment=q.id, version=f"stepzoo {version('stepzoo')}",
             host=socket.gethostname(), date=date, setup=setup, cpuinfo=_cpuinfo(), seed=seed,
-            time_limit_s=float(configs[0].params["max_seconds"]),
+            time_limit_s=float(configs[0].params.max_seconds),
             total_s=sum(r["time_s"] for _, _, runs in planners for r in runs),
             planners=planners, experiment_properties={"map": (q.map, "TEXT"),
                                                       "cell_size": (q.cell_size, "REAL")})
@@ -103,9 +103,9 @@ def _estimate(n_queries, integrators, runs, config, max_hours) -> str:
     """The bench's size and its longest planning time, as a line; UsageError past
     `max_hours`. Each plan stops at the budget max_seconds, so that bounds its time."""
     plans = n_queries * len(integrators) * runs
-    hours = plans * config.params["max_seconds"] / 3600
+    hours = plans * config.params.max_seconds / 3600
     line = (f"{plans} plans ({n_queries} queries x {len(integrators)} integrators x {runs} "
-            f"runs) of at most {config.params['max_seconds']:g} s each: at most {hours:.3g} h "
+            f"runs) of at most {config.params.max_seconds:g} s each: at most {hours:.3g} h "
             "of planning")
     if hours > max_hours:
         raise UsageError(f"{line}, past --max-hours {max_hours:g}; give fewer queries, "
@@ -146,7 +146,8 @@ def main(args) -> int:
     settings = {"queries": [[q.id, q.map, q.cell_size, list(q.start), list(q.goal)]
                             for q in queries],
                 "integrators": [[i.method, i.h, i.role] for i in integrators],
-                "runs": args.runs, "seed": args.seed, "speed": vx, "params": config.params}
+                "runs": args.runs, "seed": args.seed, "speed": vx,
+                "params": config.params.model_dump()}
     with claim(args.out, "plan-bench", overwrite=args.overwrite) as out:
         done = bench_folder.start(out, settings, args.resume, args.overwrite)
         if not done:

@@ -36,9 +36,9 @@ def add_arguments(p):
 def planner_call() -> tuple[int, float]:
     """(trajectories, interval [s]) of one call of the planner's integrator with its default
     parameters: batch_nodes x (n_arc + n_random) shootings of one horizon each."""
-    from stepzoo.search.planner_config import PARAMS
-    d = {k: p.default for k, p in PARAMS.items()}
-    return d["batch_nodes"] * (d["n_arc"] + d["n_random"]), float(d["horizon"])
+    from stepzoo.search.planner_config import PlannerParams
+    d = PlannerParams()
+    return d.batch_nodes * (d.n_arc + d.n_random), float(d.horizon)
 
 
 def tune(results, pos_tol, margin: float, out, tol=None, cost: str = "time",

@@ -84,12 +84,12 @@ class Trial:
         order = sorted(range(len(entries)), key=lambda i: _rank(evidence[i]))
         out["runners_up"] = [_runner(entries[i], evidence[i]) for i in order if i != won] \
             + [r for r in tuned["runners_up"] if r not in entries]
-        from stepzoo.search.planner_config import DEFAULT_CONFIG, PARAMS
+        from stepzoo.search.planner_config import DEFAULT_CONFIG
         planner = ("" if self.config.source == str(DEFAULT_CONFIG)
                    else f" --planner-config {self.config.source}")
         # The planner settings the choice was measured with go with it: a planner reading
         # this file plans as the evidence did (its margin, its budgets).
-        overrides = {k: v for k, v in self.config.params.items() if v != PARAMS[k].default}
+        overrides = self.config.params.model_dump(exclude_defaults=True)
         if overrides:
             out["planner"] = overrides
         out["provenance"] = (f"{tuned['provenance']}; chosen for plans by --for-plans "
@@ -103,7 +103,7 @@ class Trial:
             "replay_tol_m": self.tol_m, "replay_tol_from": self.tol_from,
             "chosen": label, "tune_choice": evidence[0]["integrator"],
             "why": evidence[won]["verdict"], "tune_why": tuned["why"],
-            "planner": dict(self.config.params),
+            "planner": self.config.params.model_dump(),
             "candidates": [{k: v for k, v in e.items() if v is not None}
                            for e in (evidence[i] for i in order)]}
         return out
@@ -130,7 +130,7 @@ def trial(args) -> Trial | None:
         raise UsageError(f"--runs must be >= 1 and --seed >= 0, got {runs} and {seed}")
     config = load_config(args.planner_config)
     if args.replay_tol is None:
-        tol, tol_from = config.params["margin"], "the planner's collision margin, parameter margin"
+        tol, tol_from = config.params.margin, "the planner's collision margin, parameter margin"
     else:
         tol, tol_from = check("pos_tol", "--replay-tol", args.replay_tol), "--replay-tol"
     queries = load(args.for_plans, config, DEFAULT_SPEED)

@@ -1,0 +1,119 @@
+"""`stepzoo plan` makes the same plans as the stored ones: a built-in scenario, a street query
+(forwards and with reverse gear) and a query that exhausts, refines and widens its search
+before proving the start boxed in. Strings and whole numbers must match exactly, floats to
+a relative 1e-9; the wall times are left out, as they differ from run to run.
+
+The stored plans are regenerated (after a change that is meant to change plans, and only
+then) by `.venv/bin/python tests/test_plan_regression.py`."""
+import gzip
+import json
+import math
+import os
+from pathlib import Path
+
+import pytest
+
+from stepzoo.cli import main
+from stepzoo.search.plan_schema import PLAN_KEYS, STATS_KEYS
+
+ROOT = Path(__file__).resolve().parent.parent
+DATA = Path("tests/data/plan_regression")
+CONFIG = str(DATA / "config.toml")
+BERLIN = ["--map", "search/mapdata/Berlin_1_256.map", "--cell-size", "1.5", "--speed", "5",
+          "--start", "51.0,29.25,-0.486", "--goal", "21.0,42.0,-2.964"]
+ROOM09 = ["--map", "search/mapdata/room-64-64-8.map", "--cell-size", "3",
+          "--start=153,100.5,-1.84", "--goal=85.5,178.5,0.817"]
+CASES = {"wall_between": ["wall_between"], "berlin_06": BERLIN,
+         "berlin_06_reverse": [*BERLIN, "--reverse"], "room09": ROOM09}
+# [s] wall times: they measure the machine, not the plan.
+TIMINGS = ("search_s", "connect_s", "warmup_s", "first_solution_s", "solution_s")
+
+
+def without_timings(record: dict) -> dict:
+    """plan.json's content less its wall times."""
+    record = json.loads(json.dumps(record))
+    stats = record["stats"]
+    for key in TIMINGS:
+        stats.pop(key)
+    for step in stats["progress"]:
+        step.pop("t_s")
+    return record
+
+
+def plan(name: str, out: Path) -> dict:
+    """The plan of case `name`, planned in-process from the repository root (the stored
+    plans hold the relative paths they were given)."""
+    here = os.getcwd()
+    os.chdir(ROOT)
+    try:
+        main(["plan", *CASES[name], "--config", CONFIG, "--out", str(out / name)])
+    finally:
+        os.chdir(here)
+    return without_timings(json.loads((out / name / "plan.json").read_text()))
+
+
+def stored(name: str) -> dict:
+    return json.loads(gzip.decompress((ROOT / DATA / f"{name}.json.gz").read_bytes()))
+
+
+def differences(old, new, where="plan") -> list[str]:
+    """Where `new` differs from `old`: keys, lengths, strings, booleans and whole numbers
+    exactly, floats beyond a relative 1e-9."""
+    if isinstance(old, dict) and isinstance(new, dict):
+        if set(old) != set(new):
+            return [f"{where}: keys {sorted(set(old) ^ set(new))} differ"]
+        return [d for k in old for d in differences(old[k], new[k], f"{where}.{k}")]
+    if isinstance(old, list) and isinstance(new, list):
+        if len(old) != len(new):
+            return [f"{where}: {len(old)} items, now {len(new)}"]
+        return [d for i, (a, b) in enumerate(zip(old, new))
+                for d in differences(a, b, f"{where}[{i}]")]
+    if isinstance(old, float) and isinstance(new, float):
+        same = math.isclose(old, new, rel_tol=1e-9, abs_tol=0.0) or old == new
+        return [] if same else [f"{where}: {old!r}, now {new!r}"]
+    if type(old) is not type(new) or old != new:
+        return [f"{where}: {old!r}, now {new!r}"]
+    return []
+
+
+@pytest.fixture(scope="module")
+def fresh(tmp_path_factory):
+    out = tmp_path_factory.mktemp("regression")
+    return {name: plan(name, out) for name in CASES}
+
+
+@pytest.mark.parametrize("name", list(CASES))
+def test_plans_are_the_stored_ones(fresh, name):
+    found = differences(stored(name), fresh[name])
+    assert not found, f"{len(found)} differences, first: {found[:5]}"
+
+
+def test_the_comparison_sees_a_changed_plan(fresh):
+    changed = json.loads(json.dumps(fresh["berlin_06"]))
+    changed["path"][10][1] *= 1 + 1e-8
+    changed["stats"]["expansions"] += 1
+    changed["cause"] = "exhausted"
+    assert len(differences(fresh["berlin_06"], changed)) == 3
+
+
+def test_plan_json_has_the_keys_of_the_plan_schema_in_its_order(fresh):
+    for record in fresh.values():
+        assert list(record) == list(PLAN_KEYS)
+        assert list(record["stats"]) == [k for k in STATS_KEYS if k not in TIMINGS]
+
+
+def test_the_cases_cover_what_they_claim(fresh):
+    assert all(fresh[n]["stats"]["budget_bound"] is None for n in CASES)
+    assert [fresh[n]["status"] for n in CASES] == ["exact", "exact", "exact", "no_path"]
+    assert fresh["berlin_06_reverse"]["params"]["reverse"] == 1
+    assert fresh["room09"]["cause"] == "start_boxed_in" and fresh["room09"]["stats"]["widened"]
+
+
+if __name__ == "__main__":
+    import tempfile
+    with tempfile.TemporaryDirectory() as tmp:
+        for case in CASES:
+            record = plan(case, Path(tmp))
+            text = json.dumps(record, allow_nan=False, separators=(",", ":")) + "\n"
+            (ROOT / DATA / f"{case}.json.gz").write_bytes(gzip.compress(text.encode(), mtime=0))
+            print(case, record["status"], record["stats"]["expansions"])
