@@ -17,11 +17,15 @@ from stepzoo import config_schema
 from stepzoo.bench import casadi_model
 from stepzoo.bench.model_spec import (BICYCLE_ERROR_STATES, ModelSpec, builtin, check_rhs,
                                       load_function)
-from stepzoo.config_schema import Schema, by_shape, quantity
+from stepzoo.config_schema import Schema, by_shape, quantity, ranged
 from stepzoo.errors import UsageError
-from stepzoo.validate import (Atol, Growth, Horizon, NewtonAtol, NewtonMaxIter,
-                              NewtonMaxIterFull, NewtonResTol, NewtonRtol, Perturbation, RelTol,
-                              Rounds, Rtol, Step, problem, read_toml)
+from stepzoo.validate import problem, read_toml
+
+# The shared ranges of validate.RANGES, as field types.
+Atol, Growth, Horizon, Perturbation, RelTol, Rounds, Rtol, Step = map(ranged, (
+    "atol", "growth", "horizon", "perturbation", "rel_tol", "rounds", "rtol", "step"))
+NewtonAtol, NewtonMaxIter, NewtonMaxIterFull, NewtonResTol, NewtonRtol = map(ranged, (
+    "newton_atol", "newton_max_iter", "newton_max_iter_full", "newton_res_tol", "newton_rtol"))
 
 MAX_GRID = 10_000       # values of one grid, or points of an envelope: more is a typo, and
                         # would be allocated before any estimate of the work

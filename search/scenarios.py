@@ -14,12 +14,16 @@ import numpy as np
 from pydantic import Discriminator, Field, Tag
 
 from stepzoo import config_schema, dynamics
-from stepzoo.config_schema import Schema, by_shape, quantity
+from stepzoo.config_schema import Schema, by_shape, quantity, ranged
 from stepzoo.errors import UsageError
 from stepzoo.safe_parse import toml_loads
-from stepzoo.validate import Cell, GoalSpeed, Heading, Position, Speed, check, check_memory
+from stepzoo.validate import check, check_memory
 from stepzoo.search.maps import (MAP_BYTES_PER_CELL, OccupancyMap, from_array,
                                  load_map)
+
+# The shared ranges of validate.RANGES, as field types.
+Cell, GoalSpeed, Heading, Position, Speed = map(ranged, (
+    "cell", "goal_speed", "heading", "position", "speed"))
 
 SCENARIO_DIR = Path(__file__).with_name("scenarios")
 DEFAULT_SPEED = 5.0  # [m/s] when a query names none

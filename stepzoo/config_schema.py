@@ -18,6 +18,7 @@ from pydantic import ConfigDict, Discriminator, Field, Tag
 from pydantic.fields import FieldInfo
 
 from stepzoo.errors import UsageError
+from stepzoo.ranges import BOUNDS, Range
 
 
 class Schema(pydantic.BaseModel):
@@ -30,8 +31,21 @@ def quantity(what: str, unit: str, reason: str, *, whole: bool = False, **bounds
     """A number type with its range: `what` names it in messages ("a step size"; "": the
     number alone), `bounds` are pydantic's ge/gt/le/lt in `unit`, `reason` says why they are
     where they are. Declare a field as `h: Step = Field(0.1, description="...")`."""
-    extra = {"what": what, "unit": unit, "reason": reason}
-    return Annotated[int if whole else float, Field(json_schema_extra=extra, **bounds)]
+    return of_range(Range(what, unit, reason, whole, **bounds))
+
+
+def of_range(r: Range):
+    """The pydantic type of the Range `r`."""
+    extra = {"what": r.what, "unit": r.unit, "reason": r.reason}
+    return Annotated[int if r.whole else float, Field(json_schema_extra=extra, **r.bounds())]
+
+
+@functools.cache
+def ranged(kind: str):
+    """The pydantic type of validate.RANGES[kind]: a config file's field checked against the
+    same range, in the same words, as the command line's flag."""
+    from stepzoo.validate import RANGES
+    return of_range(RANGES[kind])
 
 
 def optional(model: type[Schema], name: str, doc: str, **more) -> type[Schema]:
@@ -114,11 +128,6 @@ def kind_model(kind: str) -> type[Schema]:
     return getattr(importlib.import_module(module), name)
 
 
-def quantity_words(annotated) -> str:
-    """describe() of a quantity type on its own (no field around it)."""
-    return describe(_annotated_info(annotated), typing.get_args(annotated)[0])
-
-
 def describe(info: FieldInfo, annotation=None) -> str:
     """What a field takes, in words: "a step size: a number in (0, 100] s (why)" for a
     quantity, else from its type ("a whole number", "one of 'max', 'final'")."""
@@ -129,25 +138,10 @@ def describe(info: FieldInfo, annotation=None) -> str:
     extra = info.json_schema_extra if isinstance(info.json_schema_extra, dict) else {}
     if "reason" not in extra:
         return _kind_words(annotation)
-    whole = _bare(annotation) is int
-    bound = {}
-    for m in info.metadata:
-        for name in ("ge", "gt", "le", "lt"):
-            if getattr(m, name, None) is not None:
-                bound[name] = getattr(m, name)
-    show = (lambda v: f"{int(v)}") if whole else (lambda v: f"{v:g}")
-    lo = next(((k, v) for k, v in bound.items() if k in ("ge", "gt")), None)
-    hi = next(((k, v) for k, v in bound.items() if k in ("le", "lt")), None)
-    kind = "whole number" if whole else "number"
-    if lo and hi:
-        span = (f"in {'[' if lo[0] == 'ge' else '('}{show(lo[1])}, {show(hi[1])}"
-                f"{']' if hi[0] == 'le' else ')'}")
-    else:
-        ops = {"ge": ">=", "gt": ">", "le": "<=", "lt": "<"}
-        span = " and ".join(f"{ops[k]} {show(v)}" for k, v in filter(None, (lo, hi)))
-    unit = f" {extra['unit']}" if extra.get("unit") else ""
-    what = f"{extra['what']}: " if extra["what"] else ""
-    return f"{what}a {kind} {span}{unit} ({extra['reason']})"
+    bounds = {name: getattr(m, name) for m in info.metadata for name in BOUNDS
+              if getattr(m, name, None) is not None}
+    return Range(extra["what"], extra["unit"], extra["reason"], _bare(annotation) is int,
+                 **bounds).words()
 
 
 # ---------------------------------------------------------------- the words of the messages

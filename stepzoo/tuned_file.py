@@ -7,8 +7,10 @@ from typing import Annotated, Literal
 
 from pydantic import ConfigDict, Field
 
-from stepzoo.config_schema import Schema, quantity
-from stepzoo.validate import Margin, PosTol, Rounds, Step, Tol
+from stepzoo.config_schema import Schema, quantity, ranged
+
+# The shared ranges of validate.RANGES, as field types.
+Margin, PosTol, Rounds, Step, Tol = map(ranged, ("margin", "pos_tol", "rounds", "step", "tol"))
 
 Count = quantity("", "", "a count", whole=True, ge=0)
 # A measurement tune recorded: NaN where it could not be taken is a record, not a mistake.

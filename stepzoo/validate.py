@@ -1,18 +1,14 @@
 """Checks of user input shared by the commands, each failure one UsageError line: one table
-of physical and numerical ranges (RANGES, config_schema quantities) that every command and
+of physical and numerical ranges (RANGES) that every command and
 config file checks its numbers against."""
-import functools
 import math
 import os
 import tomllib
-import typing
 from dataclasses import dataclass
 from pathlib import Path
 
-import pydantic
-
-from stepzoo.config_schema import quantity, quantity_words
 from stepzoo.errors import UsageError
+from stepzoo.ranges import Range
 from stepzoo.safe_parse import toml_loads
 
 
@@ -42,100 +38,76 @@ def read_toml(path, what: str, hint: str) -> dict:
 DEFAULT_MARGIN = 0.2
 
 # The one table of ranges every command and config checks its numbers against, so a value
-# refused by one is refused by all, with the same words. Each is a config_schema quantity: a
-# config file's field is declared with it, a flag is checked against it by name (check).
-Step = quantity("a step size", "s", "below 1e-9 s round-off swamps the step; a step is at "
-                "most the horizon", ge=1e-9, le=100.0)
-Horizon = quantity("a horizon", "s", "about a day of driving at most", ge=1e-9, le=1e5)
-Speed = quantity("a speed", "m/s", "the bicycle models divide by the speed; 150 m/s is past "
-                 "any road vehicle", ge=0.1, le=150.0)
-GoalSpeed = quantity("a goal speed", "m/s", "150 m/s is past any road vehicle", ge=0.0,
-                     le=150.0)
-Steer = quantity("a steer angle", "rad", "the wheels turn less than a quarter turn either way",
-                 gt=-math.pi / 2, lt=math.pi / 2)
-Rtol = quantity("a relative tolerance", "", "float64 resolves about 1e-16; a reference asked "
-                "for less than 1e-14 never meets it", ge=1e-14, le=0.1)
-Atol = quantity("an absolute tolerance", "", "a positive float64 at most 1", ge=1e-300, le=1.0)
-Growth = quantity("a blow-up growth factor", "", "a stability run can grow further only from "
-                  "steps far past the limit, which biases the measured limit upward", gt=2.0,
-                  le=1e4)
-Perturbation = quantity("a modal perturbation", "", "a deviation that the lateral states "
-                        "resolve", ge=1e-12, le=10.0)
-RelTol = quantity("a bisection tolerance", "", "relative width of the bracket of the largest "
-                  "stable step", ge=1e-12, lt=0.1)
-PosTol = quantity("a position tolerance", "m", "float64 resolves positions to about 1e-12 m "
-                  "over this horizon", ge=1e-12, le=1e4)
-Tol = quantity("an error tolerance", "", "in the sweep's error norm: the largest error state "
-               "over its scale", ge=1e-14, le=1e6)
-Margin = quantity("a stability margin", "", "a fraction of the measured largest stable step",
-                  ge=0.0, lt=1.0)
-Seed = quantity("a seed", "", "NumPy's seed range", whole=True, ge=0, le=2**32 - 1)
-Position = quantity("a coordinate", "m", "a map of 1000 km at most", ge=-1e6, le=1e6)
-Heading = quantity("a heading", "rad", "one turn either way", ge=-2 * math.pi, le=2 * math.pi)
-Cell = quantity("a cell size", "m/cell", "a millimetre to 100 m per cell", ge=1e-3, le=100.0)
-Rounds = quantity("a number of timed rounds", "", "repeats of each timed run; a thousand is "
-                  "minutes of timing alone", whole=True, ge=1, le=1000)
-# The fields of integrators.newton.NewtonOptions, the implicit methods' solves ([newton]).
-NewtonRtol = quantity("a relative tolerance", "", "0: atol alone; below round-off a solve "
-                      "stops where its increments are round-off", ge=0.0, le=0.1)
-NewtonAtol = quantity("an absolute tolerance", "", "0: rtol alone; in the states' own units",
-                      ge=0.0, le=1.0)
-NewtonResTol = quantity("a residual tolerance", "", "times the residual an error within "
-                        "tolerance makes", gt=0.0, le=1e6)
-NewtonMaxIter = quantity("an iteration limit", "", "simplified Newton iterations per solve",
-                         whole=True, ge=1, le=1000)
-NewtonMaxIterFull = quantity("an iteration limit", "", "full Newton iterations of the retry; "
-                             "0: no retry", whole=True, ge=0, le=1000)
-
-RANGES = {"step": Step, "horizon": Horizon, "speed": Speed, "goal_speed": GoalSpeed,
-          "steer": Steer, "rtol": Rtol, "atol": Atol, "growth": Growth,
-          "perturbation": Perturbation, "rel_tol": RelTol, "pos_tol": PosTol, "tol": Tol,
-          "margin": Margin, "seed": Seed, "position": Position, "heading": Heading,
-          "cell": Cell, "rounds": Rounds, "newton_rtol": NewtonRtol,
-          "newton_atol": NewtonAtol, "newton_res_tol": NewtonResTol,
-          "newton_max_iter": NewtonMaxIter, "newton_max_iter_full": NewtonMaxIterFull}
+# refused by one is refused by all, with the same words. Plain data: a flag is checked here
+# without pydantic (`stepzoo plan --server` starts in a few imports); a config file's field is
+# declared with config_schema.ranged(kind), the same range as a pydantic type.
+RANGES = {
+    "step": Range("a step size", "s", "below 1e-9 s round-off swamps the step; a step is at "
+                  "most the horizon", ge=1e-9, le=100.0),
+    "horizon": Range("a horizon", "s", "about a day of driving at most", ge=1e-9, le=1e5),
+    "speed": Range("a speed", "m/s", "the bicycle models divide by the speed; 150 m/s is past "
+                   "any road vehicle", ge=0.1, le=150.0),
+    "goal_speed": Range("a goal speed", "m/s", "150 m/s is past any road vehicle", ge=0.0,
+                        le=150.0),
+    "steer": Range("a steer angle", "rad", "the wheels turn less than a quarter turn either "
+                   "way", gt=-math.pi / 2, lt=math.pi / 2),
+    "rtol": Range("a relative tolerance", "", "float64 resolves about 1e-16; a reference asked "
+                  "for less than 1e-14 never meets it", ge=1e-14, le=0.1),
+    "atol": Range("an absolute tolerance", "", "a positive float64 at most 1", ge=1e-300,
+                  le=1.0),
+    "growth": Range("a blow-up growth factor", "", "a stability run can grow further only from "
+                    "steps far past the limit, which biases the measured limit upward", gt=2.0,
+                    le=1e4),
+    "perturbation": Range("a modal perturbation", "", "a deviation that the lateral states "
+                          "resolve", ge=1e-12, le=10.0),
+    "rel_tol": Range("a bisection tolerance", "", "relative width of the bracket of the "
+                     "largest stable step", ge=1e-12, lt=0.1),
+    "pos_tol": Range("a position tolerance", "m", "float64 resolves positions to about 1e-12 m "
+                     "over this horizon", ge=1e-12, le=1e4),
+    "tol": Range("an error tolerance", "", "in the sweep's error norm: the largest error state "
+                 "over its scale", ge=1e-14, le=1e6),
+    "margin": Range("a stability margin", "", "a fraction of the measured largest stable step",
+                    ge=0.0, lt=1.0),
+    "seed": Range("a seed", "", "NumPy's seed range", whole=True, ge=0, le=2**32 - 1),
+    "position": Range("a coordinate", "m", "a map of 1000 km at most", ge=-1e6, le=1e6),
+    "heading": Range("a heading", "rad", "one turn either way", ge=-2 * math.pi,
+                     le=2 * math.pi),
+    "cell": Range("a cell size", "m/cell", "a millimetre to 100 m per cell", ge=1e-3, le=100.0),
+    "rounds": Range("a number of timed rounds", "", "repeats of each timed run; a thousand is "
+                    "minutes of timing alone", whole=True, ge=1, le=1000),
+    # The fields of integrators.newton.NewtonOptions, the implicit methods' solves ([newton]).
+    "newton_rtol": Range("a relative tolerance", "", "0: atol alone; below round-off a solve "
+                         "stops where its increments are round-off", ge=0.0, le=0.1),
+    "newton_atol": Range("an absolute tolerance", "", "0: rtol alone; in the states' own units",
+                         ge=0.0, le=1.0),
+    "newton_res_tol": Range("a residual tolerance", "", "times the residual an error within "
+                            "tolerance makes", gt=0.0, le=1e6),
+    "newton_max_iter": Range("an iteration limit", "", "simplified Newton iterations per solve",
+                             whole=True, ge=1, le=1000),
+    "newton_max_iter_full": Range("an iteration limit", "", "full Newton iterations of the "
+                                  "retry; 0: no retry", whole=True, ge=0, le=1000),
+}
 
 
 def describe(kind: str) -> str:
     """The range of the quantity `kind` of RANGES in words: what, bounds, unit and why."""
-    return quantity_words(RANGES[kind])
+    return RANGES[kind].words()
 
 
 def problem(kind: str, name: str, value) -> str | None:
     """What is wrong with `value` for the quantity `kind` of RANGES, named `name` (None: it
     is in range)."""
-    return None if _valid(kind, value) is not None else \
+    return None if RANGES[kind].valid(value) is not None else \
         f"{name} must be {describe(kind)}, got {value!r}"
 
 
 def check(kind: str, name: str, value) -> float:
     """`value` as a float (an int for a whole quantity) if it is in the range of `kind`; else
     UsageError naming `name`."""
-    ok = _valid(kind, value)
+    ok = RANGES[kind].valid(value)
     if ok is None:
         raise UsageError(f"{name} must be {describe(kind)}, got {value!r}")
     return ok
-
-
-def _valid(kind: str, value):
-    """`value` validated as the quantity `kind`, or None. A flag's whole number may come as a
-    float (5.0); a bool is no number."""
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
-        return None
-    if typing.get_args(RANGES[kind])[0] is int:
-        if not float(value).is_integer():
-            return None
-        value = int(value)
-    try:
-        return _adapter(kind).validate_python(value)
-    except pydantic.ValidationError:
-        return None
-
-
-@functools.cache
-def _adapter(kind: str) -> pydantic.TypeAdapter:
-    return pydantic.TypeAdapter(RANGES[kind], config=pydantic.ConfigDict(
-        strict=True, allow_inf_nan=False))
 
 
 GIB = 2**30
