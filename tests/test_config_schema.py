@@ -1,0 +1,57 @@
+"""The generic config schema: every mistake of a table named at once in the house's words, and
+a fingerprint that only what differs from the defaults decides."""
+import pytest
+
+from stepzoo.config_schema import Field, Schema, check, quantity, sha256
+from stepzoo.errors import UsageError
+
+Step = quantity("a step size", "s", "round-off below, the horizon above", gt=0.0, le=100.0)
+Count = quantity("a number of steps", "", "at least one", whole=True, ge=1)
+
+
+class Inner(Schema):
+    h: tuple[Step, ...] = Field((0.1,), description="steps to try [s]")
+    rounds: Count = Field(5, description="timed repeats")
+
+
+class Outer(Schema):
+    horizon: Step = Field(1.0, description="length of a run [s]")
+    estimate: str = Field("max", description="which error")
+    inner: Inner = Inner()
+
+
+def test_a_table_is_read_by_keyword_with_its_defaults():
+    cfg = check(Outer, {"horizon": 2, "inner": {"h": [0.5, 1.0]}}, "a.toml")
+    assert cfg == Outer(horizon=2.0, inner=Inner(h=(0.5, 1.0)))
+    assert cfg.inner.rounds == 5 and isinstance(cfg.horizon, float)
+
+
+def test_every_mistake_is_one_line_naming_its_key_unit_and_reason():
+    with pytest.raises(UsageError) as err:
+        check(Outer, {"horizon": 0, "estimat": "final", "inner": {"h": [0.1, 200.0],
+                                                                  "rounds": 2.5, "x": 1}},
+              "a.toml")
+    lines = str(err.value).splitlines()
+    assert len(lines) == 5 and all(ln.startswith("a.toml: ") for ln in lines)
+    text = str(err.value)
+    assert ("horizon must be a step size: a number in (0, 100] s (round-off below, the "
+            "horizon above), got 0") in text
+    assert "every inner.h must be a step size" in text and "got 200.0" in text
+    assert "inner.rounds must be a number of steps: a whole number >= 1" in text
+    assert "unknown key 'estimat'; known: estimate, horizon, inner (did you mean estimate?)" \
+        in text
+    assert "unknown key inner.x; known: h, rounds" in text
+
+
+def test_a_string_is_not_a_number_nor_a_bool_a_count():
+    with pytest.raises(UsageError, match=r"horizon must be a step size.*got '1'") as err:
+        check(Outer, {"horizon": "1", "inner": {"rounds": True}}, "f")
+    assert "inner.rounds must be a number of steps" in str(err.value)
+
+
+def test_writing_a_default_out_keeps_the_fingerprint():
+    plain = check(Outer, {"horizon": 2.0}, "f")
+    spelled = check(Outer, {"horizon": 2, "estimate": "max", "inner": {"rounds": 5}}, "f")
+    assert sha256(plain) == sha256(spelled)
+    assert sha256(plain) != sha256(check(Outer, {"horizon": 2.0, "inner": {"rounds": 6}}, "f"))
+    assert sha256(check(Outer, {}, "f")) == sha256(Outer())
