@@ -161,12 +161,29 @@ def _tables(annotation) -> list[tuple[str, type]]:
     return found
 
 
+def _named_values(model):
+    """The type of the keys a table takes by any name (pydantic's typed extras), or None."""
+    if model.model_config.get("extra") != "allow":
+        return None
+    return typing.get_type_hints(model, include_extras=True).get("__pydantic_extra__")
+
+
 def config_keys(model, prefix: str = ""):
-    """Every key a file of `model` may hold: (dotted path, its FieldInfo, its model)."""
+    """Every key a file of `model` may hold: (dotted path, its FieldInfo, its doc)."""
+    from pydantic.fields import FieldInfo
+    named = _named_values(model)
+    if named is not None:
+        value = typing.get_args(named)[1]
+        path = prefix + "<name>"
+        yield path, FieldInfo.from_annotation(value), "any key you name, as the table says"
+        for step, inner in _tables(value):
+            yield from config_keys(inner, f"{path}{step}.")
     for name, info in model.model_fields.items():
         path = prefix + (info.alias or name)
-        yield path, info, model
-        for step, inner in _tables(info.annotation):
+        tables = _tables(info.annotation)
+        doc = info.description or (_cell(tables[0][1].__doc__ or "") if tables else "")
+        yield path, info, doc
+        for step, inner in tables:
             yield from config_keys(inner, f"{path}{step}.")
 
 
@@ -180,6 +197,8 @@ def _default(info) -> str:
         value = info.default
     if hasattr(value, "model_dump"):
         return "its keys' defaults"
+    if value is None:
+        return "none"
     try:
         return f"`{json.dumps(value)}`"
     except TypeError:
@@ -202,11 +221,11 @@ def config_page() -> str:
     for kind, model in kinds.items():
         doc = _cell(model.__doc__ or "")
         lines += [f"## {kind}", "", doc, ""] if doc else [f"## {kind}", ""]
-        for path, info, _ in config_keys(model):
+        for path, info, doc in config_keys(model):
             what = _cell(config_schema.describe(info))
-            about = _cell(info.description or "")
-            lines.append(f"- `{path}`: {about}{'. ' if about else ''}Takes {what}; "
-                         f"default {_default(info)}.")
+            about = _cell(doc).rstrip(".")
+            default = "" if path.endswith("<name>") else f"; default {_default(info)}"
+            lines.append(f"- `{path}`: {about}{'. ' if about else ''}Takes {what}{default}.")
         lines.append("")
     return "\n".join(lines)
 
