@@ -87,6 +87,11 @@ def command_parsers() -> dict:
     return {name: subparsers(module.build_parser(name))[name] for name in module.COMMANDS}
 
 
+def _indented(text: str) -> str:
+    """`text` as a Markdown code block."""
+    return "\n".join("    " + line for line in text.strip().splitlines())
+
+
 def _help(action, prog: str) -> str:
     text = action.help or ""
     if "%(" in text:
@@ -121,13 +126,13 @@ def commands_page() -> str:
     lines = ["# Commands", "",
              "Every command and flag of `stepzoo`, generated from its argument parsers when "
              "the site is built. `stepzoo COMMAND --help` prints the same.", "",
-             "    " + _cell(top.format_usage().strip()), ""]
+             _indented(top.format_usage()), ""]
     lines += [_argument(a, top.prog) for a in top._actions
               if a.help is not argparse.SUPPRESS and not isinstance(a, argparse._SubParsersAction)]
     lines += ["", "Exit statuses: [the exit statuses](exit-statuses.md).", ""]
     for name, parser in command_parsers().items():
         lines += [f"## `stepzoo {name}`", "", _cell(module.COMMANDS[name][1]), "",
-                  "    " + _cell(parser.format_usage().strip()), ""]
+                  _indented(parser.format_usage()), ""]
         lines += [_argument(a, parser.prog) for a in parser._actions
                   if a.help is not argparse.SUPPRESS]
         lines.append("")
@@ -233,6 +238,71 @@ def config_page() -> str:
 # ---------------------------------------------------------------------------------- tables
 
 VARIABLE, STATE = "<variable>", "<state>"
+# What a column means, from the table declarations' comments; a column missing here is
+# still listed, with its name alone.
+MEANING = {
+    "method": "the zoo's method name", "h": "the step size [s]",
+    "point": "the operating point's index in the envelope",
+    VARIABLE: "the operating point's value of that envelope variable",
+    "stable": "no blow-up, and every nonlinear solve converged",
+    "blowup_t": "when the run blew up [s] (NaN: it did not)",
+    f"err_{STATE}": "largest error of that state over the run [the state's unit]",
+    "err_pos": "largest position error over the run [m]",
+    "err_final": "position error at the end of the horizon [m]",
+    "evals_per_s": "right-hand-side evaluations per simulated second",
+    "time_per_step_s": "wall time per step, the fastest of the timed rounds [s]",
+    "time_per_step_median_s": "wall time per step, the median round [s]",
+    "time_per_step_max_s": "wall time per step, the slowest round [s]",
+    "time_per_step_iqr_s": "interquartile range of the rounds' times per step [s]",
+    "timing_rounds": "how many timed rounds", "n_steps": "steps of the run",
+    "ref_ok": "the reference met its tolerance",
+    "converged": "every nonlinear solve of that step's runs converged (explicit: always)",
+    "err": "largest error over the run of the error states, each over its scale",
+    "evals": "right-hand-side evaluations of the run",
+    "time_s": "wall time of the run, as the method's calibration prices it [s]",
+    "h_pred": "largest stable step predicted from the frozen-Jacobian eigenvalues along the "
+              "reference [s]",
+    "h_meas": "largest stable step measured by bisection [s]",
+    "ratio": "h_meas / h_pred", "order_declared": "the method's order",
+    "order_fit": "observed order on the asymptotic range of steps",
+    "h_probe_max": "largest step probed for a blow-up [s]",
+    "t_bind": "where along the reference the prediction binds [s]",
+    "lam_re_bind": "real part of the binding eigenvalue [1/s]",
+    "lam_im_bind": "imaginary part of the binding eigenvalue [1/s]",
+    "limit_cause": "what ended the stable range: unstable, solver failed, or none up to "
+                   "h_probe_max",
+    f"bind_{STATE}": "that state where the prediction binds",
+    "order_h_min": "finest step of the order fit [s]",
+    "order_h_max": "coarsest step of the order fit [s]",
+    "order_points": "steps in the order fit",
+    "order_note": "why no asymptotic range was found (asymptotic: one was)",
+    "rho_max": "largest spectral radius of the Jacobian along the reference [1/s]",
+    "order_h_rho": "order_h_min x rho_max: above the stiff threshold the fit is all stiff",
+    "nonsmooth_t": "first time f is not smooth along the reference [s] (NaN: smooth)",
+    "nonsmooth_what": "the state or input that jumps there",
+    "nonsmooth_kind": "jump (f itself) or kink (its Jacobian)",
+    "nonsmooth_events": "how many such points", "model_nan_t": "where the model is not "
+    "finite [s]",
+    "family": "explicit RK, implicit RK, Rosenbrock, Adams-Bashforth, Adams-Moulton or BDF",
+    "order_fit_median": "median observed order over the points",
+    "order_fit_min": "smallest observed order", "order_fit_max": "largest observed order",
+    "real_interval": "stability interval on the negative real axis (h lambda)",
+    "imag_interval": "stability interval on the imaginary axis (h lambda)",
+    "h_meas_min": "smallest h_meas over the points that blew up or never failed [s]",
+    "h_pred_min": "smallest h_pred over the points [s]",
+    "worst_ratio": "the largest h_meas / h_pred", "implicit": "whether it solves equations",
+    "evals_per_step": "right-hand-side evaluations per step", "points": "operating points",
+    "solver_failures": "runs whose nonlinear solves failed",
+    "order_status": "matches, stiff range, below or above declared, no asymptotic range, "
+                    "not observable, or limited by non-smooth f",
+    "solver_limited_points": "points where a failed solve ended the stable range first",
+    "h_solver_limit_min": "their smallest h_meas [s]",
+    "nonsmooth_points": "points where f is not smooth",
+    "nonsmooth_note": "where, and the remedy",
+    "lam_re": "real part of an eigenvalue of df/dx at the initial state [1/s]",
+    "lam_im": "imaginary part of that eigenvalue [1/s]", "t": "time [s]",
+    STATE: "the state's value", "past_limit": "the sample step past the predicted limit",
+}
 
 
 def sweep_tables() -> dict:
@@ -273,7 +343,9 @@ def tables_page() -> str:
         shown = [f"**`{c}`**" if c in required else f"*`{c}`*" if c in schema.MEASURED
                  else f"`{c}`" for c in columns]
         lines += [f"### `{table}`", "", "Files: " + ", ".join(f"`{f}`" for f in files) + ".",
-                  "", ", ".join(shown) + ".", ""]
+                  "", "| column | meaning |", "| --- | --- |"]
+        lines += [f"| {name} | {MEANING.get(c, '')} |" for c, name in zip(columns, shown)]
+        lines.append("")
     lines += ["## Plan-bench folders (`stepzoo plan-bench`)", "",
               "`summary.csv` and `summary.parquet`, one row per integrator. The columns of "
               "`runs` and of `plan.json` are described in the [plan-bench guide]"
