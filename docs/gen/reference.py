@@ -219,11 +219,7 @@ def config_page() -> str:
              "refused, and every mistake of a file is reported at once. `a.b` is key `b` of "
              "table `[a]`; `a[].b` is key `b` of each `[[a]]` table; `a.<name>.b` is key `b` "
              "of a table you name under `[a]`.", ""]
-    try:  # TEMP
-        kinds = config_schema.kinds()
-    except ImportError:
-        kinds = {}
-    for kind, model in kinds.items():
+    for kind, model in config_schema.kinds().items():
         doc = _cell(model.__doc__ or "")
         lines += [f"## {kind}", "", doc, ""] if doc else [f"## {kind}", ""]
         for path, info, doc in config_keys(model):
