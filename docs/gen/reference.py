@@ -314,11 +314,13 @@ def sweep_tables() -> dict:
     }
 
 
-def plan_bench_tables() -> dict:
-    """A plan-bench folder's summary tables -> their columns."""
-    from stepzoo.search import bench_plans
-    return {"summary": list(bench_plans.SUMMARY_COLUMNS),
-            "summary (several integrators)": list(bench_plans.INTEGRATOR_COLUMNS)}
+def plan_tables() -> dict:
+    """A plan's and a plan-bench folder's tables -> {column: its doc line}."""
+    from stepzoo.search import plan_schema as ps
+    return {"plan.json": ps.PLAN_KEYS, "plan.json stats": ps.STATS_KEYS,
+            "plan.json replay": ps.REPLAY_COLUMNS, "plan-bench runs": ps.RUN_COLUMNS,
+            "plan-bench summary": ps.SUMMARY_COLUMNS, "plan-bench summary, several integrators":
+            ps.INTEGRATOR_COLUMNS}
 
 
 def tables_page() -> str:
@@ -342,12 +344,14 @@ def tables_page() -> str:
                   "", "| column | meaning |", "| --- | --- |"]
         lines += [f"| {name} | {MEANING.get(c, '')} |" for c, name in zip(columns, shown)]
         lines.append("")
-    lines += ["## Plan-bench folders (`stepzoo plan-bench`)", "",
-              "`summary.csv` and `summary.parquet`, one row per integrator. The columns of "
-              "`runs` and of `plan.json` are described in the [plan-bench guide]"
-              "(../plan-bench.md) and the [planner guide](../planner.md).", ""]
-    for table, columns in plan_bench_tables().items():
-        lines += [f"### `{table}`", "", ", ".join(f"`{c}`" for c in columns) + ".", ""]
+    lines += ["## Plans and plan-bench folders (`stepzoo plan`, `stepzoo plan-bench`)", "",
+              "`stepzoo plan` writes `plan.json`; `stepzoo plan-bench` writes `runs` (one row "
+              "per query, integrator and run) and `summary` (one row, or one per integrator "
+              "when there are several) as Parquet and CSV. Units are in brackets.", ""]
+    for table, columns in plan_tables().items():
+        lines += [f"### `{table}`", "", "| column | meaning |", "| --- | --- |"]
+        lines += [f"| `{c}` | {_cell(doc).replace('|', '&#124;')} |" for c, doc in columns.items()]
+        lines.append("")
     return "\n".join(lines)
 
 
