@@ -35,9 +35,38 @@ def pages() -> dict:
 @event_priority(100)
 def on_config(config):
     """mkdocs hook, before mkdocstrings' (which looks for its paths when it starts): lay out
-    the sources as they are imported, for the API pages."""
+    the sources as they are imported, for the API pages; and give every page of docs/ that
+    the nav does not name a place in it."""
     source_tree(Path(config.config_file_path).parent)
+    unlisted(config)
     return config
+
+
+def _named(nav) -> set[str]:
+    """The pages a nav (mkdocs.yml's list of sections and pages) names."""
+    if isinstance(nav, str):
+        return {nav}
+    if isinstance(nav, list):
+        return set().union(*map(_named, nav))
+    if isinstance(nav, dict):
+        return set().union(*map(_named, nav.values()))
+    return set()
+
+
+def unlisted(config) -> None:
+    """Append the pages of docs/ that the nav does not name: a dated study (its name says
+    `study`) to Studies, any other to Guides, titled by its first heading. Pages come from
+    several hands; none should be left out of the site, nor break its build."""
+    docs, named = Path(config.docs_dir), _named(config.nav)
+    sections = {next(iter(item)): item[next(iter(item))] for item in config.nav
+                if isinstance(item, dict) and isinstance(next(iter(item.values())), list)}
+    for page in sorted(docs.rglob("*.md")):
+        path = page.relative_to(docs).as_posix()
+        if path in named or config.exclude_docs.match_file(path):
+            continue
+        title = next((line[2:].strip() for line in page.read_text().splitlines()
+                      if line.startswith("# ")), page.stem)
+        sections["Studies" if "study" in page.stem else "Guides"].append({title: path})
 
 
 def source_tree(root: Path) -> Path:
@@ -67,8 +96,9 @@ def on_files(files, config):
 
 
 def _cell(text) -> str:
-    """`text` as one Markdown line (a help text may span lines)."""
-    return " ".join(str(text).split())
+    """`text` as one line of Markdown prose (a help text may span lines; its brackets, such
+    as units, are no links)."""
+    return " ".join(str(text).split()).replace("[", "\\[").replace("]", "\\]")
 
 
 # ------------------------------------------------------------------------------- commands
@@ -186,7 +216,7 @@ def config_keys(model, prefix: str = ""):
     for name, info in model.model_fields.items():
         path = prefix + (info.alias or name)
         tables = _tables(info.annotation)
-        doc = info.description or (_cell(tables[0][1].__doc__ or "") if tables else "")
+        doc = info.description or ((tables[0][1].__doc__ or "") if tables else "")
         yield path, info, doc
         for step, inner in tables:
             yield from config_keys(inner, f"{path}{step}.")
