@@ -126,6 +126,9 @@ def test_the_readme_example_prints_what_the_readme_says():
     code = re.search(r"```python\n(.*?)```", README, re.S).group(1)
     assert len(code.splitlines()) <= 16
     said = re.search(r"prints `(.*?)` and `(.*?)`", README).groups()
+    guide = (ROOT / "docs/getting-started.md").read_text()           # shows the same example
+    assert re.search(r"```python\n(.*?)```", guide, re.S).group(1) == code
+    assert re.search(r"prints `(.*?)` and `(.*?)`", guide).groups() == said
     out = io.StringIO()
     with contextlib.redirect_stdout(out):
         exec(compile(code, "README.md", "exec"), {})

@@ -255,7 +255,9 @@ def config_page() -> str:
         for path, info, doc in config_keys(model):
             what = _cell(config_schema.describe(info))
             about = _cell(doc).rstrip(".")
-            default = "" if path.endswith("<name>") else f"; default {_default(info)}"
+            default = _default(info)
+            default = ("" if path.endswith("<name>") else "; required" if default == "required"
+                       else f"; default {default}")
             lines.append(f"- `{path}`: {about}{'. ' if about else ''}Takes {what}{default}.")
         lines.append("")
     return "\n".join(lines)
