@@ -1,7 +1,8 @@
 """The docs say what the code does: every flag `--help` prints, every config key the validator
-accepts and every column a sweep writes appear in the generated reference; the README's
-example prints what the README says; the README stays a short front door; and the site
-builds with every warning an error and loads nothing from the network."""
+accepts and every column a sweep writes appear in the generated reference; Getting started
+shows the README's example (which test_wheel.py runs) unchanged; the README stays a short
+front door; and the site builds with every warning an error and, opened from the file
+system, works with the network refused."""
 import argparse
 import contextlib
 import importlib.util
@@ -122,22 +123,15 @@ def test_the_exit_statuses_page_lists_every_status_a_command_returns(ref):
         assert f"| {n} | {' '.join(text.split())} |" in page
 
 
-def test_the_readme_example_prints_what_the_readme_says():
+def test_getting_started_shows_the_readme_s_api_example_and_its_output():
+    """test_wheel.py runs the README's example from the installed wheel and checks that it
+    prints what the README says; Getting started repeats it unchanged."""
     code = re.search(r"```python\n(.*?)```", README, re.S).group(1)
     assert len(code.splitlines()) <= 16
     said = re.search(r"prints `(.*?)` and `(.*?)`", README).groups()
-    guide = (ROOT / "docs/getting-started.md").read_text()           # shows the same example
+    guide = (ROOT / "docs/getting-started.md").read_text()
     assert re.search(r"```python\n(.*?)```", guide, re.S).group(1) == code
     assert re.search(r"prints `(.*?)` and `(.*?)`", guide).groups() == said
-    out = io.StringIO()
-    with contextlib.redirect_stdout(out):
-        exec(compile(code, "README.md", "exec"), {})
-    first, second = out.getvalue().splitlines()
-    final, err = first.rsplit(" ", 1)
-    assert final == said[0].rsplit(" ", 1)[0]
-    # The reference's adaptive steps may round differently on another CPU: 3 digits.
-    assert float(err) == pytest.approx(float(said[0].rsplit(" ", 1)[1]), rel=1e-3)
-    assert second == said[1]
 
 
 def test_the_readme_is_a_short_front_door_that_agrees_with_the_code(ref):
