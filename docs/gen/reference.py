@@ -55,8 +55,9 @@ def _named(nav) -> set[str]:
 
 
 def unlisted(config) -> None:
-    """Append the pages of docs/ that the nav does not name: a dated study (its name says
-    `study`) to Studies, any other to Guides, titled by its first heading. Pages come from
+    """Append the pages of docs/ that the nav does not name: a study or a record of
+    measurements (its name says so) to Studies, any other to Guides, titled by its first
+    heading. Pages come from
     several hands; none should be left out of the site, nor break its build."""
     docs, named = Path(config.docs_dir), _named(config.nav)
     sections = {next(iter(item)): item[next(iter(item))] for item in config.nav
@@ -67,7 +68,8 @@ def unlisted(config) -> None:
             continue
         title = next((line[2:].strip() for line in page.read_text().splitlines()
                       if line.startswith("# ")), page.stem)
-        sections["Studies" if "study" in page.stem else "Guides"].append({title: path})
+        study = "study" in page.stem or "measurement" in page.stem
+        sections["Studies" if study else "Guides"].append({title: path})
 
 
 def source_tree(root: Path) -> Path:
