@@ -1,7 +1,8 @@
-"""The reference pages, generated from the code when the site is built (a mkdocs hook): every
-command and flag from the command line's parsers, every config key of every file kind from the
-config schema, every results table's columns, the exit statuses. Each page is a function
-returning Markdown, so tests/test_docs.py checks the very text the site shows."""
+"""The site's mkdocs hook. It generates the reference pages from the code when the site is
+built: every command and flag from the command line's parsers, every config key of every file
+kind from the config schema, every results table's columns, the exit statuses. Each page is a
+function returning Markdown, so tests/test_docs.py checks the very text the site shows. It
+also lays the sources out for the API pages and places pages the nav does not name."""
 from __future__ import annotations
 
 import argparse
@@ -57,8 +58,8 @@ def _named(nav) -> set[str]:
 def unlisted(config) -> None:
     """Append the pages of docs/ that the nav does not name: a study or a record of
     measurements (its name says so) to Studies, any other to Guides, titled by its first
-    heading. Pages come from
-    several hands; none should be left out of the site, nor break its build."""
+    heading. Pages come from several hands; none should be left out of the site, nor break
+    its build."""
     docs, named = Path(config.docs_dir), _named(config.nav)
     sections = {next(iter(item)): item[next(iter(item))] for item in config.nav
                 if isinstance(item, dict) and isinstance(next(iter(item.values())), list)}
