@@ -155,7 +155,8 @@ def test_the_site_builds_strictly_and_loads_nothing_from_the_network(site):
         assert (out / f"{page}.html").is_file(), page
     api = (out / "api.html").read_text()
     assert "integrate_batch" in api and "reference" in api
-    loads = re.compile(r"<(?:script|link|img|iframe)\b[^>]*\b(?:src|href)=[\"']((?:https?:)?//[^\"']+)")
+    loads = re.compile(r"<(?:script|link|img|iframe)\b[^>]*\b(?:src|href)="
+                       r"[\"']((?:https?:)?//[^\"']+)")
     for html in out.rglob("*.html"):
         remote = loads.findall(html.read_text())
         assert not remote, (html.name, remote[:3])
