@@ -1,8 +1,8 @@
 """The engineer's loop of docs/tutorial-engineer-loop.md, run as a user would on a copy of its
 model files (docs/examples/myvehicle) in a folder outside the package: the page shows those
 very files, the lines the page says the commands print are printed (results, not timings),
-the steering clamp is flagged where the reference reaches it, the CasADi model measures the JAX model's limits bit for bit, and
-the exports carry the tuned TOML's numbers."""
+the steering clamp is flagged where the reference reaches it, the CasADi model measures the
+JAX model's limits bit for bit, and the exports carry the tuned TOML's numbers."""
 import contextlib
 import io
 import json
