@@ -69,7 +69,8 @@ def test_limit_binds_at_a_named_time_and_eigenvalue(chain_limits):
 
 @pytest.fixture(scope="module")
 def user_run(tmp_path_factory):
-    """`stepzoo sweep`, `tune --tol` and `report` on the user's model, as the README shows."""
+    """`stepzoo sweep`, `tune --tol` and `report` on the user's model, as
+    docs/your-model.md shows."""
     folder = tmp_path_factory.mktemp("user")
     text = CHAIN.read_text()
     head, _, tail = text.partition("[model]")

@@ -1,7 +1,7 @@
 """The library is a library: importing any stepzoo module leaves JAX's configuration and
 XLA_FLAGS as they were, and no module imports a layer above its own (the order of
-/work/shared/DESIGN.md: shared plumbing, dynamics, integrators, then bench and search as
-siblings, reports, and the command line on top)."""
+docs/design.md: shared plumbing, dynamics, integrators, then bench and search as siblings,
+reports, and the command line on top)."""
 import ast
 import json
 import os

@@ -1,8 +1,8 @@
 """The engineer's loop of docs/tutorial-engineer-loop.md, run as a user would on a copy of its
-model files (docs/examples/myvehicle) in a folder outside the package: the lines the page says
-the commands print are printed (results, not timings), the steering clamp is flagged where
-the reference reaches it, the CasADi model measures the JAX model's limits bit for bit, and
-the exports carry the tuned TOML's numbers."""
+model files (docs/examples/myvehicle) in a folder outside the package: the page shows those
+very files, the lines the page says the commands print are printed (results, not timings),
+the steering clamp is flagged where the reference reaches it, the CasADi model measures the
+JAX model's limits bit for bit, and the exports carry the tuned TOML's numbers."""
 import contextlib
 import io
 import json
@@ -49,6 +49,8 @@ def loop(tmp_path_factory):
     os.chdir(folder)
     try:
         out = {
+            "stability": run(["stability", "vehicle.toml", "--at", "v=5", "--at",
+                              "ddelta=0.77"]),
             "sweep": run(["sweep", "vehicle.toml", "--out", "sweep", "--no-progress"]),
             "casadi": run(["sweep", "vehicle_casadi.toml", "--out", "sweep_casadi",
                            "--no-progress"]),
@@ -66,6 +68,25 @@ def loop(tmp_path_factory):
     finally:
         os.chdir(here)
     return folder, out
+
+
+def test_the_page_shows_the_very_files_the_loop_runs():
+    """Each code block of the page is one of the example files whole, or (the CasADi
+    config's [model] table) a part of one, so what a reader copies is what was run."""
+    import re
+    files = {f.name: f.read_text() for f in EXAMPLE.iterdir()}
+    blocks = re.findall(r"```(?:python|toml)\n(.*?)```", PAGE, re.S)
+    whole = [name for block in blocks for name, text in files.items() if text == block]
+    assert sorted(whole) == ["vehicle.py", "vehicle.toml", "vehicle_casadi.py"]
+    assert all(any(block in text for text in files.values()) for block in blocks)
+
+
+def test_stability_prints_the_page_s_eigenvalues_and_limits(loop):
+    _, out = loop
+    lines = out["stability"].splitlines()
+    assert said("eigenvalues of df/dx at the initial state") in lines
+    for name in ("euler", "rk4", "dopri5", "backward_euler"):
+        assert said(f"{name:<17}") in lines
 
 
 def test_the_sweep_prints_the_page_s_table_and_flags_the_clamp_where_it_is_reached(loop):
