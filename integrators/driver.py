@@ -1,9 +1,9 @@
 """The one driver: `lax.scan` over fixed steps, batched with `vmap` over initial states, inputs
 and parameters. Everything that integrates with a fixed step goes through `integrate`.
 
-With `max_steps` given, the step count may be a run-time value: the scan runs in blocks of
-`BLOCK` steps inside a loop, so one compilation serves every step size (output rows past the
-last step are NaN).
+With `max_steps` given, the step count may be a run-time value: a while loop takes the steps
+and writes each state into a buffer of max_steps + 1 rows, so one compilation serves every
+step size (output rows past the last step are NaN).
 
 A batch of at least `SMALL_BATCH` trajectories runs in chunks (`chunk_size`) with the batch as
 the last axis of the carried state: each component is then a contiguous row that XLA
@@ -24,7 +24,6 @@ from jax.sharding import Mesh, PartitionSpec
 from stepzoo.integrators import arguments
 from stepzoo.integrators.fast_trig import flagged_trig
 
-BLOCK = 32
 # Trajectories per chunk. Measured at batch 4000 on one core, with each loop compiled whole
 # (see dynamics/__init__.py), in trajectory-steps/s: rk4 with fast_trig 1.4e7 / 1.8e7 /
 # 1.7e7 / 1.6e7 / 1.3e7 for chunks of 4 / 8 / 16 / 32 / 256; dopri5 1.1e7 / 1.2e7 / 1.3e7
@@ -86,30 +85,27 @@ def _scan(start, step, x0, h, n_start, n_steps, t0, max_steps):
         if n_steps < n_start:
             state = dict(state, evals=jnp.full_like(state["evals"], jnp.nan))
         return xs, state
-    return _blocked(body, x0, ys0, y_m, state, n_start, n_steps, max_steps)
+    return _stepwise(step, x0, ys0, y_m, state, n_start, n_steps, max_steps, t0, h)
 
 
-def _blocked(body, x0, ys0, y_m, state, m, n_steps, max_steps):
-    """Run-time step count: blocks of BLOCK steps; steps past n_steps leave the carry alone."""
-    n_blocks_max = -(-(max_steps - m) // BLOCK)
-    buf = jnp.full((n_blocks_max * BLOCK,) + x0.shape, jnp.nan, x0.dtype)
+def _stepwise(step, x0, ys0, y_m, state, m, n_steps, max_steps, t0, h):
+    """Run-time step count: a while loop over the steps m..n_steps-1, each writing its state
+    into its row of a NaN buffer. Blocks of a fixed number of scanned steps, with the steps
+    past n_steps masked, compiled and ran slower: they add a loop, and selects to every
+    step."""
+    buf = jnp.full((max_steps + 1,) + x0.shape, jnp.nan, x0.dtype)
+    buf = lax.dynamic_update_slice(buf, jnp.concatenate([x0[None], ys0])[: max_steps + 1],
+                                   (0,) * buf.ndim)
 
-    def masked(carry, x):
-        new, y = body(carry, x)
-        active = carry[0] < n_steps
-        new = jax.tree.map(lambda a, b: jnp.where(active, a, b), new, carry)
-        return new, jnp.where(active, y, jnp.nan)
+    def body(carry):
+        k, y, st, buf = carry
+        y, st = step(t0 + k * h, y, st)
+        return k + 1, y, st, lax.dynamic_update_slice(buf, y[None], (k + 1,) + (0,) * x0.ndim)
 
-    def block(i, c):
-        carry, buf = c
-        carry, ys = lax.scan(masked, carry, None, length=BLOCK)
-        return carry, lax.dynamic_update_slice(buf, ys, (i * BLOCK,) + (0,) * x0.ndim)
-
-    n_blocks = (jnp.maximum(n_steps - m, 0) + BLOCK - 1) // BLOCK
-    (_, _, state), buf = lax.fori_loop(0, n_blocks, block, ((m, y_m, state), buf))
-    xs = jnp.concatenate([x0[None], ys0, buf])[: max_steps + 1]
+    _, _, state, buf = lax.while_loop(lambda c: c[0] < n_steps, body, (m, y_m, state, buf))
+    # The starter's rows beyond a step count below n_start are not steps taken.
     rows = jnp.arange(max_steps + 1).reshape((-1,) + (1,) * x0.ndim)
-    return jnp.where(rows <= n_steps, xs, jnp.nan), state
+    return jnp.where(rows <= n_steps, buf, jnp.nan), state
 
 
 def _integrate(method, f, x0, u, p, h, n_steps, t0, max_steps):
