@@ -1,9 +1,9 @@
 """The one generic step of each family: explicit RK, implicit RK (simplified Newton: one
-Jacobian and one factorisation per step), Rosenbrock (one Jacobian, one factorisation and one
+Jacobian and its factorisations per step, or an earlier step's while it serves), Rosenbrock (one Jacobian, one factorisation and one
 linear solve per stage, no Newton) and linear multistep (explicit or implicit).
 `fun(t, y)` is the right-hand side with inputs and parameters already bound; every step
-returns (y_next, state) and counts its evaluations in state["evals"] (implicit: the Jacobian
-counts as d evaluations, one per column). An implicit step whose solve fails returns NaN and
+returns (y_next, state) and counts its evaluations in state["evals"] (implicit: a Jacobian
+taken counts as d evaluations, one per column). An implicit step whose solve fails returns NaN and
 clears state["converged"]; a step from a state that has already blown up (the method's own
 instability) is no solver failure."""
 import jax
