@@ -270,7 +270,7 @@ def _iterate(residual, solve_size, z0, y_scale, opts, fresh, done0, lined=False)
 
     st = (z0, jnp.asarray(0), jnp.asarray(jnp.inf, z0.dtype), done0, jnp.asarray(False),
           jnp.zeros((), z0.dtype))
-    if lined and not fresh and opts.max_iter >= IN_LINE:
+    if lined and not fresh and 2 <= IN_LINE <= opts.max_iter:
         # The first IN_LINE iterations in line, with no test until the last of them: most
         # solves need no more, and a loop costs more per iteration than its arithmetic.
         # A solve that diverges in them fails the test as it would in the loop.
