@@ -1,8 +1,8 @@
 """Simplified Newton iteration for the stage equations of the implicit methods (Hairer &
 Wanner, Solving ODEs II, IV.8, as in RADAU5): every iteration reuses one factorised iteration
 matrix, whose Jacobian a step keeps from the last while the iteration contracts fast, and a
-fully implicit method's stage system is solved through A's eigenvalues. A solve reports whether it converged: the rate of
-convergence theta_k = |dz_k| / |dz_{k-1}| estimates the error left after an increment as
+fully implicit method's stage system is solved through A's eigenvalues. A solve reports
+whether it converged: the rate of convergence theta_k = |dz_k| / |dz_{k-1}| estimates the error left after an increment as
 theta/(1 - theta) |dz_k|; the solve stops when that estimate and the residual are both within
 tolerance, and gives up early when the iteration diverges (theta >= 1) or cannot reach the
 tolerance within the iteration limit at its current rate."""
@@ -124,9 +124,9 @@ def solver(factors):
 class Stages(NamedTuple):
     """I - h A (x) J for a diagonalisable A = V diag(mu) V^-1, transformed as RADAU5 does
     (HW IV.8): one d x d system I - h mu J per real eigenvalue mu and one, in complex
-    arithmetic, per complex pair, instead of the s d x s d system. `pick` are the
-    eigenvalues solved for (the one of each pair with Im mu > 0), `twice` those standing
-    for a pair; V and V^-1 are NumPy constants."""
+    arithmetic, per complex pair, instead of the s d x s d system. `mu` are the
+    eigenvalues solved for (of a pair, the one with Im mu > 0), `twice` says which stand
+    for a pair; `v` their columns of V, `v_inv` their rows of V^-1 (NumPy constants)."""
     v: np.ndarray
     v_inv: np.ndarray
     mu: np.ndarray
