@@ -2,10 +2,11 @@
 Wanner, Solving ODEs II, IV.8, as in RADAU5): every iteration reuses one factorised iteration
 matrix, whose Jacobian a step keeps from the last while the iteration contracts fast, and a
 fully implicit method's stage system is solved through A's eigenvalues. A solve reports
-whether it converged: the rate of convergence theta_k = |dz_k| / |dz_{k-1}| estimates the error left after an increment as
-theta/(1 - theta) |dz_k|; the solve stops when that estimate and the residual are both within
-tolerance, and gives up early when the iteration diverges (theta >= 1) or cannot reach the
-tolerance within the iteration limit at its current rate."""
+whether it converged: the rate of convergence theta_k = |dz_k| / |dz_{k-1}| estimates the
+error left after an increment as theta/(1 - theta) |dz_k|; the solve stops when that
+estimate and the residual are both within tolerance, and gives up early when the iteration
+diverges (theta >= 1) or cannot reach the tolerance within the iteration limit at its
+current rate."""
 from dataclasses import dataclass
 from typing import NamedTuple
 

@@ -1,6 +1,7 @@
 """The one generic step of each family: explicit RK, implicit RK (simplified Newton: one
-Jacobian and its factorisations per step, or an earlier step's while it serves), Rosenbrock (one Jacobian, one factorisation and one
-linear solve per stage, no Newton) and linear multistep (explicit or implicit).
+Jacobian and its factorisations per step, or an earlier step's while it serves), Rosenbrock
+(one Jacobian, one factorisation and one linear solve per stage, no Newton) and linear
+multistep (explicit or implicit).
 `fun(t, y)` is the right-hand side with inputs and parameters already bound; every step
 returns (y_next, state) and counts its evaluations in state["evals"] (implicit: a Jacobian
 taken counts as d evaluations, one per column). An implicit step whose solve fails returns NaN and
