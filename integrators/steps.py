@@ -94,7 +94,7 @@ def _held(scheme, fun, t, y, h, state):
     return refresh(held, ~state["keep"]), refresh
 
 
-def _finish(y, y_next, ok, state, evals, held=None, keep=None):
+def _finish(y, y_next, ok, state, evals, held, keep):
     """NaN after a failed solve. The flag is cleared only by a failure from a state below
     finfo.max^(1/4) (1e77 in float64): beyond it the method has already blown up, and its
     right-hand side's arithmetic overflows whatever the solver does. The Jacobian counts
