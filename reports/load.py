@@ -21,7 +21,6 @@ from stepzoo.safe_parse import json_loads, toml_loads
 # manifest's model names: its envelope variables and states (View).
 SWEEP_TABLES = {f"{name}.{'csv' if name == 'summary' else 'parquet'}": columns
                 for name, columns in schema.REQUIRED.items()}
-TUNED_KEYS = ["method", "h"]
 TOLERANCES = {"pos_tol_m": ("err_pos", "m", "position error"),
               "tol": ("err", "", "error (error states over their scales)")}
 # A sweep written before models were data: the 5-state bicycle over (vx, delta).
@@ -164,7 +163,10 @@ def load_sweep(folder) -> Sweep:
 
 
 def load_tuned(path) -> dict:
-    """The TOML written by `stepzoo tune`, with its required keys checked."""
+    """The TOML written by `stepzoo tune`, checked as the tuned kind (stepzoo.tuned_file),
+    with a tolerance to draw."""
+    from stepzoo.config_schema import check
+    from stepzoo.tuned_file import TunedFile
     path = Path(path)
     if not path.is_file():
         raise UsageError(f"tuned config {path} does not exist; run `stepzoo tune SWEEP_DIR "
@@ -174,11 +176,10 @@ def load_tuned(path) -> dict:
     except (UnicodeDecodeError, tomllib.TOMLDecodeError) as err:
         raise UsageError(f"tuned config {path} is damaged ({err}); rerun `stepzoo tune`") \
             from None
-    missing = [k for k in TUNED_KEYS if k not in data]
+    check(TunedFile, data, f"tuned config {path}")
     if not any(k in data for k in TOLERANCES):
-        missing.append(" or ".join(TOLERANCES))
-    if missing:
-        raise UsageError(f"tuned config {path} lacks {', '.join(missing)}; rerun `stepzoo tune`")
+        raise UsageError(f"tuned config {path} lacks {' or '.join(TOLERANCES)}; rerun "
+                         "`stepzoo tune`")
     return data
 
 

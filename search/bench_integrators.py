@@ -44,25 +44,23 @@ def parse_spec(text: str) -> Integrator:
 def from_tuned(path, runners_up: int | None = None) -> list[Integrator]:
     """The choice of a TOML written by `stepzoo tune` and its runners-up that qualify (the
     first `runners_up` of them; None: all), in the TOML's order. A runner-up listed without
-    a step (`qualifies = false`: no step of that method met the tolerance) is not planned."""
+    a step (`qualifies = false`: no step of that method met the tolerance) is not planned.
+    The file is checked as the tuned kind (stepzoo.tuned_file), as `plan` checks it."""
+    from stepzoo.config_schema import check
     from stepzoo.integrators import METHODS
-    from stepzoo.validate import check, read_toml
-    data = read_toml(path, "--integrators-from", "give a TOML file written by `stepzoo tune`")
-    runners = data.get("runners_up", [])
-    if not isinstance(runners, list):
-        raise UsageError(f"--integrators-from {path}: runners_up must be a list of tables "
-                         "[[runners_up]]")
-    qualified = [r for r in runners if not isinstance(r, dict)
-                 or ("h" in r and r.get("qualifies", True) is not False)]
-    rows = [data, *qualified[:runners_up]]
+    from stepzoo.tuned_file import TunedFile
+    from stepzoo.validate import read_toml
+    where = f"--integrators-from {path}"
+    tuned = check(TunedFile, read_toml(path, "--integrators-from", "give a TOML file written "
+                                       "by `stepzoo tune`"), where)
+    qualified = [r for r in tuned.runners_up if r.h is not None and r.qualifies]
     out = []
-    for k, row in enumerate(rows):
-        where = f"--integrators-from {path}: " + ("the choice" if k == 0 else
-                                                  f"runner-up {k}")
-        if not isinstance(row, dict) or row.get("method") not in METHODS or "h" not in row:
-            raise UsageError(f"{where} needs method (a zoo name) and h (step [s])")
-        step = check("step", f"{where}: h", row["h"])
-        out.append(Integrator(row["method"], step, "tuned" if k == 0 else "runner-up"))
+    for k, row in enumerate([tuned, *qualified[:runners_up]]):
+        if row.method not in METHODS:
+            raise UsageError(f"{where}: " + ("the choice" if k == 0 else f"runner-up {k}")
+                             + f" names {row.method!r}, not a method of the zoo "
+                             "(`stepzoo methods` lists them)")
+        out.append(Integrator(row.method, row.h, "tuned" if k == 0 else "runner-up"))
     return out
 
 

@@ -58,6 +58,18 @@ def test_every_kind_refuses_an_unknown_key_in_one_line(tmp_path, capsys, argv, w
     assert len(lines) == 1 and where in lines[0], lines
 
 
+def test_plan_bench_and_report_read_a_tuned_file_as_the_tuned_kind(tmp_path, capsys,
+                                                                   tiny_sweep):
+    """Every reader of a tuned file checks it by the one declaration: plan-bench's
+    --integrators-from and the report's --tuned refuse the unknown key as plan does."""
+    bad = with_key(TUNED, tmp_path, "colour = 3")
+    queries = ROOT / "search" / "queries" / "streets.json"
+    for argv in (["plan-bench", queries, "--integrators-from", bad, "--out", tmp_path / "out"],
+                 ["report", tiny_sweep[1], "--tuned", bad, "--out", tmp_path / "out"]):
+        lines = refused(capsys, argv, tmp_path / "out")
+        assert len(lines) == 1 and "tuned_default.toml: unknown key 'colour'" in lines[0], lines
+
+
 def test_a_sweep_config_names_every_mistake_at_once_with_the_unit(tmp_path, capsys):
     raw = tomllib.loads(SMALL.read_text())
     raw["stability"]["h_probe_max"] = 500.0

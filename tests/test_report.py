@@ -91,8 +91,8 @@ def write_tuned(path, h=0.02):
     path.write_text(
         f'method = "rk4"\nh = {h}\nwhy = "cheapest under the tolerance"\npos_tol_m = 0.1\n'
         'margin = 0.2\ncost_evals_per_s = 200.0\ncost_time_per_s = 0.0002\n'
-        'sweep_config_sha256 = "abc123"\nenvelope = "vx 2..15 m/s"\nprovenance = "test"\n\n'
-        '[[runners_up]]\nmethod = "ab4"\nh = 0.005\ncost_evals_per_s = 200.0\n'
+        'sweep_config_sha256 = "abc123"\nprovenance = "test"\n\n'
+        '[envelope]\nvx = [2.0, 15.0]\npoints = 4\n\n[[runners_up]]\nmethod = "ab4"\nh = 0.005\ncost_evals_per_s = 200.0\n'
         'cost_time_per_s = 0.0002\nreason = "stability limit"\n')
     return path
 
