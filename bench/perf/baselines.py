@@ -150,11 +150,11 @@ def diffrax_solver(name: str, newton_tol: float = 1e-10):
     for it, a chord iteration, diverged on most of the benchmark's trajectories at that
     tolerance."""
     import diffrax
-    import optimistix
     if name == "rk4":
         return _diffrax_rk4()
     if name == "tsit5":
         return diffrax.Tsit5()
+    import optimistix
     return diffrax.Kvaerno5(root_finder=optimistix.Newton(rtol=newton_tol, atol=newton_tol))
 
 

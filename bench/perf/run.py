@@ -5,8 +5,8 @@ previous latest.json.
 
 Usage: python -m bench.perf.run [--all] [-k EXPR]   (-k selects benchmarks, as in pytest)
 
-Without --all the benchmarks of LONG are left out: issue 26's figures (make run cold and
-warm covers the sweep's start-up) in about a third of the time on a 2-core machine."""
+Without --all the benchmarks of LONG are left out, to keep the run near 20 minutes on a
+shared 2-core machine."""
 import json
 import os
 import platform
@@ -69,7 +69,7 @@ def run_benchmarks(json_path: Path, select: list[str]) -> int:
     if "--all" in select:
         select = [a for a in select if a != "--all"]
     else:
-        select = [*select, *(f"--deselect={ROOT / name}" for name in LONG)]
+        select = [*select, *(f"--ignore={ROOT / name}" for name in LONG)]
     cmd = [sys.executable, "-m", "pytest", str(ROOT / "bench" / "perf"), "-p", "no:cacheprovider",
            "-o", "python_files=bench_*.py", "-o", "addopts=", "-q",
            f"--benchmark-json={json_path}", "--benchmark-columns=min,median,rounds",
