@@ -92,8 +92,8 @@ def implicit_figures(batches=IMPLICIT_BATCHES, steps=IMPLICIT_STEPS) -> dict:
 def test_regimes(benchmark):
     fig = benchmark.pedantic(regime_figures, rounds=1)
     found = baselines.numba_layer() if "numba_fastmath_final_b1e3_steps_per_s" in fig else {}
-    benchmark.extra_info.update(kind="regimes", figures=fig, machine=dict(found,
-                                                                         regime_steps=STEPS))
+    benchmark.extra_info.update(kind="regimes", figures=fig, machine=dict(
+        found, regime_steps=STEPS, xla_host_devices=len(jax.devices())))
 
 
 def test_implicit_vs_kvaerno5(benchmark):

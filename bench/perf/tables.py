@@ -37,6 +37,8 @@ def section(result: dict, targets: dict) -> str:
                          if m.get(k))
     numba = (f" Numba's threading layer {m['numba_threading_layer']}, {m['numba_threads']} "
              "threads." if m.get("numba_threading_layer") else "")
+    if m.get("xla_host_devices"):
+        numba += f" stepzoo's driver on {m['xla_host_devices']} XLA host devices."
     lines = [BEGIN, "", f"### The latest run ({m['date']}, commit {m['commit']})", "",
              f"{m['cpu']}, {m['cores']} cores; load average {', '.join(map(str, load))} "
              f"(1, 5, 15 min) at the start, {m.get('load_after')} at the end. {versions}."
