@@ -5,8 +5,8 @@ previous latest.json.
 
 Usage: python -m bench.perf.run [--all] [-k EXPR]   (-k selects benchmarks, as in pytest)
 
-Without --all the benchmarks of LONG are left out, to keep the run near 20 minutes on a
-shared 2-core machine."""
+Without --all the benchmarks of LONG are left out, to keep the run near a quarter of an hour
+on a shared 2-core machine."""
 import json
 import os
 import platform
@@ -48,8 +48,9 @@ TARGETS = {# Issue 26: rk4 (generic model) at batch 1e5 against Numba prange+fas
            "plan_warm_before_search_s": ("<=", 1.0),
            # ... and one sent to a warm `stepzoo serve` well under it.
            "plan_served_before_search_s": ("<=", 0.5)}
-LONG = ("bench/perf/bench_distributed.py",
-        "bench/perf/bench_sweep.py::test_envelope_sweep_compilation_cache")
+# Benchmarks that only --all runs: the sweep on Dask workers (three cold sweeps and two
+# clusters), which would take as long as all the others together.
+LONG = ("bench/perf/bench_distributed.py",)
 LABEL = {1: "1", 100: "100", 1_000: "1e3", 10_000: "1e4", 100_000: "1e5"}
 REGIMES = ("stored", "final")     # as baselines.REGIMES, which imports JAX
 REGIME_BATCHES = ("1e3", "1e4", "1e5")
