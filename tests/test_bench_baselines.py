@@ -45,3 +45,20 @@ def test_docs_tables_are_those_of_latest_json():
     result = json.loads((run.RESULTS / "latest.json").read_text())
     page = tables.DOCS.read_text()
     assert tables.current(page) == tables.section(result, run.TARGETS)
+
+
+def test_issue_targets_are_formed_from_the_figures_they_name():
+    fig = {"rk4_final_b1e5_steps_per_s": 8.0, "numba_fastmath_final_b1e5_steps_per_s": 10.0,
+           "rk4_stored_b1e5_steps_per_s": 6.0, "numba_fastmath_stored_b1e5_steps_per_s": 5.0,
+           "interleaved_rk4_b1e5_generic_s": 2.0, "interleaved_rk4_b1e5_fast_trig_s": 1.8,
+           "api_rk4_b1e4_steps_per_s": 3.0, "command_rk4_b1e4_steps_per_s": 4.0,
+           "driver_trapezoidal_b1e4_steps_per_s": 1.0, "driver_rk4_b1e4_steps_per_s": 5.0}
+    ratios = run.ratios_of(fig)
+    assert ratios["rk4_b1e5_vs_numba_fastmath_final"] == pytest.approx(0.8)
+    assert ratios["rk4_b1e5_vs_numba_fastmath_stored"] == pytest.approx(1.2)
+    assert ratios["generic_vs_fast_trig_b1e5"] == pytest.approx(0.9)
+    assert ratios["api_vs_command_rk4_b1e4"] == pytest.approx(0.75)
+    assert ratios["trapezoidal_b1e4_vs_rk4_per_step"] == pytest.approx(0.2)
+    # Every target that is a ratio is one run.py forms (the others are figures).
+    assert {t for t in run.TARGETS if "_vs_" in t} <= set(ratios)
+    assert tables.met(0.8, (">=", 0.8)) == "yes" and tables.met(20.5, ("<=", 20.0)) == "no"

@@ -35,10 +35,11 @@ TARGETS = {# Issue 26: rk4 (generic model) at batch 1e5 against Numba prange+fas
            # ... one stability or verdict answer in 2 s with the cache warm.
            "stability_one_point_s": ("<=", 2.0), "stability_user_model_s": ("<=", 2.0),
            "verdict_one_point_s": ("<=", 2.0),
-           # ... an implicit step at batch 1e4 at most 4 rk4 steps (Radau IIA 5: 10).
-           **{f"{name}_b1e4_vs_rk4_per_step": (">=", 0.25)
-              for name in ("trapezoidal", "backward_euler", "bdf2", "bdf3", "bdf4", "bdf5")},
-           "radau_iia5_b1e4_vs_rk4_per_step": (">=", 0.1),
+           # ... an implicit step at batch 1e4 at most 4 rk4 steps (Radau IIA 5: 10), for
+           # those of the methods issue 26 names that implicit.py has make bench measure.
+           **{f"{name}_b1e4_vs_rk4_per_step": (">=", 0.1 if name == "radau_iia5" else 0.25)
+              for name in ("trapezoidal", "backward_euler", "bdf2", "bdf3", "bdf4", "bdf5",
+                           "radau_iia5") if name in IMPLICIT},
            # Issue 14: implicit steps at batch 1e4, per right-hand-side evaluation.
            "trapezoidal_b1e4_vs_rk4_per_eval": (">=", 0.25),
            "backward_euler_b1e4_vs_rk4_per_eval": (">=", 0.25),
