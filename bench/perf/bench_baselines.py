@@ -1,52 +1,101 @@
-"""The baselines on the driver's problem (rk4, H_S, N_STEPS, float64, whole trajectory kept):
-NumPy, Numba serial and `prange`+`fastmath`, diffrax, and SciPy DOP853 on one trajectory."""
+"""stepzoo's rk4 against its baselines (baselines.py) in both regimes, every state stored and
+the final state only, at batches BATCHES of STEPS steps of H_S; and stepzoo's implicit
+methods against diffrax's Kvaerno5 at a constant step, final state only. Within a batch the
+contenders run in interleaved rounds, so that a load spike on the shared machine hits all of
+them; each figure is the best round. JAX's are compiled ahead of the rounds, Numba's by a
+first call on one trajectory; NumPy has nothing to compile."""
+from time import perf_counter
+
 import jax
-import pytest
+import numpy as np
 
 from stepzoo.bench.perf import baselines
-from stepzoo.bench.perf.workload import H_S, N_STEPS, problem
+from stepzoo.bench.perf.implicit import IMPLICIT
+from stepzoo.bench.perf.workload import H_S, problem
 
-ROUNDS = {1: 30, 100: 10, 10_000: 3, 100_000: 2}   # as the driver's rk4, the contender
-
-
-def _info(benchmark, name, batch):
-    benchmark.extra_info.update(kind="baseline", baseline=name, batch=batch, n_steps=N_STEPS,
-                                work=batch * N_STEPS)
-
-
-@pytest.mark.parametrize("batch", (100, 10_000, 100_000))
-def test_numpy(benchmark, batch):
-    _info(benchmark, "numpy", batch)
-    args = problem(batch)
-    # Nothing to compile, and ~30 s a round at batch 1e5: one round there, no warm-up.
-    benchmark.pedantic(lambda: baselines.numpy_rk4(*args, H_S, N_STEPS),
-                       rounds=1 if batch == 100_000 else ROUNDS[batch],
-                       warmup_rounds=0 if batch == 100_000 else 1)
+BATCHES = (1_000, 10_000, 100_000)
+STEPS = 100                   # a stored run at batch 1e5 holds 0.4 GB
+ROUNDS = {1_000: 7, 10_000: 5, 100_000: 3}
+SLOW_S = 4.0                  # a contender whose call takes longer runs one round only
+IMPLICIT_BATCHES = (10_000,)     # the batch of issue 26's implicit targets
+IMPLICIT_STEPS = 20
+LABEL = {1_000: "1e3", 10_000: "1e4", 100_000: "1e5"}
 
 
-@pytest.mark.parametrize("batch", (1, 10_000, 100_000))
-@pytest.mark.parametrize("parallel", (False, True), ids=("serial", "fastmath"))
-def test_numba(benchmark, parallel, batch):
-    pytest.importorskip("numba")
-    if not parallel and batch == 100_000:
-        pytest.skip("serial Numba is the batch-1 baseline; 1e4 already shows its rate")
-    _info(benchmark, "numba_fastmath" if parallel else "numba_serial", batch)
-    fn, args = baselines.numba_rk4(parallel), problem(batch)
-    benchmark.pedantic(lambda: fn(*args, H_S, N_STEPS), rounds=ROUNDS[batch], warmup_rounds=1)
+def _compiled(fn, args):
+    """A JAX function compiled for `args` ahead of the rounds; any other (Numba's compiles
+    on its first call) called once on the first trajectory."""
+    if hasattr(fn, "lower"):
+        return fn.lower(*args).compile()
+    fn(*jax.tree.map(lambda a: a[:1], args))
+    return fn
 
 
-@pytest.mark.parametrize("batch", (1, 10_000, 100_000))
-def test_diffrax(benchmark, batch):
-    pytest.importorskip("diffrax")
-    _info(benchmark, "diffrax", batch)
-    fn, args = baselines.diffrax_rk4(N_STEPS, H_S), problem(batch)
-    benchmark.pedantic(lambda: jax.block_until_ready(fn(*args)), rounds=ROUNDS[batch],
-                       warmup_rounds=1)
+def _rounds(fns: dict, args, rounds: int, check: tuple = ()) -> tuple[dict, float]:
+    """The best wall time [s] of each f(*args), in interleaved rounds; and the largest
+    difference of the final states of the contenders named in `check` from the first
+    contender's in the first round, relative to each trajectory's largest state."""
+    best, slow, first, diff = {}, set(), None, 0.0
+    for r in range(rounds):
+        for name, fn in fns.items():
+            if name in slow:
+                continue
+            t0 = perf_counter()
+            out = jax.block_until_ready(fn(*args))
+            took = perf_counter() - t0
+            best[name] = min(best.get(name, np.inf), took)
+            if took > SLOW_S:
+                slow.add(name)
+            if r == 0 and (first is None or name in check):
+                end = np.asarray(out)[:, -1] if np.ndim(out) == 3 else np.asarray(out)
+                if first is None:
+                    first = end
+                else:
+                    scale = np.abs(first).max(axis=1)
+                    diff = max(diff, float((np.abs(end - first).max(axis=1) / scale).max()))
+            del out
+    return best, diff
 
 
-def test_scipy_dop853(benchmark):
-    _info(benchmark, "scipy_dop853", 1)
-    x0, u, p = problem(1)
-    one = {k: v[0] for k, v in p.items()}
-    benchmark.pedantic(lambda: baselines.scipy_dop853(x0[0], u[0], one, H_S, N_STEPS),
-                       rounds=5, warmup_rounds=1)
+def regime_figures(batches=BATCHES, steps=STEPS) -> dict:
+    """{contender}_{regime}_b{batch}_steps_per_s [trajectory-steps/s] for every contender,
+    regime and batch; same_work_{regime}_max_rel_diff: the largest difference of an RK4
+    baseline's final states from stepzoo's rk4 over the batches, relative to each
+    trajectory's largest state (round-off when both do the same work)."""
+    fig = {}
+    for regime in baselines.REGIMES:
+        made = baselines.contenders(H_S, steps, regime)
+        for batch in batches:
+            args = problem(batch)
+            fns = {name: _compiled(fn, args) for name, fn in made.items()}
+            best, diff = _rounds(fns, args, ROUNDS.get(batch, 3), baselines.SAME_AS_RK4)
+            for name, s in best.items():
+                fig[f"{name}_{regime}_b{LABEL[batch]}_steps_per_s"] = batch * steps / s
+            key = f"same_work_{regime}_max_rel_diff"
+            fig[key] = max(fig.get(key, 0.0), diff)
+    return fig
+
+
+def implicit_figures(batches=IMPLICIT_BATCHES, steps=IMPLICIT_STEPS) -> dict:
+    """The same, final state only, for stepzoo's implicit methods and diffrax's Kvaerno5."""
+    fig = {}
+    made = {name: baselines.stepzoo_run(H_S, steps, "final", name) for name in IMPLICIT}
+    made["diffrax_kvaerno5"] = baselines.diffrax_run(H_S, steps, "final", "kvaerno5")
+    for batch in batches:
+        args = problem(batch)
+        fns = {name: _compiled(fn, args) for name, fn in made.items()}
+        for name, s in _rounds(fns, args, ROUNDS.get(batch, 3))[0].items():
+            fig[f"{name}_final_b{LABEL[batch]}_steps_per_s"] = batch * steps / s
+    return fig
+
+
+def test_regimes(benchmark):
+    fig = benchmark.pedantic(regime_figures, rounds=1)
+    found = baselines.numba_layer() if "numba_fastmath_final_b1e3_steps_per_s" in fig else {}
+    benchmark.extra_info.update(kind="regimes", figures=fig, machine=dict(
+        found, regime_steps=STEPS, xla_host_devices=len(jax.devices())))
+
+
+def test_implicit_vs_kvaerno5(benchmark):
+    fig = benchmark.pedantic(implicit_figures, rounds=1)
+    benchmark.extra_info.update(kind="regimes", figures=fig)

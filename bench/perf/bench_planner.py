@@ -36,9 +36,9 @@ SEARCH_STARTS = """
 import json, sys, time
 from stepzoo.cli import plan as cmd_plan, serve as cmd_serve
 answer, arrived = cmd_serve._answer, [0.0]
-def timed_answer(connection):
+def timed_answer(connection, *rest):
     arrived[0] = time.process_time()
-    return answer(connection)
+    return answer(connection, *rest)
 cmd_serve._answer = timed_answer
 plan_scenario = cmd_plan.plan_scenario
 def timed_plan_scenario(*args):
