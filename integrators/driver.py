@@ -36,9 +36,8 @@ CHUNK = 8
 # per chunk then: rk4 at batch 1e4 ran about as fast as with the option and chunks of CHUNK.
 CHUNK_CALLS = 128
 # Implicit methods run Newton's while loop inside every step, which XLA does not compile into
-# the native step loop, so they favour few large chunks over many small ones; but not too
-# large: at batch 1e4 chunks of 128 ran trapezoidal and BDF3 faster than chunks of 256.
-CHUNK_IMPLICIT = 128
+# the native step loop, so they favour few large chunks over many small ones.
+CHUNK_IMPLICIT = 256
 # Below this many trajectories a plain vmap of the one-trajectory loop beats the chunks (at 64
 # steps: rk4 1.2x at batch 10 and 20, dopri5 1.5x at 10; chunks win from 40). A single
 # trajectory runs without a batch axis, since a vmap of one still cost 1.2x.

@@ -1,19 +1,16 @@
 """The one generic step of each family: explicit RK, implicit RK (simplified Newton: one
-Jacobian and its factorisations per step, or an earlier step's while it serves), Rosenbrock
-(one Jacobian, one factorisation and one linear solve per stage, no Newton) and linear
-multistep (explicit or implicit).
+Jacobian and one factorisation per step), Rosenbrock (one Jacobian, one factorisation and one
+linear solve per stage, no Newton) and linear multistep (explicit or implicit).
 `fun(t, y)` is the right-hand side with inputs and parameters already bound; every step
-returns (y_next, state) and counts its evaluations in state["evals"] (implicit: a Jacobian
-taken counts as d evaluations, one per column). An implicit step whose solve fails returns NaN and
+returns (y_next, state) and counts its evaluations in state["evals"] (implicit: the Jacobian
+counts as d evaluations, one per column). An implicit step whose solve fails returns NaN and
 clears state["converged"]; a step from a state that has already blown up (the method's own
 instability) is no solver failure."""
 import jax
 import jax.numpy as jnp
 import numpy as np
 
-from stepzoo.integrators.multistep import LinearMultistep
-from stepzoo.integrators.newton import (Held, Stages, factorised, keep_next, newton_solve,
-                                       renew, solver)
+from stepzoo.integrators.newton import factorised, newton_solve
 
 
 def rk_slopes(a, c, fun, t, y, h, needed=None, k0=None) -> list:
@@ -53,68 +50,29 @@ def jacobian(fun, t, y):
     return jax.jacfwd(lambda v: fun(t, v))(y)
 
 
-def factorise_for(scheme, h):
-    """J -> the factors of the iteration matrices of an implicit step of `scheme` with step
-    h: I - h beta_k J (multistep), I - h a_ii J per distinct diagonal entry (diagonally
-    implicit), or the stage system I - h A (x) J, transformed where A allows (`Stages`)."""
-    if isinstance(scheme, LinearMultistep):
-        bk = float(scheme.beta[-1])
-        return lambda jac: factorised(_eye(jac) - (h * bk) * jac)
-    if scheme.diagonally_implicit:
-        diag = sorted({float(g) for g in np.diag(scheme.a) if g != 0.0})
-        return lambda jac: {g: factorised(_eye(jac) - (h * g) * jac) for g in diag}
-    stages = Stages.of(scheme.a)
-    if stages is None:
-        a = np.asarray(scheme.a)
-        return lambda jac: factorised(jnp.eye(a.shape[0] * jac.shape[0], dtype=jac.dtype)
-                                      - h * jnp.kron(jnp.asarray(a, jac.dtype), jac))
-    a_norm = float(np.max(np.sum(np.abs(scheme.a), axis=1)))
-    return lambda jac: stages.factorise(h, jac, a_norm)
+def jacobian_and_slope(fun, t, y):
+    """(df/dy, f) at (t, y): f comes with the Jacobian's forward pass, at no cost."""
+    return jax.jacfwd(lambda v: (fun(t, v),) * 2, has_aux=True)(y)
 
 
-def _eye(jac):
-    return jnp.eye(jac.shape[0], dtype=jac.dtype)
-
-
-def newton_state(scheme, y0):
-    """The state an implicit step carries for the next: the Jacobian and its factors it may
-    keep (none yet: the first step takes its own)."""
-    jac = jnp.zeros(y0.shape * 2, y0.dtype)
-    held = Held(jac, factorise_for(scheme, 0.0)(jac), jnp.asarray(False))
-    return {"held": held, "keep": jnp.asarray(False)}
-
-
-def _held(scheme, fun, t, y, h, state):
-    """(held, refresh) at a step's start: the kept Jacobian where the last step's solves
-    allowed it (`newton.keep_next`), else this step's; `refresh(held, need)` takes this
-    step's where `need`."""
-    factorise = factorise_for(scheme, h)
-    refresh = lambda held, need: renew(held, lambda: jacobian(fun, t, y), factorise, need)
-    held = state["held"]._replace(current=jnp.asarray(False))
-    return refresh(held, ~state["keep"]), refresh
-
-
-def _finish(y, y_next, ok, state, evals, held, keep):
+def _finish(y, y_next, ok, state, evals):
     """NaN after a failed solve. The flag is cleared only by a failure from a state below
     finfo.max^(1/4) (1e77 in float64): beyond it the method has already blown up, and its
-    right-hand side's arithmetic overflows whatever the solver does. The Jacobian counts
-    d evaluations in the steps that took one."""
+    right-hand side's arithmetic overflows whatever the solver does."""
     failed = ~ok & jnp.all(jnp.abs(y) < jnp.finfo(y.dtype).max ** 0.25)
     y_next = jnp.where(ok, y_next, jnp.nan)
-    evals = evals + jnp.where(held.current, y.shape[0], 0)
-    return y_next, dict(state, evals=evals, converged=state["converged"] & ~failed,
-                        held=held, keep=keep)
+    return y_next, dict(state, evals=evals, converged=state["converged"] & ~failed)
 
 
 def implicit_rk_step(tab, opts, fun, t, y, h, state):
     """One step of an implicit tableau. A diagonally implicit one (a_ij = 0 for j > i) solves
     its stages one by one, each with I - h a_ii J (one factorisation per distinct a_ii);
-    any other solves all stages at once with I - h A (x) J. J is the step's own or, while
-    the simplified iteration contracts fast, an earlier step's (`newton.keep_next`)."""
-    held, refresh = _held(tab, fun, t, y, h, state)
-    if tab.diagonally_implicit:
-        return _dirk_step(tab, opts, fun, t, y, h, state, held, refresh)
+    any other solves all stages at once with I - h A (x) J."""
     d = y.shape[0]
+    eye = jnp.eye(d, dtype=y.dtype)
+    if tab.diagonally_implicit:
+        return _dirk_step(tab, opts, fun, t, y, h, state, *jacobian_and_slope(fun, t, y), eye)
+    jac = jacobian(fun, t, y)
     s = tab.stages
     a = jnp.asarray(tab.a, y.dtype)
 
@@ -125,12 +83,11 @@ def implicit_rk_step(tab, opts, fun, t, y, h, state):
     def residual(z):
         return z - h * (a @ stage_f(z)).reshape(-1)
 
-    stages = Stages.of(tab.a)
-    z, k1, k2, ok, held, theta = newton_solve(
-        residual, solver if stages is None else stages.solver, held, refresh,
-        jnp.zeros(s * d, y.dtype), jnp.tile(jnp.abs(y), s), opts)
+    solver = lambda z: factorised(jnp.eye(s * d, dtype=y.dtype) - h * jnp.kron(a, jac))
+    z, k1, k2, ok = newton_solve(residual, solver, jnp.zeros(s * d, y.dtype),
+                                 jnp.tile(jnp.abs(y), s), opts)
     zz = z.reshape(s, d)
-    evals = state["evals"] + k1 * s + k2 * (s + s * d)
+    evals = state["evals"] + d + k1 * s + k2 * (s + s * d)
     if np.linalg.matrix_rank(tab.a) == s:
         # y + h b^T F = y + b^T A^-1 Z: no evaluation of f, whose h*lambda-sized values
         # would cancel badly on stiff problems.
@@ -138,15 +95,16 @@ def implicit_rk_step(tab, opts, fun, t, y, h, state):
     else:
         y_next = y + h * (jnp.asarray(tab.b, y.dtype) @ stage_f(z))
         evals = evals + s
-    return _finish(y, y_next, ok, state, evals, held, keep_next(ok, theta, k2))
+    return _finish(y, y_next, ok, state, evals)
 
 
-def _dirk_step(tab, opts, fun, t, y, h, state, held, refresh):
+def _dirk_step(tab, opts, fun, t, y, h, state, jac, f0, eye):
     """Stages in order: Y_i = y + h sum_{j<i} a_ij k_j + z_i with z_i = h a_ii f(Y_i); the
     slope k_i = z_i / (h a_ii) costs no evaluation. Newton starts every stage from z_i = 0:
-    a start from a slope lands stiff problems on another root."""
-    ks, ok, evals = [], jnp.asarray(True), state["evals"]
-    theta, full = jnp.zeros((), y.dtype), 0
+    a start from a slope lands stiff problems on another root. An explicit first stage at
+    (t, y) is f(t, y), the Jacobian's by-product."""
+    ks, ok, evals = [], jnp.asarray(True), state["evals"] + y.shape[0]
+    solvers = {}        # one factorisation per distinct diagonal entry
     for i in range(tab.stages):
         known = y
         for j in range(i):
@@ -154,21 +112,24 @@ def _dirk_step(tab, opts, fun, t, y, h, state, held, refresh):
                 known = known + (h * float(tab.a[i, j])) * ks[j]
         ti, gii = t + float(tab.c[i]) * h, float(tab.a[i, i])
         if gii == 0.0:
-            ks.append(fun(ti, known))
-            evals = evals + 1
+            if i == 0 and tab.c[0] == 0.0:
+                ks.append(f0)
+            else:
+                ks.append(fun(ti, known))
+                evals = evals + 1
             continue
-        z, k1, k2, ok_i, held, theta_i = newton_solve(
-            lambda z: z - (h * gii) * fun(ti, known + z),
-            lambda factors, g=gii: solver(factors[g]), held, refresh, jnp.zeros_like(y),
-            jnp.abs(y), opts)
+        if gii not in solvers:
+            solvers[gii] = factorised(eye - (h * gii) * jac)
+        z, k1, k2, ok_i = newton_solve(lambda z: z - (h * gii) * fun(ti, known + z),
+                                       lambda _, f=solvers[gii]: f, jnp.zeros_like(y),
+                                       jnp.abs(y), opts)
         ks.append(z / (h * gii))
         ok, evals = ok & ok_i, evals + k1 + k2 * (1 + y.shape[0])
-        theta, full = jnp.maximum(theta, theta_i), full + k2
     if tab.stiffly_accurate:
         y_next = known + z          # the last stage is the solution: no cancellation
     else:
         y_next = y + h * weighted(tab.b, ks)
-    return _finish(y, y_next, ok, state, evals, held, keep_next(ok, theta, full))
+    return _finish(y, y_next, ok, state, evals)
 
 
 def rosenbrock_step(ros, fun, t, y, h, state):
@@ -184,7 +145,7 @@ def rosenbrock_step(ros, fun, t, y, h, state):
     (f_t, jac), f0 = jax.jacfwd(lambda tt, yy: (fun(tt, yy),) * 2, argnums=(0, 1),
                                 has_aux=True)(t, y)
     g = ros.gamma_diag
-    solve, _ = solver(factorised(jnp.eye(d, dtype=y.dtype) - (h * g) * jac))
+    solve, _ = factorised(jnp.eye(d, dtype=y.dtype) - (h * g) * jac)
     us, fs = [], []
     for i in range(ros.stages):
         if ros.same_as[i] < i:
@@ -221,12 +182,13 @@ def multistep_step(lmm, opts, fun, t, y, h, state):
         y_next, state = known, dict(state, evals=evals)
     else:
         bk = float(lmm.beta[k])
-        held, refresh = _held(lmm, fun, t, y, h, state)
-        y_next, k1, k2, ok, held, theta = newton_solve(
-            lambda v: v - (h * bk) * fun(t_next, v) - known, solver, held, refresh,
-            jnp.tensordot(jnp.asarray(lmm.predictor, y.dtype), ys, 1), jnp.abs(y), opts)
-        y_next, state = _finish(y, y_next, ok, state, evals + k1 + k2 * (1 + y.shape[0]),
-                                held, keep_next(ok, theta, k2))
+        d = y.shape[0]
+        fixed = factorised(jnp.eye(d, dtype=y.dtype) - (h * bk) * jacobian(fun, t, y))
+        y_next, k1, k2, ok = newton_solve(lambda v: v - (h * bk) * fun(t_next, v) - known,
+                                          lambda _: fixed,
+                                          jnp.tensordot(jnp.asarray(lmm.predictor, y.dtype), ys, 1),
+                                          jnp.abs(y), opts)
+        y_next, state = _finish(y, y_next, ok, state, evals + d + k1 + k2 * (1 + d))
     f_next = fun(t_next, y_next)
     ys = jnp.concatenate([ys[1:], y_next[None]])
     fs = jnp.concatenate([fs[1:], f_next[None]])

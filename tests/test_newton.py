@@ -1,7 +1,6 @@
 """Implicit solves never lie: a run either solves its stage equations (and then lands where
 the method's equations, solved to round-off, land) or says it did not (converged False, NaN
 from the failed step on)."""
-import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
@@ -194,87 +193,3 @@ def test_unrolled_elimination_steps_as_lapack_does(monkeypatch, name):
     assert bool(ours.converged) and bool(lapack.converged)
     x, ref = np.asarray(ours.x), np.asarray(lapack.x[:31])
     assert np.max(np.abs(x - ref) / (1 + np.abs(ref))) <= 1e-10
-
-
-def _drifting(t, y, u, p):
-    """y' = lam(t) (y - g(t)) + g'(t), two uncoupled copies, lam = -1000 - 10 t (stiff, its
-    Jacobian lam(t) I drifting slowly), g = cos t: exact y = g + (y0 - g(0)) e^{int lam}."""
-    lam = -1000.0 - 10.0 * t
-    return lam * (y - jnp.cos(t)) - jnp.sin(t)
-
-
-def _drifting_exact(t, y0):
-    return np.cos(t) + (y0 - 1.0) * np.exp(-1000.0 * t - 5.0 * t ** 2)
-
-
-@pytest.mark.parametrize("name", ["trapezoidal", "radau_iia5", "bdf2"])
-def test_a_kept_jacobian_gives_the_fresh_jacobian_s_trajectory(monkeypatch, name):
-    """With the Jacobian kept across steps while Newton contracts fast (RADAU5's rule) the
-    trajectory is the one a fresh Jacobian every step gives, to the Newton tolerance (1e-10
-    weighted by 1 + |y|), and both are the exact solution to the method's error; the kept
-    run does keep it."""
-    from stepzoo.integrators import newton
-    y0, h, n = jnp.array([2.0, -1.0]), 0.01, 100
-    kept = integrate(method(name), _drifting, y0, None, None, h, n)
-    monkeypatch.setattr(newton, "THETA_KEEP", -1.0)     # never keep: a Jacobian every step
-    fresh = integrate(method(name), lambda t, y, u, p: _drifting(t, y, u, p), y0, None, None,
-                      h, n)
-    assert bool(kept.converged) and bool(fresh.converged)
-    x, ref = np.asarray(kept.x), np.asarray(fresh.x)
-    assert np.max(np.abs(x - ref) / (1 + np.abs(ref))) <= 1e-9
-    exact = _drifting_exact(np.asarray(fresh.t)[:, None], np.asarray(y0))
-    # At t = 1, past the stiff transient (which the trapezoidal rule does not damp).
-    assert np.max(np.abs(x[-1] - exact[-1])) <= 1e-6
-    # The kept run did keep it: steps whose Jacobian is not their own.
-    monkeypatch.undo()
-    m = method(name)
-    step = jax.jit(lambda t, y, st: m.step(lambda tt, yy: _drifting(tt, yy, None, None), t, y,
-                                           h, st))
-    k0 = m.n_start
-    state = dict(m.init_state(y0), ys=jnp.asarray(kept.x[:k0 + 1]),
-                 fs=jnp.stack([_drifting(kept.t[i], kept.x[i], None, None)
-                               for i in range(k0 + 1)])) if m.is_multistep else m.init_state(y0)
-    y, own = kept.x[k0], []
-    for i in range(k0, k0 + 20):
-        y, state = step(kept.t[i], y, state)
-        own.append(bool(state["held"].current))
-    assert own[0] and not all(own), own
-
-
-def _breaking(t, y, u, p):
-    """y' = -y until t = 0.45 (the kept Jacobian contracts at once), then y' = -1e6 y^3: a
-    stiff cubic that two simplified iterations cannot solve from the step's start."""
-    return jnp.where(t < 0.45, -y, -1e6 * y ** 3)
-
-
-@pytest.mark.parametrize("name", ["trapezoidal", "radau_iia5", "bdf2"])
-def test_a_solve_that_fails_with_a_kept_jacobian_is_still_reported(name):
-    # Two simplified iterations and no full-Newton retry: the steps before t = 0.45 converge
-    # (keeping the Jacobian); the first step past it fails with the kept Jacobian, again
-    # with a fresh one, and the run says so, NaN from there on.
-    m = method(name).with_newton(max_iter=2, max_iter_full=0)
-    tr = integrate(m, _breaking, jnp.array([1.0]), None, None, 0.1, 10)
-    x = np.asarray(tr.x)[:, 0]
-    assert not bool(tr.converged)
-    first = int(np.argmax(np.isnan(x)))
-    assert first == 5 and np.all(np.isfinite(x[:first])) and np.all(np.isnan(x[first:]))
-
-
-@pytest.mark.parametrize("name", ["radau_iia5", "radau_iia3", "gauss_legendre4"])
-def test_transformed_stage_system_solves_as_the_whole_one_does(name):
-    """(I - h A (x) J)^-1 r through A's eigenvalues (one real and one complex d x d system
-    for Radau IIA 5, RADAU5's transformation) against numpy.linalg.solve of the s d x s d
-    system, with the size 1 + |h A (x) J|_inf, on a seeded J."""
-    from stepzoo.integrators.newton import Stages
-    a = method(name).scheme.a
-    s, d, h = a.shape[0], 5, 0.3
-    rng = np.random.default_rng(3)
-    jac, r = rng.normal(size=(d, d)) * 10, rng.normal(size=s * d)
-    stages = Stages.of(a)
-    solve, size = stages.solver(stages.factorise(h, jnp.asarray(jac),
-                                                 float(np.max(np.abs(a).sum(axis=1)))))
-    whole = np.eye(s * d) - h * np.kron(a, jac)
-    np.testing.assert_allclose(np.asarray(solve(jnp.asarray(r))), np.linalg.solve(whole, r),
-                               rtol=0, atol=1e-12 * np.max(np.abs(np.linalg.solve(whole, r))))
-    assert float(size) == pytest.approx(1 + np.max(np.abs(h * np.kron(a, jac)).sum(axis=1)),
-                                        rel=1e-14)

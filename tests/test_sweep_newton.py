@@ -66,10 +66,9 @@ def test_a_suite_merges_newton_key_by_key_and_the_sha256_follows_the_options(pro
 
 def test_tight_newton_options_take_radau_iia5_below_the_default_floor(problems):
     """Robertson at h = 0.625 s (64 steps to t = 40 s), end-point error in the config's norm:
-    with the default solve tolerances (1e-10) it is at most the solves' floor (measured
-    8.7e-9 before the Jacobian was kept across steps; where the iteration stops within its
-    tolerance moves with the Jacobian); with the config's 1e-12 / 1e-14 it is the method's
-    own (4.5e-10, the same at 1e-14 / 1e-14 and 1e-14 / 1e-18)."""
+    with the default solve tolerances (1e-10) it is the solves' (measured 8.7e-9); with
+    the config's 1e-12 / 1e-14 it is the method's own (4.5e-10, the same at 1e-14 / 1e-14
+    and 1e-14 / 1e-18)."""
     (_, rob, _), _ = problems
     x0, u, p = rob.spec.arrays(rob.points)
     p = {k: float(v[0]) for k, v in p.items()}
@@ -81,5 +80,4 @@ def test_tight_newton_options_take_radau_iia5_below_the_default_floor(problems):
         err[label] = float(rob.spec.scaled(np.asarray(tr.x)[-1] - ROBERTSON_40))
     # The method's own error: what tighter solves give too (measured, 4.52e-10 at both).
     assert err["config"] == pytest.approx(4.52e-10, rel=0.02)
-    # The default's: within its tolerance's floor, on either side of the method's own.
-    assert err["default"] <= 2e-8
+    assert err["default"] > 10 * err["config"]
