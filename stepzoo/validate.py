@@ -1,6 +1,6 @@
 """Checks of user input shared by the commands, each failure one UsageError line: one table
-of physical and numerical ranges (RANGES) that every command and
-config file checks its numbers against."""
+of physical and numerical ranges (RANGES) that every command and config file checks its
+numbers against."""
 import math
 import os
 import tomllib
