@@ -306,3 +306,22 @@ def test_a_report_stopped_or_killed_midway_leaves_the_old_report_whole(tmp_path,
         (into / "index.html").write_text("new")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["report", "sweep", "tuned.toml"]
     assert report_files(out) == {**old, "index.html": b"new"}
+
+
+def test_every_column_of_a_finished_sweeps_tables_has_a_documented_meaning(tiny_sweep):
+    """The results-tables page is made from schema.COLUMN_DOC: a column a table gains without
+    a line there would appear in the reference with no meaning."""
+    folder = tiny_sweep[1]
+    model = json.loads((folder / "manifest.json").read_text())["model_spec"]
+    placeholder = {**{v: schema.VARIABLE for v in model["variables"]},
+                   **{s: schema.STATE for s in model["states"]},
+                   **{f"err_{s}": f"err_{schema.STATE}" for s in model["states"]},
+                   **{f"bind_{s}": f"bind_{schema.STATE}" for s in model["states"]}}
+    seen = set()
+    for table in schema.PARQUET:
+        path = folder / f"{table}.parquet"
+        if path.exists():
+            seen |= {placeholder.get(c, c) for c in pd.read_parquet(path).columns}
+    assert {"runs", "limits", "summary"} <= {p.stem for p in folder.glob("*.parquet")}
+    undocumented = sorted(c for c in seen if not schema.COLUMN_DOC.get(c, "").strip())
+    assert not undocumented, f"columns without a line in schema.COLUMN_DOC: {undocumented}"

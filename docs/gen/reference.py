@@ -269,86 +269,18 @@ def config_page() -> str:
 
 # ---------------------------------------------------------------------------------- tables
 
-VARIABLE, STATE = "<variable>", "<state>"
-# What a column means, from the table declarations' comments; a column missing here is
-# still listed, with its name alone.
-MEANING = {
-    "method": "the zoo's method name", "h": "the step size [s]",
-    "point": "the operating point's index in the envelope",
-    VARIABLE: "the operating point's value of that envelope variable",
-    "stable": "no blow-up, and every nonlinear solve converged",
-    "blowup_t": "when the run blew up [s] (NaN: it did not)",
-    f"err_{STATE}": "largest error of that state over the run [the state's unit]",
-    "err_pos": "largest position error over the run [m]",
-    "err_final": "position error at the end of the horizon [m]",
-    "evals_per_s": "right-hand-side evaluations per simulated second",
-    "time_per_step_s": "wall time per step, the fastest of the timed rounds [s]",
-    "time_per_step_median_s": "wall time per step, the median round [s]",
-    "time_per_step_max_s": "wall time per step, the slowest round [s]",
-    "time_per_step_iqr_s": "interquartile range of the rounds' times per step [s]",
-    "timing_rounds": "how many timed rounds", "n_steps": "steps of the run",
-    "ref_ok": "the reference met its tolerance",
-    "converged": "every nonlinear solve of that step's runs converged (explicit: always)",
-    "err": "largest error over the run of the error states, each over its scale",
-    "evals": "right-hand-side evaluations of the run",
-    "time_s": "wall time of the run, as the method's calibration prices it [s]",
-    "h_pred": "largest stable step predicted from the frozen-Jacobian eigenvalues along the "
-              "reference [s]",
-    "h_meas": "largest stable step measured by bisection [s]",
-    "ratio": "h_meas / h_pred", "order_declared": "the method's order",
-    "order_fit": "observed order on the asymptotic range of steps",
-    "h_probe_max": "largest step probed for a blow-up [s]",
-    "t_bind": "where along the reference the prediction binds [s]",
-    "lam_re_bind": "real part of the binding eigenvalue [1/s]",
-    "lam_im_bind": "imaginary part of the binding eigenvalue [1/s]",
-    "limit_cause": "what ended the stable range: unstable, solver failed, or none up to "
-                   "h_probe_max",
-    f"bind_{STATE}": "that state where the prediction binds",
-    "order_h_min": "finest step of the order fit [s]",
-    "order_h_max": "coarsest step of the order fit [s]",
-    "order_points": "steps in the order fit",
-    "order_note": "why no asymptotic range was found (asymptotic: one was)",
-    "rho_max": "largest spectral radius of the Jacobian along the reference [1/s]",
-    "order_h_rho": "order_h_min x rho_max: above the stiff threshold the fit is all stiff",
-    "nonsmooth_t": "first time f is not smooth along the reference [s] (NaN: smooth)",
-    "nonsmooth_what": "the state or input that jumps there",
-    "nonsmooth_kind": "jump (f itself) or kink (its Jacobian)",
-    "nonsmooth_events": "how many such points", "model_nan_t": "where the model is not "
-    "finite [s]",
-    "family": "explicit RK, implicit RK, Rosenbrock, Adams-Bashforth, Adams-Moulton or BDF",
-    "order_fit_median": "median observed order over the points",
-    "order_fit_min": "smallest observed order", "order_fit_max": "largest observed order",
-    "real_interval": "stability interval on the negative real axis (h lambda)",
-    "imag_interval": "stability interval on the imaginary axis (h lambda)",
-    "h_meas_min": "smallest h_meas over the points that blew up or never failed [s]",
-    "h_pred_min": "smallest h_pred over the points [s]",
-    "worst_ratio": "the largest h_meas / h_pred", "implicit": "whether it solves equations",
-    "evals_per_step": "right-hand-side evaluations per step", "points": "operating points",
-    "solver_failures": "runs whose nonlinear solves failed",
-    "order_status": "matches, stiff range, below or above declared, no asymptotic range, "
-                    "not observable, or limited by non-smooth f",
-    "solver_limited_points": "points where a failed solve ended the stable range first",
-    "h_solver_limit_min": "their smallest h_meas [s]",
-    "nonsmooth_points": "points where f is not smooth",
-    "nonsmooth_note": "where, and the remedy",
-    "lam_re": "real part of an eigenvalue of df/dx at the initial state [1/s]",
-    "lam_im": "imaginary part of that eigenvalue [1/s]", "t": "time [s]",
-    STATE: "the state's value", "past_limit": "the sample step past the predicted limit",
-}
-
-
 def sweep_tables() -> dict:
     """A sweep folder's tables -> their columns; `<variable>` stands for each envelope
     variable, `<state>` for each state of the model."""
     from stepzoo.bench import schema
     return {
-        "runs": schema.run_columns([VARIABLE], [STATE], vehicle=True),
-        "limits": schema.limit_columns([VARIABLE], [STATE]),
+        "runs": schema.run_columns([schema.VARIABLE], [schema.STATE], vehicle=True),
+        "limits": schema.limit_columns([schema.VARIABLE], [schema.STATE]),
         "summary": list(schema.SUMMARY),
-        "eigenvalues": schema.eigen_columns([VARIABLE]),
+        "eigenvalues": schema.eigen_columns([schema.VARIABLE]),
         # Assembled by the sweep rather than declared: what a reader needs, then the states and
         # which sample it is (test_docs checks this against a finished sweep's file).
-        "trajectories": [*schema.REQUIRED["trajectories"], STATE, "past_limit"],
+        "trajectories": [*schema.REQUIRED["trajectories"], schema.STATE, "past_limit"],
     }
 
 
@@ -380,7 +312,7 @@ def tables_page() -> str:
                  else f"`{c}`" for c in columns]
         lines += [f"### `{table}`", "", "Files: " + ", ".join(f"`{f}`" for f in files) + ".",
                   "", "| column | meaning |", "| --- | --- |"]
-        lines += [f"| {name} | {MEANING.get(c, '')} |" for c, name in zip(columns, shown)]
+        lines += [f"| {name} | {schema.COLUMN_DOC[c]} |" for c, name in zip(columns, shown)]
         lines.append("")
     lines += ["## Plans and plan-bench folders (`stepzoo plan`, `stepzoo plan-bench`)", "",
               "`stepzoo plan` writes `plan.json`; `stepzoo plan-bench` writes `runs` (one row "
