@@ -12,13 +12,14 @@ import pandas as pd
 import pytest
 
 from stepzoo import dynamics
-from stepzoo.bench import schema
+from stepzoo.bench import schema, sweep_folder
 from stepzoo.cli import main as stepzoo
 from stepzoo.bench.frozen import predicted_limit
 from stepzoo.bench.block import Block
 from stepzoo.bench.sweep import chunk_ids, compute_chunk, run_sweep
 from stepzoo.bench.sweep_config import load
 from stepzoo.dynamics.linear import lateral_matrix
+from stepzoo.errors import UsageError
 from stepzoo.integrators import METHODS, method
 from stepzoo.integrators.stability import a_alpha, a_stable, max_stable_step
 
@@ -235,3 +236,19 @@ def test_a_config_mistake_is_one_clear_line_and_exit_2(tmp_path, capsys, change,
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and message in err, err
     assert not (tmp_path / "out").exists()
+
+
+def test_a_folder_fingerprinted_by_the_older_rule_resumes_with_its_own_config(tmp_path):
+    """Before 2026-11-25 a config's sha256 covered its defaults too: such a folder's manifest
+    names another sha256, but its config.toml is the same config, so --resume goes on; a
+    different config is still refused."""
+    small = CONFIGS / "small.toml"
+    out = tmp_path / "out"
+    (out / "chunks").mkdir(parents=True)
+    (out / "config.toml").write_text(small.read_text())
+    (out / "manifest.json").write_text('{"config_sha256": "fb432e94", "created": "then"}')
+    assert sweep_folder.check_start(load(small), out, resume=True, overwrite=False) == {
+        "config_sha256": "fb432e94", "created": "then"}
+    other = dataclasses.replace(load(small), methods=("euler",))
+    with pytest.raises(UsageError, match="different config"):
+        sweep_folder.check_start(other, out, resume=True, overwrite=False)
