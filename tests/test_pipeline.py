@@ -143,3 +143,36 @@ def test_a_stage_that_finds_nothing_is_one_line_naming_it_and_keeps_what_was_wri
     assert len(err) == 1 and err[0].startswith("stepzoo run: no answer: stopped at tune: "), err
     assert (out / "tuned.toml").read_text() == before
     assert json.loads((out / "sweep" / "manifest.json").read_text())["created"] == created
+
+
+def test_figures_drawn_while_planning_are_the_report_s_own(ran):
+    """Figures 1-6, drawn in the second process while the run plans, are byte for byte what
+    the report draws from the run's folder: the same PNGs and the same Plotly fragments."""
+    from stepzoo.cli.report import sweep_figures
+    from stepzoo.reports.drawing import draw_apart
+    from stepzoo.reports.load import load_sweep, load_tuned
+    _, out, proc = ran
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    lines = proc.stderr.splitlines()
+    for i in range(1, 8):
+        assert any(f"] Figure {i}. " in line and line.endswith("drawn ahead") == (i < 7)
+                   for line in lines), i
+    page = (out / "report" / "index.html").read_text()
+    here = draw_apart(sweep_figures(load_sweep(out / "sweep"), load_tuned(out / "tuned.toml"),
+                                    lambda line: None))
+    assert [d.shown.number for d in here] == [1, 2, 3, 4, 5, 6]
+    for drawn in here:
+        assert drawn.divs and all(div in page for div in drawn.divs)
+        for name, png in drawn.files.items():
+            assert (out / "report" / name).read_bytes() == png, name
+
+
+def test_a_drawing_process_that_fails_leaves_the_figures_to_the_report(tmp_path):
+    from stepzoo.cli.ahead import Ahead
+    ahead = Ahead()
+    try:
+        ahead.start(tmp_path / "no-sweep", tmp_path / "no-tuned.toml")
+        assert ahead.drawn() is None
+    finally:
+        ahead.close()
+    assert not ahead._proc.is_alive()

@@ -107,7 +107,17 @@ def run(out="results", config=None, pos_tol: float = 0.1, margin: float = DEFAUL
 
 
 def _run(out: Path, steps, progress: bool, quiet: bool) -> Run:
-    """Run the stages, then the report (made also when a plan is not exact)."""
+    """Run the stages, then the report (made also when a plan is not exact). Figures 1-6 are
+    drawn in a second process once the tuned config is written, while the plans run."""
+    from stepzoo.cli.ahead import Ahead
+    ahead = Ahead()
+    try:
+        return _stages(out, steps, progress, quiet, ahead)
+    finally:
+        ahead.close()
+
+
+def _stages(out: Path, steps, progress: bool, quiet: bool, ahead) -> Run:
     from stepzoo.cli import report as report_cmd
     say = (lambda line: None) if quiet else _say
     total = len(steps) + 1
@@ -129,9 +139,11 @@ def _run(out: Path, steps, progress: bool, quiet: bool) -> Run:
             say("not every plan is exact; the report shows them")
         took[name] = round(time.perf_counter() - t0, 3)
         say(f"[{i}/{total}] {name} done in {took[name]:.1f} s")
+        if name == "tune":
+            ahead.start(out / "sweep", out / "tuned.toml")
     say(f"[{total}/{total}] report: stepzoo report {out} --out {out / 'report'}")
     index, _, _ = report_cmd.build(out / "sweep", out / "report", out / "tuned.toml",
-                                   out / "plans", progress=progress)
+                                   out / "plans", progress=progress, ahead=ahead.drawn())
     took["report"] = round(time.perf_counter() - started - sum(took.values()), 3)
     environment.write_manifest(out, "run", began, {
         "stages": [name for name, _, _ in steps] + ["report"], "stage_s": took,
