@@ -248,9 +248,10 @@ def _in_place(method, f, x0, u, p, h, n_steps, t0, max_steps, libm, size):
         a = jax.tree.map(lambda v: v[i], args)
         return _chunk(method, f, *a, hs[i], n_steps, t0, max_steps, libm)
 
-    xs, evals, converged, _ = jax.eval_shape(chunk, 0)
-    out = (jnp.zeros((batch,) + xs.shape[1:], xs.dtype), jnp.zeros(batch, evals.dtype),
-           jnp.zeros(batch, converged.dtype), jnp.zeros((), bool))
+    # The rows of _scan's output; evals are counted in the state's dtype (Method.init).
+    rows = n_steps + 1 if max_steps is None else max_steps + 1
+    out = (jnp.zeros((batch, rows) + x0.shape[1:], x0.dtype), jnp.zeros(batch, x0.dtype),
+           jnp.zeros(batch, bool), jnp.zeros((), bool))
 
     def body(i, out):
         xs, evals, converged, far = chunk(i)
