@@ -167,12 +167,11 @@ def test_figures_drawn_while_planning_are_the_report_s_own(ran):
             assert (out / "report" / name).read_bytes() == png, name
 
 
-def test_a_drawing_process_that_fails_leaves_the_figures_to_the_report(tmp_path):
+def test_a_report_process_that_fails_leaves_the_report_to_the_pipeline(tmp_path):
     from stepzoo.cli.ahead import Ahead
     ahead = Ahead()
     try:
-        ahead.start(tmp_path / "no-sweep", tmp_path / "no-tuned.toml")
-        assert ahead.drawn() is None
+        ahead.figures(tmp_path / "no-sweep", tmp_path / "no-tuned.toml")
+        assert ahead.report(tmp_path / "no-sweep", tmp_path / "report") is None
     finally:
         ahead.close()
-    assert not ahead._proc.is_alive()

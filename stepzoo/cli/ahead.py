@@ -1,12 +1,15 @@
-"""Figures 1-6 of `stepzoo run`'s report drawn in a second process while the pipeline plans:
-they need only the sweep's tables and the tuned config, and planning keeps one core busy.
-The process starts with the pipeline, so that its imports (plotting, JAX) overlap the sweep;
-it draws exactly what `stepzoo report` would (report.sweep_figures), and the report writes
-those figures' files as drawn."""
+"""`stepzoo run`'s report made in a second process: Figures 1-6 drawn while the pipeline plans
+(they need only the sweep's tables and the tuned config, and planning keeps one core busy),
+then the rest of the report once the plans are written. The process starts with the
+pipeline, so that its imports (plotting, JAX) overlap the sweep and the pipeline itself never
+imports them; it builds exactly what `stepzoo report` builds (report.sweep_figures,
+report.build)."""
 from __future__ import annotations
 
 import multiprocessing
 import signal
+import sys
+from pathlib import Path
 
 
 def _jax_settings() -> dict:
@@ -18,65 +21,73 @@ def _jax_settings() -> dict:
 
 
 def _serve(conn, settings: dict) -> None:
-    """The drawing process: JAX set as its parent, the report's modules imported, then one
-    job (sweep folder, tuned file) answered with Figures 1-6 ([Drawn]), or None where they
-    could not be drawn."""
+    """The report's process: JAX set as its parent, the report's modules imported, then the
+    jobs ("figures", (sweep folder, tuned file)), unanswered, and ("report", build's
+    arguments), answered with the index's path or None where the report failed."""
     # Ctrl-C goes to the whole process group: the parent says it was interrupted and ends
-    # this process; a second traceback from here would only hide that line.
+    # this process, which then removes its unfinished report folder as an error would.
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, lambda *_: sys.exit(1))
     import jax
     for name, value in settings.items():
         jax.config.update(name, value)
     from stepzoo.cli import report
     from stepzoo.reports import drawing, load
-    try:
-        sweep_dir, tuned_path = conn.recv()
-    except EOFError:                  # the parent ended before its sweep and tune did
-        return
-    try:
-        sweep, tuned = load.load_sweep(sweep_dir), load.load_tuned(tuned_path)
-        answer = drawing.draw_apart(report.sweep_figures(sweep, tuned, lambda line: None))
-    except Exception:                 # the report, drawing them itself, says what is wrong
-        answer = None
-    try:
-        conn.send(answer)
-    except OSError:                   # the parent was killed meanwhile: no one to answer
-        pass
+    drawn = None
+    while True:
+        try:
+            kind, args = conn.recv()
+        except EOFError:                # the parent has ended
+            return
+        try:
+            if kind == "figures":
+                sweep, tuned = load.load_sweep(args[0]), load.load_tuned(args[1])
+                drawn = drawing.draw_apart(report.sweep_figures(sweep, tuned,
+                                                                lambda line: None))
+                continue
+            answer = str(report.build(*args, ahead=drawn)[0])
+        except Exception:               # the parent, building the report itself, says why
+            drawn, answer = None, None
+            if kind == "figures":
+                continue
+        try:
+            conn.send(answer)
+        except OSError:                 # the parent was killed meanwhile: no one to answer
+            return
 
 
 class Ahead:
-    """The drawing process of one pipeline: `start(sweep, tuned)` hands it the finished
-    sweep folder and tuned file, `drawn()` waits for Figures 1-6 (reports.drawing.Drawn),
-    None where the process failed; `close()` ends it."""
+    """The report's process of one pipeline: `figures(sweep, tuned)` hands it the finished
+    sweep folder and tuned file to draw Figures 1-6 from, `report(...)` (report.build's
+    arguments) has it build the report and returns the index's path, or None where it could
+    not (the caller then builds it); `close()` ends it."""
 
     def __init__(self):
         # spawn, not fork: a forked child would inherit JAX's threads mid-flight.
         ctx = multiprocessing.get_context("spawn")
         self._conn, theirs = ctx.Pipe()
         self._proc = ctx.Process(target=_serve, args=(theirs, _jax_settings()), daemon=True,
-                                 name="stepzoo-figures")
+                                 name="stepzoo-report")
         self._proc.start()
         theirs.close()
-        self._started = self._answered = False
+        self._done = False
 
-    def start(self, sweep, tuned) -> None:
-        self._conn.send((str(sweep), str(tuned)))
-        self._started = True
+    def figures(self, sweep, tuned) -> None:
+        self._conn.send(("figures", (str(sweep), str(tuned))))
 
-    def drawn(self):
-        if not self._started:
-            return None
+    def report(self, *args):
         try:
-            drawn = self._conn.recv()
-        except (EOFError, OSError):    # the process died (killed, out of memory)
+            self._conn.send(("report", args))
+            index = self._conn.recv()
+        except (EOFError, OSError):     # the process died (killed, out of memory)
             return None
-        self._answered = True
-        return drawn
+        self._done = True
+        return None if index is None else Path(index)
 
     def close(self) -> None:
         """Ends the process: once it has answered, as it does then; at once otherwise (the
         pipeline stopped early, while it imported or drew)."""
         self._conn.close()
-        if not self._answered:
+        if not self._done:
             self._proc.terminate()
         self._proc.join()

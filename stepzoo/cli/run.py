@@ -107,8 +107,8 @@ def run(out="results", config=None, pos_tol: float = 0.1, margin: float = DEFAUL
 
 
 def _run(out: Path, steps, progress: bool, quiet: bool) -> Run:
-    """Run the stages, then the report (made also when a plan is not exact). Figures 1-6 are
-    drawn in a second process once the tuned config is written, while the plans run."""
+    """Run the stages, then the report (made also when a plan is not exact), in a second
+    process (stepzoo.cli.ahead) that draws Figures 1-6 while the plans run."""
     from stepzoo.cli.ahead import Ahead
     ahead = Ahead()
     try:
@@ -118,7 +118,6 @@ def _run(out: Path, steps, progress: bool, quiet: bool) -> Run:
 
 
 def _stages(out: Path, steps, progress: bool, quiet: bool, ahead) -> Run:
-    from stepzoo.cli import report as report_cmd
     say = (lambda line: None) if quiet else _say
     total = len(steps) + 1
     exact = True
@@ -140,10 +139,13 @@ def _stages(out: Path, steps, progress: bool, quiet: bool, ahead) -> Run:
         took[name] = round(time.perf_counter() - t0, 3)
         say(f"[{i}/{total}] {name} done in {took[name]:.1f} s")
         if name == "tune":
-            ahead.start(out / "sweep", out / "tuned.toml")
+            ahead.figures(out / "sweep", out / "tuned.toml")
     say(f"[{total}/{total}] report: stepzoo report {out} --out {out / 'report'}")
-    index, _, _ = report_cmd.build(out / "sweep", out / "report", out / "tuned.toml",
-                                   out / "plans", progress=progress, ahead=ahead.drawn())
+    report = (out / "sweep", out / "report", out / "tuned.toml", out / "plans", progress)
+    index = ahead.report(*report)
+    if index is None:
+        from stepzoo.cli import report as report_cmd
+        index, _, _ = report_cmd.build(*report)
     took["report"] = round(time.perf_counter() - started - sum(took.values()), 3)
     environment.write_manifest(out, "run", began, {
         "stages": [name for name, _, _ in steps] + ["report"], "stage_s": took,
