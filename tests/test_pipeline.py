@@ -13,7 +13,7 @@ from pathlib import Path
 import pandas as pd
 import pytest
 from test_report import check_report
-from test_results_folder import TABLES, tables
+from test_results_folder import TABLES, TIMED, tables
 
 from stepzoo.cli import main as stepzoo
 from stepzoo.integrators import METHODS
@@ -175,3 +175,32 @@ def test_a_report_process_that_fails_leaves_the_report_to_the_pipeline(tmp_path)
         assert ahead.report(tmp_path / "no-sweep", tmp_path / "report") is None
     finally:
         ahead.close()
+
+
+def test_the_second_process_computes_the_chunks_the_sweep_would(tmp_path):
+    """The run's sweep shares its chunks with the second process (an implicit method's go
+    there): every table of every chunk equals the chunk computed here, bit for bit."""
+    from conftest import TINY_SWEEP
+
+    from stepzoo.bench.suite import load
+    from stepzoo.bench.sweep import chunk_ids, compute_chunk
+    from stepzoo.cli.ahead import Ahead
+    path = tmp_path / "implicit.toml"
+    path.write_text(TINY_SWEEP.replace('"heun"', '"backward_euler"'))
+    cfg = load(path)
+    ahead = Ahead()
+    try:
+        shared = list(ahead.sweep_runner(path)(cfg, chunk_ids(cfg)))
+    finally:
+        ahead.close()
+    assert sorted(cid for cid, _ in shared) == sorted(chunk_ids(cfg))
+    assert [cid for cid, _ in shared][-2:] == ["backward_euler-b000", "backward_euler-b001"]
+    cache = {}
+    for cid, tables in shared:
+        here = compute_chunk(cfg, cid, cache)
+        assert set(tables) == set(here)
+        for name in set(here) - {"timing"}:
+            timed = [c for c in here[name].columns if c in TIMED]     # measured wall times
+            pd.testing.assert_frame_equal(tables[name].drop(columns=timed),
+                                          here[name].drop(columns=timed), check_exact=True,
+                                          obj=name)
