@@ -64,7 +64,7 @@ class Run(NamedTuple):
 def stages(out: Path, config: Path, pos_tol: float, margin: float, seed: int,
            progress: bool, ahead) -> list:
     """(name, the equivalent `stepzoo` argv, call) of each stage before the report; the
-    sweep shares its chunks with the report's process `ahead` (cli.ahead.Ahead)."""
+    sweep shares its chunks with the second process `ahead` (cli.ahead.Ahead)."""
     from stepzoo.cli import plan as plan_cmd, sweep as sweep_cmd, tune as tune_cmd
     from stepzoo.search.scenarios import builtin_names, load_scenario
     sweep, tuned, plans = out / "sweep", out / "tuned.toml", out / "plans"
