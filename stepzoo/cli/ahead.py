@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import multiprocessing
 import signal
-import sys
 from pathlib import Path
 
 
@@ -28,9 +27,9 @@ def _serve(conn, settings: dict) -> None:
     ("figures", (sweep folder, tuned file)), unanswered, and ("report", build's arguments),
     answered with the index's path; None answers a job that failed."""
     # Ctrl-C goes to the whole process group: the parent says it was interrupted and ends
-    # this process, which then removes its unfinished report folder as an error would.
+    # this process (SIGTERM, silent); a report it was writing leaves a hidden folder, which
+    # the next report into that folder removes (results_folder.replacing).
     signal.signal(signal.SIGINT, signal.SIG_IGN)
-    signal.signal(signal.SIGTERM, lambda *_: sys.exit(1))
     import jax
     for name, value in settings.items():
         jax.config.update(name, value)
