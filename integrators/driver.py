@@ -205,6 +205,8 @@ def _batch(method, f, x0, u, p, h, n_steps, t0, max_steps, libm):
     shareable = not method.implicit and max_steps is None
     shards = len(devices) if shareable and batch >= SHARE * len(devices) else 1
     size = min(chunk_size(method), -(-batch // shards))
+    if shards == 1 and not method.implicit:
+        return _in_place(method, f, x0, u, p, h, n_steps, t0, max_steps, libm, size)
     n_chunks = -(-batch // (size * shards)) * shards
     args = jax.tree.map(lambda a: _split(a, n_chunks, size), (x0, u, p))
     h_chunks = _split(h, n_chunks, size) if jnp.ndim(h) else jnp.broadcast_to(h, (n_chunks,))
@@ -225,6 +227,42 @@ def _batch(method, f, x0, u, p, h, n_steps, t0, max_steps, libm):
     ts = t0 + (h[:, None] * steps if jnp.ndim(h) else jnp.broadcast_to(h * steps, xs.shape[:2]))
     return (Trajectory(ts, xs, evals.reshape(-1)[:batch], converged.reshape(-1)[:batch]),
             far.any())
+
+
+def _in_place(method, f, x0, u, p, h, n_steps, t0, max_steps, libm, size):
+    """_batch's result for an explicit method on one device: chunks of `size` trajectories,
+    each writing its rows of the output in place. The last chunk ends at the batch's last
+    trajectory, overlapping the one before it, instead of padding the batch: cutting the
+    padded rows off a stacked output copied every state of every trajectory once more, as
+    much time as a chunk's steps take to write them. Explicit methods only: an implicit
+    chunk iterates Newton in lockstep, so its lanes' work depends on their neighbours."""
+    batch = x0.shape[0]
+    n_chunks = -(-batch // size)
+    starts = np.minimum(np.arange(n_chunks) * size, batch - size)
+    lanes = starts[:, None] + np.arange(size)
+    take = lambda a: jnp.moveaxis(jnp.asarray(a)[lanes], 1, -1)
+    args = jax.tree.map(take, (x0, u, p))
+    hs = take(h) if jnp.ndim(h) else jnp.broadcast_to(h, (n_chunks,))
+
+    def chunk(i):
+        a = jax.tree.map(lambda v: v[i], args)
+        return _chunk(method, f, *a, hs[i], n_steps, t0, max_steps, libm)
+
+    # The rows of _scan's output; evals are counted in the state's dtype (Method.init).
+    rows = n_steps + 1 if max_steps is None else max_steps + 1
+    out = (jnp.zeros((batch, rows) + x0.shape[1:], x0.dtype), jnp.zeros(batch, x0.dtype),
+           jnp.zeros(batch, bool), jnp.zeros((), bool))
+
+    def body(i, out):
+        xs, evals, converged, far = chunk(i)
+        at = jnp.asarray(starts)[i]
+        put = lambda whole, part: lax.dynamic_update_slice_in_dim(whole, part, at, 0)
+        return (put(out[0], xs), put(out[1], evals), put(out[2], converged), out[3] | far)
+
+    xs, evals, converged, far = lax.fori_loop(0, n_chunks, body, out)
+    steps = jnp.arange(xs.shape[1])
+    ts = t0 + (h[:, None] * steps if jnp.ndim(h) else jnp.broadcast_to(h * steps, xs.shape[:2]))
+    return Trajectory(ts, xs, evals, converged), far
 
 
 def use_all_cores() -> int:

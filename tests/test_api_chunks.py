@@ -50,3 +50,31 @@ def test_native_loops_are_read_from_xla_flags(monkeypatch, flags, native):
     monkeypatch.setenv("XLA_FLAGS", flags)
     assert driver.loops_native() is native
     assert driver.chunk_size(method("bdf2")) == driver.CHUNK_IMPLICIT
+
+
+def test_the_last_chunk_overlaps_instead_of_padding(monkeypatch):
+    """A batch the chunks do not divide: the last chunk ends at the last trajectory, so it
+    also runs trajectories of the one before it; every trajectory, with its own step size,
+    is still its own run, and every time row its own."""
+    monkeypatch.setenv("XLA_FLAGS", "")
+    assert driver.chunk_size(method("rk4")) == driver.CHUNK_CALLS
+    rng = np.random.default_rng(4)
+    p = {k: np.full(BATCH, float(v)) for k, v in MODEL.params(None, 15.0).items()}
+    p["vx"] = rng.uniform(5.0, 25.0, BATCH)
+    x0 = np.zeros((BATCH, 5))
+    x0[:, 3] = rng.uniform(-1.0, 1.0, BATCH)
+    u = rng.uniform(-0.5, 0.5, (BATCH, 1))
+    h = rng.uniform(0.005, 0.01, BATCH)
+    fresh = jax.jit(lambda x0, u, p, h: driver._batch(method("rk4"), MODEL.rhs, x0, u, p, h,
+                                                        30, 0.0, None, False))
+    tr, far = fresh(x0, u, p, h)
+    assert not bool(far) and tr.x.shape == (BATCH, 31, 5)
+    one = jax.jit(lambda x0, u, p, h: driver._integrate(method("rk4"), MODEL.rhs, x0, u, p, h,
+                                                         30, 0.0, None))
+    for b in range(BATCH):
+        ref = one(x0[b], u[b], {k: v[b] for k, v in p.items()}, h[b])
+        scale = np.abs(np.asarray(ref.x)).max(axis=0)
+        assert np.all(np.abs(np.asarray(tr.x[b]) - np.asarray(ref.x)) <= 1e-12 * scale), b
+        np.testing.assert_allclose(tr.t[b], ref.t, rtol=1e-15)
+    np.testing.assert_array_equal(tr.evals, np.full(BATCH, 4.0 * 30))
+    assert bool(np.all(tr.converged))

@@ -13,7 +13,7 @@ from pathlib import Path
 import pandas as pd
 import pytest
 from test_report import check_report
-from test_results_folder import TABLES, tables
+from test_results_folder import TABLES, TIMED, tables
 
 from stepzoo.cli import main as stepzoo
 from stepzoo.integrators import METHODS
@@ -143,3 +143,64 @@ def test_a_stage_that_finds_nothing_is_one_line_naming_it_and_keeps_what_was_wri
     assert len(err) == 1 and err[0].startswith("stepzoo run: no answer: stopped at tune: "), err
     assert (out / "tuned.toml").read_text() == before
     assert json.loads((out / "sweep" / "manifest.json").read_text())["created"] == created
+
+
+def test_figures_drawn_while_planning_are_the_report_s_own(ran):
+    """Figures 1-6, drawn in the second process while the run plans, are byte for byte what
+    the report draws from the run's folder: the same PNGs and the same Plotly fragments."""
+    from stepzoo.cli.report import sweep_figures
+    from stepzoo.reports.drawing import draw_apart
+    from stepzoo.reports.load import load_sweep, load_tuned
+    _, out, proc = ran
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    lines = proc.stderr.splitlines()
+    for i in range(1, 8):
+        assert any(f"] Figure {i}. " in line and line.endswith("drawn ahead") == (i < 7)
+                   for line in lines), i
+    page = (out / "report" / "index.html").read_text()
+    here = draw_apart(sweep_figures(load_sweep(out / "sweep"), load_tuned(out / "tuned.toml"),
+                                    lambda line: None))
+    assert [d.shown.number for d in here] == [1, 2, 3, 4, 5, 6]
+    for drawn in here:
+        assert drawn.divs and all(div in page for div in drawn.divs)
+        for name, png in drawn.files.items():
+            assert (out / "report" / name).read_bytes() == png, name
+
+
+def test_a_report_process_that_fails_leaves_the_report_to_the_pipeline(tmp_path):
+    from stepzoo.cli.ahead import Ahead
+    ahead = Ahead()
+    try:
+        ahead.figures(tmp_path / "no-sweep", tmp_path / "no-tuned.toml")
+        assert ahead.report(tmp_path / "no-sweep", tmp_path / "report") is None
+    finally:
+        ahead.close()
+
+
+def test_the_second_process_computes_the_chunks_the_sweep_would(tmp_path):
+    """The run's sweep shares its chunks with the second process (an implicit method's go
+    there): every table of every chunk equals the chunk computed here, bit for bit."""
+    from conftest import TINY_SWEEP
+
+    from stepzoo.bench.suite import load
+    from stepzoo.bench.sweep import chunk_ids, compute_chunk
+    from stepzoo.cli.ahead import Ahead
+    path = tmp_path / "implicit.toml"
+    path.write_text(TINY_SWEEP.replace('"heun"', '"backward_euler"'))
+    cfg = load(path)
+    ahead = Ahead()
+    try:
+        shared = list(ahead.sweep_runner(path)(cfg, chunk_ids(cfg)))
+    finally:
+        ahead.close()
+    assert sorted(cid for cid, _ in shared) == sorted(chunk_ids(cfg))
+    assert [cid for cid, _ in shared][-2:] == ["backward_euler-b000", "backward_euler-b001"]
+    cache = {}
+    for cid, tables in shared:
+        here = compute_chunk(cfg, cid, cache)
+        assert set(tables) == set(here)
+        for name in set(here) - {"timing"}:
+            timed = [c for c in here[name].columns if c in TIMED]     # measured wall times
+            pd.testing.assert_frame_equal(tables[name].drop(columns=timed),
+                                          here[name].drop(columns=timed), check_exact=True,
+                                          obj=name)

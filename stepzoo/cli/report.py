@@ -113,11 +113,13 @@ def parse_verdicts(specs) -> list[tuple[str, float]]:
 
 
 def build(results, out, tuned_path=None, plans_dir=None, progress=False, verdicts=(),
-          bench_dir=None):
+          bench_dir=None, ahead=None):
     """Load every input, draw the figures (static and interactive), write the report and its
     manifest.json; returns (index, summary, shown). `progress`: a line per stage to stderr;
     `verdicts`: (method, h [s]) pairs whose per-point verdict the report adds; `bench_dir`:
-    a plan-bench folder, whose trade-off is Figure 8."""
+    a plan-bench folder, whose trade-off is Figure 8; `ahead`: Figures 1-6 of these inputs
+    already drawn (reports.drawing.Drawn, as `sweep_figures` computes them), as `stepzoo
+    run` draws them while it plans."""
     # Imported here, not with the module: pandas, matplotlib and plotly take seconds to
     # import, which `stepzoo report --help` (and `stepzoo run` before its sweep) need not wait.
     from stepzoo.reports import suite_report
@@ -155,7 +157,7 @@ def build(results, out, tuned_path=None, plans_dir=None, progress=False, verdict
     # Drawn into a new folder that replaces `out` whole: a kill leaves the old report whole.
     with replacing(out, "report") as into:
         index, md, shown = _draw(sweep, tuned, tuned_path, plan_list, plans_dir, out, into,
-                                 started, say, verdicts, bench, bench_dir)
+                                 started, say, verdicts, bench, bench_dir, ahead)
     return out / index.name, out / md.name, shown
 
 
@@ -168,8 +170,28 @@ def _tolerance(sweep, tuned):
     return view, tol, margin
 
 
+def sweep_figures(sweep, tuned, say, verdicts=()) -> list:
+    """Callables computing Figures 1-6's data, in the report's order, from the loaded sweep
+    and tuned config (or None) alone; Figures 1-2's runs are made first where the tuned
+    choice binds elsewhere than the sweep ran them (`say` gets a line then)."""
+    from stepzoo.reports import figure_data, recompute
+    _, _, margin = _tolerance(sweep, tuned)
+    t0 = time.perf_counter()
+    at, why = recompute.figure_point(sweep, tuned, margin)
+    if at is not sweep:
+        point = ", ".join(f"{k} = {v:g}" for k, v in at.manifest["trajectory_point"].items())
+        say(f"ran Figures 1-2's runs at {point}, where the tuned choice binds, in "
+            f"{time.perf_counter() - t0:.1f} s")
+    return [lambda: figure_data.yaw_rate(at, why, tuned),
+            lambda: figure_data.xy_paths(at, why, tuned),
+            lambda: figure_data.stability_regions(sweep, tuned),
+            lambda: figure_data.error_vs_step(sweep, verdicts),
+            lambda: figure_data.work_precision(sweep, tuned),
+            lambda: figure_data.stable_step_vs_speed(sweep, verdicts)]
+
+
 def _draw(sweep, tuned, tuned_path, plan_list, plans_dir, out, into, started, say,
-          verdicts=(), bench=None, bench_dir=None):
+          verdicts=(), bench=None, bench_dir=None, ahead=None):
     """The report of the folder `out`, written into the folder `into` (which becomes it)."""
     from stepzoo.reports import figure_data, interactive, recompute, tables
     from stepzoo.reports.drawing import draw_all
@@ -177,24 +199,13 @@ def _draw(sweep, tuned, tuned_path, plan_list, plans_dir, out, into, started, sa
     from stepzoo.reports.load import load_manifest
     from stepzoo.reports.provenance import environment_table, public_path
     view, tol, margin = _tolerance(sweep, tuned)
-    t0 = time.perf_counter()
-    at, why = recompute.figure_point(sweep, tuned, margin)
-    if at is not sweep:
-        point = ", ".join(f"{k} = {v:g}" for k, v in at.manifest["trajectory_point"].items())
-        say(f"ran Figures 1-2's runs at {point}, where the tuned choice binds, in "
-            f"{time.perf_counter() - t0:.1f} s")
     # Each figure's data, in the report's order; both renderers draw it (reports.drawing).
-    computes = [lambda: figure_data.yaw_rate(at, why, tuned),
-                lambda: figure_data.xy_paths(at, why, tuned),
-                lambda: figure_data.stability_regions(sweep, tuned),
-                lambda: figure_data.error_vs_step(sweep, verdicts),
-                lambda: figure_data.work_precision(sweep, tuned),
-                lambda: figure_data.stable_step_vs_speed(sweep, verdicts),
-                lambda: figure_data.plans(plan_list)]
+    computes = [] if ahead else sweep_figures(sweep, tuned, say, verdicts)
+    computes.append(lambda: figure_data.plans(plan_list))
     if bench is not None:
         from stepzoo.reports import tradeoff
         computes.append(lambda: tradeoff.tradeoff(tradeoff.tradeoff_points(bench, tuned)))
-    shown, plots = draw_all(computes, into, say)
+    shown, plots = draw_all(computes, into, say, ahead or ())
     unit = f" {view.error_unit}" if view.error_unit else ""
     t0 = time.perf_counter()
     verdict_tables = recompute.verdict_tables(sweep, verdicts, view, tol, margin)

@@ -62,11 +62,19 @@ class Run(NamedTuple):
 
 
 def stages(out: Path, config: Path, pos_tol: float, margin: float, seed: int,
-           progress: bool) -> list:
-    """(name, the equivalent `stepzoo` argv, call) of each stage before the report."""
+           progress: bool, ahead) -> list:
+    """(name, the equivalent `stepzoo` argv, call) of each stage before the report; the
+    sweep shares its chunks with the second process `ahead` (cli.ahead.Ahead)."""
     from stepzoo.cli import plan as plan_cmd, sweep as sweep_cmd, tune as tune_cmd
     from stepzoo.search.scenarios import builtin_names, load_scenario
     sweep, tuned, plans = out / "sweep", out / "tuned.toml", out / "plans"
+
+    def sweep_stage():
+        from stepzoo.bench.suite import load
+        from stepzoo.bench.sweep import run_sweep
+        manifest = run_sweep(load(config), sweep, resume=True, progress=progress,
+                             runner=ahead.sweep_runner(config))
+        return sweep_cmd.show(manifest, sweep)
 
     def plan():
         records = plan_cmd.plan([load_scenario(n) for n in builtin_names()], plans, tuned, seed,
@@ -77,9 +85,7 @@ def stages(out: Path, config: Path, pos_tol: float, margin: float, seed: int,
     return [
         # resume: a rerun reuses a finished sweep of the same config and completes an
         # interrupted one; a different config is refused by the sweep with its own line.
-        ("sweep", ["sweep", str(config), "--out", str(sweep), "--resume"],
-         lambda: sweep_cmd.show(sweep_cmd.sweep(config, sweep, resume=True, progress=progress),
-                                sweep)),
+        ("sweep", ["sweep", str(config), "--out", str(sweep), "--resume"], sweep_stage),
         ("tune", ["tune", str(sweep), "--pos-tol", repr(pos_tol), "--margin", repr(margin),
                   "--out", str(tuned)],
          lambda: tune_cmd.show(tune_cmd.tune(sweep, pos_tol, margin, tuned), tuned)),
@@ -101,14 +107,21 @@ def run(out="results", config=None, pos_tol: float = 0.1, margin: float = DEFAUL
     check_arguments(pos_tol, margin)
     check("seed", "--seed", seed)
     out = check_kind(out, "run")
-    steps = stages(out, config_path(config), pos_tol, margin, seed, progress and not quiet)
+    config = config_path(config)
     with claim(out, "run"):
-        return _run(out, steps, progress and not quiet, quiet)
+        # A second process (stepzoo.cli.ahead) computes some of the sweep's chunks, draws
+        # Figures 1-6 while the plans run, and builds the report.
+        from stepzoo.cli.ahead import Ahead
+        ahead = Ahead()
+        try:
+            steps = stages(out, config, pos_tol, margin, seed, progress and not quiet, ahead)
+            return _run(out, steps, progress and not quiet, quiet, ahead)
+        finally:
+            ahead.close()
 
 
-def _run(out: Path, steps, progress: bool, quiet: bool) -> Run:
+def _run(out: Path, steps, progress: bool, quiet: bool, ahead) -> Run:
     """Run the stages, then the report (made also when a plan is not exact)."""
-    from stepzoo.cli import report as report_cmd
     say = (lambda line: None) if quiet else _say
     total = len(steps) + 1
     exact = True
@@ -129,9 +142,14 @@ def _run(out: Path, steps, progress: bool, quiet: bool) -> Run:
             say("not every plan is exact; the report shows them")
         took[name] = round(time.perf_counter() - t0, 3)
         say(f"[{i}/{total}] {name} done in {took[name]:.1f} s")
+        if name == "tune":
+            ahead.figures(out / "sweep", out / "tuned.toml")
     say(f"[{total}/{total}] report: stepzoo report {out} --out {out / 'report'}")
-    index, _, _ = report_cmd.build(out / "sweep", out / "report", out / "tuned.toml",
-                                   out / "plans", progress=progress)
+    report = (out / "sweep", out / "report", out / "tuned.toml", out / "plans", progress)
+    index = ahead.report(*report)
+    if index is None:
+        from stepzoo.cli import report as report_cmd
+        index, _, _ = report_cmd.build(*report)
     took["report"] = round(time.perf_counter() - started - sum(took.values()), 3)
     environment.write_manifest(out, "run", began, {
         "stages": [name for name, _, _ in steps] + ["report"], "stage_s": took,
