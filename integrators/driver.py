@@ -199,10 +199,8 @@ def _batch(method, f, x0, u, p, h, n_steps, t0, max_steps, libm):
     if batch < SMALL_BATCH:
         return jax.vmap(one, in_axes=(0, 0, 0, h_axis))(x0, u, p, h), jnp.asarray(False)
     devices = jax.devices()
-    # Implicit methods and run-time step counts stay on one device: shard_map refuses the
-    # carry of their while loops (per-shard values mixed with shared ones), and with that
-    # check off two devices hung in Newton's loop (XLA CPU, jax 0.10.2).
-    shareable = not method.implicit and max_steps is None
+    # Run-time step counts stay on one device.
+    shareable = max_steps is None
     shards = len(devices) if shareable and batch >= SHARE * len(devices) else 1
     size = min(chunk_size(method), -(-batch // shards))
     n_chunks = -(-batch // (size * shards)) * shards

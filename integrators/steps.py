@@ -84,8 +84,9 @@ def implicit_rk_step(tab, opts, fun, t, y, h, state):
         return z - h * (a @ stage_f(z)).reshape(-1)
 
     solver = lambda z: factorised(jnp.eye(s * d, dtype=y.dtype) - h * jnp.kron(a, jac))
-    z, k1, k2, ok = newton_solve(residual, solver, jnp.zeros(s * d, y.dtype),
-                                 jnp.tile(jnp.abs(y), s), opts)
+    scale = jnp.tile(jnp.abs(y), s)
+    # Starting from zeros like y's: see newton._iterate on carries under shard_map.
+    z, k1, k2, ok = newton_solve(residual, solver, jnp.zeros_like(scale), scale, opts)
     zz = z.reshape(s, d)
     evals = state["evals"] + d + k1 * s + k2 * (s + s * d)
     if np.linalg.matrix_rank(tab.a) == s:
