@@ -93,7 +93,9 @@ def _stepwise(step, x0, ys0, y_m, state, m, n_steps, max_steps, t0, h):
     into its row of a NaN buffer. Blocks of a fixed number of scanned steps, with the steps
     past n_steps masked, compiled and ran slower: they add a loop, and selects to every
     step."""
-    buf = jnp.full((max_steps + 1,) + x0.shape, jnp.nan, x0.dtype)
+    # The buffer and the step index like x0, so that under shard_map the loop's carry varies
+    # across devices as the steps' values do.
+    buf = jnp.full_like(x0, jnp.nan, shape=(max_steps + 1,) + x0.shape)
     buf = lax.dynamic_update_slice(buf, jnp.concatenate([x0[None], ys0])[: max_steps + 1],
                                    (0,) * buf.ndim)
 
@@ -102,7 +104,8 @@ def _stepwise(step, x0, ys0, y_m, state, m, n_steps, max_steps, t0, h):
         y, st = step(t0 + k * h, y, st)
         return k + 1, y, st, lax.dynamic_update_slice(buf, y[None], (k + 1,) + (0,) * x0.ndim)
 
-    _, _, state, buf = lax.while_loop(lambda c: c[0] < n_steps, body, (m, y_m, state, buf))
+    k0 = jnp.full_like(x0, m, int, shape=())
+    _, _, state, buf = lax.while_loop(lambda c: c[0] < n_steps, body, (k0, y_m, state, buf))
     # The starter's rows beyond a step count below n_start are not steps taken.
     rows = jnp.arange(max_steps + 1).reshape((-1,) + (1,) * x0.ndim)
     return jnp.where(rows <= n_steps, buf, jnp.nan), state
@@ -199,9 +202,7 @@ def _batch(method, f, x0, u, p, h, n_steps, t0, max_steps, libm):
     if batch < SMALL_BATCH:
         return jax.vmap(one, in_axes=(0, 0, 0, h_axis))(x0, u, p, h), jnp.asarray(False)
     devices = jax.devices()
-    # Run-time step counts stay on one device.
-    shareable = max_steps is None
-    shards = len(devices) if shareable and batch >= SHARE * len(devices) else 1
+    shards = len(devices) if batch >= SHARE * len(devices) else 1
     size = min(chunk_size(method), -(-batch // shards))
     n_chunks = -(-batch // (size * shards)) * shards
     args = jax.tree.map(lambda a: _split(a, n_chunks, size), (x0, u, p))
