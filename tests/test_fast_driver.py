@@ -9,6 +9,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from jax import lax
 
 from stepzoo import dynamics
 from stepzoo.integrators import integrate, integrate_batch, method
@@ -112,6 +113,28 @@ def test_batches_equal_libm_for_every_heading(dtype, psi, tol):
         assert np.array_equal(got[~ok], one[~ok], equal_nan=True)
         scale = np.abs(np.where(ok, one, 0.0)).max(axis=0)
         assert np.all(np.abs(got[ok] - one[ok]) <= tol * np.broadcast_to(scale, one.shape)[ok])
+
+
+def test_sin_and_cos_in_a_loop_body_are_rewritten_and_flagged():
+    """A while loop's body (Newton's iterations) gets the polynomials too: a vmapped loop
+    whose elements stop after their own number of iterations lands where libm's does to a
+    few ulp per iteration, and an argument beyond the bound met in any iteration sets the
+    flag."""
+    def walk(a, n):
+        def body(c):
+            x, k = c
+            return x + 0.5 * jnp.cos(x * a), k + 1
+        return lax.while_loop(lambda c: c[1] < n, body, (a, 0))[0]
+
+    a, n = jnp.array([0.3, 1.7, -2.0, 5.0]), jnp.array([1, 4, 9, 16])
+    plain = jax.vmap(walk)(a, n)
+    value, far = jax.jit(flagged_trig(jax.vmap(walk)))(a, n)
+    np.testing.assert_allclose(np.asarray(value), np.asarray(plain), rtol=1e-14)
+    assert not far
+    # The cosine's argument x a is beyond 2^20 from the first iteration for a = 1.5e6 only.
+    _, far = jax.jit(flagged_trig(jax.vmap(lambda a, n: walk(a * 1e6, n))))(
+        jnp.array([1e-3, 1.5]), jnp.array([3, 3]))
+    assert far
 
 
 @pytest.mark.parametrize("name", ["rk4", "trapezoidal"])
