@@ -6,9 +6,11 @@ theta/(1 - theta) |dz_k|; the solve stops when that estimate and the residual ar
 tolerance, and gives up early when the iteration diverges (theta >= 1) or cannot reach the
 tolerance within the iteration limit at its current rate."""
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 from jax import lax
 
 
@@ -152,6 +154,69 @@ def factorised(mat):
     lu = lu_factor(mat)
     size = 1.0 + jnp.max(jnp.sum(jnp.abs(mat - jnp.eye(mat.shape[0], dtype=mat.dtype)), axis=1))
     return (lambda r: lu_solve(lu, r)), size
+
+
+class Stages(NamedTuple):
+    """I - h A (x) J for a diagonalisable A = V diag(mu) V^-1, transformed as RADAU5 does
+    (HW IV.8): one d x d system I - h mu J per real eigenvalue mu and one per complex pair,
+    written as the real 2d x 2d system [[I - h Re mu J, h Im mu J], [-h Im mu J,
+    I - h Re mu J]] on (Re x, Im x), instead of the s d x s d system. Each is eliminated in
+    the loop: the unrolled elimination of the real block alone took longer to compile than
+    the whole method had. `mu` are the eigenvalues solved for (of a pair, the one with
+    Im mu > 0), `twice` says which stand for a pair; `v` their columns of V, `v_inv` their
+    rows of V^-1 (NumPy constants)."""
+    v: np.ndarray
+    v_inv: np.ndarray
+    mu: np.ndarray
+    twice: tuple
+
+    @staticmethod
+    def of(a):
+        """The transformation of A, or None where A is not diagonalisable with a
+        well-conditioned V (then the s d x s d system is factorised whole)."""
+        mu, v = np.linalg.eig(np.asarray(a, float))
+        cond = np.linalg.cond(v)
+        if not np.isfinite(cond) or cond > 1e6:
+            return None
+        pick = [i for i in range(len(mu)) if mu[i].imag >= 0]
+        twice = tuple(bool(mu[i].imag > 0) for i in pick)
+        return Stages(v[:, pick], np.linalg.inv(v)[pick], mu[pick], twice)
+
+    def factorised(self, h, jac, a_norm):
+        """(solve, 1 + |h A (x) J|_inf) as `factorised` gives them for the whole system,
+        |h A (x) J|_inf being h |A|_inf |J|_inf; a_norm is |A|_inf."""
+        d = jac.shape[0]
+        eye = jnp.eye(d, dtype=jac.dtype)
+        blocks = []
+        for mu, pair in zip(self.mu, self.twice):
+            re = eye - (h * float(mu.real)) * jac
+            if pair:
+                im = (h * float(mu.imag)) * jac
+                re = jnp.block([[re, im], [-im, re]])
+            blocks.append(_lu_factor_loop(re))
+        size = 1.0 + h * a_norm * jnp.max(jnp.sum(jnp.abs(jac), axis=1))
+
+        def solve(r):
+            rr = r.reshape(self.v.shape[0], d)
+            out = 0.0
+            for i, (lu, pair) in enumerate(zip(blocks, self.twice)):
+                w = _combine(self.v_inv[i].real, rr)
+                if pair:
+                    x = lu_solve(lu, jnp.concatenate([w, _combine(self.v_inv[i].imag, rr)]))
+                    # V's column i times x plus its conjugate's: twice the real part.
+                    part = [float(2 * c.real) * x[:d] - float(2 * c.imag) * x[d:]
+                            for c in self.v[:, i]]
+                else:
+                    x = lu_solve(lu, w)
+                    part = [float(c.real) * x for c in self.v[:, i]]
+                out = out + jnp.stack(part)
+            return out.reshape(-1)
+        return solve, size
+
+
+def _combine(coeffs, rows):
+    """sum_j coeffs[j] rows[j] (real coefficients)."""
+    return sum(float(c) * rows[j] for j, c in enumerate(coeffs))
 
 
 def _iterate(residual, solver, z0, y_scale, opts, fresh, done0):

@@ -193,3 +193,23 @@ def test_unrolled_elimination_steps_as_the_looped_one_does(monkeypatch, name):
     assert bool(ours.converged) and bool(looped.converged)
     x, ref = np.asarray(ours.x), np.asarray(looped.x[:31])
     assert np.max(np.abs(x - ref) / (1 + np.abs(ref))) <= 1e-10
+
+
+@pytest.mark.parametrize("name", ["radau_iia5", "radau_iia3", "gauss_legendre4"])
+def test_transformed_stage_system_solves_as_the_whole_one_does(name):
+    """(I - h A (x) J)^-1 r through A's eigenvalues (one real and one complex d x d system
+    for Radau IIA 5, RADAU5's transformation) against numpy.linalg.solve of the s d x s d
+    system, with the size 1 + |h A (x) J|_inf, on a seeded J."""
+    from stepzoo.integrators.newton import Stages
+    a = method(name).scheme.a
+    s, d, h = a.shape[0], 5, 0.3
+    rng = np.random.default_rng(3)
+    jac, r = rng.normal(size=(d, d)) * 10, rng.normal(size=s * d)
+    solve, size = Stages.of(a).factorised(h, jnp.asarray(jac),
+                                          float(np.max(np.abs(a).sum(axis=1))))
+    whole = np.eye(s * d) - h * np.kron(a, jac)
+    exact = np.linalg.solve(whole, r)
+    np.testing.assert_allclose(np.asarray(solve(jnp.asarray(r))), exact, rtol=0,
+                               atol=1e-12 * np.max(np.abs(exact)))
+    assert float(size) == pytest.approx(1 + np.max(np.abs(h * np.kron(a, jac)).sum(axis=1)),
+                                        rel=1e-14)
