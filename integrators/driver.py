@@ -40,6 +40,9 @@ CHUNK_CALLS = 128
 # runs until its slowest trajectory converges. At batch 1e4 on two devices, interleaved with
 # rk4: trapezoidal 1.4x and BDF3 1.35x faster with chunks of 64 than of 256, 32 slower.
 CHUNK_IMPLICIT = 64
+# ... except that up to this many per device run as one chunk: at batch 100, two chunks of 64
+# took longer to compile and to run than one of 100 (trapezoidal, backward Euler).
+ONE_CHUNK_IMPLICIT = 256
 # Below this many trajectories a plain vmap of the one-trajectory loop beats the chunks (at 64
 # steps: rk4 1.2x at batch 10 and 20, dopri5 1.5x at 10; chunks win from 40). A single
 # trajectory runs without a batch axis, since a vmap of one still cost 1.2x.
@@ -205,7 +208,9 @@ def _batch(method, f, x0, u, p, h, n_steps, t0, max_steps, libm):
         return jax.vmap(one, in_axes=(0, 0, 0, h_axis))(x0, u, p, h), jnp.asarray(False)
     devices = jax.devices()
     shards = len(devices) if batch >= SHARE * len(devices) else 1
-    size = min(chunk_size(method), -(-batch // shards))
+    per_device = -(-batch // shards)
+    whole = method.implicit and per_device <= ONE_CHUNK_IMPLICIT
+    size = per_device if whole else min(chunk_size(method), per_device)
     n_chunks = -(-batch // (size * shards)) * shards
     args = jax.tree.map(lambda a: _split(a, n_chunks, size), (x0, u, p))
     h_chunks = _split(h, n_chunks, size) if jnp.ndim(h) else jnp.broadcast_to(h, (n_chunks,))

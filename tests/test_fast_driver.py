@@ -13,7 +13,8 @@ from jax import lax
 
 from stepzoo import dynamics
 from stepzoo.integrators import integrate, integrate_batch, method
-from stepzoo.integrators.driver import CHUNK, CHUNK_IMPLICIT, SHARE, SMALL_BATCH
+from stepzoo.integrators.driver import (CHUNK, CHUNK_IMPLICIT, ONE_CHUNK_IMPLICIT, SHARE,
+                                        SMALL_BATCH)
 from stepzoo.integrators.fast_trig import BOUND, cos, fast_trig, flagged_trig, sin
 
 MODEL = dynamics.model("dynamic5")
@@ -35,9 +36,10 @@ def assert_close(a, b):
     assert np.all(np.abs(a - b) <= 1e-12 * scale)
 
 
-# Batches of one, a vmap below SMALL_BATCH, and chunks with the last one padded.
+# Batches of one, a vmap below SMALL_BATCH, and chunks with the last one padded (an implicit
+# method's batch up to ONE_CHUNK_IMPLICIT is one chunk).
 CASES = [(name, batch) for name in ("rk4", "ab4", "dopri5")
-         for batch in (1, SMALL_BATCH - 1, SMALL_BATCH + 3)] + [("bdf2", CHUNK_IMPLICIT + 3)]
+         for batch in (1, SMALL_BATCH - 1, SMALL_BATCH + 3)] + [("bdf2", ONE_CHUNK_IMPLICIT + 3)]
 
 
 @pytest.mark.parametrize("name, batch", CASES)
