@@ -36,8 +36,13 @@ CHUNK = 8
 # per chunk then: rk4 at batch 1e4 ran about as fast as with the option and chunks of CHUNK.
 CHUNK_CALLS = 128
 # Implicit methods run Newton's while loop inside every step, which XLA does not compile into
-# the native step loop, so they favour few large chunks over many small ones.
-CHUNK_IMPLICIT = 256
+# the native step loop, so they favour larger chunks than explicit ones; but a chunk's loop
+# runs until its slowest trajectory converges. At batch 1e4 on two devices, interleaved with
+# rk4: trapezoidal 1.4x and BDF3 1.35x faster with chunks of 64 than of 256, 32 slower.
+CHUNK_IMPLICIT = 64
+# ... except that up to this many per device run as one chunk: at batch 100, two chunks of 64
+# took longer to compile and to run than one of 100 (trapezoidal, backward Euler).
+ONE_CHUNK_IMPLICIT = 256
 # Below this many trajectories a plain vmap of the one-trajectory loop beats the chunks (at 64
 # steps: rk4 1.2x at batch 10 and 20, dopri5 1.5x at 10; chunks win from 40). A single
 # trajectory runs without a batch axis, since a vmap of one still cost 1.2x.
@@ -93,7 +98,9 @@ def _stepwise(step, x0, ys0, y_m, state, m, n_steps, max_steps, t0, h):
     into its row of a NaN buffer. Blocks of a fixed number of scanned steps, with the steps
     past n_steps masked, compiled and ran slower: they add a loop, and selects to every
     step."""
-    buf = jnp.full((max_steps + 1,) + x0.shape, jnp.nan, x0.dtype)
+    # The buffer and the step index like x0, so that under shard_map the loop's carry varies
+    # across devices as the steps' values do.
+    buf = jnp.full_like(x0, jnp.nan, shape=(max_steps + 1,) + x0.shape)
     buf = lax.dynamic_update_slice(buf, jnp.concatenate([x0[None], ys0])[: max_steps + 1],
                                    (0,) * buf.ndim)
 
@@ -102,7 +109,8 @@ def _stepwise(step, x0, ys0, y_m, state, m, n_steps, max_steps, t0, h):
         y, st = step(t0 + k * h, y, st)
         return k + 1, y, st, lax.dynamic_update_slice(buf, y[None], (k + 1,) + (0,) * x0.ndim)
 
-    _, _, state, buf = lax.while_loop(lambda c: c[0] < n_steps, body, (m, y_m, state, buf))
+    k0 = jnp.full_like(x0, m, int, shape=())
+    _, _, state, buf = lax.while_loop(lambda c: c[0] < n_steps, body, (k0, y_m, state, buf))
     # The starter's rows beyond a step count below n_start are not steps taken.
     rows = jnp.arange(max_steps + 1).reshape((-1,) + (1,) * x0.ndim)
     return jnp.where(rows <= n_steps, buf, jnp.nan), state
@@ -199,12 +207,10 @@ def _batch(method, f, x0, u, p, h, n_steps, t0, max_steps, libm):
     if batch < SMALL_BATCH:
         return jax.vmap(one, in_axes=(0, 0, 0, h_axis))(x0, u, p, h), jnp.asarray(False)
     devices = jax.devices()
-    # Implicit methods and run-time step counts stay on one device: shard_map refuses the
-    # carry of their while loops (per-shard values mixed with shared ones), and with that
-    # check off two devices hung in Newton's loop (XLA CPU, jax 0.10.2).
-    shareable = not method.implicit and max_steps is None
-    shards = len(devices) if shareable and batch >= SHARE * len(devices) else 1
-    size = min(chunk_size(method), -(-batch // shards))
+    shards = len(devices) if batch >= SHARE * len(devices) else 1
+    per_device = -(-batch // shards)
+    whole = method.implicit and per_device <= ONE_CHUNK_IMPLICIT
+    size = per_device if whole else min(chunk_size(method), per_device)
     if shards == 1 and not method.implicit:
         return _in_place(method, f, x0, u, p, h, n_steps, t0, max_steps, libm, size)
     n_chunks = -(-batch // (size * shards)) * shards

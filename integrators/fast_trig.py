@@ -9,7 +9,7 @@ unguarded (opt-in). `flagged_trig(fn)` uses them and also says whether any finit
 reached the bound, so that the driver can redo that chunk with libm: exact for every
 argument, with no guard on the fast path but one flag."""
 from fractions import Fraction
-from functools import cache, wraps
+from functools import cache, reduce, wraps
 from math import factorial
 
 import jax
@@ -86,9 +86,11 @@ def beyond_bound(a):
     return (mag >= BOUND[np.dtype(a.dtype)]) & (mag < jnp.inf)
 
 
-def _eval(jaxpr, consts, args, sincos):
-    """Evaluate a jaxpr with sin and cos computed by `sincos(a) -> (sin a, cos a)`, once per
-    argument, recursing into nested jaxprs of jit."""
+def _eval(jaxpr, consts, args, flags):
+    """Evaluate a jaxpr with the vectorisable sin and cos, once per argument, recursing into
+    nested jaxprs of jit and into while loops' bodies (an implicit step's Newton iterations).
+    With `flags` (a list), each sin or cos argument's elements at or beyond the bound are
+    appended to it."""
     env, shared = {}, {}
 
     def read(v):
@@ -100,11 +102,15 @@ def _eval(jaxpr, consts, args, sincos):
         ins = [read(v) for v in eqn.invars]
         if eqn.primitive in (lax.sin_p, lax.cos_p):
             if id(ins[0]) not in shared:    # keeps ins[0] alive, so its id stays unique
-                shared[id(ins[0])] = (ins[0], sincos(ins[0]))
+                if flags is not None and _vectorisable(ins[0]):
+                    flags.append(beyond_bound(ins[0]).ravel())
+                shared[id(ins[0])] = (ins[0], _vector_sincos(ins[0]))
             outs = [shared[id(ins[0])][1][eqn.primitive is lax.cos_p]]
         elif eqn.primitive.name in ("pjit", "jit"):
             inner = eqn.params["jaxpr"]
-            outs = _eval(inner.jaxpr, inner.consts, ins, sincos)
+            outs = _eval(inner.jaxpr, inner.consts, ins, flags)
+        elif eqn.primitive.name == "while":
+            outs = _while(eqn.params, ins, flags)
         else:
             outs = eqn.primitive.bind(*ins, **eqn.params)
             outs = outs if eqn.primitive.multiple_results else [outs]
@@ -112,9 +118,41 @@ def _eval(jaxpr, consts, args, sincos):
     return [read(v) for v in jaxpr.outvars]
 
 
-def _rewritten(f, args, sincos):
+def _while(params, ins, flags):
+    """A while loop with the vectorisable sin and cos in its body; with `flags`, whether any
+    of their arguments in any iteration reached the bound is carried through the loop and
+    appended once. The condition keeps libm's (it has no way to report one). A vmapped loop
+    has a predicate per trajectory: it runs while any holds, each trajectory's carry kept
+    where its own does not, as XLA lowers it."""
+    n_cond, n_body = params["cond_nconsts"], params["body_nconsts"]
+    cond_consts, body_consts = ins[:n_cond], ins[n_cond:n_cond + n_body]
+    cond_j, body_j = params["cond_jaxpr"], params["body_jaxpr"]
+
+    def pred(values):
+        return jax.core.eval_jaxpr(cond_j.jaxpr, cond_j.consts, *cond_consts, *values)[0]
+
+    def body(carry):
+        values, far = carry
+        inner = None if flags is None else []
+        new = _eval(body_j.jaxpr, body_j.consts, [*body_consts, *values], inner)
+        go = pred(values)
+        if go.ndim:
+            new = [jnp.where(go.reshape(go.shape + (1,) * (v.ndim - go.ndim)), n, v)
+                   for n, v in zip(new, values)]
+        return new, far | jnp.any(jnp.concatenate(inner)) if inner else far
+
+    init = ins[n_cond + n_body:]
+    # Like the carry's values, so that under shard_map the flag varies as they do.
+    none = reduce(jnp.logical_or, [jnp.zeros_like(v, bool, shape=()) for v in init])
+    values, far = lax.while_loop(lambda carry: jnp.any(pred(carry[0])), body, (init, none))
+    if flags is not None:
+        flags.append(far.ravel())
+    return values
+
+
+def _rewritten(f, args, flags):
     closed, shape = jax.make_jaxpr(f, return_shape=True)(*args)
-    outs = _eval(closed.jaxpr, closed.consts, jax.tree.leaves(args), sincos)
+    outs = _eval(closed.jaxpr, closed.consts, jax.tree.leaves(args), flags)
     return jax.tree.unflatten(jax.tree.structure(shape), outs)
 
 
@@ -128,7 +166,7 @@ def fast_trig(f):
     static function for `jax.jit` (the driver compiles once per f)."""
     @wraps(f)
     def g(*args):
-        return _rewritten(f, args, _vector_sincos)
+        return _rewritten(f, args, None)
     return g
 
 
@@ -139,13 +177,7 @@ def flagged_trig(fn):
     @wraps(fn)
     def g(*args):
         far = []
-
-        def sincos(a):
-            if _vectorisable(a):
-                far.append(beyond_bound(a).ravel())
-            return _vector_sincos(a)
-
-        out = _rewritten(fn, args, sincos)
+        out = _rewritten(fn, args, far)
         # One reduction for all calls: each one alone was a separate loop kernel on XLA:CPU.
         return out, jnp.any(jnp.concatenate(far)) if far else None
     return g

@@ -92,7 +92,9 @@ class Method:
 
     def init_state(self, y0):
         """Evaluations spent, and whether every nonlinear solve so far converged."""
-        return {"evals": jnp.zeros((), y0.dtype), "converged": jnp.asarray(True)}
+        # Like y0, so that under shard_map they vary across devices as the steps' counts do.
+        return {"evals": jnp.zeros_like(y0, shape=()),
+                "converged": jnp.ones_like(y0, bool, shape=())}
 
     def step(self, fun, t, y, h, state):
         """One step from (t, y): returns (y_next, state)."""

@@ -6,11 +6,12 @@ theta/(1 - theta) |dz_k|; the solve stops when that estimate and the residual ar
 tolerance, and gives up early when the iteration diverges (theta >= 1) or cannot reach the
 tolerance within the iteration limit at its current rate."""
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 from jax import lax
-from jax.scipy import linalg
 
 
 @dataclass(frozen=True)
@@ -44,8 +45,10 @@ ROUND_OFF_ULPS = 8
 
 
 # Matrices up to this order are factorised by the unrolled elimination below; larger ones
-# (Radau IIA 5's 3d stage system) by LAPACK: an unrolled n^3 of operations at order 15 did
-# not finish compiling in minutes.
+# (Radau IIA 5's 3d stage system) by the same elimination in a loop over the columns: an
+# unrolled n^3 of operations at order 15 did not finish compiling in minutes. Neither calls
+# LAPACK, whose batched getrf hung when two host devices ran it at once (XLA CPU, jax 0.10.2:
+# both waited in its batch map), so a batch of any implicit method can be shared among them.
 SMALL = 8
 
 
@@ -58,7 +61,7 @@ def lu_factor(mat):
     slices of an array) would take the tiny matrices one at a time."""
     n = mat.shape[0]
     if n > SMALL:
-        return linalg.lu_factor(mat)
+        return _lu_factor_loop(mat)
     a = [[mat[i, j] for j in range(n)] for i in range(n)]
     pivots = []
     for k in range(n - 1):
@@ -73,6 +76,46 @@ def lu_factor(mat):
                 a[i][j] = a[i][j] - a[i][k] * a[k][j]
         pivots.append(p)
     return a, pivots
+
+
+def _lu_factor_loop(mat):
+    """lu_factor's elimination as a loop over the columns, each a step on whole rows (as
+    arrays): (lu, pivots) with the pivots an integer array."""
+    n = mat.shape[0]
+    rows = jnp.arange(n)
+
+    def column(k, carry):
+        a, pivots = carry
+        p = jnp.argmax(jnp.where(rows >= k, jnp.abs(a[:, k]), -1))
+        a = a.at[k].set(a[p]).at[p].set(a[k])
+        below = rows > k
+        lower = jnp.where(below, a[:, k] / a[k, k], 0)
+        a = a - jnp.outer(lower, jnp.where(below, a[k], 0))
+        return a.at[:, k].set(jnp.where(below, lower, a[:, k])), pivots.at[k].set(p)
+
+    # Pivots like mat's rows, so that under shard_map the loop's carry varies as mat does.
+    return lax.fori_loop(0, n - 1, column, (mat, jnp.zeros_like(mat, int, shape=(n,))))
+
+
+def _lu_solve_loop(factors, r):
+    """mat^-1 r from `_lu_factor_loop(mat)`, a loop over the rows."""
+    lu, pivots = factors
+    n = lu.shape[0]
+    rows = jnp.arange(n)
+
+    def swap(k, x):
+        p = pivots[k]
+        return x.at[k].set(x[p]).at[p].set(x[k])
+
+    def forward(i, x):
+        return x.at[i].add(-jnp.dot(jnp.where(rows < i, lu[i], 0), x))
+
+    def back(j, x):
+        i = n - 1 - j
+        return x.at[i].set((x[i] - jnp.dot(jnp.where(rows > i, lu[i], 0), x)) / lu[i, i])
+
+    x = lax.fori_loop(0, n - 1, swap, r)
+    return lax.fori_loop(0, n, back, lax.fori_loop(0, n, forward, x))
 
 
 def _swap(rows, k, p):
@@ -90,7 +133,7 @@ def lu_solve(factors, r):
     """mat^-1 r from `lu_factor(mat)`: the row swaps, then forward and back substitution."""
     lu, pivots = factors
     if not isinstance(lu, list):
-        return linalg.lu_solve(factors, r)
+        return _lu_solve_loop(factors, r)
     n = len(lu)
     x = [r[i] for i in range(n)]
     for k in range(n - 1):
@@ -111,6 +154,69 @@ def factorised(mat):
     lu = lu_factor(mat)
     size = 1.0 + jnp.max(jnp.sum(jnp.abs(mat - jnp.eye(mat.shape[0], dtype=mat.dtype)), axis=1))
     return (lambda r: lu_solve(lu, r)), size
+
+
+class Stages(NamedTuple):
+    """I - h A (x) J for a diagonalisable A = V diag(mu) V^-1, transformed as RADAU5 does
+    (HW IV.8): one d x d system I - h mu J per real eigenvalue mu and one per complex pair,
+    written as the real 2d x 2d system [[I - h Re mu J, h Im mu J], [-h Im mu J,
+    I - h Re mu J]] on (Re x, Im x), instead of the s d x s d system. Each is eliminated in
+    the loop: the unrolled elimination of the real block alone took longer to compile than
+    the whole method had. `mu` are the eigenvalues solved for (of a pair, the one with
+    Im mu > 0), `twice` says which stand for a pair; `v` their columns of V, `v_inv` their
+    rows of V^-1 (NumPy constants)."""
+    v: np.ndarray
+    v_inv: np.ndarray
+    mu: np.ndarray
+    twice: tuple
+
+    @staticmethod
+    def of(a):
+        """The transformation of A, or None where A is not diagonalisable with a
+        well-conditioned V (then the s d x s d system is factorised whole)."""
+        mu, v = np.linalg.eig(np.asarray(a, float))
+        cond = np.linalg.cond(v)
+        if not np.isfinite(cond) or cond > 1e6:
+            return None
+        pick = [i for i in range(len(mu)) if mu[i].imag >= 0]
+        twice = tuple(bool(mu[i].imag > 0) for i in pick)
+        return Stages(v[:, pick], np.linalg.inv(v)[pick], mu[pick], twice)
+
+    def factorised(self, h, jac, a_norm):
+        """(solve, 1 + |h A (x) J|_inf) as `factorised` gives them for the whole system,
+        |h A (x) J|_inf being h |A|_inf |J|_inf; a_norm is |A|_inf."""
+        d = jac.shape[0]
+        eye = jnp.eye(d, dtype=jac.dtype)
+        blocks = []
+        for mu, pair in zip(self.mu, self.twice):
+            re = eye - (h * float(mu.real)) * jac
+            if pair:
+                im = (h * float(mu.imag)) * jac
+                re = jnp.block([[re, im], [-im, re]])
+            blocks.append(_lu_factor_loop(re))
+        size = 1.0 + h * a_norm * jnp.max(jnp.sum(jnp.abs(jac), axis=1))
+
+        def solve(r):
+            rr = r.reshape(self.v.shape[0], d)
+            out = 0.0
+            for i, (lu, pair) in enumerate(zip(blocks, self.twice)):
+                w = _combine(self.v_inv[i].real, rr)
+                if pair:
+                    x = lu_solve(lu, jnp.concatenate([w, _combine(self.v_inv[i].imag, rr)]))
+                    # V's column i times x plus its conjugate's: twice the real part.
+                    part = [float(2 * c.real) * x[:d] - float(2 * c.imag) * x[d:]
+                            for c in self.v[:, i]]
+                else:
+                    x = lu_solve(lu, w)
+                    part = [float(c.real) * x for c in self.v[:, i]]
+                out = out + jnp.stack(part)
+            return out.reshape(-1)
+        return solve, size
+
+
+def _combine(coeffs, rows):
+    """sum_j coeffs[j] rows[j] (real coefficients)."""
+    return sum(float(c) * rows[j] for j, c in enumerate(coeffs))
 
 
 def _iterate(residual, solver, z0, y_scale, opts, fresh, done0):
@@ -151,7 +257,11 @@ def _iterate(residual, solver, z0, y_scale, opts, fresh, done0):
         done = ok | ~finite | hopeless
         return z - dz, k + 1, n, done, ok
 
-    init = (z0, jnp.asarray(0), jnp.asarray(jnp.inf, z0.dtype), done0, jnp.asarray(False))
+    # Every carry is derived from the data, so that under shard_map it varies across devices
+    # as the body's values do (a constant would not, and the loop would be refused).
+    init = (z0, jnp.zeros_like(y_scale, int, shape=()),
+            jnp.full_like(y_scale, jnp.inf, shape=()), done0,
+            jnp.zeros_like(y_scale, bool, shape=()))
     z, k, _, _, ok = lax.while_loop(cond, body, init)
     return z, k, ok
 
@@ -164,7 +274,8 @@ def newton_solve(residual, solver, z0, y_scale, opts: NewtonOptions):
     Newton, the exact Jacobian of the residual refactorised at every iterate; the retry
     costs nothing when every trajectory of a batch converged. `y_scale` is |y| tiled like
     z. Returns (z, simplified iterations, full iterations, converged)."""
-    z1, k1, ok1 = _iterate(residual, solver, z0, y_scale, opts, False, jnp.asarray(False))
+    z1, k1, ok1 = _iterate(residual, solver, z0, y_scale, opts, False,
+                           jnp.zeros_like(y_scale, bool, shape=()))
     # Not lax.cond: under vmap it would run the retry for every trajectory; a loop that
     # starts done is skipped unless some trajectory of the batch needs it.
     exact = lambda z: factorised(jax.jacfwd(residual)(z))

@@ -10,7 +10,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from stepzoo.integrators.newton import factorised, newton_solve
+from stepzoo.integrators.newton import Stages, factorised, newton_solve
 
 
 def rk_slopes(a, c, fun, t, y, h, needed=None, k0=None) -> list:
@@ -67,7 +67,8 @@ def _finish(y, y_next, ok, state, evals):
 def implicit_rk_step(tab, opts, fun, t, y, h, state):
     """One step of an implicit tableau. A diagonally implicit one (a_ij = 0 for j > i) solves
     its stages one by one, each with I - h a_ii J (one factorisation per distinct a_ii);
-    any other solves all stages at once with I - h A (x) J."""
+    any other solves all stages at once with I - h A (x) J, through A's eigenvalues where A
+    allows (newton.Stages)."""
     d = y.shape[0]
     eye = jnp.eye(d, dtype=y.dtype)
     if tab.diagonally_implicit:
@@ -83,9 +84,15 @@ def implicit_rk_step(tab, opts, fun, t, y, h, state):
     def residual(z):
         return z - h * (a @ stage_f(z)).reshape(-1)
 
-    solver = lambda z: factorised(jnp.eye(s * d, dtype=y.dtype) - h * jnp.kron(a, jac))
-    z, k1, k2, ok = newton_solve(residual, solver, jnp.zeros(s * d, y.dtype),
-                                 jnp.tile(jnp.abs(y), s), opts)
+    stages = Stages.of(tab.a)
+    if stages is None:
+        solver = lambda z: factorised(jnp.eye(s * d, dtype=y.dtype) - h * jnp.kron(a, jac))
+    else:
+        a_norm = float(np.max(np.sum(np.abs(tab.a), axis=1)))
+        solver = lambda z: stages.factorised(h, jac, a_norm)
+    scale = jnp.tile(jnp.abs(y), s)
+    # Starting from zeros like y's: see newton._iterate on carries under shard_map.
+    z, k1, k2, ok = newton_solve(residual, solver, jnp.zeros_like(scale), scale, opts)
     zz = z.reshape(s, d)
     evals = state["evals"] + d + k1 * s + k2 * (s + s * d)
     if np.linalg.matrix_rank(tab.a) == s:

@@ -9,10 +9,12 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from jax import lax
 
 from stepzoo import dynamics
 from stepzoo.integrators import integrate, integrate_batch, method
-from stepzoo.integrators.driver import CHUNK, CHUNK_IMPLICIT, SHARE, SMALL_BATCH
+from stepzoo.integrators.driver import (CHUNK, CHUNK_IMPLICIT, ONE_CHUNK_IMPLICIT, SHARE,
+                                        SMALL_BATCH)
 from stepzoo.integrators.fast_trig import BOUND, cos, fast_trig, flagged_trig, sin
 
 MODEL = dynamics.model("dynamic5")
@@ -34,9 +36,10 @@ def assert_close(a, b):
     assert np.all(np.abs(a - b) <= 1e-12 * scale)
 
 
-# Batches of one, a vmap below SMALL_BATCH, and chunks with the last one padded.
+# Batches of one, a vmap below SMALL_BATCH, and chunks with the last one padded (an implicit
+# method's batch up to ONE_CHUNK_IMPLICIT is one chunk).
 CASES = [(name, batch) for name in ("rk4", "ab4", "dopri5")
-         for batch in (1, SMALL_BATCH - 1, SMALL_BATCH + 3)] + [("bdf2", CHUNK_IMPLICIT + 3)]
+         for batch in (1, SMALL_BATCH - 1, SMALL_BATCH + 3)] + [("bdf2", ONE_CHUNK_IMPLICIT + 3)]
 
 
 @pytest.mark.parametrize("name, batch", CASES)
@@ -114,6 +117,28 @@ def test_batches_equal_libm_for_every_heading(dtype, psi, tol):
         assert np.all(np.abs(got[ok] - one[ok]) <= tol * np.broadcast_to(scale, one.shape)[ok])
 
 
+def test_sin_and_cos_in_a_loop_body_are_rewritten_and_flagged():
+    """A while loop's body (Newton's iterations) gets the polynomials too: a vmapped loop
+    whose elements stop after their own number of iterations lands where libm's does to a
+    few ulp per iteration, and an argument beyond the bound met in any iteration sets the
+    flag."""
+    def walk(a, n):
+        def body(c):
+            x, k = c
+            return x + 0.5 * jnp.cos(x * a), k + 1
+        return lax.while_loop(lambda c: c[1] < n, body, (a, 0))[0]
+
+    a, n = jnp.array([0.3, 1.7, -2.0, 5.0]), jnp.array([1, 4, 9, 16])
+    plain = jax.vmap(walk)(a, n)
+    value, far = jax.jit(flagged_trig(jax.vmap(walk)))(a, n)
+    np.testing.assert_allclose(np.asarray(value), np.asarray(plain), rtol=1e-14)
+    assert not far
+    # The cosine's argument x a is beyond 2^20 from the first iteration for a = 1.5e6 only.
+    _, far = jax.jit(flagged_trig(jax.vmap(lambda a, n: walk(a * 1e6, n))))(
+        jnp.array([1e-3, 1.5]), jnp.array([3, 3]))
+    assert far
+
+
 @pytest.mark.parametrize("name", ["rk4", "trapezoidal"])
 def test_fast_trig_model_agrees_with_the_model(name):
     x0, u, p, _ = envelope(64, seed=3)
@@ -124,10 +149,12 @@ def test_fast_trig_model_agrees_with_the_model(name):
 
 
 @pytest.mark.parametrize("name, max_steps, devices", [("rk4", None, 2), ("ab4", None, 2),
-                                                       ("ab4", 60, 1), ("trapezoidal", None, 1)])
+                                                       ("ab4", 60, 2), ("trapezoidal", None, 2),
+                                                       ("radau_iia5", None, 2)])
 def test_batch_shared_among_host_devices_equals_one_device(tmp_path, name, max_steps, devices):
     # XLA reads the device count when JAX starts: a fresh interpreter with two devices.
-    # Implicit methods and run-time step counts are kept on one device (see the driver).
+    # Radau IIA 5 factorises its 15 x 15 stage system in newton's loop: with LAPACK's
+    # there, two devices hung. A run-time step count (ab4, 60) is shared as well.
     out = tmp_path / "x.npy"
     n = 40 if max_steps is None else "jax.numpy.asarray(40)"
     code = ("import numpy as np, jax; jax.config.update('jax_enable_x64', True); "

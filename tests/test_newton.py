@@ -161,19 +161,20 @@ def test_bdf_observes_its_order_on_detest_a4(name):
     assert abs(slope - method(name).order) <= 0.2, (name, slope, errs)
 
 
-def test_small_lu_solves_as_numpy_does_batched_and_with_row_swaps():
-    """The unrolled elimination (orders up to newton.SMALL) under vmap with the batch last, as
-    the driver runs it, against numpy.linalg.solve on seeded well-conditioned matrices; the
+def test_lu_solves_as_numpy_does_batched_and_with_row_swaps():
+    """The unrolled elimination (orders up to newton.SMALL) and the looped one (above: Radau
+    IIA 5's stage system of a 5-state model is 15) under vmap with the batch last, as the
+    driver runs them, against numpy.linalg.solve on seeded well-conditioned matrices; the
     permuted identity plus a small perturbation needs a row swap at every column."""
     import jax
 
     from stepzoo.integrators.newton import SMALL, lu_factor, lu_solve
     rng = np.random.default_rng(7)
     solve = jax.vmap(lambda a, b: lu_solve(lu_factor(a), b), in_axes=(-1, -1), out_axes=-1)
-    for n in (1, 2, 5, SMALL):
+    for n in (1, 2, 5, SMALL, SMALL + 1, 15):
         a = rng.normal(size=(16, n, n)) + 4 * np.eye(n)
         a[:8] = np.eye(n)[::-1] + 0.1 * a[:8]
-        assert np.max(np.linalg.cond(a)) < 100
+        assert np.max(np.linalg.cond(a)) < 1000
         b = rng.normal(size=(16, n))
         x = np.asarray(solve(jnp.asarray(a.transpose(1, 2, 0)), jnp.asarray(b.T))).T
         np.testing.assert_allclose(x, np.linalg.solve(a, b[..., None])[..., 0], rtol=0,
@@ -181,15 +182,34 @@ def test_small_lu_solves_as_numpy_does_batched_and_with_row_swaps():
 
 
 @pytest.mark.parametrize("name", ["trapezoidal", "backward_euler", "bdf3"])
-def test_unrolled_elimination_steps_as_lapack_does(monkeypatch, name):
-    """Robertson's steps with the unrolled elimination land where LAPACK's (newton.SMALL = 0,
-    the route of every order before) land, to the Newton tolerance (1e-10, weighted by
-    1 + |y|), and agree on convergence. Another step count, so that the LAPACK run compiles
-    afresh."""
+def test_unrolled_elimination_steps_as_the_looped_one_does(monkeypatch, name):
+    """Robertson's steps with the unrolled elimination land where the looped one's
+    (newton.SMALL = 0) land, to the Newton tolerance (1e-10, weighted by 1 + |y|), and agree
+    on convergence. Another step count, so that the looped run compiles afresh."""
     from stepzoo.integrators import newton
     ours = integrate(method(name), robertson, Y0, jnp.zeros(1), {}, 0.1, 30)
     monkeypatch.setattr(newton, "SMALL", 0)
-    lapack = integrate(method(name), robertson, Y0, jnp.zeros(1), {}, 0.1, 31)
-    assert bool(ours.converged) and bool(lapack.converged)
-    x, ref = np.asarray(ours.x), np.asarray(lapack.x[:31])
+    looped = integrate(method(name), robertson, Y0, jnp.zeros(1), {}, 0.1, 31)
+    assert bool(ours.converged) and bool(looped.converged)
+    x, ref = np.asarray(ours.x), np.asarray(looped.x[:31])
     assert np.max(np.abs(x - ref) / (1 + np.abs(ref))) <= 1e-10
+
+
+@pytest.mark.parametrize("name", ["radau_iia5", "radau_iia3", "gauss_legendre4"])
+def test_transformed_stage_system_solves_as_the_whole_one_does(name):
+    """(I - h A (x) J)^-1 r through A's eigenvalues (one real and one complex d x d system
+    for Radau IIA 5, RADAU5's transformation) against numpy.linalg.solve of the s d x s d
+    system, with the size 1 + |h A (x) J|_inf, on a seeded J."""
+    from stepzoo.integrators.newton import Stages
+    a = method(name).scheme.a
+    s, d, h = a.shape[0], 5, 0.3
+    rng = np.random.default_rng(3)
+    jac, r = rng.normal(size=(d, d)) * 10, rng.normal(size=s * d)
+    solve, size = Stages.of(a).factorised(h, jnp.asarray(jac),
+                                          float(np.max(np.abs(a).sum(axis=1))))
+    whole = np.eye(s * d) - h * np.kron(a, jac)
+    exact = np.linalg.solve(whole, r)
+    np.testing.assert_allclose(np.asarray(solve(jnp.asarray(r))), exact, rtol=0,
+                               atol=1e-12 * np.max(np.abs(exact)))
+    assert float(size) == pytest.approx(1 + np.max(np.abs(h * np.kron(a, jac)).sum(axis=1)),
+                                        rel=1e-14)
