@@ -41,22 +41,13 @@ def check_start(cfg, out: Path, resume: bool, overwrite: bool, discard=None) -> 
     if not resume:
         raise UsageError(f"{out} already holds a sweep; pass --resume to continue it or "
                          "--overwrite to start again")
-    if old.get("config_sha256") != cfg.sha256 and not _same_config(out, cfg):
+    if old.get("config_sha256") != cfg.sha256:
         raise UsageError(f"{out} holds a sweep of a different config (sha256 "
                          f"{str(old.get('config_sha256'))[:12]}..., this one {cfg.sha256[:12]}"
-                         "...); resume with the same config, or give a new --out")
+                         "...); resume with the same config, or give a new --out (a folder "
+                         "written before 2026-11-25 has its sha256 by an older rule: "
+                         "start it again with --overwrite)")
     return old
-
-
-def _same_config(out: Path, cfg) -> bool:
-    """Whether the folder's copy of its config resolves to `cfg`: a folder fingerprinted by an
-    older rule (before 2026-11-25 the sha256 covered every value, defaults included) is still
-    this config's, and resumes."""
-    from stepzoo.bench.sweep_config import load
-    try:
-        return load(out / "config.toml").sha256 == cfg.sha256
-    except (UsageError, OSError):
-        return False
 
 
 def missing_chunks(ids: list[str], chunks: Path) -> list[str]:
