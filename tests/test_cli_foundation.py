@@ -143,3 +143,29 @@ def test_compilation_cache_serves_a_repeat_and_recompiles_for_another_method(tmp
     assert other_h == capsys.readouterr().out != first
     _, programs_heun = simulate("heun", "0.01", "1")
     assert programs_heun > programs
+
+
+def test_a_ctrl_c_lost_in_a_gc_callback_is_raised_again():
+    """A KeyboardInterrupt raised inside a garbage-collector callback (as JAX's) reaches
+    sys.unraisablehook, not the command: the command's hook raises the signal again, so the
+    command still stops (a sweep ran to its end and exited 0 after such a Ctrl-C)."""
+    import gc
+    import time
+
+    from stepzoo import cli
+
+    def callback(phase, info):
+        if phase == "start":
+            raise KeyboardInterrupt
+
+    previous = sys.unraisablehook
+    sys.unraisablehook = cli._redeliver_ctrl_c
+    gc.callbacks.append(callback)
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            gc.collect()
+            for _ in range(200):        # the signal comes again a moment later
+                time.sleep(0.01)
+    finally:
+        gc.callbacks.remove(callback)
+        sys.unraisablehook = previous

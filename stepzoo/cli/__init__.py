@@ -8,8 +8,10 @@ import errno
 import importlib
 import os
 import re
+import _thread
 import signal
 import sys
+import threading
 from pathlib import Path
 
 from stepzoo import __version__, validate
@@ -140,8 +142,23 @@ def build_parser(only: str | None = None) -> argparse.ArgumentParser:
     return parser
 
 
+def _redeliver_ctrl_c(unraisable, default=sys.unraisablehook) -> None:
+    """sys.unraisablehook for the command: a Ctrl-C whose KeyboardInterrupt was raised inside
+    a garbage-collector callback (JAX has one) cannot propagate and was lost, so the command
+    ran on to its end; the signal is delivered again, to land where the command can stop."""
+    if isinstance(unraisable.exc_value, KeyboardInterrupt):
+        # From another thread, a moment later: delivered now, its handler would run inside
+        # this hook, where its KeyboardInterrupt would be lost again.
+        timer = threading.Timer(0.01, _thread.interrupt_main, (signal.SIGINT,))
+        timer.daemon = True
+        timer.start()
+    else:
+        default(unraisable)
+
+
 def main(argv=None) -> int:
     signal.signal(signal.SIGPIPE, signal.SIG_DFL)       # `stepzoo ... | head` ends quietly
+    sys.unraisablehook = _redeliver_ctrl_c
     argv = sys.argv[1:] if argv is None else argv
     chosen = next((a for a in argv if not a.startswith("-")), None)
     if chosen not in COMMANDS:
