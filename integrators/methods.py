@@ -121,8 +121,10 @@ class Method:
         steps_ = jnp.arange(self.n_start, dtype=y0.dtype)
         (_, sub), ys = lax.scan(one, (y0, self.starter.init_state(y0)), steps_)
         hist = jnp.concatenate([y0[None], ys])
-        fs = jnp.stack([fun(t0 + i * h, hist[i]) for i in range(self.steps)])
-        state = dict(state, ys=hist, fs=fs, evals=sub["evals"] + self.steps,
+        slopes = self.scheme.uses_slopes
+        fs = jnp.stack([fun(t0 + i * h, hist[i]) for i in range(self.steps)]) if slopes \
+            else jnp.zeros_like(hist)
+        state = dict(state, ys=hist, fs=fs, evals=sub["evals"] + (self.steps if slopes else 0),
                      converged=sub["converged"])
         return ys, state
 

@@ -30,6 +30,12 @@ class LinearMultistep:
         return self.beta[-1] == 0.0
 
     @property
+    def uses_slopes(self) -> bool:
+        """Whether a step needs the past slopes f_n .. f_{n+k-1} (not BDF's: beta_j = 0 for
+        j < k), and so an evaluation of f at each new state."""
+        return bool(np.any(self.beta[:-1] != 0.0))
+
+    @property
     def predictor(self) -> np.ndarray:
         """Weights on the last k values (oldest first) of the polynomial through them,
         evaluated one step ahead: the Newton start of an implicit step, as in DASSL and VODE

@@ -184,7 +184,8 @@ def multistep_step(lmm, opts, fun, t, y, h, state):
     known = -jnp.tensordot(jnp.asarray(lmm.alpha[:k], y.dtype), ys, 1) \
         + h * jnp.tensordot(jnp.asarray(lmm.beta[:k], y.dtype), fs, 1)
     t_next = t + h
-    evals = state["evals"] + 1.0
+    # The new state's slope, which the next steps need (BDF's do not: it is not taken).
+    evals = state["evals"] + (1.0 if lmm.uses_slopes else 0.0)
     if lmm.explicit:
         y_next, state = known, dict(state, evals=evals)
     else:
@@ -196,7 +197,7 @@ def multistep_step(lmm, opts, fun, t, y, h, state):
                                           jnp.tensordot(jnp.asarray(lmm.predictor, y.dtype), ys, 1),
                                           jnp.abs(y), opts)
         y_next, state = _finish(y, y_next, ok, state, evals + d + k1 + k2 * (1 + d))
-    f_next = fun(t_next, y_next)
     ys = jnp.concatenate([ys[1:], y_next[None]])
-    fs = jnp.concatenate([fs[1:], f_next[None]])
+    if lmm.uses_slopes:
+        fs = jnp.concatenate([fs[1:], fun(t_next, y_next)[None]])
     return y_next, dict(state, ys=ys, fs=fs)
