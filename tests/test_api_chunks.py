@@ -12,15 +12,19 @@ MODEL = dynamics.model("dynamic5")
 BATCH = driver.CHUNK_CALLS + 5         # several chunks of CHUNK, two padded ones of CHUNK_CALLS
 
 
-def traced_fresh(monkeypatch, flags):
-    """_batch traced anew (a new function, so no cached trace) with XLA_FLAGS = flags."""
-    monkeypatch.setenv("XLA_FLAGS", flags)
-    rng = np.random.default_rng(3)
+def problem(rng):
+    """(x0, u, p) of BATCH bicycles at seeded speeds, lateral speeds and steers."""
     p = {k: np.full(BATCH, float(v)) for k, v in MODEL.params(None, 15.0).items()}
     p["vx"] = rng.uniform(5.0, 25.0, BATCH)
     x0 = np.zeros((BATCH, 5))
     x0[:, 3] = rng.uniform(-1.0, 1.0, BATCH)
-    u = rng.uniform(-0.5, 0.5, (BATCH, 1))
+    return x0, rng.uniform(-0.5, 0.5, (BATCH, 1)), p
+
+
+def traced_fresh(monkeypatch, flags):
+    """_batch traced anew (a new function, so no cached trace) with XLA_FLAGS = flags."""
+    monkeypatch.setenv("XLA_FLAGS", flags)
+    x0, u, p = problem(np.random.default_rng(3))
     fresh = jax.jit(lambda m, f, x0, u, p, h, n, t0, mx, libm:
                     driver._batch(m, f, x0, u, p, h, n, t0, mx, libm),
                     static_argnames=("m", "f", "n", "mx", "libm"))
@@ -59,11 +63,7 @@ def test_the_last_chunk_overlaps_instead_of_padding(monkeypatch):
     monkeypatch.setenv("XLA_FLAGS", "")
     assert driver.chunk_size(method("rk4")) == driver.CHUNK_CALLS
     rng = np.random.default_rng(4)
-    p = {k: np.full(BATCH, float(v)) for k, v in MODEL.params(None, 15.0).items()}
-    p["vx"] = rng.uniform(5.0, 25.0, BATCH)
-    x0 = np.zeros((BATCH, 5))
-    x0[:, 3] = rng.uniform(-1.0, 1.0, BATCH)
-    u = rng.uniform(-0.5, 0.5, (BATCH, 1))
+    x0, u, p = problem(rng)
     h = rng.uniform(0.005, 0.01, BATCH)
     fresh = jax.jit(lambda x0, u, p, h: driver._batch(method("rk4"), MODEL.rhs, x0, u, p, h,
                                                         30, 0.0, None, False))
