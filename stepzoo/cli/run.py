@@ -70,11 +70,8 @@ def stages(out: Path, config: Path, pos_tol: float, margin: float, seed: int,
     sweep, tuned, plans = out / "sweep", out / "tuned.toml", out / "plans"
 
     def sweep_stage():
-        from stepzoo.bench.suite import load
-        from stepzoo.bench.sweep import run_sweep
-        manifest = run_sweep(load(config), sweep, resume=True, progress=progress,
-                             runner=ahead.sweep_runner(config))
-        return sweep_cmd.show(manifest, sweep)
+        return sweep_cmd.show(sweep_cmd.sweep(config, sweep, resume=True, progress=progress,
+                                              runner=ahead.sweep_runner(config)), sweep)
 
     def plan():
         records = plan_cmd.plan([load_scenario(n) for n in builtin_names()], plans, tuned, seed,

@@ -19,15 +19,17 @@ def add_arguments(p):
 
 
 def sweep(config, out, *, resume=False, overwrite=False, progress=True,
-          scheduler=None) -> dict:
+          scheduler=None, runner=None) -> dict:
     """Run the sweep of the TOML file `config` into the folder `out` (on the Dask cluster at
-    `scheduler` if given) and return its manifest. `stepzoo sweep` and `stepzoo run` call it."""
+    `scheduler` if given, or through run_sweep's `runner`) and return its manifest. `stepzoo
+    sweep` and `stepzoo run` call it."""
     from stepzoo.bench.suite import SuiteConfig, load, run_suite
     from stepzoo.bench.sweep import run_sweep
     cfg = load(config)
     run = run_suite if isinstance(cfg, SuiteConfig) else run_sweep
     if scheduler is None:
-        return run(cfg, out, resume=resume, overwrite=overwrite, progress=progress)
+        return run(cfg, out, resume=resume, overwrite=overwrite, progress=progress,
+                   runner=runner)
     from stepzoo.bench.distributed import sweep_runner
     from stepzoo.distributed import connect
     with connect(scheduler) as client:
