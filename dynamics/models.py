@@ -143,8 +143,9 @@ def _build(name: str) -> Model:
                      exact=d["exact"], family="detest", source=detest.SOURCE)
     d = stiff.PROBLEMS[name]
     return Model(name, d["rhs"], tuple(f"y{i + 1}" for i in range(len(d["x0"]))), (),
-                 d["description"], defaults=d.get("params", {}), x0=tuple(d["x0"]), t_span=d["t_span"],
-                 exact=d["exact"], stiff=True, family="stiff", source=d["source"])
+                 d["description"], defaults=d.get("params", {}),
+                 x0=tuple(d["x0"]), t_span=d["t_span"], exact=d["exact"], stiff=True,
+                 family="stiff", source=d["source"])
 
 
 MODEL_NAMES = VEHICLE_MODELS + tuple(detest.PROBLEMS) + tuple(stiff.PROBLEMS)

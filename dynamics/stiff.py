@@ -56,8 +56,10 @@ PROBLEMS = {
         source=f"{TEST_SET}, problem VDPOL (unscaled form, t in [0, 2000])"),
     "hires": dict(
         rhs=_hires, x0=(1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0057), t_span=(0.0, 321.8122),
-        exact=None, description="HIRES: high irradiance responses of photomorphogenesis (8 species)",
-        source=f"Schaefer 1975; Hairer and Wanner, Solving ODEs II, 1996; {TEST_SET}, problem HIRES"),
+        exact=None,
+        description="HIRES: high irradiance responses of photomorphogenesis (8 species)",
+        source=f"Schaefer 1975; Hairer and Wanner, Solving ODEs II, 1996; {TEST_SET}, "
+               "problem HIRES"),
     "stiff_linear": dict(
         rhs=_stiff_linear, x0=(2.0, 3.0), t_span=(0.0, 10.0), exact=_stiff_linear_exact,
         description="stiff linear system, eigenvalues -1 and -1000, exact 2 e^-t + (sin t, cos t)",

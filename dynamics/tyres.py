@@ -7,8 +7,8 @@ Each law reads its axle's parameters from p with the suffix "f" or "r":
   Dynamics, 3rd ed., 2012, ch. 4) without shifts; its slope at zero slip is B*C*D.
 - fiala:   Ca [N/rad], mu, Fz [N] of the brush model with a parabolic pressure
   distribution and one friction coefficient (Fiala 1954; Pacejka 2012, ch. 3, with
-  equal static and sliding friction); its slope at zero slip is Ca, and it saturates at mu*Fz beyond the sliding
-  angle atan(3 mu Fz / Ca)."""
+  equal static and sliding friction); its slope at zero slip is Ca, and it saturates at mu*Fz
+  beyond the sliding angle atan(3 mu Fz / Ca)."""
 import jax.numpy as jnp
 
 TYRES = ("linear", "pacejka", "fiala")

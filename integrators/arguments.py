@@ -85,7 +85,8 @@ def check_step(h, batch: int | None):
         values = np.asarray(h)
         shapes = [()] if batch is None else [(), (batch,)]
         if values.shape not in shapes:
-            raise ValueError(f"h must be a number{'' if batch is None else ' or one per trajectory'}"
+            each = '' if batch is None else ' or one per trajectory'
+            raise ValueError(f"h must be a number{each}"
                              f" (shape {' or '.join(map(str, shapes))}), got shape {values.shape}")
     else:
         raise TypeError(f"h must be a step size in seconds (a number), got {h!r}")

@@ -1,6 +1,7 @@
 """Linear stability of the zoo on y' = lambda y, z = h*lambda, by two independent routes:
 theory (R(z) by the determinant formula, for a Rosenbrock method that of its underlying DIRK;
-the root condition of rho(zeta) - z sigma(zeta)) and experiment (the method's own JAX step applied to y' = z y, vmapped over a grid of z).
+the root condition of rho(zeta) - z sigma(zeta)) and experiment (the method's own JAX step
+applied to y' = z y, vmapped over a grid of z).
 
 Along a ray z = r e^{i theta} the interval is the first exit from the region, found by a
 dense scan and refined by bisection; A-stable methods never exit and give inf. A ray that

@@ -127,7 +127,8 @@ def _dirk_step(tab, opts, fun, t, y, h, state, jac, f0, eye):
             continue
         if gii not in solvers:
             solvers[gii] = factorised(eye - (h * gii) * jac)
-        z, k1, k2, ok_i = newton_solve(lambda z: z - (h * gii) * fun(ti, known + z),
+        # The residual is solved at once, inside this iteration: late binding is harmless.
+        z, k1, k2, ok_i = newton_solve(lambda z: z - (h * gii) * fun(ti, known + z),  # noqa: B023
                                        lambda _, f=solvers[gii]: f, jnp.zeros_like(y),
                                        jnp.abs(y), opts)
         ks.append(z / (h * gii))

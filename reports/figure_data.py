@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from stepzoo.bench.sweep_config import ESTIMATES
+from stepzoo.bench.sweep.config import ESTIMATES
 from stepzoo.integrators import METHODS
 from stepzoo.integrators.stability import amplification_theory, region_grid
 from stepzoo.reports.figure_types import (ErrorPanel, ErrorVsStep, LimitCurve, LimitPanel,

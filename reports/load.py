@@ -11,9 +11,9 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from stepzoo.bench import schema
-from stepzoo.bench.sweep_config import ESTIMATES
-from stepzoo.bench.sweep_folder import check_finished
+from stepzoo.bench.sweep import tables as schema
+from stepzoo.bench.sweep.config import ESTIMATES
+from stepzoo.bench.sweep.folder import check_finished
 from stepzoo.errors import UsageError
 from stepzoo.safe_parse import json_loads, toml_loads
 

@@ -8,9 +8,9 @@ import tomllib
 
 import numpy as np
 
-from stepzoo.bench.figure_runs import trajectories_at
-from stepzoo.bench.sweep_config import load
-from stepzoo.bench.verdict import verdicts as judge_all
+from stepzoo.bench.sweep.runs.figure_rerun import trajectories_at
+from stepzoo.bench.sweep.config import load
+from stepzoo.bench.tune.verdict import verdicts as judge_all
 from stepzoo.errors import UsageError
 from stepzoo.reports import figure_data, tables
 from stepzoo.safe_parse import toml_loads

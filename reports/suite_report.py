@@ -10,8 +10,8 @@ from functools import partial
 from pathlib import Path
 
 from stepzoo import environment
-from stepzoo.bench import metrics
-from stepzoo.bench.sweep import most_common
+from stepzoo.bench.sweep import metrics
+from stepzoo.bench.sweep.engine import most_common
 from stepzoo.errors import UsageError
 from stepzoo.reports import figure_data, interactive, tables
 from stepzoo.reports.drawing import draw_all

@@ -9,8 +9,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from stepzoo.bench.margin import stable_with_margin
-from stepzoo.bench.metrics import own_limits
+from stepzoo.bench.tune.margin import stable_with_margin
+from stepzoo.bench.sweep.metrics import own_limits
 from stepzoo.reports.figure_data import method_order, worst_case
 
 

@@ -79,7 +79,8 @@ def check(model_cls: type[Schema], data: dict, where: str) -> Schema:
     try:
         return model_cls.model_validate(_tuples(data))
     except pydantic.ValidationError as err:
-        raise UsageError("\n".join(f"{where}: {line}" for line in mistakes(model_cls, err)))
+        raise UsageError("\n".join(f"{where}: {line}"
+                                    for line in mistakes(model_cls, err))) from None
 
 
 def mistakes(model_cls: type[Schema], err: pydantic.ValidationError) -> list[str]:
@@ -109,10 +110,10 @@ def sha256(instance) -> str:
 # Every config file kind -> its root model, by name: the kinds live beside the code that
 # reads them, in packages above this one, which may not be imported from here (as with entry
 # points, a name is resolved when asked for).
-KINDS = {"sweep": "stepzoo.bench.sweep_config:SweepFile",
-         "suite": "stepzoo.bench.suite:SuiteFile",
-         "planner": "stepzoo.search.planner_config:PlannerParams",
-         "scenario": "stepzoo.search.scenarios:ScenarioFile",
+KINDS = {"sweep": "stepzoo.bench.sweep.config:SweepFile",
+         "suite": "stepzoo.bench.sweep.suite:SuiteFile",
+         "planner": "stepzoo.search.planner.config:PlannerParams",
+         "scenario": "stepzoo.search.world.scenarios:ScenarioFile",
          "tuned": "stepzoo.tuned_file:TunedFile"}
 
 

@@ -52,5 +52,6 @@ class Range:
         else:
             value = float(value)
         inside = ((self.ge is None or value >= self.ge) and (self.gt is None or value > self.gt)
-                  and (self.le is None or value <= self.le) and (self.lt is None or value < self.lt))
+                  and (self.le is None or value <= self.le)
+                  and (self.lt is None or value < self.lt))
         return value if inside else None

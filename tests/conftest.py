@@ -28,8 +28,8 @@ import numpy as np  # noqa: E402
 import pytest  # noqa: E402
 
 from stepzoo import dynamics  # noqa: E402
-from stepzoo.bench.sweep import run_sweep  # noqa: E402
-from stepzoo.bench.sweep_config import load  # noqa: E402
+from stepzoo.bench.sweep.engine import run_sweep  # noqa: E402
+from stepzoo.bench.sweep.config import load  # noqa: E402
 
 jax.config.update("jax_enable_x64", True)
 jax.config.update("jax_compilation_cache_dir", os.environ["STEPZOO_CACHE_DIR"])

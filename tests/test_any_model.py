@@ -13,8 +13,8 @@ import pandas as pd
 import pytest
 
 from stepzoo.cli import main as stepzoo
-from stepzoo.bench.sweep import compute_chunk
-from stepzoo.bench.sweep_config import load
+from stepzoo.bench.sweep.engine import compute_chunk
+from stepzoo.bench.sweep.config import load
 from stepzoo.integrators import METHODS, method
 from stepzoo.integrators.stability import max_stable_step
 
@@ -119,7 +119,8 @@ BAD = [
     ('rhs = "springs:chain"', 'rhs = "nowhere:chain"', "names module 'nowhere'"),
     ('rhs = "springs:chain"', 'rhs = "springs:chains"', "has no function 'chains'"),
     ('rhs = "springs:chain"', 'rhs = "springs:MASSES"', "springs.MASSES is 'int', not a"),
-    ('states = ["x1", "x2", "v1", "v2"]', 'states = ["x1", "x2", "v1"]', "fails on its initial state of 3 states"),
+    ('states = ["x1", "x2", "v1", "v2"]', 'states = ["x1", "x2", "v1"]',
+     "fails on its initial state of 3 states"),
     ('F = { values = [0.0, 1.0] }', 'G = { values = [0.0, 1.0] }', "envelope.G is not a"),
     ('states = ["x1", "x2"]\nscales', 'states = ["x9"]\nscales', "error.states must be"),
     ('[initial]\nx1 = 0.1', '[initial]\ny1 = 0.1', "initial.y1 is not a state"),

@@ -20,7 +20,7 @@ from stepzoo.validate import describe
 
 ROOT = Path(__file__).resolve().parents[1]
 SMALL = ROOT / "bench" / "configs" / "small.toml"
-BERLIN = ROOT / "search" / "mapdata" / "Berlin_1_256.map"
+BERLIN = ROOT / "search" / "world" / "mapdata" / "Berlin_1_256.map"
 TINY = """name = "tiny"
 horizon = 0.5
 methods = ["euler"]
@@ -291,7 +291,7 @@ def test_unreadable_inputs_are_one_line(finished, tmp_path):
     for (code, err), named in zip(said, ["Permission denied", "grid.npy", "m.yaml",
                                          "runs.parquet", "runs.parquet"]):
         assert code == 2 and named in one_line(err), err
-    for code, err in said[3:]:
+    for _, err in said[3:]:
         assert "Permission denied" in err, err
     assert not (tmp_path / "out").exists() and not (tmp_path / "plan").exists()
 
@@ -392,7 +392,7 @@ def test_runaway_nesting_is_one_line_in_every_reader(finished, tmp_path, capsys)
     (a sweep config, a planner config, a scenario, plan-bench's queries, a tuned config, a
     sweep folder's manifest for report and tune, a served plan's request): each says so in one
     line, exit 2, or (the server) a ValueError it answers, and writes nothing."""
-    from stepzoo.search.plan_request import Messages
+    from stepzoo.search.plans.request import Messages
     config, sweep, _ = finished
     deep_toml, deep_json = tmp_path / "deep.toml", tmp_path / "deep.json"
     deep_toml.write_text(DEEP_TOML)

@@ -14,8 +14,8 @@ import pytest
 
 from stepzoo import dynamics
 from stepzoo.cli import main as stepzoo
-from stepzoo.bench.sweep import run_sweep
-from stepzoo.bench.sweep_config import load
+from stepzoo.bench.sweep.engine import run_sweep
+from stepzoo.bench.sweep.config import load
 from stepzoo.dynamics.casadi_model import rhs, to_jax
 from conftest import TINY_SWEEP
 

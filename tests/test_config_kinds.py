@@ -8,12 +8,12 @@ import pytest
 import tomli_w
 
 from stepzoo.cli import main as stepzoo
-from stepzoo.bench.sweep_config import load
+from stepzoo.bench.sweep.config import load
 
 ROOT = Path(__file__).resolve().parents[1]
 SMALL = ROOT / "bench" / "configs" / "small.toml"
-SCENARIO = ROOT / "search" / "scenarios" / "street.toml"
-TUNED = ROOT / "search" / "tuned_default.toml"
+SCENARIO = ROOT / "search" / "world" / "scenarios" / "street.toml"
+TUNED = ROOT / "search" / "planner" / "tuned_default.toml"
 SUITE = ('methods = ["rk4"]\nhorizon = 1.0\nsteps.h = [0.1]\n'
          '[[problem]]\nmodel = "detest_a1"\n[[problem]]\nmodel = "detest_a2"\n')
 
@@ -63,7 +63,7 @@ def test_plan_bench_and_report_read_a_tuned_file_as_the_tuned_kind(tmp_path, cap
     """Every reader of a tuned file checks it by the one declaration: plan-bench's
     --integrators-from and the report's --tuned refuse the unknown key as plan does."""
     bad = with_key(TUNED, tmp_path, "colour = 3")
-    queries = ROOT / "search" / "queries" / "streets.json"
+    queries = ROOT / "search" / "world" / "queries" / "streets.json"
     for argv in (["plan-bench", queries, "--integrators-from", bad, "--out", tmp_path / "out"],
                  ["report", tiny_sweep[1], "--tuned", bad, "--out", tmp_path / "out"]):
         lines = refused(capsys, argv, tmp_path / "out")

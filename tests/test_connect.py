@@ -8,8 +8,8 @@ import pytest
 from stepzoo.dynamics.kinematic import kinematic_bicycle
 from stepzoo.dynamics.vehicles import vehicle
 from stepzoo.integrators import integrate, method
-from stepzoo.search.car_bounds import reeds_shepp_length
-from stepzoo.search.connect import (A_MAX, _fastest_profile, connect, dubins_paths,
+from stepzoo.search.proofs.car_bounds import reeds_shepp_length
+from stepzoo.search.planner.connection_ocp import (A_MAX, _fastest_profile, connect, dubins_paths,
                                     reeds_shepp_paths, resimulate, step_function)
 
 CAR = vehicle("bmw320i")

@@ -9,15 +9,15 @@ import numpy as np
 import pytest
 
 from stepzoo import dynamics
-from stepzoo.search.car_bounds import dubins_length
-from stepzoo.search.connect import dubins_paths
-from stepzoo.search.departure import arc_poses, boxed_in, free_departure, turned
-from stepzoo.search.footprint import Footprint, first_collision, poses_collide
-from stepzoo.search.maps import MAP_DIR, from_array
-from stepzoo.search.pathfinder import PathFinder
-from stepzoo.search.planner_config import make_config
-from stepzoo.search.queries import QUERY_DIR, load_queries
-from stepzoo.search.scenarios import open_map
+from stepzoo.search.proofs.car_bounds import dubins_length
+from stepzoo.search.planner.connection_ocp import dubins_paths
+from stepzoo.search.proofs.departure import arc_poses, boxed_in, free_departure, turned
+from stepzoo.search.world.footprint import Footprint, first_collision, poses_collide
+from stepzoo.search.world.maps import MAP_DIR, from_array
+from stepzoo.search.planner.pathfinder import PathFinder
+from stepzoo.search.planner.config import make_config
+from stepzoo.search.world.queries import QUERY_DIR, load_queries
+from stepzoo.search.world.scenarios import open_map
 
 VEHICLE = dynamics.vehicle(None)
 RADIUS = (VEHICLE["Lf"] + VEHICLE["Lr"]) / math.tan(math.pi / 4)
@@ -135,7 +135,7 @@ def test_the_closed_form_dubins_length_is_the_shortest_driven_dubins_path():
 def test_the_reeds_shepp_length_equals_ompls_reeds_shepp_distance():
     """OMPL's ReedsSheppStateSpace (the test extras' ompl) on 500 random pose pairs."""
     ob = pytest.importorskip("ompl.base")
-    from stepzoo.search.car_bounds import reeds_shepp_length
+    from stepzoo.search.proofs.car_bounds import reeds_shepp_length
     radius = 2.5
     space = ob.ReedsSheppStateSpace(radius)
     a, b = space.allocState(), space.allocState()
@@ -160,8 +160,8 @@ def test_the_trees_dynamic_shootings_from_a_boxed_in_start_collide_too():
     """The proof covers paths along the heading; the tree's dynamic bicycle slips sideways.
     From the boxed start every one of its shootings (full lock either way, and between)
     collides before the length the proof names."""
-    from stepzoo.search.shooting import Shooter
-    from stepzoo.search.validity import FootprintChecker
+    from stepzoo.search.planner.shooting import Shooter
+    from stepzoo.search.world.validity import FootprintChecker
     omap, fp = facing_wall_map(), footprint()
     start = np.array([26.0, 10.0, 0.0, 0.0, 0.0])
     boxed, longest = boxed_in(omap, fp, start, RADIUS)
@@ -178,7 +178,7 @@ def test_the_grown_forward_poses_hold_every_free_path_and_enclose_a_street_start
     """room-64-64-8-09's start faces a wall 4.5 m away at 15 degrees: a 2 m arc leaves it,
     but the grown set closes within 7 m and the goal lies far outside; every collision-free
     prefix of 300 random forward paths has its poses at each STEP_M of length in it."""
-    from stepzoo.search.reach import CELL_M, HEADING_BINS, STEP_M, forward_reach, misses
+    from stepzoo.search.proofs.reach import CELL_M, HEADING_BINS, STEP_M, forward_reach, misses
     query = next(q for q in load_queries(QUERY_DIR / "streets.json")
                  if q.id == "room-64-64-8-09")
     omap, fp = open_map(query.map_path, query.cell_size), footprint()

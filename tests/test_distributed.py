@@ -16,10 +16,11 @@ import pytest
 pytest.importorskip("dask.distributed")
 
 from stepzoo import distributed as cluster  # noqa: E402
-from stepzoo.bench import distributed, schema  # noqa: E402
+from stepzoo.bench.sweep import distributed  # noqa: E402
+from stepzoo.bench.sweep import tables as schema
 from stepzoo.cli import main as stepzoo  # noqa: E402
-from stepzoo.bench.sweep import chunk_ids, run_sweep  # noqa: E402
-from stepzoo.bench.sweep_config import load  # noqa: E402
+from stepzoo.bench.sweep.engine import chunk_ids, run_sweep  # noqa: E402
+from stepzoo.bench.sweep.config import load  # noqa: E402
 
 CONFIGS = Path(__file__).resolve().parents[1] / "bench" / "configs"
 RESULTS = ("runs", "limits", "eigenvalues", "trajectories", "summary")

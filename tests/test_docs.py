@@ -3,7 +3,6 @@ accepts and every column a sweep writes appear in the generated reference; Getti
 shows the README's example (which test_wheel.py runs) unchanged; the README stays a short
 front door; and the site builds with every warning an error and, opened from the file
 system, works with the network refused."""
-import argparse
 import contextlib
 import importlib.util
 import io

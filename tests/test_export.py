@@ -12,7 +12,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from stepzoo.bench import export
+from stepzoo.bench.tune import export
 from stepzoo.cli import main as stepzoo
 from stepzoo.errors import NoAnswer
 from stepzoo.integrators import integrate

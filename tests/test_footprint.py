@@ -5,8 +5,9 @@ centre screen that spares most poses the per-disc check never changes an answer.
 import numpy as np
 import pytest
 
-from stepzoo.search.footprint import Footprint, discs_collide, first_collision, poses_collide, roomy
-from stepzoo.search.maps import MAP_DIR, SUBDIV, from_array, load_map
+from stepzoo.search.world.footprint import (Footprint, discs_collide, first_collision,
+                                            poses_collide, roomy)
+from stepzoo.search.world.maps import MAP_DIR, SUBDIV, from_array, load_map
 
 
 

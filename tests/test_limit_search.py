@@ -7,8 +7,8 @@ import math
 import numpy as np
 import pytest
 
-from stepzoo.bench import limit_search
-from stepzoo.bench.limit_search import Outcome, at_steps, bracket, candidates, measured_limit
+from stepzoo.bench.sweep import limit_search
+from stepzoo.bench.sweep.limit_search import Outcome, at_steps, bracket, candidates, measured_limit
 
 HS = np.geomspace(0.001, 0.2, 5)
 REL_TOL, H_PROBE_MAX = 1e-3, 2.0

@@ -13,7 +13,8 @@ from PIL import Image
 from stepzoo import validate
 from stepzoo.cli import main as stepzoo
 from stepzoo.errors import UsageError
-from stepzoo.search.maps import MAP_BYTES_PER_CELL, MAP_DIR, OccupancyMap, from_array, load_map
+from stepzoo.search.world.maps import (MAP_BYTES_PER_CELL, MAP_DIR, OccupancyMap, from_array,
+                                       load_map)
 
 
 
@@ -291,7 +292,7 @@ def test_every_shared_map_loads_with_plausible_size_and_free_space(path):
 def test_a_grid_seen_before_reuses_its_distance_field_and_a_changed_one_gets_its_own(tmp_path):
     """A server plans on the same map file again and again: the field is transformed once,
     and a file changed in between (same name, same size) never gets the old field."""
-    from stepzoo.search.maps import _grid_distance
+    from stepzoo.search.world.maps import _grid_distance
     grid = np.zeros((30, 40), bool)
     grid[10:20, 15:25] = True
     np.save(tmp_path / "site.npy", grid)

@@ -11,7 +11,7 @@ import pandas as pd
 import pytest
 
 from stepzoo.cli import main as stepzoo
-from stepzoo.bench.model_nan import first_times
+from stepzoo.bench.model.nonfinite import first_times
 from stepzoo.integrators import method
 from stepzoo.integrators.stability import max_stable_step
 

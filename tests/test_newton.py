@@ -91,7 +91,8 @@ def test_explicit_methods_always_converge_even_when_they_blow_up():
 
 
 def test_an_implicit_method_s_own_blow_up_is_not_a_solver_failure():
-    # am3's region is bounded (real interval -6): at h lambda = -1e3 it grows by 1.7 a step to overflow,
+    # am3's region is bounded (real interval -6): at h lambda = -1e3 it grows by 1.7 a step to
+    # overflow,
     # each linear solve being exact.
     f = lambda t, y, u, p: -1e4 * y
     tr = integrate(method("am3"), f, jnp.array([1.0]), jnp.zeros(1), {}, 0.1, 1500)

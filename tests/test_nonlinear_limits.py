@@ -12,11 +12,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from stepzoo.bench import metrics
-from stepzoo.bench.frozen import predicted_limit
-from stepzoo.bench.block import Block
-from stepzoo.bench.sweep import compute_chunk
-from stepzoo.bench.sweep_config import validate
+from stepzoo.bench.sweep import metrics
+from stepzoo.bench.model.frozen_jacobian import predicted_limit
+from stepzoo.bench.sweep.block import Block
+from stepzoo.bench.sweep.engine import compute_chunk
+from stepzoo.bench.sweep.config import validate
 from stepzoo.integrators import method
 from stepzoo.integrators.stability import max_stable_step
 

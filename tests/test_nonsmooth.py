@@ -12,9 +12,9 @@ import pandas as pd
 import pytest
 
 from stepzoo import dynamics
-from stepzoo.bench import nonsmooth
-from stepzoo.bench.sweep import run_sweep
-from stepzoo.bench.sweep_config import load
+from stepzoo.bench.model import nonsmooth
+from stepzoo.bench.sweep.engine import run_sweep
+from stepzoo.bench.sweep.config import load
 
 USER = Path(__file__).resolve().parent / "user_model"
 DETEST = Path(__file__).resolve().parents[1] / "bench" / "configs" / "detest.toml"
@@ -92,8 +92,8 @@ def test_the_smooth_builtin_models_are_never_flagged(tiny_sweep):
 
 
 def test_the_sweep_command_and_the_report_say_where_and_the_remedy(clamp_sweep, capsys):
-    from stepzoo.cli.sweep import show
-    from stepzoo.cli.report import _facts
+    from stepzoo.workflows.sweep import show
+    from stepzoo.workflows.report import _facts
     from stepzoo.reports.load import load_sweep
     from stepzoo.reports.suite_report import order_rows
     _, folder = clamp_sweep
@@ -132,7 +132,7 @@ def test_the_commonroad_steering_stop_is_a_jump_of_f_where_delta_reaches_it():
 
 def test_an_order_above_the_declared_one_is_not_blamed_on_non_smooth_f():
     """A kink lowers the observed order; rk4 fitted at 4.3 where f has one is not 'limited'."""
-    from stepzoo.bench.metrics import order_status
+    from stepzoo.bench.sweep.metrics import order_status
     assert order_status(2.1, 4, "asymptotic", nonsmooth=True) == "limited by non-smooth f"
     assert order_status(4.3, 4, "no asymptotic range: x", nonsmooth=True) == \
         "no asymptotic range"

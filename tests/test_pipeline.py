@@ -17,7 +17,7 @@ from test_results_folder import TABLES, TIMED, tables
 
 from stepzoo.cli import main as stepzoo
 from stepzoo.integrators import METHODS
-from stepzoo.search.scenarios import builtin_names
+from stepzoo.search.world.scenarios import builtin_names
 
 ROOT = Path(__file__).resolve().parents[1]
 SWEEP_FILES = ["config.toml", "manifest.json", "runs.parquet", "limits.parquet", "limits.csv",
@@ -107,7 +107,7 @@ def test_run_with_a_missing_config_is_one_line_and_writes_nothing(tmp_path, caps
 
 
 def test_run_default_config_is_the_shipped_envelope():
-    from stepzoo.cli.run import config_path
+    from stepzoo.workflows.pipeline import config_path
     assert config_path(None).resolve() == (ROOT / "bench" / "configs" / "envelope.toml")
 
 
@@ -148,7 +148,7 @@ def test_a_stage_that_finds_nothing_is_one_line_naming_it_and_keeps_what_was_wri
 def test_figures_drawn_while_planning_are_the_report_s_own(ran):
     """Figures 1-6, drawn in the second process while the run plans, are byte for byte what
     the report draws from the run's folder: the same PNGs and the same Plotly fragments."""
-    from stepzoo.cli.report import sweep_figures
+    from stepzoo.workflows.report import sweep_figures
     from stepzoo.reports.drawing import draw_apart
     from stepzoo.reports.load import load_sweep, load_tuned
     _, out, proc = ran
@@ -168,7 +168,7 @@ def test_figures_drawn_while_planning_are_the_report_s_own(ran):
 
 
 def test_a_report_process_that_fails_leaves_the_report_to_the_pipeline(tmp_path):
-    from stepzoo.cli.ahead import Ahead
+    from stepzoo.workflows.second_process import Ahead
     ahead = Ahead()
     try:
         ahead.figures(tmp_path / "no-sweep", tmp_path / "no-tuned.toml")
@@ -182,9 +182,9 @@ def test_the_second_process_computes_the_chunks_the_sweep_would(tmp_path):
     there): every table of every chunk equals the chunk computed here, bit for bit."""
     from conftest import TINY_SWEEP
 
-    from stepzoo.bench.suite import load
-    from stepzoo.bench.sweep import chunk_ids, compute_chunk
-    from stepzoo.cli.ahead import Ahead
+    from stepzoo.bench.sweep.suite import load
+    from stepzoo.bench.sweep.engine import chunk_ids, compute_chunk
+    from stepzoo.workflows.second_process import Ahead
     path = tmp_path / "implicit.toml"
     path.write_text(TINY_SWEEP.replace('"heun"', '"backward_euler"'))
     cfg = load(path)
@@ -196,11 +196,11 @@ def test_the_second_process_computes_the_chunks_the_sweep_would(tmp_path):
     assert sorted(cid for cid, _ in shared) == sorted(chunk_ids(cfg))
     assert [cid for cid, _ in shared][-2:] == ["backward_euler-b000", "backward_euler-b001"]
     cache = {}
-    for cid, tables in shared:
+    for cid, chunk in shared:
         here = compute_chunk(cfg, cid, cache)
-        assert set(tables) == set(here)
+        assert set(chunk) == set(here)
         for name in set(here) - {"timing"}:
             timed = [c for c in here[name].columns if c in TIMED]     # measured wall times
-            pd.testing.assert_frame_equal(tables[name].drop(columns=timed),
+            pd.testing.assert_frame_equal(chunk[name].drop(columns=timed),
                                           here[name].drop(columns=timed), check_exact=True,
                                           obj=name)

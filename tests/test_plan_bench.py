@@ -18,12 +18,12 @@ import pytest
 
 from stepzoo.cli import main
 from stepzoo.results_folder import LOCK
-from stepzoo.search import bench_folder
-from stepzoo.search import bench_plans
-from stepzoo.search.maps import from_array
-from stepzoo.search.path_metrics import distance_to_obstacles
-from stepzoo.search.plan_schema import RUN_COLUMNS
-from stepzoo.search.queries import STREET_QUERIES, load_queries, street_queries
+from stepzoo.search.plan_bench import folder as bench_folder
+from stepzoo.search.plan_bench import engine as bench_plans
+from stepzoo.search.world.maps import from_array
+from stepzoo.search.plans.path_metrics import distance_to_obstacles
+from stepzoo.search.plans.schema import RUN_COLUMNS
+from stepzoo.search.world.queries import STREET_QUERIES, load_queries, street_queries
 
 COLUMNS = {"query", "run", "seed", "status", "time_s", "first_solution_s", "solution_s",
            "length_m", "cusps", "clearance_min_m", "clearance_mean_m", "curvature_max",

@@ -10,8 +10,8 @@ from PIL import Image
 
 from stepzoo.cli import main
 from stepzoo.errors import UsageError
-from stepzoo.search.planner_config import DEFAULT_CONFIG, PlannerParams, load_config
-from stepzoo.search.scenarios import builtin_names, load_scenario
+from stepzoo.search.planner.config import DEFAULT_CONFIG, PlannerParams, load_config
+from stepzoo.search.world.scenarios import builtin_names, load_scenario
 
 STATS = {"expansions", "nodes", "search_s", "connect_s", "path_length_m", "connect_tf_s",
          "seed", "method", "h"}

@@ -14,14 +14,14 @@ from pathlib import Path
 import pytest
 
 from stepzoo.cli import main
-from stepzoo.search.plan_schema import PLAN_KEYS, STATS_KEYS
+from stepzoo.search.plans.schema import PLAN_KEYS, STATS_KEYS
 
 ROOT = Path(__file__).resolve().parent.parent
 DATA = Path("tests/data/plan_regression")
 CONFIG = str(DATA / "config.toml")
-BERLIN = ["--map", "search/mapdata/Berlin_1_256.map", "--cell-size", "1.5", "--speed", "5",
+BERLIN = ["--map", "search/world/mapdata/Berlin_1_256.map", "--cell-size", "1.5", "--speed", "5",
           "--start", "51.0,29.25,-0.486", "--goal", "21.0,42.0,-2.964"]
-ROOM09 = ["--map", "search/mapdata/room-64-64-8.map", "--cell-size", "3",
+ROOM09 = ["--map", "search/world/mapdata/room-64-64-8.map", "--cell-size", "3",
           "--start=153,100.5,-1.84", "--goal=85.5,178.5,0.817"]
 CASES = {"wall_between": ["wall_between"], "berlin_06": BERLIN,
          "berlin_06_reverse": [*BERLIN, "--reverse"], "room09": ROOM09}

@@ -9,13 +9,13 @@ from scipy.ndimage import label
 from stepzoo import dynamics
 from stepzoo.integrators import integrate
 from stepzoo.integrators.reference import reference
-from stepzoo.search.connect import resimulate
-from stepzoo.search.maps import MAP_DIR, SUBDIV, from_array, load_map
-from stepzoo.search.pathfinder import PathFinder
-from stepzoo.search.planner_config import make_config
-from stepzoo.search.point_selector import point_selector, random_points
-from stepzoo.search.scenarios import builtin_names, load_scenario
-from stepzoo.search.shooting import Shooter, pure_pursuit
+from stepzoo.search.planner.connection_ocp import resimulate
+from stepzoo.search.world.maps import MAP_DIR, SUBDIV, from_array, load_map
+from stepzoo.search.planner.pathfinder import PathFinder
+from stepzoo.search.planner.config import make_config
+from stepzoo.search.planner.point_selector import point_selector, random_points
+from stepzoo.search.world.scenarios import builtin_names, load_scenario
+from stepzoo.search.planner.shooting import Shooter, pure_pursuit
 
 # An hour of clock: what these tests check never depends on the machine's speed or load
 # (the plans end by themselves; test_a_plan_that_ends_by_itself... checks that they did).
@@ -140,7 +140,7 @@ def test_no_two_tree_nodes_share_a_pruning_cell(plans):
 
 
 def test_path_length_is_at_least_the_straight_line_and_the_plans_lower_bound(plans):
-    from stepzoo.search.pathfinder import OCTILE_EXCESS
+    from stepzoo.search.planner.pathfinder import OCTILE_EXCESS
     for scenario, result in plans.values():
         straight = np.hypot(*np.subtract(scenario.goal[:2], scenario.start[:2]))
         assert result.path_length() >= max(straight, result.lower_bound_m)
@@ -203,7 +203,7 @@ def test_a_start_the_tree_cannot_turn_out_of_is_left_by_tight_moves():
     # 3.3 m turn at full lock and its tree exhausts; the kinematic bicycle (2.6 m at full
     # lock, what the connection drives) turns out, so the search widens and finds a path
     # that the dense check re-simulates on each edge's own model.
-    from stepzoo.search.scenarios import Scenario
+    from stepzoo.search.world.scenarios import Scenario
     occupied = np.ones((64, 64), bool)
     occupied[2:62, 2:62] = False            # a 30 x 30 m yard, its far wall at x = 31 m
     omap = from_array(occupied, 0.5)
@@ -337,8 +337,8 @@ def facing_wall_map():
 
 
 def test_a_start_facing_a_wall_needs_reverse_gear_and_reports_its_cusps():
-    from stepzoo.search.path_metrics import cusps
-    from stepzoo.search.plan_output import path_rows
+    from stepzoo.search.plans.path_metrics import cusps
+    from stepzoo.search.plans.files import path_rows
     omap = facing_wall_map()
     start, goal = (26.0, 10.0, 0.0), (8.0, 10.0, np.pi)
     forward = PathFinder(omap, CONFIG, None, 2.0).plan(start, goal)
@@ -357,15 +357,15 @@ def test_a_start_facing_a_wall_needs_reverse_gear_and_reports_its_cusps():
 
 
 def test_reverse_is_a_setting_that_reads_true_as_one():
-    from stepzoo.search.planner_config import PlannerParams, with_params
+    from stepzoo.search.planner.config import PlannerParams, with_params
     assert PlannerParams().reverse == 0 and with_params(CONFIG, reverse=True).params.reverse == 1
 
 
 @pytest.mark.parametrize("qid", ["Berlin_1_256-01", "Boston_0_256-03", "den312d-02",
                                  "room-64-64-8-01"])
 def test_street_queries_plan_exact_paths_that_the_dense_check_accepts(qid):
-    from stepzoo.search.queries import STREET_QUERIES, load_queries
-    from stepzoo.search.scenarios import custom_scenario
+    from stepzoo.search.world.queries import STREET_QUERIES, load_queries
+    from stepzoo.search.world.scenarios import custom_scenario
     query = next(q for q in load_queries(STREET_QUERIES) if q.id == qid)
     scenario = custom_scenario(query.map_path, query.cell_size, query.start, query.goal, 5.0)
     result = finder_for(scenario).plan(scenario.start, scenario.goal)

@@ -11,19 +11,19 @@ import pytest
 
 from stepzoo.cli import main
 from stepzoo.errors import UsageError
-from stepzoo.search import pathfinder
-from stepzoo.search.footprint import poses_collide
-from stepzoo.search.maps import from_array
-from stepzoo.search.ompl_log import STATUS_OF_CAUSE
-from stepzoo.search.pathfinder import PathFinder
-from stepzoo.search.plan_output import path_rows
-from stepzoo.search.plan_result import Cause, PlannerStatus
-from stepzoo.search.plan_schema import STATS_KEYS, ordered
-from stepzoo.search.planner_config import (DEFAULT_CONFIG, PlannerParams, make_config,
+from stepzoo.search.planner import pathfinder
+from stepzoo.search.world.footprint import poses_collide
+from stepzoo.search.world.maps import from_array
+from stepzoo.search.plan_bench.ompl_log import STATUS_OF_CAUSE
+from stepzoo.search.planner.pathfinder import PathFinder
+from stepzoo.search.plans.files import path_rows
+from stepzoo.search.planner.status import Cause, PlannerStatus
+from stepzoo.search.plans.schema import STATS_KEYS, ordered
+from stepzoo.search.planner.config import (DEFAULT_CONFIG, PlannerParams, make_config,
                                            planner_params)
-from stepzoo.search.shooting import Shooter
-from stepzoo.search.termination import Progress, exact, expansions, timed
-from stepzoo.search.tree import Tree
+from stepzoo.search.planner.shooting import Shooter
+from stepzoo.search.planner.termination import Progress, exact, expansions, timed
+from stepzoo.search.planner.tree import Tree
 
 # An hour of clock: these plans end by themselves or by their expansions.
 CONFIG = make_config(max_seconds=3600.0)

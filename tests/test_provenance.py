@@ -14,9 +14,9 @@ import pandas as pd
 import pytest
 
 from stepzoo.cli import main as stepzoo
-from stepzoo.bench.sweep import run_sweep
-from stepzoo.bench.sweep_config import load
-from stepzoo.bench.timing import per_step
+from stepzoo.bench.sweep.engine import run_sweep
+from stepzoo.bench.sweep.config import load
+from stepzoo.bench.timing.rounds import per_step
 
 CONFIGS = Path(__file__).resolve().parents[1] / "bench" / "configs"
 

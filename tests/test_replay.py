@@ -9,13 +9,13 @@ from scipy.integrate import solve_ivp
 
 from stepzoo import dynamics
 from stepzoo.cli import main
-from stepzoo.search.footprint import poses_collide
-from stepzoo.search.maps import from_array
-from stepzoo.search.pathfinder import PathFinder
-from stepzoo.search.plan_output import plan_record
-from stepzoo.search.planner_config import load_config, make_config, with_params
-from stepzoo.search.replay import car_footprint, replay
-from stepzoo.search.scenarios import Scenario, load_scenario
+from stepzoo.search.world.footprint import poses_collide
+from stepzoo.search.world.maps import from_array
+from stepzoo.search.planner.pathfinder import PathFinder
+from stepzoo.search.plans.files import plan_record
+from stepzoo.search.planner.config import load_config, make_config, with_params
+from stepzoo.search.plans.replay import car_footprint, replay
+from stepzoo.search.world.scenarios import Scenario, load_scenario
 
 SCENARIO = "wall_between"  # 5 m/s, where rk4 at 0.05 s is stable (h lambda = -2.2 > -2.79)
 
@@ -229,8 +229,8 @@ def test_plan_prints_the_replay_deviation_on_its_line(tmp_path, capsys):
 REPLAY_IN_FLOAT32 = """
 import json, sys
 import jax
-from stepzoo.search.maps import from_array
-from stepzoo.search.replay import replay
+from stepzoo.search.world.maps import from_array
+from stepzoo.search.plans.replay import replay
 record = json.load(open(sys.argv[1]))
 omap = from_array(json.load(open(sys.argv[2])), 0.5, (0.0, 0.0))
 block = replay(record, omap)

@@ -15,7 +15,7 @@ import pytest
 from plotly.offline import get_plotlyjs
 
 from stepzoo.cli import main as stepzoo
-from stepzoo.bench.sweep_config import load
+from stepzoo.bench.sweep.config import load
 from stepzoo.reports import tables
 from stepzoo.reports.load import load_sweep
 
@@ -92,7 +92,8 @@ def write_tuned(path, h=0.02):
         f'method = "rk4"\nh = {h}\nwhy = "cheapest under the tolerance"\npos_tol_m = 0.1\n'
         'margin = 0.2\ncost_evals_per_s = 200.0\ncost_time_per_s = 0.0002\n'
         'sweep_config_sha256 = "abc123"\nprovenance = "test"\n\n'
-        '[envelope]\nvx = [2.0, 15.0]\npoints = 4\n\n[[runners_up]]\nmethod = "ab4"\nh = 0.005\ncost_evals_per_s = 200.0\n'
+        '[envelope]\nvx = [2.0, 15.0]\npoints = 4\n\n'
+        '[[runners_up]]\nmethod = "ab4"\nh = 0.005\ncost_evals_per_s = 200.0\n'
         'cost_time_per_s = 0.0002\nreason = "stability limit"\n')
     return path
 
@@ -235,7 +236,7 @@ def test_regions_caption_names_the_methods_stable_at_the_tuned_step(tmp_path):
 def test_cost_at_tolerance_is_the_largest_safe_step_within_the_margin(tmp_path):
     sweep = load_sweep(write_sweep(tmp_path / "sweep"))
     rows = {r["method"]: r for r in tables.method_summary(sweep, tol=0.1, margin=0.2)}
-    for name, (p, stages, c) in METHODS.items():
+    for name, (_, stages, c) in METHODS.items():
         cap = 0.8 * 1.01 * c / abs(lam_of(2.0))
         ok = [h for h in STEPS if err_of(name, h) <= 0.1 and h <= cap and h < c / abs(lam_of(2.0))]
         if ok:

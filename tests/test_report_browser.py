@@ -5,7 +5,7 @@ Skipped, with the reason, where no browser is installed (see report_browser.py).
 import pytest
 
 import report_browser
-from stepzoo.cli.report import build
+from stepzoo.workflows.report import build
 from test_report import write_plan, write_sweep, write_tuned
 
 WHY_NOT = report_browser.unavailable()

@@ -14,10 +14,10 @@ from pathlib import Path
 import pandas as pd
 import pytest
 
-from stepzoo.bench import schema
+from stepzoo.bench.sweep import tables as schema
 from stepzoo.cli import main as stepzoo
-from stepzoo.bench.sweep import chunk_ids, run_sweep
-from stepzoo.bench.sweep_config import load
+from stepzoo.bench.sweep.engine import chunk_ids, run_sweep
+from stepzoo.bench.sweep.config import load
 from stepzoo.errors import UsageError
 from stepzoo.results_folder import LOCK, claim, replacing
 from test_report import write_sweep, write_tuned

@@ -54,7 +54,8 @@ def test_ros2_stability_function_is_the_published_one_by_both_routes():
     rng = np.random.default_rng(0)
     z = rng.normal(scale=20.0, size=200) + 1j * rng.normal(scale=20.0, size=200)
     want = np.abs((1 + (1 - 2 * g) * z) / (1 - g * z) ** 2)
-    for got in (amplification_theory(method("ros2"), z), amplification_empirical(method("ros2"), z)):
+    for got in (amplification_theory(method("ros2"), z),
+                amplification_empirical(method("ros2"), z)):
         np.testing.assert_allclose(got, want, rtol=1e-12)
 
 

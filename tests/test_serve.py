@@ -21,8 +21,8 @@ import numpy as np
 import pytest
 
 from stepzoo.cli import main
-from stepzoo.search.plan_request import Messages, identity, send
-from stepzoo.search.planner_config import load_config
+from stepzoo.search.plans.request import Messages, identity, send
+from stepzoo.search.planner.config import load_config
 
 # The asking side as a user runs it, then what it imported beyond the interpreter's start and
 # the standard library, written to the file named first.
@@ -327,7 +327,7 @@ def test_serve_refuses_a_socket_path_of_another_user_in_one_line(tmp_path, capsy
 def test_the_default_socket_is_in_a_private_folder(tmp_path, monkeypatch, capsys):
     """$XDG_RUNTIME_DIR when it is the user's own and no one else may write there; else the
     cache folder's stepzoo/, made 0700, and refused when others may write into it."""
-    from stepzoo.search.plan_request import default_socket
+    from stepzoo.search.plans.request import default_socket
     monkeypatch.delenv("STEPZOO_SERVER", raising=False)
     runtime, cache = tmp_path / "run", tmp_path / "cache"
     runtime.mkdir(mode=0o700)

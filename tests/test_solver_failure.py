@@ -5,8 +5,8 @@ predicted, so the limit measured is the solver's); explicit Euler blows up inste
 import numpy as np
 import pytest
 
-from stepzoo.bench.sweep import run_sweep
-from stepzoo.bench.sweep_config import load
+from stepzoo.bench.sweep.engine import run_sweep
+from stepzoo.bench.sweep.config import load
 from stepzoo.reports import tables
 from stepzoo.reports.load import load_sweep
 

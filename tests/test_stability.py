@@ -122,9 +122,9 @@ STIFF = {"backward_euler": (True, True, 0.0), "trapezoidal": (True, False, 1.0),
 
 @pytest.mark.parametrize("name", list(STIFF))
 def test_methods_json_gives_a_and_l_stability_and_stiff_decay(methods_json, name):
-    a, l, decay = STIFF[name]
+    a, l_stable, decay = STIFF[name]
     row = methods_json[name]
-    assert (row["a_stable"], row["l_stable"]) == (a, l)
+    assert (row["a_stable"], row["l_stable"]) == (a, l_stable)
     assert (row["stiff_decay"] is None) if decay is None else \
         row["stiff_decay"] == pytest.approx(decay, abs=1e-4)
 

@@ -10,10 +10,11 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from stepzoo.bench import metrics, schema
+from stepzoo.bench.sweep import metrics
+from stepzoo.bench.sweep import tables as schema
 from stepzoo.cli import main as stepzoo
-from stepzoo.bench.suite import load, run_suite
-from stepzoo.bench.tune import tune
+from stepzoo.bench.sweep.suite import load, run_suite
+from stepzoo.bench.tune.cheapest import tune
 from stepzoo.dynamics import model
 from stepzoo.dynamics.solutions import solve
 from stepzoo.errors import UsageError
@@ -215,7 +216,7 @@ def test_the_verdict_s_error_is_the_sweep_s_on_a_final_error_config(suite):
     """The verdict takes a run's error as the sweep does: on b2_short (error.estimate =
     "final") rk4's verdict err at the finest step is the sweep's err of that run, the error
     at the horizon, not the larger maximum over the run."""
-    from stepzoo.bench.verdict import verdict
+    from stepzoo.bench.tune.verdict import verdict
     cfg, out, _ = suite
     b2 = dict((label, c) for label, c, _ in cfg.problems)["b2_short"]
     runs = pd.read_parquet(out / "b2_short" / "runs.parquet")
@@ -305,10 +306,10 @@ def test_a_problem_with_no_eigenvalue_to_list_keeps_the_tables_columns(tmp_path,
     the table still has its columns, and the report reads the folder (a config without a
     name: the folder's copy names the sweep as the file's stem did). A figure run keeps at
     most TRAJ_ROWS states, spread from its first to its last, each the run's own state."""
-    from stepzoo.bench import trajectory_runs
-    from stepzoo.bench.sweep import run_sweep
+    from stepzoo.bench.sweep.runs import figure_runs as trajectory_runs
+    from stepzoo.bench.sweep.engine import run_sweep
     monkeypatch.setattr(trajectory_runs, "TRAJ_ROWS", 6)
-    from stepzoo.bench.sweep_config import load as load_config
+    from stepzoo.bench.sweep.config import load as load_config
     from stepzoo.reports.load import load_sweep
     (tmp_path / "a5.toml").write_text(
         'model = "detest_a5"\nhorizon = 20.0\nmethods = ["euler"]\n'
@@ -357,7 +358,7 @@ def test_a_bad_problem_is_one_line_naming_it(tmp_path, capsys, edit, message):
 
 
 def test_suite_report_gives_the_orders_and_work_precision_per_problem(suite, tmp_path):
-    from stepzoo.cli.report import build
+    from stepzoo.workflows.report import build
     cfg, out, _ = suite
     index, md, shown = build(out, tmp_path / "report")
     assert [s.title for s in shown] == [f"Work-precision: {p}" for p in cfg.labels]
@@ -377,7 +378,7 @@ def test_method_selectors_follow_the_stability_theory():
     """`methods = "bounded"`: explicit methods and Adams-Moulton 3 and 4 (Dahlquist's second
     barrier: no A-stable linear multistep method has order above 2); "unbounded": the A- and
     A(alpha)-stable rest (BDF3-5 have the whole negative real axis)."""
-    from stepzoo.bench.sweep_config import selected
+    from stepzoo.bench.sweep.config import selected
     explicit = selected("explicit")
     assert selected("bounded") == [m for m in selected("all") if m in explicit or
                                    m in ("am3", "am4")]
@@ -389,7 +390,7 @@ def test_method_selectors_follow_the_stability_theory():
 def test_naming_the_default_reference_solver_keeps_the_sha256(tmp_path):
     """reference.solver at the model's default (dopri5; LSODA for a stiff test problem) gives
     the same results, so the same sha256; another solver is another config."""
-    from stepzoo.bench.sweep_config import load as load_config
+    from stepzoo.bench.sweep.config import load as load_config
     shas = {}
     for model_name, solver in (("detest_b1", ""), ("detest_b1", "dopri5"), ("detest_b1", "Radau"),
                                ("robertson", ""), ("robertson", "LSODA")):

@@ -12,12 +12,13 @@ import pandas as pd
 import pytest
 
 from stepzoo import dynamics
-from stepzoo.bench import schema, sweep_folder
+from stepzoo.bench.sweep import tables as schema
+from stepzoo.bench.sweep import folder as sweep_folder
 from stepzoo.cli import main as stepzoo
-from stepzoo.bench.frozen import predicted_limit
-from stepzoo.bench.block import Block
-from stepzoo.bench.sweep import chunk_ids, compute_chunk, run_sweep
-from stepzoo.bench.sweep_config import load
+from stepzoo.bench.model.frozen_jacobian import predicted_limit
+from stepzoo.bench.sweep.block import Block
+from stepzoo.bench.sweep.engine import chunk_ids, compute_chunk, run_sweep
+from stepzoo.bench.sweep.config import load
 from stepzoo.dynamics.linear import lateral_matrix
 from stepzoo.errors import UsageError
 from stepzoo.integrators import METHODS, method

@@ -7,8 +7,8 @@ import tomllib
 import numpy as np
 import pytest
 
-from stepzoo.bench import suite as suite_mod
-from stepzoo.bench.sweep_config import Newton, validate
+from stepzoo.bench.sweep import suite as suite_mod
+from stepzoo.bench.sweep.config import Newton, validate
 from stepzoo.integrators import METHODS, integrate
 
 # Robertson at t = 40 s from (1, 0, 0): SciPy's Radau at rtol 1e-13, atol 1e-18 on the

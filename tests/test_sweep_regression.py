@@ -8,8 +8,8 @@ be equal; floats equal to rtol 1e-9: on this machine the tables are bit-identica
 another CPU may vectorise or fuse differently and change the last bits. An error column is a
 difference of two states of size up to ~30 m, so its last bits are absolute: err* columns
 also pass within 1e-12. A run past its stability limit multiplies every rounding by its
-growth, so the errors of the rows a table marks unstable agree to UNSTABLE_RTOL only. To record new tables after an intended change, run this file with
-STEPZOO_RECORD_REGRESSION=1 (the tests then write them and skip)."""
+growth, so the errors of the rows a table marks unstable agree to UNSTABLE_RTOL only. To record new tables after an
+intended change, run this file with STEPZOO_RECORD_REGRESSION=1 (the tests then write them and skip)."""
 import json
 import os
 from pathlib import Path
@@ -18,12 +18,12 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from stepzoo.bench import schema
-from stepzoo.bench.stopwatch import KEYS
-from stepzoo.bench.suite import load as load_suite
-from stepzoo.bench.suite import run_suite
-from stepzoo.bench.sweep import run_sweep
-from stepzoo.bench.sweep_config import load
+from stepzoo.bench.sweep import tables as schema
+from stepzoo.bench.timing.chunk_stopwatch import KEYS
+from stepzoo.bench.sweep.suite import load as load_suite
+from stepzoo.bench.sweep.suite import run_suite
+from stepzoo.bench.sweep.engine import run_sweep
+from stepzoo.bench.sweep.config import load
 
 ROOT = Path(__file__).resolve().parents[1]
 DATA = ROOT / "tests" / "data" / "sweep_regression"

@@ -8,9 +8,9 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from stepzoo.bench import timing
-from stepzoo.bench.sweep import run_sweep
-from stepzoo.bench.sweep_config import load
+from stepzoo.bench.timing import rounds as timing
+from stepzoo.bench.sweep.engine import run_sweep
+from stepzoo.bench.sweep.config import load
 
 SMALL = Path(__file__).resolve().parents[1] / "bench" / "configs" / "small.toml"
 INF = float("inf")
@@ -27,7 +27,8 @@ H_MEAS = {
             0.3103275, 0.3170234],
     "trapezoidal": [INF] * 9,
 }
-# Per method over its 90 runs: stable runs, sum of blow-up times [s], sum of log10 err (err > 0), and
+# Per method over its 90 runs: stable runs, sum of blow-up times [s], sum of log10 err (err > 0),
+# and
 # right-hand-side evaluations (explicit methods only: an implicit method's count is Newton's,
 # which may change without changing an error beyond its tolerance).
 RUNS = {

@@ -14,9 +14,9 @@ import pytest
 
 from stepzoo import dynamics
 from stepzoo.cli import main as stepzoo
-from stepzoo.bench.sweep import run_sweep
-from stepzoo.bench.sweep_config import load
-from stepzoo.bench.tune import candidates
+from stepzoo.bench.sweep.engine import run_sweep
+from stepzoo.bench.sweep.config import load
+from stepzoo.bench.tune.cheapest import candidates
 from stepzoo.dynamics.linear import lateral_eigenvalues
 from stepzoo.integrators import integrate_batch, method
 from stepzoo.integrators.reference import reference
@@ -73,8 +73,8 @@ def test_cost_evals_chooses_the_fewest_evaluations_that_qualify(tuned_both):
 
 
 def test_the_calibration_defaults_are_the_planners_call():
-    from stepzoo.bench.calibrate import PLANNER_BATCH, PLANNER_INTERVAL_S
-    from stepzoo.cli.tune import planner_call
+    from stepzoo.bench.timing.calibrate import PLANNER_BATCH, PLANNER_INTERVAL_S
+    from stepzoo.workflows.tune import planner_call
     assert planner_call() == (PLANNER_BATCH, PLANNER_INTERVAL_S)
 
 

@@ -74,7 +74,7 @@ def test_the_choice_is_the_fastest_planner_within_the_margin_at_the_best_exact_r
     assert tuned["cost"] == "time" and tuned["err_pos_max_m"] <= float(POS_TOL)
     # A planner reading the file plans as the evidence did: the given planner config's
     # settings (its margin among them) go with the choice.
-    from stepzoo.search.planner_config import load_config
+    from stepzoo.search.planner.config import load_config
     assert load_config(setup / "tuned.toml").params.model_dump() == plans["planner"]
     assert tuned["planner"]["margin"] == 0.12
 

@@ -168,7 +168,7 @@ def test_the_diffrax_snippet_ends_where_stepzoo_s_own_step_does(loop, capsys):
     pytest.importorskip("diffrax")
     import jax.numpy as jnp
 
-    from stepzoo.bench.sweep_config import load
+    from stepzoo.bench.sweep.config import load
     from stepzoo.integrators import integrate
     folder, out = loop
     (folder / "run_diffrax.py").write_text(out["diffrax"])

@@ -12,10 +12,10 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from stepzoo.bench import tune
+from stepzoo.bench.tune import cheapest as tune
 from stepzoo.cli import main as stepzoo
-from stepzoo.bench.sweep_config import load
-from stepzoo.bench.verdict import classes, judge, region, verdict
+from stepzoo.bench.sweep.config import load
+from stepzoo.bench.tune.verdict import classes, judge, region, verdict
 from stepzoo.reports.load import load_sweep
 
 # euler at 0.05 s is 87% of its limit at vx = 6 m/s (inside a 20% margin) and 27% at 20;
@@ -149,7 +149,7 @@ def failed_solve(tmp_path_factory):
     der Pol (mu = 1000), an A-stable method with no blow-up to measure."""
     from test_solver_failure import CONFIG
 
-    from stepzoo.bench.sweep import run_sweep
+    from stepzoo.bench.sweep.engine import run_sweep
     folder = tmp_path_factory.mktemp("vdp")
     (folder / "vdp.toml").write_text(CONFIG)
     run_sweep(load(folder / "vdp.toml"), folder / "out", progress=False)
@@ -158,7 +158,7 @@ def failed_solve(tmp_path_factory):
 
 def test_a_failed_solve_is_reported_apart_from_measured_limits(failed_solve, tmp_path,
                                                                capsys):
-    from stepzoo.cli.sweep import show
+    from stepzoo.workflows.sweep import show
     from stepzoo.reports import figure_data, interactive, tables
     config, out = failed_solve
     summary = pd.read_csv(out / "summary.csv").set_index("method")
@@ -200,7 +200,7 @@ def test_figures_1_2_show_the_point_where_the_tuned_choice_binds(tiny_sweep, tmp
     without that table the figure runs are made at 6 by the sweep's own code."""
     import dataclasses
 
-    from stepzoo.bench.figure_runs import trajectories_at
+    from stepzoo.bench.sweep.runs.figure_rerun import trajectories_at
     from stepzoo.reports import figure_data
     from stepzoo.reports.recompute import figure_point
     config, folder = tiny_sweep

@@ -15,9 +15,9 @@ from conftest import TINY_SWEEP
 
 ROOT = Path(__file__).resolve().parents[1]
 DATA = ["stepzoo/bench/configs/envelope.toml", "stepzoo/bench/configs/small.toml",
-        "stepzoo/dynamics/vehicles.toml", "stepzoo/search/tuned_default.toml",
-        "stepzoo/search/scenarios/street.toml", "stepzoo/search/mapdata/PROVENANCE.md",
-        "stepzoo/search/mapdata/Berlin_1_256.map"]
+        "stepzoo/dynamics/vehicles.toml", "stepzoo/search/planner/tuned_default.toml",
+        "stepzoo/search/world/scenarios/street.toml", "stepzoo/search/world/mapdata/PROVENANCE.md",
+        "stepzoo/search/world/mapdata/Berlin_1_256.map"]
 SKIP = shutil.ignore_patterns(".venv", ".git", "results", "__pycache__", "build", "*.egg-info",
                               ".pytest_cache", ".benchmarks")
 

@@ -1,10 +1,11 @@
-"""The connection OCP (search.connect) with single and multiple shooting on seeded problems
+"""The connection OCP (search.planner.connection_ocp) with single and multiple shooting on
+seeded problems
 3-30 m apart, after a warm-up that builds each solver."""
 import numpy as np
 import pytest
 
 from stepzoo.dynamics.vehicles import vehicle
-from stepzoo.search.connect import connect
+from stepzoo.search.planner.connection_ocp import connect
 
 CAR = vehicle("bmw320i")
 L, M = CAR["Lf"] + CAR["Lr"], CAR["m"]

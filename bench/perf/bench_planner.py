@@ -42,7 +42,7 @@ def timed_answer(connection, *rest):
 cmd_serve._answer = timed_answer
 plan_scenario = cmd_plan.plan_scenario
 def timed_plan_scenario(*args):
-    from stepzoo.search.pathfinder import PathFinder
+    from stepzoo.search.planner.pathfinder import PathFinder
     search = PathFinder.plan
     def plan(self, *a, **k):
         cpu = time.process_time()

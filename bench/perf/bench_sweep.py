@@ -14,7 +14,8 @@ from time import perf_counter
 import jax
 
 from stepzoo import integrators
-from stepzoo.bench import sweep, sweep_config
+from stepzoo.bench.sweep import engine as sweep
+from stepzoo.bench.sweep import config as sweep_config
 
 ENVELOPE = Path(sweep.__file__).parent / "configs" / "envelope.toml"
 

@@ -272,7 +272,7 @@ def config_page() -> str:
 def sweep_tables() -> dict:
     """A sweep folder's tables -> their columns; `<variable>` stands for each envelope
     variable, `<state>` for each state of the model."""
-    from stepzoo.bench import schema
+    from stepzoo.bench.sweep import tables as schema
     return {
         "runs": schema.run_columns([schema.VARIABLE], [schema.STATE], vehicle=True),
         "limits": schema.limit_columns([schema.VARIABLE], [schema.STATE]),
@@ -286,7 +286,7 @@ def sweep_tables() -> dict:
 
 def plan_tables() -> dict:
     """A plan's and a plan-bench folder's tables -> {column: its doc line}."""
-    from stepzoo.search import plan_schema as ps
+    from stepzoo.search.plans import schema as ps
     return {"plan.json": ps.PLAN_KEYS, "plan.json stats": ps.STATS_KEYS,
             "plan.json replay": ps.REPLAY_COLUMNS, "plan-bench runs": ps.RUN_COLUMNS,
             "plan-bench summary": ps.SUMMARY_COLUMNS, "plan-bench summary, several integrators":
@@ -294,7 +294,7 @@ def plan_tables() -> dict:
 
 
 def tables_page() -> str:
-    from stepzoo.bench import schema
+    from stepzoo.bench.sweep import tables as schema
     lines = ["# Results tables", "",
              "The columns of every table a command writes, generated from the table "
              "declarations when the site is built. A column named here is a contract: it keeps "

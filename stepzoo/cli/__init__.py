@@ -180,7 +180,7 @@ def dispatch(args, argv=None) -> int:
     sys.stdout = _Stdout(stdout)
     try:
         if served:
-            from stepzoo.search.plan_request import request
+            from stepzoo.search.plans.request import request
             code = request(served, argv, args.platform)
         else:
             if args.command in INTEGRATE:

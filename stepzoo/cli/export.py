@@ -7,7 +7,7 @@ from stepzoo.output import text_table, to_json
 
 
 def add_arguments(p):
-    from stepzoo.bench.export import TARGETS
+    from stepzoo.bench.tune.export import TARGETS
     p.add_argument("tuned", metavar="TUNED", help="a tuned config written by `stepzoo tune`")
     p.add_argument("--to", required=True, choices=TARGETS,
                    help="acados: integrator settings for --interval; diffrax: a runnable "
@@ -22,7 +22,7 @@ def add_arguments(p):
 
 
 def main(args) -> int:
-    from stepzoo.bench import export
+    from stepzoo.bench.tune import export
     from stepzoo.errors import UsageError
     from stepzoo.validate import check
     interval = None if args.interval is None else check("horizon", "--interval", args.interval)

@@ -8,24 +8,18 @@ finished run is saved as it finishes; --resume continues a cut-off bench; --sche
 on a Dask cluster."""
 import argparse
 import json
-import platform
-import socket
 import sys
-from datetime import datetime, timezone
-from importlib.metadata import version
-from pathlib import Path
 
 from stepzoo.errors import UsageError
-from stepzoo.output import atomic_write, text_table
-from stepzoo.search.bench_plans import (INTEGRATOR_COLUMNS, SUMMARY_COLUMNS, Task,
-                                        integrator_summary, load, run_tasks, summary)
+from stepzoo.output import text_table
+from stepzoo.search.plan_bench.engine import (INTEGRATOR_COLUMNS, SUMMARY_COLUMNS,
+                                              integrator_summary, summary)
+from stepzoo.workflows.plan_bench import DEFAULT_MAX_HOURS, plan_bench
 
-PLANNER = "stepzoo_PathFinder"
-DEFAULT_MAX_HOURS = 24.0
 
 
 def add_arguments(p):
-    from stepzoo.cli.plan import REVERSE_HELP, settings_help
+    from stepzoo.workflows.plan import REVERSE_HELP, settings_help
     p.formatter_class = argparse.RawDescriptionHelpFormatter
     p.epilog = settings_help()
     p.add_argument("queries", metavar="QUERIES", help="JSON list of queries {map (relative to "
@@ -35,7 +29,8 @@ def add_arguments(p):
     p.add_argument("--speed", type=float, default=5.0, metavar="VX",
                    help="constant speed of the tree [m/s] (default 5)")
     p.add_argument("--config", metavar="FILE", help="planner config TOML (default: the "
-                   "shipped search/tuned_default.toml); its [planner] table sets the budget")
+                   "shipped search/planner/tuned_default.toml); its [planner] table sets the "
+                   "budget")
     p.add_argument("--integrator", action="append", metavar="METHOD:H",
                    help="plan with this method at this step [s] (repeatable), e.g. rk4:0.05; "
                    "default: the planner config's own")
@@ -59,69 +54,7 @@ def add_arguments(p):
                    help="what is printed: a summary table, or JSON")
 
 
-def _cpuinfo() -> str:
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or platform.machine()
-
-
-def write_logs(out, queries, rows, configs, seed):
-    """One OMPL benchmark log per query into out/ompl/, a planner per integrator (named
-    PLANNER when there is one, as before integrators could be compared)."""
-    from stepzoo.search.ompl_log import benchmark_log
-    date = datetime.now(timezone.utc).strftime("%Y-%m-%d %H:%M:%S")
-    logs = Path(out, "ompl").resolve()
-    for q in queries:
-        planners = []
-        for config in configs:
-            label = f"{config.method}:{config.h:.6g}"
-            runs = [dict(r, progress=json.loads(r["progress"])) for r in rows
-                    if r["query"] == q.id and r["integrator"] == label]
-            name = PLANNER if len(configs) == 1 else f"{PLANNER}[{label}]"
-            planners.append((name, {"method": config.method, "h": config.h,
-                                    **config.params.model_dump()}, runs))
-        setup = json.dumps({"map": q.map, "cell_size": q.cell_size, "start": list(q.start),
-                            "goal": list(q.goal), "config": configs[0].source or "built-in"})
-        text = benchmark_log(
-            experiment=q.id, version=f"stepzoo {version('stepzoo')}",
-            host=socket.gethostname(), date=date, setup=setup, cpuinfo=_cpuinfo(), seed=seed,
-            time_limit_s=float(configs[0].params.max_seconds),
-            total_s=sum(r["time_s"] for _, _, runs in planners for r in runs),
-            planners=planners, experiment_properties={"map": (q.map, "TEXT"),
-                                                      "cell_size": (q.cell_size, "REAL")})
-        target = logs / f"{q.id}.log"
-        if target.parent != logs:       # load_queries refuses such ids; never write outside
-            raise UsageError(f"query id {q.id!r} cannot name a file in {logs}")
-        atomic_write(target, text)
-
-
-def _estimate(n_queries, integrators, runs, config, max_hours) -> str:
-    """The bench's size and its longest planning time, as a line; UsageError past
-    `max_hours`. Each plan stops at the budget max_seconds, so that bounds its time."""
-    plans = n_queries * len(integrators) * runs
-    hours = plans * config.params.max_seconds / 3600
-    line = (f"{plans} plans ({n_queries} queries x {len(integrators)} integrators x {runs} "
-            f"runs) of at most {config.params.max_seconds:g} s each: at most {hours:.3g} h "
-            "of planning")
-    if hours > max_hours:
-        raise UsageError(f"{line}, past --max-hours {max_hours:g}; give fewer queries, "
-                         "integrators or runs, a smaller max_seconds in the config's [planner] "
-                         "table, or raise --max-hours")
-    return line
-
-
 def main(args) -> int:
-    from stepzoo import environment
-    from stepzoo.results_folder import claim
-    from stepzoo.search import bench_folder
-    from stepzoo.search.bench_integrators import choose, configured
-    from stepzoo.search.planner_config import load_config, with_params
-    from stepzoo.search.scenarios import speed
-    started = environment.now()
     if args.runs < 1 or args.seed < 0:
         raise UsageError(f"--runs must be >= 1 and --seed >= 0, got {args.runs} and {args.seed}")
     if args.runners_up is not None and (args.runners_up < 0 or not args.integrators_from):
@@ -131,48 +64,12 @@ def main(args) -> int:
     if args.resume and args.overwrite:
         raise UsageError("--resume and --overwrite contradict each other (continue the "
                          "bench, or discard it); give one")
-    bench_folder.check_out(args.out, args.overwrite)
-    vx = speed(args.speed, "--speed")
-    config = load_config(args.config)
-    if args.reverse:
-        config = with_params(config, reverse=1)
-    integrators = choose(args.integrator, args.integrators_from, args.runners_up, config)
-    configs = [configured(config, item) for item in integrators]
-    queries = load(args.queries, config, vx)
-    estimate = _estimate(len(queries), integrators, args.runs, config, args.max_hours)
-    tasks = [Task(i, k, r, args.seed + r, c, item.role, q, vx)
-             for i, (item, c) in enumerate(zip(integrators, configs))
-             for k, q in enumerate(queries) for r in range(args.runs)]
-    settings = {"queries": [[q.id, q.map, q.cell_size, list(q.start), list(q.goal)]
-                            for q in queries],
-                "integrators": [[i.method, i.h, i.role] for i in integrators],
-                "runs": args.runs, "seed": args.seed, "speed": vx,
-                "params": config.params.model_dump()}
-    with claim(args.out, "plan-bench", overwrite=args.overwrite) as out:
-        done = bench_folder.start(out, settings, args.resume, args.overwrite)
-        if not done:
-            environment.write_manifest(out, "plan-bench", started,
-                                       {"settings": settings, "complete": False})
-        # Interleaved, each query planned with every integrator in turn: a machine's load
-        # drifting over a long bench then slows every integrator alike, not the last ones.
-        todo = sorted((t for t in tasks if t.name not in done),
-                      key=lambda t: (t.query, t.run, t.integrator))
-        if args.progress:
-            sys.stderr.write(f"stepzoo plan-bench: {estimate}; {len(done)} already done\n")
-        for count, (name, row) in enumerate(run_tasks(todo, args.scheduler), 1):
-            bench_folder.save(out, name, row)
-            if args.progress:
-                sys.stderr.write(f"stepzoo plan-bench: [{count}/{len(todo)}] {row['integrator']} "
-                                 f"{row['query']} run {row['run']}: {row['status']} in "
-                                 f"{row['time_s']:.2f} s\n")
-        done = bench_folder.finished(out)
-        rows = [done[t.name] for t in tasks]
-        _write_tables(out, rows, integrators)
-        write_logs(out, queries, rows, configs, args.seed)
-        environment.write_manifest(out, "plan-bench", started, {
-            "settings": settings, "complete": True,
-            "files": ["runs.parquet", "runs.csv", "summary.parquet", "summary.csv",
-                      *(f"ompl/{q.id}.log" for q in queries)]})
+    out, rows, integrators = plan_bench(
+        args.queries, args.out, runs=args.runs, seed=args.seed, speed_mps=args.speed,
+        config_file=args.config, integrator=args.integrator, integrators_from=args.integrators_from,
+        runners_up=args.runners_up, reverse=args.reverse, resume=args.resume,
+        overwrite=args.overwrite, max_hours=args.max_hours, scheduler=args.scheduler,
+        progress=args.progress)
     total = summary(rows)
     per = integrator_summary(rows, integrators)
     if args.format == "json":
@@ -185,14 +82,3 @@ def main(args) -> int:
     return 0
 
 
-def _write_tables(out, rows, integrators):
-    import io
-
-    import pandas as pd
-    for name, table in (("runs", pd.DataFrame(rows)),
-                        ("summary", pd.DataFrame(integrator_summary(rows, integrators),
-                                                 columns=INTEGRATOR_COLUMNS))):
-        buf = io.BytesIO()
-        table.to_parquet(buf, index=False)
-        atomic_write(out / f"{name}.parquet", buf.getvalue())
-        atomic_write(out / f"{name}.csv", table.to_csv(index=False))

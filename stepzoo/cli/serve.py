@@ -22,7 +22,7 @@ from pathlib import Path
 
 from stepzoo import cli
 from stepzoo.errors import UsageError
-from stepzoo.search.plan_request import (ENV, Messages, check_request, default_socket,
+from stepzoo.search.plans.request import (ENV, Messages, check_request, default_socket,
                                          identity, not_private, peer_uid, send)
 
 WARM_UP_SCENARIO = "open_field"   # planned at start-up unless told: it compiles what plans use

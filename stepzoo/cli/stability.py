@@ -32,7 +32,7 @@ def add_arguments(p):
 
 def config_from_args(args):
     """The sweep config whose model and envelope the point is taken from."""
-    from stepzoo.bench.sweep_config import load, validate
+    from stepzoo.bench.sweep.config import load, validate
     if args.config:
         if args.model or args.tyre or args.vehicle:
             raise UsageError("give either CONFIG or --model/--tyre/--vehicle, not both")
@@ -89,8 +89,9 @@ def predict(cfg, point) -> dict:
     and then no method has a prediction."""
     import dataclasses
 
-    from stepzoo.bench import frozen, model_nan
-    from stepzoo.bench.block import Block
+    from stepzoo.bench.model import frozen_jacobian as frozen
+    from stepzoo.bench.model import nonfinite as model_nan
+    from stepzoo.bench.sweep.block import Block
     from stepzoo.integrators import METHODS
     spec = dataclasses.replace(cfg.spec, envelope=tuple(
         (var, (value,)) for var, value in zip(cfg.spec.variables, point)))
@@ -117,7 +118,7 @@ def predict(cfg, point) -> dict:
 
 
 def main(args) -> int:
-    from stepzoo.bench import model_nan
+    from stepzoo.bench.model import nonfinite as model_nan
     cfg = config_from_args(args)
     out = predict(cfg, at_point(cfg, args.at))
     if "vx" in out["point"] and "delta" in out["point"]:

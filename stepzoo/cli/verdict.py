@@ -30,7 +30,7 @@ def add_arguments(p):
 def _csv(path, cfg, results) -> None:
     import pandas as pd
 
-    from stepzoo.bench.verdict import POINT_FIELDS
+    from stepzoo.bench.tune.verdict import POINT_FIELDS
     from stepzoo.output import atomic_write
     from stepzoo.results_folder import check_file_target
     check_file_target(path, "--csv")
@@ -41,8 +41,8 @@ def _csv(path, cfg, results) -> None:
 
 
 def main(args) -> int:
-    from stepzoo.bench.sweep_config import load
-    from stepzoo.bench.verdict import verdicts
+    from stepzoo.bench.sweep.config import load
+    from stepzoo.bench.tune.verdict import verdicts
     from stepzoo.integrators import METHODS
     if len(args.method) != len(args.h):
         raise UsageError("give one --h per --method")

@@ -1,0 +1,144 @@
+"""One block of a sweep config's operating points and what its chunks share: the lanes, the
+references along them (kept in a cache for the next method's chunk), the frozen Jacobians
+that predict each method's stable step, and the stability test and limit search at them."""
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+
+from stepzoo.bench.model import frozen_jacobian as frozen
+from stepzoo.bench.sweep import limit_search
+from stepzoo.bench.model import nonsmooth
+from stepzoo.bench.sweep import reference as reference_backend
+from stepzoo.bench.sweep.limit_search import MeasuredLimit, Outcome
+from stepzoo.bench.sweep.runs.method_runs import Runner
+from stepzoo.bench.sweep.points import Points
+from stepzoo.bench.sweep.runs.stability_runs import StabilityRuns, perturbation
+from stepzoo.bench.timing.chunk_stopwatch import Stopwatch
+
+TRAJ_SAMPLES = 200     # reference samples of the figure trajectory
+ALONG_SAMPLES = 50     # reference samples whose Jacobians predict the stable step (divides
+                       # TRAJ_SAMPLES: the figure trajectory's prediction reuses the shape)
+
+
+class Along(NamedTuple):
+    """The reference over the horizon at ALONG_SAMPLES + 1 times ts (T,) [s]: states xs
+    (B, T, d), eigenvalues lam (B, T, d) [1/s] and Jacobians jac (B, T, d, d) of f there."""
+    ts: np.ndarray
+    xs: np.ndarray
+    lam: np.ndarray
+    jac: np.ndarray
+
+
+class Predicted(NamedTuple):
+    """A lane's predicted largest stable step h [s] (frozen.predicted_limit), and the time
+    index k and eigenvalue index j where it binds (-1 where nothing does)."""
+    h: float
+    k: int
+    j: int
+
+
+class Block:
+    """Block `block` of cfg's points (bench.sweep.points.Points). `cache` (any dict) keeps the
+    references of a block for the next chunk in the same process; `watch` gets the time;
+    max_steps (default: the grid's longest run or a stability run) sizes every call."""
+
+    def __init__(self, cfg, block: int, cache: dict, watch: Stopwatch | None = None,
+                 max_steps: int | None = None):
+        self.cfg, self.block, self.cache = cfg, block, cache
+        self.spec = cfg.spec
+        self.points = Points.block(cfg, block)
+        self.watch = Stopwatch() if watch is None else watch
+        self.reference_backend = reference_backend.choose(cfg)
+        steps = max(round(cfg.horizon / cfg.hs[0]), cfg.stab_steps)
+        self.run = Runner(cfg.spec, steps if max_steps is None else max_steps, self.watch)
+
+    def cached(self, key, make):
+        """make(), computed once per (key, block) in the cache."""
+        key = (key, self.block)
+        if key not in self.cache:
+            self.cache[key] = make()
+        return self.cache[key]
+
+    def reference(self, h: float, n: int, points: Points | None = None):
+        """The reference (reference_backend.Solution) at t = k h [s], k = 0..n, of the block's
+        lanes, or of `points`."""
+        return self.reference_backend.solve(self.points if points is None else points, h, n,
+                                            self.watch)
+
+    def accuracy_reference(self, h: float):
+        """The reference of the accuracy runs of step h [s] over the horizon, cached."""
+        n = round(self.cfg.horizon / h)
+        return self.cached(("accuracy", h), lambda: self.reference(h, n))
+
+    # -- prediction ------------------------------------------------------------------------
+    def along(self) -> Along:
+        """The frozen Jacobians along each lane's reference that predict the step."""
+        def make():
+            dt = self.cfg.horizon / ALONG_SAMPLES
+            ts = dt * np.arange(ALONG_SAMPLES + 1)
+            xs = self.reference(dt, ALONG_SAMPLES).x
+            with self.watch.clock("metrics_s"):
+                jac = frozen.jacobians(self.spec.rhs, ts, xs, self.points.u, self.points.p)
+            return Along(ts, xs, frozen.eigenvalues(jac), jac)
+        return self.cached("along", make)
+
+    def nonsmooth(self) -> list:
+        """Per lane, where f is not smooth along its reference at the smallest grid step
+        (bench.nonsmooth; none where that reference failed)."""
+        def make():
+            h = self.cfg.hs[0]
+            ref = self.accuracy_reference(h)
+            with self.watch.clock("metrics_s"):
+                return nonsmooth.detect(self.spec.rhs, h * np.arange(ref.x.shape[1]),
+                                        np.where(ref.ok[:, None, None], ref.x, np.nan),
+                                        self.points.u, self.points.p, self.spec.states,
+                                        self.spec.inputs, self.cfg.rtol, self.cfg.atol)
+        return self.cached("nonsmooth", make)
+
+    def predicted(self, meth) -> list[Predicted]:
+        """Per lane, the method's predicted limit along the lane's reference."""
+        lam = self.along().lam
+        with self.watch.clock("metrics_s"):
+            return [Predicted(*frozen.predicted_limit(meth, lam[b]))
+                    for b in range(len(self.points))]
+
+    # -- stability -------------------------------------------------------------------------
+    @property
+    def delta(self) -> np.ndarray:
+        """(B, d) the stability runs' initial deviation (stability_runs.perturbation)."""
+        return self.cached("perturbation", lambda: perturbation(
+            self.spec, self.along().jac[:, 0], self.cfg.perturbation))
+
+    def stability_runs(self) -> StabilityRuns:
+        return StabilityRuns(self.run, self.points, self.delta, self.cfg.stab_steps,
+                             self.cfg.growth)
+
+    def stable(self, meth, H) -> Outcome:
+        """Outcomes (B, K) of the stability runs at steps H (B, K) [s], row b at lane b."""
+        return limit_search.at_steps(self.stability_runs().probe(meth), np.arange(len(H)),
+                                     np.asarray(H, float).T)
+
+    def measured_limits(self, meth, grid: Outcome, pred) -> MeasuredLimit:
+        """The largest stable step per lane [s] and its cause (limit_search.measured_limit)
+        from the outcomes grid (B, K) at the config's steps, guided by the predicted limits
+        pred (B,) [s]."""
+        cfg = self.cfg
+        return limit_search.measured_limit(grid, self.stability_runs().probe(meth), cfg.hs,
+                                           pred, cfg.h_probe_max, cfg.rel_tol,
+                                           len(self.points))
+
+    # -- the figure trajectory --------------------------------------------------------------
+    def trajectory_points(self) -> Points:
+        """The trajectory point in every lane (the batch keeps its compiled shape)."""
+        return Points.repeated(self.spec, self.cfg.traj_point, len(self.points))
+
+    def trajectory_reference(self):
+        """(times (TRAJ_SAMPLES+1,) [s], reference states (TRAJ_SAMPLES+1, d)) at the
+        trajectory point."""
+        def make():
+            dt = self.cfg.horizon / TRAJ_SAMPLES
+            ref = self.reference(dt, TRAJ_SAMPLES, self.trajectory_points()).x
+            return dt * np.arange(TRAJ_SAMPLES + 1), ref[0]
+        return self.cached("trajectory", make)

@@ -1,0 +1,100 @@
+"""The connection step of the search (paper Section 2.4, made anytime): from the tree nodes
+near the goal that could shorten the best path, cheapest bound first, screen the car's
+obstacle-blind paths for a free one, then solve the OCP (search/planner/connection_ocp.py)
+and keep it if it is valid and shorter."""
+from __future__ import annotations
+
+import math
+from time import perf_counter
+
+import numpy as np
+
+from stepzoo.search.planner.connection_ocp import dubins_paths, guess_paths, path_poses
+from stepzoo.search.planner.status import Cause
+
+IMPROVE_TOL = 1e-3      # a path counts as shorter when it is shorter by this fraction
+DUBINS_SPACING = 0.5    # [m] between the poses of a Dubins path checked before an OCP
+
+
+class Connector:
+    """Connection attempts of one search (`search`: pathfinder.Search, whose tree, best path
+    and result they read and improve)."""
+
+    def __init__(self, search):
+        self.s = search
+        self.tried: set[int] = set()
+        self.cheap: set[int] = set()  # tried nodes whose every Dubins path collides: no OCP
+        self.failures: list[str] = []
+        self.seconds = 0.0            # [s] wall time of the OCP solves
+
+    def attempts(self) -> int:
+        """Connection attempts that called the OCP."""
+        return len(self.tried) - len(self.cheap)
+
+    def car_path_free(self, node, guesses) -> bool:
+        """Whether any Dubins path (with reverse gear, also any Reeds-Shepp path) from the node
+        to the goal is valid: `guesses`, the paths the connection's guesses drive
+        (connect.guess_paths), and with reverse gear the Dubins paths driven backwards."""
+        s = self.s
+        radius, start = s.radius, s.tree.states[node][:3]
+        paths = [path_poses(start, segs, radius, DUBINS_SPACING) for segs in guesses]
+        if s.prm.reverse:
+            # Backwards, the footprint (symmetric about its centre) sweeps what it sweeps
+            # driving forwards between the poses turned round.
+            back = start + (0.0, 0.0, math.pi)
+            paths += [path_poses(back, segs, radius, DUBINS_SPACING) for segs in
+                      dubins_paths(back, s.goal[:3] + (0.0, 0.0, math.pi), radius)]
+        if not paths:
+            return False
+        # One check of all words: each padded with its last pose to the longest.
+        rows = max(len(p) for p in paths)
+        padded = np.stack([np.vstack([p, np.repeat(p[-1:], rows - len(p), axis=0)])
+                           for p in paths])
+        return bool((s.f.checker.first_invalid(padded) < 0).any())
+
+    def try_connect(self) -> bool:
+        """Connect from the untried nodes within connect_radius of the goal that could shorten
+        the best path, shortest g + car bound first, within the attempts left; True if the best
+        path became shorter."""
+        s, prm, tree, res = self.s, self.s.prm, self.s.tree, self.s.result
+        H, g = tree.H, tree.g
+        limit = s.best * (1 - IMPROVE_TOL)
+        near = [i for i in np.flatnonzero((H <= prm.connect_radius) & (g + H < limit)).tolist()
+                if i not in self.tried]
+        # "Nearest" for a car: a node beside the goal but facing away needs a loop (or, with
+        # reverse gear, a turn in three), which the map may not allow; the car's bound says so.
+        key = (g + np.maximum(H, tree.car)).tolist()
+        improved = False
+        for i in sorted(near, key=lambda j: (key[j], j)):
+            if self.attempts() >= prm.connect_tries or not s.budget_left():
+                break
+            if key[i] >= s.best * (1 - IMPROVE_TOL):
+                continue
+            self.tried.add(i)
+            guesses = guess_paths(tree.states[i][:3], s.goal[:3], s.radius, prm.reverse)
+            if not self.car_path_free(i, guesses):
+                # The OCP starts from these paths and ignores obstacles: it would collide too.
+                self.cheap.add(i)
+                self.failures.append("every Dubins path collides" if not prm.reverse
+                                     else "every Dubins and Reeds-Shepp path collides")
+                continue
+            t0 = perf_counter()
+            conn, why = s.f.connect(tree.states[i], s.goal, s.goal_speed,
+                                    direction=int(tree.direction[i]) or 1, paths=guesses)
+            self.seconds += perf_counter() - t0
+            if why:
+                self.failures.append(why)
+                continue
+            length = float(g[i] + float(np.hypot(*np.diff(conn.states[:, :2], axis=0).T).sum()))
+            if length >= s.best * (1 - IMPROVE_TOL):
+                continue
+            if not math.isfinite(s.best):
+                res.first_solution_s = perf_counter() - s.t0
+                res.reason = (f"connected to the goal from a node {H[i]:.2f} m away "
+                              f"(attempt {self.attempts()})")
+            s.best, improved = length, True
+            s.set_path(i)
+            res.connection, res.cause = conn, Cause.CONNECTED
+            res.solution_s = perf_counter() - s.t0
+            res.progress.append((res.solution_s, length))
+        return improved

@@ -1,0 +1,438 @@
+"""The connection of the paper (Section 2.4): a minimum-time optimal control problem on the
+kinematic bicycle from a tree node to the goal pose, solved with IPOPT through CasADi's nlpsol.
+One parametrised solver per (N, shooting, method, options) is built once and called with the
+problem's numbers as parameters and bounds."""
+from dataclasses import dataclass
+from functools import cache
+import math
+from math import pi
+from time import perf_counter
+from typing import NamedTuple
+
+import casadi as ca
+import jax.numpy as jnp
+import numpy as np
+
+from stepzoo.dynamics.kinematic import kinematic_bicycle, kinematic_terms
+from stepzoo.integrators import integrate, method as zoo_method
+from stepzoo.integrators.methods import TABLEAUS
+from stepzoo.integrators.steps import rk_slopes, weighted
+from stepzoo.search.proofs.car_bounds import reeds_shepp_words
+
+# Multiple shooting solved as many seeded problems as single shooting, several times faster
+# and without retries (docs/measurements-behind-defaults.md has the study).
+DEFAULT_SHOOTING = "multiple"
+# rk4 costs what Euler costs here (the NLP dominates) but is faithful: a re-simulation 10
+# times finer ends micrometres from the goal, against decimetres for the paper's Euler.
+DEFAULT_METHOD = "rk4"
+# The paper leaves F free, which makes minimum time degenerate (infinite force, zero time):
+# F is bounded by m * A_MAX, a firm but ordinary passenger-car acceleration/braking level.
+A_MAX = 4.0            # [m/s^2]
+TF_BOUNDS = (0.1, 30.0)  # [s]; the lower bound keeps dt = t_f/N away from zero
+THETA_MARGIN = 2 * pi  # [rad] beyond the start and goal headings: room for one loop, no more
+END_TOL = 1e-6         # [m, rad, m/s] end-constraint residual accepted as success
+MAX_TRIES = 3          # solves (one per winding and first direction) before giving up
+
+
+@dataclass(frozen=True)
+class Connection:
+    """A solved (or failed) connection; arrays hold IPOPT's last iterate on failure."""
+    success: bool        # IPOPT converged and the end constraint holds
+    status: str          # IPOPT's return status
+    tf: float            # [s]
+    t: np.ndarray        # (N+1,) [s]
+    states: np.ndarray   # (N+1, 4) [X, Y, theta, v] in [m, m, rad, m/s]
+    inputs: np.ndarray   # (N, 2) [delta rad, F N], piecewise constant
+    solve_s: float       # wall time of `connect`: guess and every IPOPT try [s]
+    shooting: str        # "single" | "multiple"
+
+
+@cache
+def step_function(method: str) -> ca.Function:
+    """One step x_{n+1} = step(x_n, u_n, h, L, m) of an explicit tableau of the zoo."""
+    if method not in TABLEAUS:
+        raise KeyError(f"unknown method {method!r}; known: {', '.join(TABLEAUS)}")
+    tab = TABLEAUS[method]
+    if not tab.explicit:
+        raise ValueError(f"method {method!r} is implicit; the connection needs an explicit one")
+    x, u = ca.SX.sym("x", 4), ca.SX.sym("u", 2)
+    h, L, m = ca.SX.sym("h"), ca.SX.sym("L"), ca.SX.sym("m")
+    f = lambda t, y: ca.vertcat(*kinematic_terms(y, u, L, m, ca.cos, ca.sin, ca.tan))
+    x_next = x + h * weighted(tab.b, rk_slopes(tab.a, tab.c, f, 0.0, x, h, tab.needed))
+    return ca.Function(f"step_{method}", [x, u, h, L, m], [x_next])
+
+
+def unwrap(theta, reference):
+    """The 2*pi-equivalent of heading `theta` nearest `reference` [rad]."""
+    return reference + float(np.remainder(theta - reference + pi, 2 * pi) - pi)
+
+
+@cache
+def _open_loop(N: int, method: str) -> ca.Function:
+    """States (4, N+1) of the discrete model from x0 under inputs (2, N), step h."""
+    step = step_function(method)
+    x0, us = ca.MX.sym("x0", 4), ca.MX.sym("u", 2, N)
+    h, L, m = ca.MX.sym("h"), ca.MX.sym("L"), ca.MX.sym("m")
+    xs = step.mapaccum("roll", N)(x0, us, h, L, m)
+    return ca.Function(f"open_loop{N}", [x0, us, h, L, m], [ca.horzcat(x0, xs)])
+
+
+def _mod(a):
+    """Angle in [0, 2 pi) [rad]."""
+    return np.remainder(a, 2 * pi)
+
+
+def _dubins_words(alpha, beta, d):
+    """(turn signs, normalised segment lengths) of the six Dubins words from heading alpha to
+    heading beta over distance d, both headings measured from the chord (unit radius)."""
+    sa, sb, c_a, c_b = np.sin(alpha), np.sin(beta), np.cos(alpha), np.cos(beta)
+    cab = np.cos(alpha - beta)
+    words = []
+    p2 = 2 + d * d - 2 * cab + 2 * d * (sa - sb)
+    if p2 >= 0:
+        tmp = np.arctan2(c_b - c_a, d + sa - sb)
+        words.append(((1, 0, 1), (_mod(tmp - alpha), np.sqrt(p2), _mod(beta - tmp))))
+    p2 = 2 + d * d - 2 * cab + 2 * d * (sb - sa)
+    if p2 >= 0:
+        tmp = np.arctan2(c_a - c_b, d - sa + sb)
+        words.append(((-1, 0, -1), (_mod(alpha - tmp), np.sqrt(p2), _mod(tmp - beta))))
+    p2 = -2 + d * d + 2 * cab + 2 * d * (sa + sb)
+    if p2 >= 0:
+        p = np.sqrt(p2)
+        tmp = np.arctan2(-c_a - c_b, d + sa + sb) - np.arctan2(-2, p)
+        words.append(((1, 0, -1), (_mod(tmp - alpha), p, _mod(tmp - beta))))
+    p2 = d * d - 2 + 2 * cab - 2 * d * (sa + sb)
+    if p2 >= 0:
+        p = np.sqrt(p2)
+        tmp = np.arctan2(c_a + c_b, d - sa - sb) - np.arctan2(2, p)
+        words.append(((-1, 0, 1), (_mod(alpha - tmp), p, _mod(beta - tmp))))
+    c = (6 - d * d + 2 * cab + 2 * d * (sa - sb)) / 8
+    if abs(c) <= 1:
+        p = _mod(2 * pi - np.arccos(c))
+        t = _mod(alpha - np.arctan2(c_a - c_b, d - sa + sb) + p / 2)
+        words.append(((-1, 1, -1), (t, p, _mod(alpha - beta - t + p))))
+    c = (6 - d * d + 2 * cab + 2 * d * (sb - sa)) / 8
+    if abs(c) <= 1:
+        p = _mod(2 * pi - np.arccos(c))
+        t = _mod(-alpha + np.arctan2(c_b - c_a, d + sa - sb) + p / 2)
+        words.append(((1, -1, 1), (t, p, _mod(beta - alpha - t + p))))
+    return words
+
+
+def _advance(pose, sign, length, radius):
+    """Pose [X, Y, theta] after driving `length` [m] on a turn of `sign` (0 straight); an
+    array of lengths (n,) gives poses (3, n)."""
+    x, y, th = pose
+    if sign == 0:
+        return np.stack(np.broadcast_arrays(x + length * np.cos(th), y + length * np.sin(th),
+                                            th))
+    dth = sign * length / radius
+    return np.array([x + sign * radius * (np.sin(th + dth) - np.sin(th)),
+                     y + sign * radius * (np.cos(th) - np.cos(th + dth)), th + dth])
+
+
+def _arrives(start, segs, goal, radius) -> bool:
+    """Whether driving `segs` (turn sign, signed length [m]) from `start` ends at `goal`."""
+    pose = start
+    for sign, length in segs:
+        pose = _advance(pose, sign, length, radius)
+    miss = np.r_[pose[:2] - goal[:2], np.sin((pose[2] - goal[2]) / 2)]
+    return bool(np.abs(miss).max() < 1e-6 * (1 + radius))
+
+
+def dubins_paths(start, goal, radius):
+    """Forward paths of curvature <= 1/radius (Dubins 1957) from pose `start` to `goal`
+    ([X, Y, theta], [m, rad]), shortest first: lists of (turn sign, length [m]). Each word of
+    the closed form is driven and kept only if it arrives, so a degenerate case cannot slip
+    through."""
+    start, goal = np.asarray(start, float), np.asarray(goal, float)
+    dx, dy = goal[:2] - start[:2]
+    chord = np.arctan2(dy, dx)
+    paths = []
+    for signs, lengths in _dubins_words(_mod(start[2] - chord), _mod(goal[2] - chord),
+                                        np.hypot(dx, dy) / radius):
+        segs = [(s, radius * q) for s, q in zip(signs, lengths)]
+        if _arrives(start, segs, goal, radius):
+            paths.append(segs)
+    return sorted(paths, key=lambda segs: sum(q for _, q in segs))
+
+
+def reeds_shepp_paths(start, goal, radius):
+    """Paths of curvature <= 1/radius forwards and backwards (Reeds & Shepp 1990) from pose
+    `start` to `goal`, shortest first: lists of (turn sign, signed length [m], negative
+    backwards); each word driven and kept only if it arrives, as dubins_paths."""
+    start, goal = np.asarray(start, float), np.asarray(goal, float)
+    paths = []
+    for ok, segs in reeds_shepp_words(start[None], goal, radius):
+        segs = [(turn, float(q[0])) for turn, q in segs]
+        if ok[0] and _arrives(start, segs, goal, radius):
+            paths.append(segs)
+    return sorted(paths, key=lambda segs: sum(abs(q) for _, q in segs))
+
+
+def guess_paths(start, goal, radius, reverse) -> list:
+    """The paths the connection's guesses drive from pose `start` to `goal` ([X, Y, theta],
+    [m, rad]) at turning radius `radius` [m]: dubins_paths, then with reverse gear
+    reeds_shepp_paths."""
+    paths = dubins_paths(start, goal, radius)
+    return paths + reeds_shepp_paths(start, goal, radius) if reverse else paths
+
+
+def path_poses(start, segs, radius, spacing) -> np.ndarray:
+    """(K, 3) poses [X, Y, theta] along the path `segs` (from dubins_paths or
+    reeds_shepp_paths) from `start`, at most `spacing` [m] apart, both ends included."""
+    pose = np.asarray(start, float)
+    poses = [pose[None]]
+    for sign, length in segs:
+        n = max(1, math.ceil(abs(length) / spacing))
+        # _advance is elementwise: an array of lengths gives (3, n) poses at once.
+        poses.append(_advance(pose, sign, length * np.arange(1, n + 1) / n, radius).T)
+        pose = poses[-1][-1]
+    return np.vstack(poses)
+
+
+def _fastest_profile(s_total, v0, a_max, v_max, v_goal):
+    """Switch times (t1, t2, tf) [s] of the minimum-time speed profile over s_total [m]:
+    accelerate at a_max until t1, cruise until t2, brake at a_max until tf."""
+    if v_goal is None:
+        reach = (v_max ** 2 - v0 ** 2) / (2 * a_max)
+        if s_total <= reach:
+            tf = (np.sqrt(v0 ** 2 + 2 * a_max * s_total) - v0) / a_max
+            return tf, tf, tf
+        t1 = (v_max - v0) / a_max
+        tf = t1 + (s_total - reach) / v_max
+        return t1, tf, tf
+    peak = min(v_max, np.sqrt(max(a_max * s_total + (v0 ** 2 + v_goal ** 2) / 2, 0.0)))
+    t1, t3 = max(peak - v0, 0.0) / a_max, max(peak - v_goal, 0.0) / a_max
+    s13 = (peak ** 2 - v0 ** 2) / (2 * a_max) + (peak ** 2 - v_goal ** 2) / (2 * a_max)
+    cruise = max(s_total - s13, 0.0) / max(peak, 1e-9)
+    return t1, t1 + cruise, t1 + cruise + t3
+
+
+def _runs(segs) -> list:
+    """The path `segs` as runs driven one way: [(direction +1 or -1, [(turn, length [m])])]."""
+    runs = []
+    for sign, length in segs:
+        if length == 0:
+            continue
+        way = 1 if length > 0 else -1
+        if runs and runs[-1][0] == way:
+            runs[-1][1].append((sign, abs(length)))
+        else:
+            runs.append((way, [(sign, abs(length))]))
+    return runs or [(1, [(0, 0.0)])]
+
+
+class _Guess(NamedTuple):
+    """A connection guess: a Dubins or Reeds-Shepp path driven as fast as the car can."""
+    turn: float   # [rad] net heading change
+    tf: float     # [s] its duration
+    runs: list    # the runs between cusps (_runs)
+    plans: list   # per run (start speed [m/s], (t1, t2, t_end) [s]) (_fastest_profile)
+
+
+class _Solution(NamedTuple):
+    """One OCP solve: whether it met the goal, IPOPT's status, t_f [s], the states (N+1, 4)
+    and the inputs (N, 2)."""
+    success: bool
+    status: str
+    tf: float
+    states: np.ndarray
+    inputs: np.ndarray
+
+
+def _profile(segs, radius, start, a_max, v_max, v_goal, v_back=0.0) -> _Guess:
+    """Net heading change [rad], t_f [s], and the runs between cusps with their fastest
+    speed profiles [(start speed [m/s], (t1, t2, t_end) [s])] of driving the path `segs`
+    (signed lengths: backwards below 0) of turning radius `radius` [m]: each run from rest to
+    rest (the first from the start's speed, after braking to rest straight ahead if the start
+    moves the other way; the last to v_goal), at most v_max forwards and v_back backwards
+    [m/s]. Ignoring the map, this is the continuous optimum for the shortest Dubins path:
+    turning costs no speed in this model."""
+    turn = sum(s * q / radius for s, q in segs)
+    runs, plans = _runs(segs), []
+    if start[3] * runs[0][0] < 0:
+        runs.insert(0, (1 if start[3] > 0 else -1, [(0, start[3] ** 2 / (2 * a_max))]))
+    for k, (way, run) in enumerate(runs):
+        v0 = max(way * start[3], 0.0) if k == 0 else 0.0
+        v_end = (None if v_goal is None else max(way * v_goal, 0.0)) if k == len(runs) - 1 \
+            else 0.0
+        plans.append((v0, _fastest_profile(sum(q for _, q in run), v0, a_max,
+                                           v_max if way > 0 else v_back, v_end)))
+    return _Guess(turn, float(sum(profile[2] for _, profile in plans)), runs, plans)
+
+
+def _guess_inputs(N, runs, plans, a_max):
+    """Scaled inputs (2, N) [steer sign, acceleration / a_max] at the midpoints of N equal
+    intervals of driving `runs` at their speed profiles `plans` (from `_profile`)."""
+    ends = np.cumsum([profile[2] for _, profile in plans])
+    tf = float(ends[-1])
+    t_mid = (np.arange(N) + 0.5) * tf / N
+    steer, acc = np.zeros(N), np.zeros(N)
+    for i, t in enumerate(t_mid):
+        k = min(int(np.searchsorted(ends, t)), len(runs) - 1)
+        way, run = runs[k]
+        v0, (t1, t2, _) = plans[k]
+        tau = t - (ends[k - 1] if k else 0.0)
+        # Distance along the run at tau: accelerate until t1, cruise until t2, then brake.
+        a1, a2, a3 = min(tau, t1), min(max(tau - t1, 0.0), t2 - t1), max(tau - t2, 0.0)
+        peak = v0 + a_max * t1
+        s = v0 * a1 + a_max * a1 ** 2 / 2 + peak * (a2 + a3) - a_max * a3 ** 2 / 2
+        along = np.cumsum([q for _, q in run])
+        steer[i] = run[min(int(np.searchsorted(along, s)), len(run) - 1)][0]
+        acc[i] = way * (1.0 if tau < t1 else 0.0 if tau < t2 else -1.0)
+    return np.vstack([steer, acc])
+
+
+@dataclass(frozen=True)
+class _Problem:
+    """A built IPOPT solver and the maps from its variables to the connection."""
+    solver: ca.Function   # nlpsol: x = [T, vec(U)(, vec(Z))], p = [x0, goal, L, m, d_max,
+    #                       a_max(, v_goal)]; g = [defects (multiple), end, state rows (single)]
+    rollout: ca.Function  # (T, U, p) -> states (4, N+1) simulated from x0
+    path: ca.Function     # (x, p) -> states (4, N+1), inputs (2, N) [rad, N]
+    shooting: str
+    n_end: int            # end-constraint rows: X, Y, theta (, v)
+    rows: slice           # which of [X, Y, theta, v] single shooting bounds in g
+
+
+# Variable bounds instead of constraints, nlpsol instead of Opti, fast_step_computation and,
+# for multiple shooting, the adaptive barrier update with kkt-error globalisation: each was
+# faster at the same solved count on the scenario connections and seeded problems; the
+# options that were not (spral, limited-memory Hessians, mu-based bound multipliers) are left
+# out. The study: docs/measurements-behind-defaults.md.
+IPOPT_OPTIONS = {"print_level": 0, "sb": "yes", "max_iter": 100, "fast_step_computation": "yes"}
+ADAPTIVE_MU = {"mu_strategy": "adaptive", "adaptive_mu_globalization": "kkt-error"}
+
+
+@cache
+def _problem(N: int, shooting: str, method: str, bounded: bool, speed_fixed: bool) -> _Problem:
+    """The parametrised minimum-time OCP, positions relative to the start node."""
+    p = ca.MX.sym("p", 11 + speed_fixed)
+    x0, goal, L, m, d_max, a_max = p[:4], p[4:7], p[7], p[8], p[9], p[10]
+    T, U = ca.MX.sym("T"), ca.MX.sym("U", 2, N)
+    inputs = ca.vertcat(d_max * U[0, :], m * a_max * U[1, :])
+    rollout = _open_loop(N, method)(x0, inputs, T / N, L, m)
+    if shooting == "multiple":
+        Z = ca.MX.sym("Z", 4, N)
+        x, states = ca.veccat(T, U, Z), ca.horzcat(x0, Z)
+        defects = Z - step_function(method).map(N)(states[:, :-1], inputs, T / N, L, m)
+        g = [ca.vec(defects)]
+    elif shooting == "single":
+        x, states, g = ca.veccat(T, U), rollout, []
+    else:
+        raise ValueError(f"shooting must be 'single' or 'multiple', not {shooting!r}")
+    g.append(states[:3, -1] - goal)
+    if speed_fixed:
+        g.append(states[3, -1] - p[11])
+    rows = slice(0 if bounded else 2, 4)
+    if shooting == "single":
+        g.append(ca.vec(states[rows, 1:]))
+    ipopt = {**IPOPT_OPTIONS, **ADAPTIVE_MU} if shooting == "multiple" else IPOPT_OPTIONS
+    solver = ca.nlpsol(f"connect_{shooting}{N}", "ipopt",
+                       {"x": x, "p": p, "f": T, "g": ca.vertcat(*g)},
+                       {"expand": True, "print_time": False, "ipopt": ipopt})
+    return _Problem(solver, ca.Function("rollout", [T, U, p], [rollout]),
+                    ca.Function("path", [x, p], [states, inputs]), shooting, 3 + speed_fixed,
+                    rows)
+
+
+def _solve(prob, p, lo, hi, tf_range, tf_g, u_g) -> _Solution:
+    """One IPOPT solve from the guess (tf_g [s], scaled inputs u_g (2, N)) with parameters p,
+    states 1..N within lo..hi ([X, Y, theta, v]) and t_f within tf_range [s]:
+    (success, status, tf, states, inputs)."""
+    N = u_g.shape[1]
+    x_g = np.r_[tf_g, u_g.ravel(order="F")]
+    lbx, ubx = np.r_[tf_range[0], np.full(2 * N, -1.0)], np.r_[tf_range[1], np.ones(2 * N)]
+    if prob.shooting == "multiple":
+        z_g = np.asarray(prob.rollout(tf_g, u_g, p))[:, 1:]
+        x_g = np.r_[x_g, z_g.ravel(order="F")]
+        lbx, ubx = np.r_[lbx, np.tile(lo, N)], np.r_[ubx, np.tile(hi, N)]
+        lbg = ubg = np.zeros(4 * N + prob.n_end)
+    else:
+        lbg = np.r_[np.zeros(prob.n_end), np.tile(lo[prob.rows], N)]
+        ubg = np.r_[np.zeros(prob.n_end), np.tile(hi[prob.rows], N)]
+    sol = prob.solver(x0=x_g, p=p, lbx=lbx, ubx=ubx, lbg=lbg, ubg=ubg)
+    stats = prob.solver.stats()
+    states, inputs = (np.asarray(a).T.copy() for a in prob.path(sol["x"], p))
+    target = np.r_[p[4:7], p[11:]]  # goal (, v_goal)
+    end = states[-1, :len(target)] - target
+    success = bool(stats["success"]) and float(np.abs(end).max()) < END_TOL
+    return _Solution(success, str(stats["return_status"]), float(sol["x"][0]), states, inputs)
+
+
+def connect(start, goal, *, L, m, bounds=None, N=50, shooting=DEFAULT_SHOOTING,
+            method=DEFAULT_METHOD, goal_speed=None, v_max=25.0, delta_max=pi / 4,
+            a_max=A_MAX, tf_bounds=None, v_min=0.0, paths=None) -> Connection:
+    """Minimum-time connection from `start` [X, Y, theta, v] to `goal` [X, Y, theta]
+    ([m, m, rad, m/s]), N piecewise-constant input intervals of dt = t_f/N.
+
+    L [m] wheelbase, m [kg] mass; bounds (Xmin, Xmax, Ymin, Ymax) [m] or None; goal_speed
+    [m/s] or None (free); v_min <= v <= v_max [m/s] (v_min < 0 lets the car reverse),
+    |delta| <= delta_max [rad],
+    |F| <= m a_max [N]; tf_bounds (lo, hi) [s], default TF_BOUNDS. The paper leaves F
+    free, which makes minimum time degenerate (t_f -> 0 with unbounded force), hence a_max.
+
+    The guess drives a Dubins path, or with v_min < 0 a Reeds-Shepp path too (its cusps at
+    rest, backwards at most -v_min), which fixes how often the heading winds: the goal
+    heading is unwrapped after the path's net turn and theta is bounded THETA_MARGIN beyond
+    start and goal. The fastest guess is tried first; if IPOPT fails (a map bound may cut
+    that path), the fastest of each other winding and first direction of travel is tried,
+    up to MAX_TRIES solves. `paths` passes those paths when the caller has them already:
+    guess_paths(start, goal, radius, v_min < 0) with radius = L / tan(delta_max).
+    Never raises for an infeasible problem: `success` is False and the arrays hold IPOPT's
+    last iterate. The cached solver makes this function not thread-safe."""
+    t0 = perf_counter()
+    start = np.asarray(start, dtype=float)
+    goal = np.asarray(goal, dtype=float)
+    tf_lo, tf_hi = TF_BOUNDS if tf_bounds is None else tf_bounds
+    prob = _problem(N, shooting, method, bounds is not None, goal_speed is not None)
+    # Positions relative to the start node keep the numbers small wherever the map lies.
+    origin = start[:2]
+    x0 = np.array([0.0, 0.0, start[2], start[3]])
+    box = (np.array([-np.inf, np.inf, -np.inf, np.inf]) if bounds is None
+           else np.asarray(bounds, dtype=float) - np.repeat(origin, 2))
+    v_goal = [] if goal_speed is None else [goal_speed]
+    radius = L / np.tan(delta_max)
+    goal_local = np.array([*(goal[:2] - origin), goal[2]])
+    if paths is None:
+        paths = guess_paths(x0[:3], goal_local, radius, v_min < 0)
+    # Fastest guess first; forwards only, that is the shortest Dubins path first.
+    # The inputs, a Python loop per interval, are built only for the guesses tried.
+    guesses = sorted((_profile(segs, radius, x0, a_max, v_max, goal_speed, -v_min)
+                      for segs in paths), key=lambda guess: guess.tf)
+    tried = set()
+    for guess in guesses:
+        way = guess.runs[0][0]
+        theta_g = unwrap(goal[2], start[2] + guess.turn)
+        winding = round((theta_g - goal[2]) / (2 * pi))
+        # One try per heading winding and first direction of travel.
+        key = (winding, way)
+        if key in tried:
+            continue
+        tried.add(key)
+        u_g = _guess_inputs(N, guess.runs, guess.plans, a_max)
+        p = np.r_[x0, goal_local[:2], theta_g, L, m, delta_max, a_max, v_goal]
+        lo = np.array([box[0], box[2], min(start[2], theta_g) - THETA_MARGIN, v_min])
+        hi = np.array([box[1], box[3], max(start[2], theta_g) + THETA_MARGIN, v_max])
+        solved = _solve(prob, p, lo, hi, (tf_lo, tf_hi), min(max(guess.tf, tf_lo), tf_hi), u_g)
+        if solved.success or len(tried) == MAX_TRIES:
+            break
+    solved.states[:, :2] += origin
+    return Connection(success=solved.success, status=solved.status, tf=solved.tf,
+                      t=np.linspace(0, solved.tf, N + 1), states=solved.states,
+                      inputs=solved.inputs, solve_s=perf_counter() - t0,
+                      shooting=shooting)
+
+
+def resimulate(conn: Connection, *, L, m, refine=10) -> np.ndarray:
+    """States (N*refine+1, 4) re-integrated with the zoo's rk4 driver on a `refine`-times
+    finer step under the connection's piecewise-constant inputs: checks the discretisation."""
+    rk4, p = zoo_method("rk4"), {"L": float(L), "m": float(m)}
+    h = conn.tf / len(conn.inputs) / refine
+    x, rows = jnp.asarray(conn.states[0]), [conn.states[:1]]
+    for u in conn.inputs:
+        traj = integrate(rk4, kinematic_bicycle, x, jnp.asarray(u), p, h, refine)
+        rows.append(np.asarray(traj.x[1:]))
+        x = traj.x[-1]
+    return np.concatenate(rows)

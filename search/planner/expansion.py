@@ -1,0 +1,101 @@
+"""An expansion of the tree (paper Algorithms 2 and 3): from each of a batch of nodes, shoot
+towards the point-selector arc and seeded random points (and, with reverse gear, backwards;
+once the search has widened, tight moves at a fan of steers), all in one integration call
+per gear, and add every end in a new pruning cell as a child."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from stepzoo.search.planner.point_selector import point_selector, random_points
+from stepzoo.search.planner.shooting import Shots
+
+PREFIX_FRACTION = 4     # a colliding shooting's free first part is kept from 1/4 of its rows
+
+
+class Expander:
+    """Expansions for one search (`search`: pathfinder.Search, whose tree, guide, pruning
+    cells and refinement level they read and grow)."""
+
+    def __init__(self, search):
+        self.s = search
+        self.per = search.prm.n_arc + search.prm.n_random  # shootings per node and gear
+
+    def expand(self, nodes) -> list[int]:
+        """Shoot from each of `nodes` and add the kept ends; returns the new node ids."""
+        s, prm, tree = self.s, self.s.prm, self.s.tree
+        randoms = []
+        for node in nodes:
+            points = random_points(s.rng, s.goal, prm.n_random, prm.random_spread)
+            if len(points):
+                # One point leads along the geodesic instead: through the doors and round the
+                # corners the lattice path takes, where the arc and the goal's disc rarely aim.
+                points[0] = s.guide.descend(tree.states[node], prm.arc_radius)
+            randoms.append(points)
+        rows = self.filled(nodes)
+        states = np.repeat(tree.states[rows], self.per, axis=0)
+        new = []
+        gears = [(1, s.f.shooter)]
+        if s.f.back_shooter is not None:
+            gears.append((-1, s.f.back_shooter))
+        for direction, shooter in gears:
+            points = []
+            for node, random in zip(rows, self.filled(randoms)):
+                state = tree.states[node]
+                ahead = np.r_[state[:2], state[2] + (0.0 if direction > 0 else math.pi)]
+                points += [point_selector(ahead, prm.arc_radius, prm.n_arc, prm.delta_max),
+                           random]
+            new += self.add_all(nodes, direction, shooter.shoot(states, np.vstack(points),
+                                                                s.goal))
+        # Tight moves leave the region the tree exhausted: from its nodes and along chains of
+        # tight moves; once a node is reached by the tree's own move, the tree goes on alone.
+        tight = [i for i in nodes if i < s.widened_at or tree.tight[i]]
+        if tight:
+            rows = self.filled(tight)
+            fan = np.linspace(-prm.delta_max, prm.delta_max, self.per)
+            shots = s.f.tight_shooter.shoot_steers(np.repeat(tree.states[rows], self.per, axis=0),
+                                                   np.tile(fan, len(rows)), s.goal)
+            new += self.add_all(tight, 1, shots, tight=True)
+        return new
+
+    def filled(self, items: list) -> list:
+        """`items` (at most batch_nodes) filled up to batch_nodes with copies of its last: a
+        short batch's extra shootings are dropped by add_all."""
+        return items + items[-1:] * (self.s.prm.batch_nodes - len(items))
+
+    def add_all(self, nodes, direction, shots, tight=False) -> list[int]:
+        """Add the kept shootings of a batch, n_arc + n_random per node of `nodes`."""
+        new = []
+        for k, node in enumerate(nodes):
+            part = slice(k * self.per, (k + 1) * self.per)
+            new += self.add(node, direction, Shots(*(a[part] for a in shots)), tight)
+        return new
+
+    def add(self, node, direction, shots, tight=False) -> list[int]:
+        """Add the kept shootings of `shots`, driven in `direction` (tight moves or not), as
+        children of `node`: those valid to the end, or whose valid first part is long enough,
+        and whose end lies in a pruning cell not yet seen."""
+        s, tree = self.s, self.s.tree
+        last = shots.free - 1  # the last row kept of each shooting
+        # Each refinement halves the least prefix too: shorter moves in tight spots.
+        least = shots.states.shape[1] // (PREFIX_FRACTION * 2 ** s.level)
+        keep = np.flatnonzero(last >= max(1, least))
+        ends = shots.states[keep, last[keep]]
+        fresh = []
+        for j, end in enumerate(ends.tolist()):
+            cell = s.cell(end, direction)
+            if cell not in s.seen:
+                s.seen.add(cell)
+                fresh.append(j)
+        if not fresh:
+            return []
+        ends, keep = ends[fresh], keep[fresh]
+        # A change of direction costs cusp_cost [m] on top of the distance driven.
+        cusp = s.prm.cusp_cost if tree.direction[node] == -direction else 0.0
+        return list(tree.add(
+            [shots.states[k, :last[k] + 1] for k in keep.tolist()], states=ends, parent=node,
+            g=tree.g[node] + shots.travelled[keep, last[keep]] + cusp,
+            H=np.hypot(*(ends[:, :2] - s.goal[:2]).T), rest=s.guide.rest(ends),
+            guide=s.guide.guide(ends), car=s.guide.car_bound(ends), steer=shots.steer[keep],
+            direction=direction, tight=tight))

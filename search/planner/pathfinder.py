@@ -1,0 +1,362 @@
+"""PathFinder (paper Algorithm 1): best-first growth of a tree of shootings ordered by
+f = g + H, duplicates pruned by (x, y, heading) cells as in Hybrid A*, until a termination
+condition; the connection (Section 2.4) from the nodes nearest the goal; then, anytime,
+shorter connections until no node can shorten the path or the condition ends the search."""
+from __future__ import annotations
+
+import heapq
+import math
+from time import perf_counter
+from typing import NamedTuple
+
+import numpy as np
+
+from stepzoo import dynamics
+from stepzoo.search.planner.connection_ocp import Connection, connect
+from stepzoo.search.planner.endpoints import bad_endpoint, departure_boxed_in, enclosed, walled_off
+from stepzoo.search.planner.expansion import Expander
+from stepzoo.search.world.footprint import Footprint
+from stepzoo.search.planner.guide import Guide, corridors
+from stepzoo.search.world.maps import SUBDIV, OccupancyMap
+from stepzoo.search.planner.status import (BAD_ENDPOINT, BOXED_IN, Cause, PlannerStatus,
+                                        PlanResult)
+from stepzoo.search.planner.config import PlannerConfig
+from stepzoo.search.planner.shooting import Shooter
+from stepzoo.search.planner.termination import Progress, Termination, default_termination
+from stepzoo.search.planner.tree import Tree
+from stepzoo.search.planner.connection import IMPROVE_TOL, Connector
+from stepzoo.search.world.validity import FootprintChecker, ValidityChecker
+
+__all__ = ["BAD_ENDPOINT", "BOXED_IN", "Cause", "OCTILE_EXCESS", "PathFinder", "PlanResult",
+           "PlannerStatus"]
+
+REFINE = 2              # times the pruning cells are halved when the heap empties unsolved
+OCTILE_EXCESS = 1.0824  # the 8-connected lattice metric's largest ratio to Euclidean length
+
+
+class PathFinder:
+    """The planner on one map for one vehicle at constant speed `vx` [m/s]; `checker` says
+    which poses and motions are allowed (default: the car's footprint plus the config's
+    margin on the map). The corridor and boxed-in proofs reason about that footprint: a
+    checker of its own should be at least as strict."""
+
+    def __init__(self, omap: OccupancyMap, config: PlannerConfig, vehicle: str | None = None,
+                 vx: float = 5.0, checker: ValidityChecker | None = None):
+        if not (math.isfinite(vx) and vx > 0):
+            raise ValueError(f"speed must be a finite number > 0 [m/s], got {vx!r}")
+        self.omap, self.config, self.vx = omap, config, float(vx)
+        prm = config.params
+        self.vehicle = dynamics.vehicle(vehicle)
+        grow = 2 * prm.margin
+        length, width = self.vehicle["length"] + grow, self.vehicle["width"] + grow
+        # Slices half as long as the car is wide: the discs stick out 12% past the sides
+        # instead of 32%, which is what lets a car through a door 0.6 m wider than itself.
+        self.footprint = Footprint.from_vehicle(length, width, 2 * math.ceil(length / width))
+        self.vehicle_footprint = Footprint.from_vehicle(  # the car itself, for measures
+            self.vehicle["length"], self.vehicle["width"], len(self.footprint.offsets))
+        self.checker = checker or FootprintChecker(omap, self.footprint)
+        self.wheelbase = self.vehicle["Lf"] + self.vehicle["Lr"]
+        self._components = None
+
+        def shooter(**kind):
+            return Shooter(self.checker, self.vehicle["name"], self.vx, config.method, config.h,
+                           config.n_steps, prm.batch_nodes * (prm.n_arc + prm.n_random),
+                           prm.delta_max, **kind)
+        self.shooter = shooter()
+        # Reverse gear: a second shooter drives backwards from every node, towards an arc
+        # behind it and the random points.
+        self.back_shooter = shooter(reverse=True) if prm.reverse else None
+        # Tight moves, for when the tree exhausts unsolved: forwards on the kinematic bicycle
+        # at a fan of steers out to full lock (compiled only if a search needs them).
+        self.tight_shooter = shooter(tight=True)
+
+    def warm_up(self, goal_speed_fixed=False) -> float:
+        """Compile the driver and build the OCP once, so timed plans measure planning [s]."""
+        t0 = perf_counter()
+        batch = self.shooter.batch
+        self.shooter.integrate(np.zeros((batch, 5)), np.zeros(batch))
+        if self.back_shooter is not None:
+            self.back_shooter.integrate(np.zeros((batch, 5)), np.zeros(batch))
+        self.connect(np.array([0.0, 0.0, 0.0, 0.0, 0.0]), np.array([8.0, 2.0, 0.0]),
+                     1.0 if goal_speed_fixed else None, bounds=(-50.0, 50.0, -50.0, 50.0))
+        return perf_counter() - t0
+
+    def refuse(self, start, goal) -> PlanResult | None:
+        """The no_path result for a start or goal off the map or not valid (the caller's
+        input, one of BAD_ENDPOINT), None if both are fine. Compiles nothing: call it before
+        warm_up, so that a bad pose is refused at once."""
+        start, goal = np.asarray(start, float)[:3], np.asarray(goal, float)[:3]
+        cause, reason = self.bad_endpoint(start, goal)
+        if cause is None:
+            return None
+        return PlanResult(PlannerStatus.NO_PATH, reason, start, goal, self.config.h, self.vx,
+                          cause=cause)
+
+    def plan(self, start, goal, goal_speed=None, seed=0,
+             until: Termination | None = None) -> PlanResult:
+        """Plan from `start` [X, Y, psi] to `goal` [X, Y, psi] ([m, m, rad]); goal_speed [m/s]
+        or None (free) is the speed the connection must end at; `until` ends the search
+        (default: the config's max_expansions, then max_seconds). Deterministic for a seed
+        when `until` holds no clock."""
+        refused = self.refuse(start, goal)
+        if refused is not None:
+            return refused
+        start, goal = np.asarray(start, float)[:3], np.asarray(goal, float)[:3]
+        result = PlanResult(PlannerStatus.NO_PATH, "", start, goal, self.config.h, self.vx)
+        result.cause, result.reason = self._search_blocked(start, goal)
+        if result.cause:
+            return result
+        until = until if until is not None else default_termination(self.config.params)
+        return Search(self, start, goal, goal_speed, np.random.default_rng(seed), result,
+                      until).run()
+
+    def bad_endpoint(self, start, goal) -> tuple[Cause | None, str]:
+        """(cause, reason) if `start` or `goal` is off the map or not valid (its footprint +
+        margin collides): one of BAD_ENDPOINT, the caller's input; (None, '') if both are
+        fine."""
+        car = (f"{self.vehicle['length']:g} x {self.vehicle['width']:g} m footprint "
+               f"(+{self.config.params.margin:g} m margin)")
+        return bad_endpoint(self.omap, self.checker, start, goal, car)
+
+    def _search_blocked(self, start, goal) -> tuple[Cause | None, str]:
+        """(cause, reason) why no search can reach the goal, proved before one starts."""
+        cause, reason = walled_off(self.omap, self.corridors(), start, goal)
+        if cause is None and not self.config.params.reverse:
+            cause, reason = departure_boxed_in(self.omap, self.footprint, start, goal,
+                                               self.turn_radius())
+        return cause, reason
+
+    def turn_radius(self) -> float:
+        """[m] the kinematic bicycle's tightest turn, wheelbase / tan(delta_max): the radius of
+        the connection's car, the car bounds and the boxed-in proofs."""
+        return self.wheelbase / math.tan(self.config.params.delta_max)
+
+    def corridors(self) -> np.ndarray:
+        """The lattice's corridor components for this car (guide.corridors), computed once."""
+        if self._components is None:
+            self._components = corridors(self.omap, self.vehicle["width"])
+        return self._components
+
+    def connect(self, node, goal, goal_speed, bounds=None, direction=1,
+                paths=None) -> tuple[Connection, str]:
+        """Connection from a node state (5,), reached driving `direction` (+1 forwards, -1
+        backwards), to the goal pose, its guesses driving `paths` (connect's); (connection,
+        '' or why not). With reverse gear the OCP lets the speed go down to -vx."""
+        prm = self.config.params
+        conn = connect([node[0], node[1], node[2], direction * self.vx], goal, L=self.wheelbase,
+                       m=self.vehicle["m"], bounds=bounds or self.omap.bounds(),
+                       N=prm.connect_N, goal_speed=goal_speed, delta_max=prm.delta_max,
+                       v_min=-self.vx if prm.reverse else 0.0, paths=paths)
+        if not conn.success:
+            return conn, f"IPOPT: {conn.status}"
+        if self.checker.first_invalid(conn.states[None, :, :3])[0] >= 0:
+            return conn, "connection collides"
+        return conn, ""
+
+
+class Cell(NamedTuple):
+    """A pruning cell: position and heading cell indices, and the direction of travel (with
+    reverse gear; else 0)."""
+    x: int
+    y: int
+    heading: int
+    direction: int
+
+
+class Search:
+    """One run of Algorithm 1, made anytime, on the tree's columns (search/planner/tree.py).
+
+    Before the first solution the search is best-first on f = g + H with H the geodesic
+    lattice distance to the goal; a shooting that collides keeps its collision-free first part
+    as a node (search/planner/expansion.py), so a car facing a wall still moves; when the heap
+    empties the pruning cells are halved (REFINE times) and every node is expanded again; if it
+    empties once more, every node is expanded again with tight moves too (the kinematic
+    bicycle, which turns at L / tan(delta_max) where the dynamic model at vx understeers),
+    which chain until the tree's own moves take over.
+    After it, nodes that cannot beat the best path (g + a lower bound of the rest) are dropped
+    and connections that would shorten it are tried (search/planner/connection.py), until no node
+    is left, improve_expansions expansions pass without a shorter path, or `until` ends it."""
+
+    def __init__(self, finder: PathFinder, start, goal, goal_speed, rng, result: PlanResult,
+                 until: Termination):
+        self.f, self.goal, self.goal_speed, self.rng, self.result = (
+            finder, goal, goal_speed, rng, result)
+        self.until, self.stopped = until, None
+        self.prm = prm = finder.config.params
+        self.cell_xy, self.cell_heading, self.level = prm.cell_xy, prm.cell_heading, 0
+        self.radius = finder.turn_radius()
+        self.guide = Guide(finder.omap, finder.corridors(), goal,
+                           finder.vehicle["width"] / 2 + prm.margin, prm.connect_radius,
+                           self.radius, bool(prm.reverse))
+        root = np.array([*start, 0.0, 0.0])
+        self.tree = Tree()
+        self.tree.add([None], states=root, parent=-1, g=0.0,
+                      H=float(np.hypot(*(start[:2] - goal[:2]))),
+                      rest=self.guide.rest(start[None]), guide=self.guide.guide(start[None]),
+                      car=self.guide.car_bound(start[None]), steer=0.0, direction=0,
+                      tight=False)
+        self.widened_at = 0   # nodes below this id were there when the search widened
+        self.seen = {self.cell(root, 0)}
+        self.best = math.inf
+        self.expander, self.connector = Expander(self), Connector(self)
+        self.t0 = perf_counter()
+        result.lower_bound_m = self.bound(0)
+
+    def cell(self, state, direction) -> Cell:
+        """Pruning cell of a state: position cells of cell_xy, heading cells of cell_heading,
+        and with reverse gear the direction it was reached in (as Hybrid A*)."""
+        heading = state[2] % (2 * math.pi)
+        return Cell(math.floor(state[0] / self.cell_xy), math.floor(state[1] / self.cell_xy),
+                    math.floor(heading / self.cell_heading),
+                    direction if self.prm.reverse else 0)
+
+    def order(self, nodes) -> list[float]:
+        """The search's order of `nodes`: g + w H, w = h_weight (above 1: greedier first
+        solutions), H the larger of the guide geodesic (obstacles, no turning radius) and the
+        car's bound (turning radius, no obstacles: Dubins or Reeds-Shepp), as Hybrid A*: a
+        node beside the goal but facing away ranks by the loop it needs."""
+        t = self.tree
+        return (t.g[nodes] + self.prm.h_weight * np.maximum(t.guide[nodes], t.car[nodes])
+                ).tolist()
+
+    def bound(self, node) -> float:
+        """[m] a lower bound of the length of any path through `node`: g plus the larger of the
+        car's bound (Dubins or Reeds-Shepp) and the geodesic less the octile metric's excess
+        and two lattice steps."""
+        step = self.f.omap.resolution / SUBDIV
+        t = self.tree
+        return float(t.g[node] + max(t.rest[node] / OCTILE_EXCESS - 2 * step, 0.0, t.car[node]))
+
+    def budget_left(self) -> bool:
+        """Whether the termination condition allows more work; once it says stop, it stays
+        stopped, and the budget it names (if any) is recorded."""
+        if self.stopped is None:
+            progress = Progress(self.result.expansions, math.isfinite(self.best), self.t0)
+            self.stopped = self.until.stop(progress)
+            if self.stopped is not None:
+                self.result.budget_bound = self.stopped.budget
+        return self.stopped is None
+
+    def run(self) -> PlanResult:
+        prm, res = self.prm, self.result
+        heap = [(self.order([0])[0], 0, 0)]  # (f, order, node): ties go to the older
+        self.pushed = 1
+        if self.tree.H[0] <= prm.mindist:
+            self.connector.try_connect()
+        ended, stall = "", 0
+        while True:
+            if math.isfinite(self.best) and stall >= prm.improve_expansions:
+                ended = (f"no shorter path in {stall} expansions" if stall else
+                         "improvement off (improve_expansions = 0)")
+                break
+            if not self.budget_left():
+                res.cause = res.cause or Cause.BUDGET
+                ended = (f"budget ended after {res.expansions} expansions and "
+                         f"{perf_counter() - self.t0:.2f} s" if self.stopped.budget else
+                         "the termination condition ended the search at the first exact path")
+                break
+            if not math.isfinite(self.best) and self.connector.attempts() >= prm.connect_tries:
+                res.cause = Cause.CONNECTIONS_FAILED
+                ended = f"all {prm.connect_tries} connection attempts failed"
+                break
+            if not heap:
+                if not math.isfinite(self.best) and self.level < REFINE:
+                    heap = self.refine()
+                    continue
+                if not (math.isfinite(self.best) or res.widened) and prm.tight_moves:
+                    res.widened, self.widened_at = True, len(self.tree)
+                    heap = self.requeue()
+                    continue
+                ended = self.exhausted()
+                break
+            nodes = self.pop(heap, min(prm.batch_nodes, self.until.room(res.expansions)))
+            if not nodes:
+                continue
+            res.expansions += len(nodes)
+            stall += len(nodes)
+            new = self.expander.expand(nodes)
+            for i, f in zip(new, self.order(new)):
+                heapq.heappush(heap, (f, self.pushed, i))
+                self.pushed += 1
+            if (self.tree.H[new] <= prm.mindist).any() and self.connector.try_connect():
+                stall = 0
+        return self.finish(ended)
+
+    def exhausted(self) -> str:
+        """Why the search ended with its heap empty; the cause is exhausted, unless a path
+        was found or the enclosure proof (forward only) shows the start or goal boxed in."""
+        res = self.result
+        res.cause = res.cause or Cause.EXHAUSTED
+        ended = ("no node left that could shorten the path" if res.cause == Cause.CONNECTED
+                 else f"search exhausted: every reachable pruning cell of "
+                 f"{self.cell_xy:g} m and {self.cell_heading:.3g} rad was expanded, "
+                 + ("tight moves (the kinematic bicycle out to full lock) included"
+                    if res.widened else "tight moves off"))
+        if res.cause == Cause.EXHAUSTED and not self.prm.reverse:
+            cause, why = enclosed(self.f.omap, self.f.footprint, self.tree.states[0][:3],
+                                  self.goal, self.radius)
+            if cause:
+                res.cause, ended = cause, f"{ended}; {why}"
+        return ended
+
+    def finish(self, ended: str) -> PlanResult:
+        """The result once the loop has ended, for the reason `ended`."""
+        res, conn = self.result, self.connector
+        res.nodes = len(self.tree)
+        res.tree = self.tree.edges[1:]
+        res.connect_s = conn.seconds
+        res.search_s = perf_counter() - self.t0 - conn.seconds
+        res.connect_attempts = conn.attempts()
+        if math.isfinite(self.best):
+            res.status, res.cause = PlannerStatus.EXACT, Cause.CONNECTED
+            res.reason = (f"{res.reason}; {len(res.progress) - 1} shorter paths after the first, "
+                          f"then {ended}")
+            return res
+        failed = (f"; connections failed ({', '.join(sorted(set(conn.failures)))})"
+                  if conn.failures else "")
+        if res.cause in (Cause.EXHAUSTED, *BOXED_IN):
+            res.status, res.reason = PlannerStatus.NO_PATH, ended + failed
+            return res
+        closest = int(np.argmin(self.tree.H))
+        self.set_path(closest)
+        res.status = PlannerStatus.APPROXIMATE
+        res.reason = f"{ended}; closest node {self.tree.H[closest]:.2f} m from the goal{failed}"
+        return res
+
+    def refine(self) -> list:
+        """Halve the pruning cells and the least kept prefix and queue every node again;
+        returns the new heap."""
+        self.level += 1
+        self.cell_xy /= 2
+        self.cell_heading /= 2
+        t = self.tree
+        self.seen = {self.cell(s, d) for s, d in zip(t.states, t.direction.tolist())}
+        return self.requeue()
+
+    def requeue(self) -> list:
+        """Every node queued again; returns the new heap."""
+        heap = []
+        for i, f in enumerate(self.order(np.arange(len(self.tree)))):
+            heap.append((f, self.pushed, i))
+            self.pushed += 1
+        heapq.heapify(heap)
+        return heap
+
+    def pop(self, heap, most) -> list[int]:
+        """Up to `most` nodes off the heap, best f first, skipping those that cannot beat the
+        best path."""
+        nodes = []
+        while heap and len(nodes) < most:
+            _, _, node = heapq.heappop(heap)
+            if self.bound(node) < self.best * (1 - IMPROVE_TOL):
+                nodes.append(node)
+        return nodes
+
+    def set_path(self, node):
+        """The result's path: the tree edges from the start to `node`."""
+        t, res = self.tree, self.result
+        rows = t.path_to(node)
+        res.path_edges = [t.edges[i] for i in rows]
+        res.path_steers = t.steer[rows].tolist()
+        res.path_tight = t.tight[rows].tolist()
+        res.path_directions = t.direction[rows].tolist()

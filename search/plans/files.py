@@ -1,0 +1,152 @@
+"""A plan as files: plan.json (status, path, the controls that produce it and their replay,
+tree, stats, params), plan.png in the paper's colours (black obstacles, blue tree, red path)
+and map.npy, each written atomically."""
+from __future__ import annotations
+
+import io
+import json
+from pathlib import Path
+
+import numpy as np
+
+from stepzoo.output import atomic_write
+from stepzoo.search.plans.path_metrics import cusps
+from stepzoo.search.planner.pathfinder import PlanResult
+from stepzoo.search.plans.schema import PLAN_KEYS, STATS_KEYS, ordered
+from stepzoo.search.plans.replay import controls, path_nodes, replay, vehicle_params
+from stepzoo.search.world.scenarios import Scenario
+
+MAX_GAP_M = 0.1       # no two consecutive path rows farther apart [m] (the report's contract)
+ROW_SPACING_M = MAX_GAP_M / 2  # spacing the path is filled to: half, for rounding room
+TREE_POINTS = 6       # points kept per tree edge: the picture needs shape, not every step
+
+
+def path_rows(result: PlanResult) -> np.ndarray:
+    """(K, 4) [t s, X m, Y m, psi rad] along the tree edges and the connection, filled by
+    linear interpolation so that rows are at most ROW_SPACING_M apart. The chord of a gap of
+    s on a turn of radius R strays s^2 / (8 R) from it: below 1 mm for R >= 1 m."""
+    rows = path_nodes(result)
+    if not len(rows):
+        return rows
+    gap = np.hypot(*np.diff(rows[:, 1:3], axis=0).T)
+    parts = np.maximum(np.ceil(gap / ROW_SPACING_M), 1).astype(int)
+    owner = np.repeat(np.arange(len(gap)), parts)
+    frac = np.arange(owner.size) - np.repeat(np.cumsum(parts) - parts, parts)
+    frac = frac / parts[owner]
+    filled = rows[owner] + frac[:, None] * (rows[owner + 1] - rows[owner])
+    return np.vstack([filled, rows[-1:]])
+
+
+def tree_polylines(result: PlanResult) -> list:
+    """Every tree edge as a few [X, Y] points [m], rounded to centimetres."""
+    out = []
+    for edge in result.tree:
+        keep = np.unique(np.linspace(0, len(edge) - 1, TREE_POINTS).round().astype(int))
+        out.append(np.round(edge[keep, :2], 2).tolist())
+    return out
+
+
+def plan_record(result: PlanResult, scenario: Scenario, config, vehicle: dict, seed: int,
+                warmup_s: float) -> dict:
+    """The plan.json content, its `replay` block measured on the scenario's map."""
+    rows = path_rows(result)
+    conn = result.connection
+    record = {
+        "scenario": scenario.name,
+        "description": scenario.description,
+        "status": result.status.value,
+        "reason": result.reason,
+        "cause": result.cause.value,
+        "start": [float(v) for v in scenario.start],
+        "goal": [float(v) for v in scenario.goal],
+        "goal_speed": scenario.goal_speed,
+        "speed": scenario.speed,
+        # Micrometres and microradians: far below any map cell, and a third of the file size.
+        "path": np.round(rows, 6).tolist(),
+        "vehicle": {"name": vehicle["name"], "length": vehicle["length"],
+                    "width": vehicle["width"], "wheelbase": vehicle["Lf"] + vehicle["Lr"],
+                    **vehicle_params(vehicle)},
+        # The inputs, segment by segment, that drive the car along the path
+        # (search/plans/replay.py).
+        "controls": controls(result, config.method),
+        "stats": ordered({
+            "expansions": result.expansions,
+            "nodes": result.nodes,
+            "search_s": result.search_s,
+            "connect_s": result.connect_s,
+            "connect_attempts": result.connect_attempts,
+            "warmup_s": warmup_s,
+            "path_length_m": result.path_length() if len(rows) else None,
+            "connect_tf_s": conn.tf if conn is not None else None,
+            # Anytime: when the first exact path and the one returned (the shortest) were found,
+            # [s] from the search's start, and the length of each shorter path on the way.
+            "first_solution_s": result.first_solution_s,
+            "solution_s": result.solution_s,
+            "progress": [{"t_s": t, "length_m": length} for t, length in result.progress],
+            # Which budget cut the search short (null: none, so the plan is reproducible).
+            "budget_bound": result.budget_bound,
+            "lower_bound_m": result.lower_bound_m,
+            # Whether the tree exhausted its own moves and was widened by tight moves (the
+            # kinematic bicycle at parking speed), and how many of the path's edges are such.
+            "widened": result.widened,
+            "tight_edges": sum(result.path_tight),
+            "cusps": cusps(rows),
+            "seed": seed,
+            "method": config.method,
+            "h": config.h,
+            "n_steps": config.n_steps,
+        }, STATS_KEYS, "plan.json stats"),
+        "params": config.params.model_dump(),
+        "config": {"method": config.method, "h": config.h, "provenance": config.provenance,
+                   "file": config.source},
+        "tree": tree_polylines(result),
+        "map": {"file": "map.npy", "resolution": scenario.omap.resolution,
+                "origin": list(scenario.omap.origin), "source": scenario.map_source},
+    }
+    # Those controls driven through the true models: how far the car strays from the path.
+    record["replay"] = replay(record, scenario.omap)
+    return ordered(record, PLAN_KEYS, "plan.json")
+
+
+def render_png(record: dict, scenario: Scenario) -> bytes:
+    """The plan drawn as the paper drew its results."""
+    # Imported here: matplotlib takes a second or more to import, which `stepzoo plan` would
+    # otherwise spend before its search starts.
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.collections import LineCollection
+    from matplotlib.figure import Figure
+    omap = scenario.omap
+    xmin, xmax, ymin, ymax = omap.bounds()
+    aspect = (ymax - ymin) / (xmax - xmin)
+    fig = Figure(figsize=(8.0, min(max(8.0 * aspect, 3.0), 12.0)))
+    FigureCanvasAgg(fig)
+    ax = fig.add_subplot()
+    ax.imshow(omap.occupied, cmap="gray_r", vmin=0, vmax=1, origin="lower",
+              extent=(xmin, xmax, ymin, ymax), interpolation="nearest")
+    ax.add_collection(LineCollection(record["tree"], colors="blue", linewidths=0.5))
+    if record["path"]:
+        path = np.asarray(record["path"])
+        ax.plot(path[:, 1], path[:, 2], color="red", linewidth=1.8)
+    for pose, name in ((record["start"], "start"), (record["goal"], "goal")):
+        ax.annotate(name, xy=pose[:2], xytext=(pose[0] - 3 * np.cos(pose[2]),
+                                               pose[1] - 3 * np.sin(pose[2])),
+                    arrowprops={"arrowstyle": "->", "color": "green"}, color="green")
+    ax.set(xlim=(xmin, xmax), ylim=(ymin, ymax), xlabel="X [m]", ylabel="Y [m]",
+           title=f"{record['scenario']}: {record['status']}")
+    ax.set_aspect("equal")
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=110, bbox_inches="tight")
+    return buf.getvalue()
+
+
+def write_plan(out_dir, record: dict, scenario: Scenario) -> Path:
+    """Write plan.json, plan.png and map.npy into out_dir; returns the plan.json path."""
+    out_dir = Path(out_dir)
+    png = render_png(record, scenario)
+    buf = io.BytesIO()
+    np.save(buf, np.asarray(scenario.omap.occupied, dtype=bool))
+    atomic_write(out_dir / "map.npy", buf.getvalue())
+    atomic_write(out_dir / "plan.png", png)
+    # Compact: the path and the tree are thousands of numbers that indentation would triple.
+    text = json.dumps(record, allow_nan=False, separators=(",", ":"))
+    return atomic_write(out_dir / "plan.json", text + "\n")

@@ -1,0 +1,188 @@
+"""A proof that a forward-only car cannot get away from a pose: a grid over-approximation of
+the poses every collision-free forward path of curvature <= 1/radius can reach, grown until
+it closes inside a window around the pose.
+
+Cells are (x, y) squares of CELL_M and heading bins of 2 pi / HEADING_BINS. A path's poses
+every STEP_M of its length lie in cells that the growth reaches: from a cell it adds every
+cell that a path of length STEP_M can end in from any pose of the cell (a box of
+displacements bounded per end-heading bin, below), except cells where every pose collides
+(some disc of the footprint, moved anywhere the cell allows, still covers an obstacle cell
+or the map's outside: `OccupancyMap.disc_hits` decides that exactly). If the growth closes
+without reaching the window's edge, no forward path leaves the window; a goal farther than
+STEP_M from every reached cell cannot be reached. The paths are those of the kinematic
+bicycle (moving along the heading), as in `departure`."""
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+import numpy as np
+
+from stepzoo.search.proofs.departure import witness_arcs
+from stepzoo.search.world.footprint import Footprint, first_collision
+from stepzoo.search.world.maps import EXACT_CELLS, OccupancyMap
+
+# Measured on room-64-64-8-09's start: 0.1 m cells and 2-degree bins do not close (the
+# cells' rounding, a cell and a bin per step, lets the set slide along the wall); these do.
+CELL_M = 0.05         # [m] side of a position cell
+HEADING_BINS = 360    # heading bins of 1 degree
+STEP_M = 1.0          # [m] path length between the poses the growth follows
+WINDOW_M = 7.0        # [m] half side of the square window around the pose
+QUADRATURE = 400      # points of the displacement bounds' integrals
+
+
+class _Box(NamedTuple):
+    """[m] bounds of a displacement in the start's frame: ahead and to the left."""
+    ahead_lo: float
+    ahead_hi: float
+    left_lo: float
+    left_hi: float
+
+
+def _displacement_box(turn_lo, turn_hi, step, radius) -> _Box:
+    """Bounds of the displacement [m], in the start's
+    frame, of every path of length `step` and curvature <= 1/radius whose heading turns by an
+    angle in [turn_lo, turn_hi] [rad] (with step / radius <= pi / 2, so sin grows with the
+    heading change and cos falls with its size)."""
+    t = (np.arange(QUADRATURE) + 0.5) * step / QUADRATURE
+    # The heading change at t is at most where the path turns left at once and back at the
+    # end to turn_hi, at least the mirror of that: every path lies between.
+    top = np.minimum(t / radius, turn_hi + (step - t) / radius)
+    low = np.maximum(-t / radius, turn_lo - (step - t) / radius)
+    nearest = np.where((low <= 0) & (top >= 0), 0.0, np.minimum(np.abs(low), np.abs(top)))
+    farthest = np.maximum(np.abs(low), np.abs(top))
+    dt = step / QUADRATURE
+    # Midpoint sums of functions with slope <= 1/radius: off by at most step^2/(24 radius N^2)
+    # per unit; the pad covers that many times over.
+    pad = 1e-6 + step * step / (radius * QUADRATURE)
+    return _Box(float(np.cos(farthest).sum() * dt) - pad, float(np.cos(nearest).sum() * dt) + pad,
+                float(np.sin(low).sum() * dt) - pad, float(np.sin(top).sum() * dt) + pad)
+
+
+def _dilate(grid, lo, hi, axis) -> np.ndarray:
+    """bool grid OR-shifted by every offset lo..hi [cells] along `axis`, grown to hold every
+    shift: index m of the result is index m + lo of the grid's frame."""
+    width = hi - lo + 1
+    n = grid.shape[axis]
+    count = np.cumsum(grid, axis=axis)
+    m = np.arange(n + width - 1)
+    upper = np.take(count, np.minimum(m, n - 1), axis=axis)
+    below = np.take(count, np.maximum(m - width, -1), axis=axis)
+    # Index -1 stands for "nothing below": the cumulative count there is 0.
+    shape = [1] * grid.ndim
+    shape[axis] = -1
+    below = np.where((m - width < 0).reshape(shape), 0, below)
+    return upper > below
+
+
+def _blocked(omap: OccupancyMap, footprint: Footprint, x, y, heading) -> np.ndarray:
+    """bool (K,): every pose of the cells centred at (x, y) [m] with heading bins centred at
+    `heading` [rad] (arrays (K,)) collides: some disc, shrunk by how far the cell lets its
+    centre move, still covers an obstacle."""
+    out = np.zeros(len(x), bool)
+    c, s = np.cos(heading), np.sin(heading)
+    for offset in footprint.offsets:
+        # The centre moves at most half the cell's diagonal and |offset| * half a bin.
+        shrink = CELL_M / math.sqrt(2) + abs(offset) * math.pi / HEADING_BINS
+        out |= omap.disc_hits(x + offset * c, y + offset * s, footprint.radius - shrink - 1e-9)
+    return out
+
+
+def forward_reach(omap: OccupancyMap, footprint: Footprint, pose, radius):
+    """The grown cells (bins, ny, nx) bool and the window's lower-left corner (x, y) [m], or
+    None if the growth reaches the window's edge (nothing proved), for forward paths of
+    curvature <= 1/radius [1/m] from `pose` [X, Y, psi]."""
+    if 2 * math.ceil(footprint.radius / omap.resolution) + 1 > EXACT_CELLS:
+        return None  # disc_hits would answer from a lower bound: no proof from it
+    if STEP_M / radius > math.pi / 2:
+        return None  # the displacement bounds need a step's turn within a quarter turn
+    n = int(round(2 * WINDOW_M / CELL_M))
+    corner = np.asarray(pose[:2], float) - WINDOW_M
+    bin_size = 2 * math.pi / HEADING_BINS
+    headings = (np.arange(HEADING_BINS) + 0.5) * bin_size
+    # Collision is decided once per cell, when the growth first reaches it.
+    checked = np.zeros((HEADING_BINS, n, n), bool)
+    blocked = np.zeros((HEADING_BINS, n, n), bool)
+    reach = np.zeros((HEADING_BINS, n, n), bool)
+    start_bin = int((pose[2] % (2 * math.pi)) // bin_size) % HEADING_BINS
+    reach[start_bin, n // 2, n // 2] = True
+    most = math.ceil(STEP_M / radius / bin_size) + 1
+    boxes = {d: _displacement_box(max((d - 1) * bin_size, -STEP_M / radius),
+                                  min((d + 1) * bin_size, STEP_M / radius), STEP_M, radius)
+             for d in range(-most, most + 1)
+             if (d - 1) * bin_size < STEP_M / radius and (d + 1) * bin_size > -STEP_M / radius}
+    # Per heading bin a and bin change d: the cells a step can shift by, (x_lo, x_hi, y_lo,
+    # y_hi), from the box rotated to the bin's middle heading and padded by what any heading
+    # of the bin (within half a bin of the middle) adds; a pose anywhere in its cell adds
+    # one cell on the high side.
+    shifts = {}
+    for d, box in boxes.items():
+        corners = np.array([(u, v) for u in (box.ahead_lo, box.ahead_hi)
+                            for v in (box.left_lo, box.left_hi)])
+        pad = np.hypot(*corners.T).max() * bin_size / 2
+        x = np.cos(headings)[:, None] * corners[:, 0] - np.sin(headings)[:, None] * corners[:, 1]
+        y = np.sin(headings)[:, None] * corners[:, 0] + np.cos(headings)[:, None] * corners[:, 1]
+        shifts[d] = np.stack([np.floor((x.min(axis=1) - pad) / CELL_M),
+                              np.floor((x.max(axis=1) + pad) / CELL_M) + 1,
+                              np.floor((y.min(axis=1) - pad) / CELL_M),
+                              np.floor((y.max(axis=1) + pad) / CELL_M) + 1], axis=1).astype(int)
+    # A step moves at most `margin` cells: a reached cell nearer the edge could leave unseen.
+    margin = int(max(np.abs(v).max() for v in shifts.values())) + 2
+    # A free arc that gets as near the edge is a path the growth would follow there: say so
+    # at once instead of growing the whole window (an open start costs seconds otherwise).
+    arcs = witness_arcs(pose, radius, 2 * WINDOW_M, CELL_M)
+    hit = first_collision(omap, footprint, arcs)
+    for arc, first in zip(arcs, hit):
+        free = arc[:first] if first >= 0 else arc
+        if np.abs(free[:, :2] - pose[:2]).max() >= WINDOW_M - (margin + 1) * CELL_M:
+            return None
+    frontier = {start_bin: reach[start_bin].copy()}
+    while frontier:
+        grown = {}
+        for a, cells in frontier.items():
+            rows, cols = np.nonzero(cells)
+            r0, c0 = rows.min(), cols.min()
+            part = cells[r0:rows.max() + 1, c0:cols.max() + 1]
+            for d, table in shifts.items():
+                x_lo, x_hi, y_lo, y_hi = table[a]
+                shifted = _dilate(_dilate(part, x_lo, x_hi, axis=1), y_lo, y_hi, axis=0)
+                # Inside the grid: every reached cell is over `margin` from the edge.
+                top, left = r0 + y_lo, c0 + x_lo
+                b = (a + d) % HEADING_BINS
+                if b not in grown:
+                    grown[b] = np.zeros((n, n), bool)
+                grown[b][top:top + shifted.shape[0], left:left + shifted.shape[1]] |= shifted
+        frontier = {}
+        for b, cells in grown.items():
+            cells &= ~reach[b]
+            new = np.nonzero(cells & ~checked[b])
+            blocked[b][new] = _blocked(omap, footprint, corner[0] + (new[1] + 0.5) * CELL_M,
+                                       corner[1] + (new[0] + 0.5) * CELL_M, headings[b])
+            checked[b][new] = True
+            cells &= ~blocked[b]
+            if not cells.any():
+                continue
+            rows, cols = np.nonzero(cells)
+            if min(rows.min(), cols.min()) < margin or max(rows.max(), cols.max()) >= n - margin:
+                return None
+            reach[b] |= cells
+            frontier[b] = cells
+    return reach, corner
+
+
+def misses(grown, target) -> bool:
+    """Whether every cell of `grown` (forward_reach's result) is over STEP_M from the point
+    `target` [X, Y] [m]: then no path whose poses every STEP_M lie in it ends there."""
+    reach, corner = grown
+    rows, cols = np.nonzero(reach.any(axis=0))
+    # The nearest point of each reached cell to the target.
+    x = np.clip(target[0], corner[0] + cols * CELL_M, corner[0] + (cols + 1) * CELL_M)
+    y = np.clip(target[1], corner[1] + rows * CELL_M, corner[1] + (rows + 1) * CELL_M)
+    return bool(np.hypot(x - target[0], y - target[1]).min() > STEP_M)
+
+
+def unreachable(omap: OccupancyMap, footprint: Footprint, pose, radius, target) -> bool:
+    """Whether no collision-free forward path of curvature <= 1/radius goes from `pose` to
+    the point `target` [X, Y] [m] (proved by `forward_reach`; False: nothing proved)."""
+    grown = forward_reach(omap, footprint, pose, radius)
+    return grown is not None and misses(grown, target)

@@ -1,0 +1,184 @@
+"""Vehicle-footprint collision check: a rectangle covered by equal discs along the heading.
+
+Discs are tested against the map's distance field at every pose, and paths are densified so
+that no disc centre moves more than one disc radius between checked poses. Poses far from
+every obstacle are cleared by one distance read at their centre before any disc is placed.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from stepzoo.search.world.maps import SUBDIV, OccupancyMap
+
+
+@dataclass(frozen=True, eq=False)
+class Footprint:
+    """A length x width rectangle centred on (X, Y), aligned with psi, covered by discs."""
+
+    length: float  # [m] along the heading
+    width: float  # [m] across the heading
+    offsets: np.ndarray  # (n,) [m] disc centres along the heading axis from (X, Y)
+    radius: float  # [m] every disc's radius
+    reach: float = field(init=False)  # [m] the largest |offset|: no disc centre is farther
+
+    def __post_init__(self):
+        offsets = np.array(self.offsets, dtype=float).reshape(-1)
+        if offsets.size == 0 or not np.all(np.isfinite(offsets)):
+            raise ValueError(f"footprint needs at least one finite disc offset [m], "
+                             f"got {self.offsets!r}")
+        if not (math.isfinite(self.radius) and self.radius > 0):
+            raise ValueError(f"disc radius must be finite and > 0 [m], got {self.radius!r}")
+        offsets.setflags(write=False)
+        object.__setattr__(self, "offsets", offsets)
+        object.__setattr__(self, "radius", float(self.radius))
+        object.__setattr__(self, "reach", float(np.abs(offsets).max()))
+
+    @classmethod
+    def from_vehicle(cls, length, width, n_discs=None) -> "Footprint":
+        """Cover the rectangle with n equal discs, each circumscribing an equal slice of it.
+
+        By default n = ceil(length / width): near-square slices keep the discs' overhang past
+        the sides small without a long list of discs.
+        """
+        length, width = float(length), float(width)
+        if not (math.isfinite(length) and math.isfinite(width) and length > 0 and width > 0):
+            raise ValueError(f"vehicle length and width must be finite and > 0 [m], "
+                             f"got {length} x {width}")
+        if n_discs is None:
+            n_discs = max(1, math.ceil(length / width))
+        if int(n_discs) != n_discs or n_discs < 1:
+            raise ValueError(f"n_discs must be a whole number >= 1, got {n_discs!r}")
+        n_discs = int(n_discs)
+        piece = length / n_discs
+        offsets = -length / 2 + piece * (np.arange(n_discs) + 0.5)
+        return cls(length, width, offsets, math.hypot(piece / 2, width / 2))
+
+    def disc_centres(self, poses) -> np.ndarray:
+        """(..., 3+) [X, Y, psi] (extra columns ignored) -> (..., n, 2) [m]."""
+        poses = np.asarray(poses, dtype=float)
+        # An infinite heading (blown-up integration) gives NaN centres, which the map treats as
+        # obstacles; the warning would only be noise.
+        with np.errstate(invalid="ignore"):
+            heading = np.stack([np.cos(poses[..., 2]), np.sin(poses[..., 2])], axis=-1)
+        return poses[..., None, :2] + self.offsets[:, None] * heading[..., None, :]
+
+
+def poses_collide(omap: OccupancyMap, footprint: Footprint, poses) -> np.ndarray:
+    """(..., 3+) [X, Y, psi] -> bool (...): any disc touches an obstacle or leaves the map.
+
+    Non-finite poses (a blown-up integration) collide.
+    """
+    poses = np.asarray(poses, dtype=float)
+    return _collide(omap, footprint, poses[..., 0], poses[..., 1], poses[..., 2])
+
+
+def _collide(omap, footprint, x, y, psi) -> np.ndarray:
+    """poses_collide of poses given as arrays (...) [m, m, rad]: the answer of discs_collide,
+    paid for only by the poses that roomy cannot clear."""
+    hit = np.asarray(~roomy(omap, footprint, x, y, psi))  # an array even for one pose
+    if hit.any():
+        hit[hit] = discs_collide(omap, footprint, x[hit], y[hit], psi[hit])
+    return hit
+
+
+def discs_collide(omap: OccupancyMap, footprint: Footprint, x, y, psi) -> np.ndarray:
+    """Poses as arrays (...) [m, m, rad] -> bool (...): the plain check, disc by disc: a disc
+    collides if an obstacle lies within its radius (OccupancyMap.disc_hits).
+
+    The disc centres are those of `disc_centres` (the same arithmetic), laid out disc first so
+    that every array operation runs along the poses.
+    """
+    with np.errstate(invalid="ignore"):  # an infinite heading: see disc_centres
+        cos, sin = np.cos(psi), np.sin(psi)
+    offsets = footprint.offsets.reshape(-1, *(1,) * cos.ndim)
+    cx, cy = x + offsets * cos, y + offsets * sin
+    clearance = omap.clearance_at(cx, cy)
+    hit = clearance <= footprint.radius
+    # The bound is below the true distance by at most sqrt(2) lattice steps: a disc it cannot
+    # clear within that is decided exactly.
+    doubt = hit & (clearance > footprint.radius - math.sqrt(2) * omap.resolution / SUBDIV)
+    if doubt.any():
+        hit[doubt] = omap.disc_hits(cx[doubt], cy[doubt], footprint.radius)
+    return hit.any(axis=0)
+
+
+def roomy(omap: OccupancyMap, footprint: Footprint, x, y, psi) -> np.ndarray:
+    """Poses as arrays (...) [m, m, rad] -> bool (...): True only where no disc can touch an
+    obstacle, from one distance read at the pose's centre; False says nothing.
+
+    Every disc centre d lies within reach = max |offset| of the centre c, and the lattice point
+    nearest an on-map point is within s / sqrt(2) of it (s the lattice step). With dist the
+    exact distance to the obstacles (1-Lipschitz) and D the field at lattice points, the
+    clearance at d is >= dist(d) - sqrt(2) s >= dist(c) - reach - sqrt(2) s >= D(nearest to c)
+    - reach - 1.5 sqrt(2) s; so D(nearest to c) > radius + reach + 1.5 sqrt(2) s clears every
+    disc, each of whose centres is then inside the map (dist(d) > 0, and all off the map is
+    obstacle). A centre off the map reads the boundary, where D = 0; a non-finite pose reads
+    D = 0 or fails the heading test.
+    """
+    step = omap.resolution / SUBDIV
+    # 1 um absorbs the rounding of the sums above (maps are far smaller than 1e6 m).
+    need = footprint.radius + footprint.reach + 1.5 * math.sqrt(2) * step + 1e-6
+    col, row = omap.nearest_lattice((x - omap.origin[0]) / step, (y - omap.origin[1]) / step)
+    room = omap.distance.take(row * omap.distance.shape[1] + col)
+    return (room > need) & np.isfinite(psi)
+
+
+def first_collision(omap: OccupancyMap, footprint: Footprint, paths) -> np.ndarray:
+    """paths (B, N, 3+) [X, Y, psi] -> int (B,): first colliding pose index, -1 if none.
+
+    Pose k counts as colliding if its footprint does or if the straight interpolation from
+    pose k-1 to k (X, Y linear, psi along the shorter turn) does.
+    """
+    paths = np.asarray(paths, dtype=float)
+    if paths.ndim != 3 or paths.shape[-1] < 3:
+        raise ValueError(f"paths must have shape (B, N, 3) [X, Y, psi], got {paths.shape}")
+    n_paths, n_poses = paths.shape[:2]
+    if n_poses == 0:
+        return np.full(n_paths, -1)
+    # One copy with X, Y, psi each contiguous (B, N) makes every operation below run along N.
+    xyp = np.ascontiguousarray(paths[..., :3].transpose(2, 0, 1))
+    hit = _collide(omap, footprint, *xyp)
+    first = np.where(hit.any(axis=1), hit.argmax(axis=1), n_poses)
+    # max |dX| + max |dY| + reach max |dpsi| bounds every segment's sweep (see _cut_segments:
+    # hypot <= |dX| + |dY| and |turn| <= |dpsi|), so while it stays below one radius (less a
+    # relative 1e-9 for rounding) no segment is cut, whatever its path's first hit.
+    largest = np.abs(xyp[..., 1:] - xyp[..., :-1]).max(axis=(1, 2), initial=0.0)
+    if not largest @ (1.0, 1.0, footprint.reach) < footprint.radius * (1 - 1e-9):
+        _cut_segments(omap, footprint, paths, first)
+    return np.where(first < n_poses, first, -1)
+
+
+def _cut_segments(omap, footprint, paths, first):
+    """Lower `first` (B,) to k where the interpolation from pose k-1 to k of paths (B, N, 3+)
+    [X, Y, psi] collides."""
+    n_poses = paths.shape[1]
+    # Only segments before each path's first colliding pose can move its answer earlier. Both
+    # ends of such a segment are inside the map, which bounds its subdivision count.
+    step = np.diff(paths[..., :3], axis=1)
+    turn = (step[..., 2] + np.pi) % (2 * np.pi) - np.pi
+    # A disc centre at offset o moves at most |dXY| + |o| |dpsi| along the interpolation
+    # (translation plus the arc its rotation sweeps), so cutting the segment into
+    # ceil(that / radius) equal parts keeps every gap within one radius.
+    sweep = np.hypot(step[..., 0], step[..., 1]) + footprint.reach * np.abs(turn)
+    live = np.arange(1, n_poses)[None, :] < first[:, None]
+    parts = np.ceil(np.where(live, sweep, 0.0) / footprint.radius).astype(np.intp)
+    parts = np.where(parts > 1, parts, 0)
+
+    seg = np.flatnonzero(parts)  # flat index b * (N - 1) + (k - 1) of the segment to pose k
+    if seg.size:
+        count = parts.ravel()[seg] - 1  # interior points only: the ends are checked above
+        owner = np.repeat(seg, count)
+        # j = 1 .. count within each segment, built without a Python loop.
+        start = np.cumsum(count) - count
+        j = np.arange(owner.size) - np.repeat(start, count) + 1
+        frac = j / parts.ravel()[owner]
+        b, k = np.divmod(owner, n_poses - 1)
+        base = paths[b, k, :3]
+        delta = np.column_stack([step[b, k, :2], turn[b, k]])
+        inner = base + frac[:, None] * delta
+        bad = poses_collide(omap, footprint, inner)
+        np.minimum.at(first, b[bad], k[bad] + 1)

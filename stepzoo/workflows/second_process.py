@@ -1,0 +1,134 @@
+"""`stepzoo run`'s second process, for the work that can run beside the pipeline's own on a
+second core: the implicit methods' sweep chunks while the pipeline computes the others,
+then Figures 1-6 while the pipeline plans (they need only the sweep's tables and the tuned
+config), then the rest of the report once the plans are written. It computes exactly what
+`stepzoo sweep` and `stepzoo report` compute (sweep.compute_chunk, report.sweep_figures,
+report.build); the pipeline writes the chunks, so the sweep folder has one writer. It starts
+with the pipeline, so that its imports (plotting, JAX) overlap the sweep and the pipeline
+itself never imports the plotting libraries."""
+from __future__ import annotations
+
+import multiprocessing
+import signal
+from pathlib import Path
+
+
+def _jax_settings() -> dict:
+    """This process's JAX settings that change what the figures' runs compute or load."""
+    import jax
+    return {name: getattr(jax.config, name) for name in (
+        "jax_enable_x64", "jax_platforms", "jax_compilation_cache_dir",
+        "jax_persistent_cache_min_compile_time_secs")}
+
+
+def _serve(conn, settings: dict) -> None:
+    """The second process: JAX set as its parent, the report's modules imported, then the
+    jobs ("chunks", (sweep config file, chunk ids)), answered with [(chunk id, tables)],
+    ("figures", (sweep folder, tuned file)), unanswered, and ("report", build's arguments),
+    answered with the index's path; None answers a job that failed."""
+    # Ctrl-C goes to the whole process group: the parent says it was interrupted and ends
+    # this process (SIGTERM, silent); a report it was writing leaves a hidden folder, which
+    # the next report into that folder removes (results_folder.replacing).
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    import jax
+    for name, value in settings.items():
+        jax.config.update(name, value)
+    from stepzoo.workflows import report
+    from stepzoo.reports import drawing, load
+    drawn, cache = None, {}
+    while True:
+        try:
+            kind, args = conn.recv()
+        except EOFError:                # the parent has ended
+            return
+        try:
+            if kind == "chunks":
+                from stepzoo.bench.sweep.suite import load as load_config
+                from stepzoo.bench.sweep.engine import compute_chunk
+                cfg = load_config(args[0])
+                answer = [(cid, compute_chunk(cfg, cid, cache)) for cid in args[1]]
+            elif kind == "figures":
+                sweep, tuned = load.load_sweep(args[0]), load.load_tuned(args[1])
+                drawn = drawing.draw_apart(report.sweep_figures(sweep, tuned,
+                                                                lambda line: None))
+                continue
+            else:
+                answer = str(report.build(*args, ahead=drawn)[0])
+        except Exception:               # the parent, building the report itself, says why
+            drawn, answer = None, None
+            if kind == "figures":
+                continue
+        try:
+            conn.send(answer)
+        except OSError:                 # the parent was killed meanwhile: no one to answer
+            return
+
+
+class Ahead:
+    """The second process of one pipeline: `sweep_runner(config)` is a `run_sweep` runner
+    that shares the chunks with it; `figures(sweep, tuned)` hands it the finished sweep
+    folder and tuned file to draw Figures 1-6 from, `report(...)` (report.build's arguments)
+    has it build the report and returns the index's path, or None where it could not (the
+    caller then builds it); `close()` ends it."""
+
+    def __init__(self):
+        # spawn, not fork: a forked child would inherit JAX's threads mid-flight.
+        ctx = multiprocessing.get_context("spawn")
+        self._conn, theirs = ctx.Pipe()
+        self._proc = ctx.Process(target=_serve, args=(theirs, _jax_settings()), daemon=True,
+                                 name="stepzoo-report")
+        self._proc.start()
+        theirs.close()
+        self._done = False
+
+    def sweep_runner(self, config):
+        """run_sweep's runner for the sweep config file `config`: the chunks of implicit
+        methods (the longest to compile and to run) computed in the second process while
+        this one computes the others (and the references), each process with its own cache
+        of references; the second process's chunks follow this one's, or are computed here
+        where it failed."""
+        def run(cfg, todo):
+            from stepzoo.bench.sweep.engine import compute_chunk
+            from stepzoo.integrators import method
+            kind = lambda cid: cid.rpartition("-b")[0]
+            theirs = [c for c in todo if kind(c) != "reference" and method(kind(c)).implicit]
+            sent = bool(theirs) and self._send(("chunks", (str(config), theirs)))
+            cache = {}
+            for cid in todo:
+                if cid not in theirs:
+                    yield cid, compute_chunk(cfg, cid, cache)
+            got = self._answer() if sent else None
+            for cid, tables in got or ((c, compute_chunk(cfg, c, cache)) for c in theirs):
+                yield cid, tables
+        return run
+
+    def _send(self, job) -> bool:
+        try:
+            self._conn.send(job)
+        except OSError:                 # the process died (killed, out of memory)
+            return False
+        return True
+
+    def _answer(self):
+        try:
+            return self._conn.recv()
+        except (EOFError, OSError):     # the process died (killed, out of memory)
+            return None
+
+    def figures(self, sweep, tuned) -> None:
+        self._send(("figures", (str(sweep), str(tuned))))
+
+    def report(self, *args):
+        if not self._send(("report", args)):
+            return None
+        index = self._answer()
+        self._done = True
+        return None if index is None else Path(index)
+
+    def close(self) -> None:
+        """Ends the process: once it has answered, as it does then; at once otherwise (the
+        pipeline stopped early, while it imported or drew)."""
+        self._conn.close()
+        if not self._done:
+            self._proc.terminate()
+        self._proc.join()

@@ -1,0 +1,50 @@
+"""Tune as the commands run it: the cheapest (method, h) of a sweep folder, priced in the
+planner's own call, optionally chosen by planning, written as a tuned config and printed."""
+import sys
+
+from stepzoo.workflows import tune_for_plans as tune_plans
+from stepzoo.bench.timing.calibrate import ROUNDS
+from stepzoo.output import text_table, to_json
+from stepzoo.results_folder import check_file_target
+
+
+def planner_call() -> tuple[int, float]:
+    """(trajectories, interval [s]) of one call of the planner's integrator with its default
+    parameters: batch_nodes x (n_arc + n_random) shootings of one horizon each."""
+    from stepzoo.search.planner.config import PlannerParams
+    d = PlannerParams()
+    return d.batch_nodes * (d.n_arc + d.n_random), float(d.horizon)
+
+
+def tune(results, pos_tol, margin: float, out, tol=None, cost: str = "time",
+         rounds: int | None = None, plans=None) -> dict:
+    """Choose (method, h) from the sweep folder `results` (a position tolerance `pos_tol` [m]
+    or a tolerance `tol` on the config's error norm, stability margin `margin`, a fraction),
+    ranked by `cost` ("time", calibrated in the planner's call, or "evals"), and write it to
+    the file `out`; returns the choice, chosen among the qualifying candidates by planning
+    when `plans` (a tune_plans.Trial) is given. `stepzoo tune` and `stepzoo run` call it."""
+    from stepzoo.bench.tune.cheapest import tune as choose
+    from stepzoo.bench.tune.cheapest import write
+    out = check_file_target(out)          # before the work, not only when writing
+    batch, interval = planner_call()
+    tuned = choose(results, pos_tol, margin, tol, batch=batch, interval_s=interval, cost=cost,
+                   rounds=ROUNDS if rounds is None else rounds)
+    if plans is not None:
+        tuned = plans.choose(tuned, results)
+    write(tuned, out)
+    return tuned
+
+
+def show(tuned: dict, out, fmt: str = "text") -> None:
+    """Print the choice, its runners-up and where it was written, or JSON."""
+    if fmt == "json":
+        print(to_json({"out": str(out), **tuned}))
+        return
+    print(f"chose {tuned['method']} at h = {tuned['h']:g} s: {tuned['why']}")
+    rows = [{"method": r["method"], "h": r.get("h"), "evals_per_s": r.get("cost_evals_per_s"),
+             "time_per_s": r.get("cost_time_per_s"), "reason": r["reason"]}
+            for r in tuned["runners_up"]]
+    sys.stdout.write(text_table(rows, ["method", "h", "evals_per_s", "time_per_s", "reason"])
+                     + "\n")
+    tune_plans.show(tuned)
+    print(f"wrote {out}")
