@@ -3,6 +3,7 @@ import os
 import shutil
 import tempfile
 
+from helpers import TINY_SWEEP
 from stepzoo.cli import with_xla_option
 
 # The tests compute as the `stepzoo` command does, so that tables made in-process equal those
@@ -34,25 +35,6 @@ from stepzoo.bench.sweep.config import load  # noqa: E402
 jax.config.update("jax_enable_x64", True)
 jax.config.update("jax_compilation_cache_dir", os.environ["STEPZOO_CACHE_DIR"])
 jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
-
-
-# The smallest sweep that still has several chunks: 2 methods x 2 points, a chunk per point.
-TINY_SWEEP = """name = "tiny"
-horizon = 0.5
-methods = ["euler", "heun"]
-[envelope]
-vx = [6.0, 20.0]
-delta = [0.3]
-[steps]
-h = [0.01, 0.05, 0.1]
-[stability]
-steps = 200
-[chunks]
-points = 1
-[trajectories]
-vx = 20.0
-delta = 0.3
-"""
 
 
 @pytest.fixture(scope="session")

@@ -17,7 +17,7 @@ from stepzoo.cli import main as stepzoo
 from stepzoo.bench.sweep.engine import run_sweep
 from stepzoo.bench.sweep.config import load
 from stepzoo.dynamics.casadi_model import rhs, to_jax
-from conftest import TINY_SWEEP
+from helpers import TINY_SWEEP
 
 USER = Path(__file__).resolve().parent / "user_model"
 sys.path.insert(0, str(USER))

@@ -12,8 +12,7 @@ from pathlib import Path
 
 import pandas as pd
 import pytest
-from test_report import check_report
-from test_results_folder import TABLES, TIMED, tables
+from helpers import TABLES, TIMED, TINY_SWEEP, check_provenance, check_report, read_tables
 
 from stepzoo.cli import main as stepzoo
 from stepzoo.integrators import METHODS
@@ -51,7 +50,7 @@ def test_a_killed_run_resumes_to_the_tables_of_an_undisturbed_sweep(ran, tiny_sw
     _, out, proc = ran
     _, whole = tiny_sweep
     assert proc.returncode == 0, proc.stderr[-2000:]
-    a, b = tables(whole), tables(out / "sweep")
+    a, b = read_tables(whole), read_tables(out / "sweep")
     for name in TABLES:
         pd.testing.assert_frame_equal(a[name], b[name], check_exact=True, obj=name)
     assert stepzoo(["tune", str(whole), "--pos-tol", POS_TOL, "--out",
@@ -112,7 +111,6 @@ def test_run_default_config_is_the_shipped_envelope():
 
 
 def test_every_results_folder_of_a_run_records_its_environment_and_progress(ran):
-    from test_provenance import check_provenance
     _, out, proc = ran
     assert proc.returncode == 0, proc.stderr[-2000:]
     for folder, kind in ((out, "run"), (out / "sweep", "sweep"), (out / "plans", "plan"),
@@ -180,7 +178,6 @@ def test_a_report_process_that_fails_leaves_the_report_to_the_pipeline(tmp_path)
 def test_the_second_process_computes_the_chunks_the_sweep_would(tmp_path):
     """The run's sweep shares its chunks with the second process (an implicit method's go
     there): every table of every chunk equals the chunk computed here, bit for bit."""
-    from conftest import TINY_SWEEP
 
     from stepzoo.bench.sweep.suite import load
     from stepzoo.bench.sweep.engine import chunk_ids, compute_chunk

@@ -5,10 +5,8 @@ minimum, median, largest and interquartile range, which price every run of the m
 import dataclasses
 import json
 from datetime import datetime
-from importlib.metadata import version
 from pathlib import Path
 
-import jax
 import numpy as np
 import pandas as pd
 import pytest
@@ -17,28 +15,9 @@ from stepzoo.cli import main as stepzoo
 from stepzoo.bench.sweep.engine import run_sweep
 from stepzoo.bench.sweep.config import load
 from stepzoo.bench.timing.rounds import per_step
+from helpers import check_provenance
 
 CONFIGS = Path(__file__).resolve().parents[1] / "bench" / "configs"
-
-
-def check_provenance(manifest: dict, written_by: str):
-    """The environment keys every manifest carries, checked against this very process."""
-    assert manifest["written_by"] == written_by
-    assert isinstance(manifest["command_line"], str) and manifest["command_line"]
-    started = datetime.fromisoformat(manifest["started"])
-    assert started <= datetime.fromisoformat(manifest["finished"])
-    env = manifest["environment"]
-    machine = env["machine"]
-    assert machine["cores"] >= 1 and machine["memory_gib"] > 0 and machine["cpu"]
-    assert machine["system"] and machine["python_version"].count(".") == 2
-    for name in ("jax", "jaxlib", "numpy", "casadi"):
-        assert env["packages"][name] == version(name)
-    assert env["jax"]["backend"] == jax.default_backend()
-    assert len(env["jax"]["devices"]) == jax.device_count() >= 1
-    assert env["jax"]["float"] == "float64"          # the tests run in float64 (conftest)
-    assert env["stepzoo"]["version"] == version("stepzoo")
-    commit = env["stepzoo"]["commit"]
-    assert commit is None or len(commit) == 40
 
 
 def test_timing_summary_of_known_rounds():

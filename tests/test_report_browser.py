@@ -6,7 +6,7 @@ import pytest
 
 import report_browser
 from stepzoo.workflows.report import build
-from test_report import write_plan, write_sweep, write_tuned
+from helpers import write_plan, write_sweep, write_tuned
 
 WHY_NOT = report_browser.unavailable()
 pytestmark = pytest.mark.skipif(WHY_NOT is not None, reason=f"no browser test: {WHY_NOT}")

@@ -3,7 +3,7 @@ import numpy as np
 
 from stepzoo.reports import figure_data, interactive
 from stepzoo.reports.load import load_plans
-from test_report import write_plan
+from helpers import write_plan
 
 
 def test_the_interactive_tree_is_every_edge_in_single_precision(tmp_path):

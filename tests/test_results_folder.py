@@ -20,11 +20,9 @@ from stepzoo.bench.sweep.engine import chunk_ids, run_sweep
 from stepzoo.bench.sweep.config import load
 from stepzoo.errors import UsageError
 from stepzoo.results_folder import LOCK, claim, replacing
-from test_report import write_sweep, write_tuned
+from helpers import TABLES, read_tables, write_sweep, write_tuned
 
 ROOT = Path(__file__).resolve().parents[1]
-TABLES = ("runs", "limits", "eigenvalues", "trajectories", "summary")
-TIMED = schema.MEASURED
 
 
 def cli(*args, timeout=120):
@@ -48,14 +46,6 @@ def one_line(err: str) -> str:
     lines = err.strip().splitlines()
     assert len(lines) == 1 and "Traceback" not in err, err
     return lines[0]
-
-
-def tables(folder):
-    out = {}
-    for name in TABLES:
-        df = pd.read_parquet(folder / f"{name}.parquet")
-        out[name] = df.drop(columns=[c for c in df.columns if c in TIMED])
-    return out
 
 
 def test_a_second_writer_is_refused_in_one_line_while_the_first_holds_the_folder(tmp_path):
@@ -132,7 +122,7 @@ def test_racing_sweeps_leave_the_first_ones_tables_whole(tiny_sweep, tmp_path):
 
     manifest = run_sweep(load(path), out, progress=False, on_chunk=intrude)
     assert manifest["complete"] and manifest["chunks"] == chunk_ids(load(path))
-    a, b = tables(whole), tables(out)
+    a, b = read_tables(whole), read_tables(out)
     for name in TABLES:
         pd.testing.assert_frame_equal(a[name], b[name], check_exact=True, obj=name)
 
@@ -153,7 +143,7 @@ def test_an_interrupted_sweep_says_how_to_resume_and_resumes_to_the_same_tables(
     assert not (out / "runs.parquet").exists()
     code, _, err = cli("sweep", path, "--out", out, "--resume", "--no-progress")
     assert code == 0, err
-    a, b = tables(whole), tables(out)
+    a, b = read_tables(whole), read_tables(out)
     for name in TABLES:
         pd.testing.assert_frame_equal(a[name], b[name], check_exact=True, obj=name)
 

@@ -9,34 +9,8 @@ from stepzoo.bench.sweep.engine import run_sweep
 from stepzoo.bench.sweep.config import load
 from stepzoo.reports import tables
 from stepzoo.reports.load import load_sweep
+from helpers import SOLVER_FAILURE_CONFIG as CONFIG
 
-CONFIG = """
-name = "vdp-failures"
-model = "vdp1000"
-horizon = 10.0
-methods = ["euler", "backward_euler"]
-
-[envelope]
-y1 = { values = [1.5] }
-
-[steps]
-h = { values = [1.0, 10.0] }
-
-[reference]
-rtol = 1e-8
-atol = 1e-10
-
-[stability]
-steps = 50
-h_probe_max = 10.0
-rel_tol = 0.05
-
-[chunks]
-points = 1
-
-[timing]
-rounds = 1
-"""
 
 
 @pytest.fixture(scope="module")

@@ -147,7 +147,7 @@ def test_the_summary_names_no_region_holding_a_point_of_another_verdict():
 def failed_solve(tmp_path_factory):
     """test_solver_failure's sweep: backward Euler's Newton solves fail at 10 s steps on Van
     der Pol (mu = 1000), an A-stable method with no blow-up to measure."""
-    from test_solver_failure import CONFIG
+    from helpers import SOLVER_FAILURE_CONFIG as CONFIG
 
     from stepzoo.bench.sweep.engine import run_sweep
     folder = tmp_path_factory.mktemp("vdp")

@@ -11,7 +11,7 @@ import zipfile
 from pathlib import Path
 
 import pytest
-from conftest import TINY_SWEEP
+from helpers import TINY_SWEEP
 
 ROOT = Path(__file__).resolve().parents[1]
 DATA = ["stepzoo/bench/configs/envelope.toml", "stepzoo/bench/configs/small.toml",
