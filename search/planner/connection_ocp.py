@@ -20,7 +20,7 @@ from stepzoo.integrators.steps import rk_slopes, weighted
 from stepzoo.search.proofs.car_bounds import reeds_shepp_words
 
 # Multiple shooting solved as many seeded problems as single shooting, several times faster
-# and without retries (docs/measurements-behind-defaults.md has the study).
+# and without retries (docs/studies/measurements-behind-defaults-2026-11.md has the study).
 DEFAULT_SHOOTING = "multiple"
 # rk4 costs what Euler costs here (the NLP dominates) but is faithful: a re-simulation 10
 # times finer ends micrometres from the goal, against decimetres for the paper's Euler.
@@ -300,7 +300,7 @@ class _Problem:
 # for multiple shooting, the adaptive barrier update with kkt-error globalisation: each was
 # faster at the same solved count on the scenario connections and seeded problems; the
 # options that were not (spral, limited-memory Hessians, mu-based bound multipliers) are left
-# out. The study: docs/measurements-behind-defaults.md.
+# out. The study: docs/studies/measurements-behind-defaults-2026-11.md.
 IPOPT_OPTIONS = {"print_level": 0, "sb": "yes", "max_iter": 100, "fast_step_computation": "yes"}
 ADAPTIVE_MU = {"mu_strategy": "adaptive", "adaptive_mu_globalization": "kkt-error"}
 
