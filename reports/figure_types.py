@@ -1,12 +1,35 @@
-"""The plain data each report figure is drawn from: named arrays, labels, the caption and the
-PNG file name. `figure_data` computes them from the loaded results; the two renderers
-(`figures`, PNG, and `interactive`, Plotly) read only these, so both draw the same numbers.
+"""The plain data each report figure is drawn from: named arrays, its axes (labels with units,
+scales) and series, the caption and the PNG file name. `figure_data` computes them from the
+loaded results; the two renderers (`figures`, PNG, and `interactive`, Plotly) read only these,
+so both draw the same numbers under the same labels.
 Only NumPy here: a process that only draws needs no pandas, JAX or result tables."""
 from __future__ import annotations
 
 from dataclasses import dataclass, field
 
 import numpy as np
+
+
+# The axis labels every renderer writes, each in one place (with its unit).
+H_LABEL = "step size h [s]"
+LIMIT_LABEL = "largest stable step h [s]"
+RE_Z, IM_Z = "Re(h lambda)", "Im(h lambda)"
+EVALS_LABEL = "right-hand-side evaluations per simulated second"
+TIME_LABEL = "wall time per simulated second, fastest round [s]"
+X_LABEL, Y_LABEL = "X [m]", "Y [m]"
+DEVIATION_LABEL = "median replay deviation of the exact plans [m]"
+PLAN_TIME_LABEL = "median plan time [s]"
+
+
+@dataclass(frozen=True)
+class Axes:
+    """One panel's axes as both renderers draw them: labels with units, and scales ("linear"
+    or "log"); equal: one unit is as long on both axes (positions, the complex plane)."""
+    xlabel: str
+    ylabel: str
+    xscale: str = "linear"
+    yscale: str = "linear"
+    equal: bool = False
 
 
 def verdict_label(name: str, h: float) -> str:
@@ -49,6 +72,14 @@ class Trajectories:
     panels: list
     tuned: str | None = None
 
+    @property
+    def axes(self) -> list[Axes]:
+        return [Axes(self.xlabel, self.ylabel, equal=self.equal)]
+
+    @property
+    def series(self) -> list[str]:
+        return ["reference", *(p.method for p in self.panels)]
+
 
 @dataclass(frozen=True)
 class RegionPanel:
@@ -78,6 +109,14 @@ class Regions:
     outside: np.ndarray
     panels: list
 
+    @property
+    def axes(self) -> list[Axes]:
+        return [Axes(RE_Z, IM_Z, equal=True)]
+
+    @property
+    def series(self) -> list[str]:
+        return [p.method for p in self.panels]
+
 
 @dataclass(frozen=True)
 class ErrorPanel:
@@ -101,6 +140,14 @@ class ErrorVsStep:
     ylabel: str
     panels: list
     verdicts: list
+
+    @property
+    def axes(self) -> list[Axes]:
+        return [Axes(H_LABEL, self.ylabel, "log", "log")]
+
+    @property
+    def series(self) -> list[str]:
+        return [p.method for p in self.panels]
 
 
 @dataclass(frozen=True)
@@ -133,6 +180,16 @@ class WorkPrecision:
     tuned_h: float | None = None
     tol: float | None = None
     pick: WorkLine | None = None
+
+    @property
+    def axes(self) -> list[Axes]:
+        """The evaluations panel, then the wall-time panel (bars to the median round)."""
+        return [Axes(EVALS_LABEL, self.ylabel, "log", "log"),
+                Axes(TIME_LABEL, self.ylabel, "log", "log")]
+
+    @property
+    def series(self) -> list[str]:
+        return [line.method for line in self.lines] + (["tuned choice"] if self.pick else [])
 
 
 @dataclass(frozen=True)
@@ -176,6 +233,14 @@ class StableStep:
     verdicts: list
     x_span: tuple
 
+    @property
+    def axes(self) -> list[Axes]:
+        return [Axes(self.xlabel, LIMIT_LABEL, yscale="log")]
+
+    @property
+    def series(self) -> list[str]:
+        return [p.method for p in self.panels]
+
 
 @dataclass(frozen=True)
 class PlanMap:
@@ -192,6 +257,15 @@ class PlanMap:
     goal: tuple
     caption: str
     file: str
+
+    @property
+    def axes(self) -> list[Axes]:
+        return [Axes(X_LABEL, Y_LABEL, equal=True)]
+
+    @property
+    def series(self) -> list[str]:
+        return ["tree"] * bool(self.tree) + ["path"] * (self.path is not None) + \
+            ["start", "goal"]
 
 
 @dataclass(frozen=True)
@@ -222,3 +296,11 @@ class Tradeoff:
     paper: np.ndarray
     pareto: np.ndarray
     margin: float | None
+
+    @property
+    def axes(self) -> list[Axes]:
+        return [Axes(DEVIATION_LABEL, PLAN_TIME_LABEL, "log", "log")]
+
+    @property
+    def series(self) -> list[str]:
+        return [*self.integrator, "Pareto front"]

@@ -80,12 +80,15 @@ def _panels(n: int, ncols: int = NCOLS, panel=PANEL_IN, **kwargs):
     return fig, list(axes[:n])
 
 
-def _labels(ax, title: str, xlabel: str, ylabel: str, size: int = 9, **title_kw) -> None:
+def _labels(ax, title: str, axes: ft.Axes, size: int = 9, **title_kw) -> None:
+    """The panel's title, and its axes' labels and scales as the figure record gives them."""
     # A title placed at the axes' top: left to find its place itself, it would measure
     # every tick label of the panel at each draw to dodge labels no panel has on top.
     ax.set_title(title, fontsize=size, y=1.0, **title_kw)
-    ax.set_xlabel(xlabel, fontsize=8)
-    ax.set_ylabel(ylabel, fontsize=8)
+    ax.set_xlabel(axes.xlabel, fontsize=8)
+    ax.set_ylabel(axes.ylabel, fontsize=8)
+    ax.set_xscale(axes.xscale)
+    ax.set_yscale(axes.yscale)
     ax.tick_params(which="both", labelsize=7)
 
 
@@ -119,7 +122,7 @@ def trajectories(data: ft.Trajectories, out_dir: Path) -> Shown:
         mid = 0.5 * (panel.lo + panel.hi)
         ax.set_xlim(mid[0] - half[0], mid[0] + half[0])
         ax.set_ylim(mid[1] - half[1], mid[1] + half[1])
-        _labels(ax, panel.method, data.xlabel, data.ylabel, size=10)
+        _labels(ax, panel.method, data.axes[0], size=10)
         ax.legend(fontsize=6, loc="best")
     _save(fig, out_dir, data.file)
     return _one(data)
@@ -142,8 +145,7 @@ def regions(data: ft.Regions, out_dir: Path) -> Shown:
             title += f" ({out.sum()} of {z.size} outside)" if out.any() else " (all inside)"
         ax.set_xlim(*data.re)
         ax.set_ylim(*data.im)
-        _labels(ax, title, "Re(h lambda)", "Im(h lambda)",
-                fontweight="bold" if p.method == data.tuned else "normal")
+        _labels(ax, title, data.axes[0], fontweight="bold" if p.method == data.tuned else "normal")
     _save(fig, out_dir, data.file)
     return _one(data)
 
@@ -152,15 +154,15 @@ def error_vs_step(data: ft.ErrorVsStep, out_dir: Path) -> Shown:
     """Figure 4: a log-log panel per method, declared slope dashed, verdict steps vertical."""
     fig, axes = _panels(len(data.panels), sharex=True, sharey=True)
     for ax, p in zip(axes, data.panels):
-        ax.loglog(p.h, p.err, "o-", color="#1f77b4", ms=3, lw=1.0, label="measured")
+        ax.plot(p.h, p.err, "o-", color="#1f77b4", ms=3, lw=1.0, label="measured")
         if p.slope is not None:
             hh, yy, order = p.slope
-            ax.loglog(hh, yy, "--", color="grey", lw=1.0, label=f"slope {order} (declared)")
+            ax.plot(hh, yy, "--", color="grey", lw=1.0, label=f"slope {order} (declared)")
         for vh in p.verdicts:
             ax.axvline(vh, color=VERDICT, ls="-.", lw=1.2,
                        label=ft.verdict_label(p.method, vh))
         fit = f" (fit {p.fit:.2f})" if np.isfinite(p.fit) else ""
-        _labels(ax, p.method + fit, "h [s]", data.ylabel)
+        _labels(ax, p.method + fit, data.axes[0])
         ax.legend(fontsize=6)
     _save(fig, out_dir, data.file)
     return _one(data)
@@ -178,20 +180,24 @@ def work_precision(data: ft.WorkPrecision, out_dir: Path) -> Shown:
     fig = Figure(figsize=(12.5, 5.0), layout="constrained")
     FigureCanvasAgg(fig)
     axes = fig.subplots(1, 2, sharey=True)
-    for ax, col, label in zip(axes, ["evals_per_s", "time_per_s"],
-                              ["right-hand-side evaluations per simulated second",
-                               "measured wall time per simulated second [s]"]):
+    for ax, col, spec in zip(axes, ["evals_per_s", "time_per_s"], data.axes):
         for line in data.lines:
             colour, mark = style[line.method]
-            ax.loglog(getattr(line, col), line.worst, marker=mark, color=colour, ms=4, lw=1.0,
-                      label=line.method)
+            # Bars from the fastest round to the median one (the slowest is often an outlier).
+            spread = line.time_median - line.time_per_s if col == "time_per_s" else None
+            ax.errorbar(getattr(line, col), line.worst, marker=mark, color=colour, ms=4,
+                        lw=1.0, label=line.method,
+                        xerr=None if spread is None or not np.isfinite(spread).any() else
+                        [np.zeros(len(spread)), np.nan_to_num(spread)], elinewidth=0.8)
         if data.pick is not None:
             ax.axhline(data.tol, color="black", ls=":", lw=1.0)
-            ax.loglog(getattr(data.pick, col), data.pick.worst, "*", color="black", ms=14,
-                      mfc="none")
-        ax.set_xlabel(label)
+            ax.plot(getattr(data.pick, col), data.pick.worst, "*", color="black", ms=14,
+                    mfc="none")
+        ax.set_xlabel(spec.xlabel)
+        ax.set_xscale(spec.xscale)
+        ax.set_yscale(spec.yscale)
         ax.grid(True, which="major", lw=0.3)
-    axes[0].set_ylabel(data.ylabel)
+    axes[0].set_ylabel(data.axes[0].ylabel)
     handles, labels = axes[0].get_legend_handles_labels()
     if data.pick is not None:
         handles += [Line2D([], [], color="black", ls=":"),
@@ -223,8 +229,7 @@ def stable_step(data: ft.StableStep, out_dir: Path) -> Shown:
         for vh in p.verdicts:
             ax.axhline(vh, color=VERDICT, ls="-.", lw=1.2,
                        label=ft.verdict_label(p.method, vh))
-        ax.set_yscale("log")
-        _labels(ax, p.method, data.xlabel, "largest stable h [s]")
+        _labels(ax, p.method, data.axes[0])
     if axes:
         handles, labels = axes[0].get_legend_handles_labels()
         marks = [("o", "none", "blow-up measured"), ("^", None, "no blow-up up to the "
@@ -257,7 +262,7 @@ def _plan_png(m: ft.PlanMap, out_dir: Path) -> str:
         ax.plot(pose[0], pose[1], marker, color="#2ca02c", ms=10, mec="black", label=label)
         ax.arrow(pose[0], pose[1], arrow * math.cos(pose[2]), arrow * math.sin(pose[2]),
                  width=arrow / 12, color="#2ca02c", length_includes_head=True)
-    ax.set(xlim=extent[:2], ylim=extent[2:], xlabel="X [m]", ylabel="Y [m]",
+    ax.set(xlim=extent[:2], ylim=extent[2:], xlabel=m.axes[0].xlabel, ylabel=m.axes[0].ylabel,
            title=f"{m.name}: {m.status}")
     ax.set_aspect("equal")
     ax.legend(fontsize=8, loc="best")
@@ -290,10 +295,8 @@ def tradeoff(data: ft.Tradeoff, out_dir: Path) -> Shown:
     ax.plot(dev[front], time[front], "k--", lw=1.0)
     if data.margin:
         ax.axvline(data.margin, color="black", ls=":", lw=1.0)
-    ax.set_xscale("log")
-    ax.set_yscale("log")
-    ax.set_xlabel("median replay deviation of the exact plans [m] (line: to the largest)")
-    ax.set_ylabel("median plan time [s]")
+    spec = data.axes[0]
+    ax.set(xscale=spec.xscale, yscale=spec.yscale, xlabel=spec.xlabel, ylabel=spec.ylabel)
     ax.grid(True, which="major", lw=0.3)
     handles = [Line2D([], [], marker="o", color="grey", ls="", mec="black", mew=2, ms=10),
                Line2D([], [], marker="s", color="grey", ls="", ms=10),

@@ -59,17 +59,19 @@ def _colours(names) -> dict:
     return {n: palette[i % len(palette)] for i, n in enumerate(names)}
 
 
-def _layout(fig: go.Figure, xtitle: str, ytitle: str, *, logx=False, logy=False,
-            height=HEIGHT_PX) -> go.Figure:
+def _layout(fig: go.Figure, axes: ft.Axes, *, height=HEIGHT_PX) -> go.Figure:
+    """The figure's look, and its axes' titles and scales as the figure record gives them."""
     # Legend below the plot: on a phone a legend beside it would take the plot's width.
     fig.update_layout(template="plotly_white", height=height, hovermode="closest",
                       margin=dict(l=60, r=10, t=30, b=10),
                       legend=dict(orientation="h", yanchor="top", y=-0.15, x=0,
                                   groupclick="togglegroup", font=dict(size=11)))
-    fig.update_xaxes(title_text=xtitle, type="log" if logx else "linear",
-                     exponentformat="power", showline=True, linecolor="#888")
-    fig.update_yaxes(title_text=ytitle, type="log" if logy else "linear",
-                     exponentformat="power", showline=True, linecolor="#888")
+    fig.update_xaxes(title_text=axes.xlabel, type=axes.xscale, exponentformat="power",
+                     showline=True, linecolor="#888")
+    fig.update_yaxes(title_text=axes.ylabel, type=axes.yscale, exponentformat="power",
+                     showline=True, linecolor="#888")
+    if axes.equal:
+        fig.update_yaxes(scaleanchor="x", scaleratio=1)
     return fig
 
 
@@ -114,11 +116,9 @@ def trajectories(data: ft.Trajectories) -> list:
     lo = np.min([p.lo for p in data.panels], axis=0)
     hi = np.max([p.hi for p in data.panels], axis=0)
     pad = 0.05 * np.maximum(hi - lo, 1e-6)
-    _layout(fig, data.xlabel, data.ylabel, height=560)
+    _layout(fig, data.axes[0], height=560)
     fig.update_xaxes(range=[lo[0] - pad[0], hi[0] + pad[0]])
     fig.update_yaxes(range=[lo[1] - pad[1], hi[1] + pad[1]])
-    if data.equal:
-        fig.update_yaxes(scaleanchor="x", scaleratio=1)
     return [fig]
 
 
@@ -142,10 +142,9 @@ def regions(data: ft.Regions) -> list:
                             else "circle"),
                 name=f"h*lambda at h = {data.h:g} s, {label} {data.tuned}'s region",
                 hovertemplate="h*lambda = %{x:.4g} %{y:+.4g}i<extra></extra>"))
-    _layout(fig, "Re(h lambda)", "Im(h lambda)", height=560)
+    _layout(fig, data.axes[0], height=560)
     fig.update_xaxes(range=list(data.re), zeroline=True, zerolinecolor="#999")
-    fig.update_yaxes(range=list(data.im), scaleanchor="x", scaleratio=1, zeroline=True,
-                     zerolinecolor="#999")
+    fig.update_yaxes(range=list(data.im), zeroline=True, zerolinecolor="#999")
     return [fig]
 
 
@@ -181,7 +180,7 @@ def error_vs_step(data: ft.ErrorVsStep) -> list:
     errs = np.concatenate([p.err for p in data.panels]) if data.panels else np.zeros(0)
     if errs.size:
         _verdict_lines(fig, data.verdicts, colours, y=(errs.min(), errs.max()))
-    _layout(fig, "step size h [s]", data.ylabel, logx=True, logy=True, height=560)
+    _layout(fig, data.axes[0], height=560)
     return [fig]
 
 
@@ -218,11 +217,9 @@ def work_precision(data: ft.WorkPrecision) -> list:
                 marker=dict(symbol="star-open", size=16, color="black"),
                 hovertemplate=f"tuned: {data.tuned} at h = {data.tuned_h:g} s"
                 "<extra></extra>"), row=row, col=1)
-    _layout(fig, "", data.ylabel, logx=True, logy=True, height=820)
-    fig.update_xaxes(title_text="right-hand-side evaluations per simulated second", row=1,
-                     col=1)
-    fig.update_xaxes(title_text="wall time per simulated second, fastest round [s]", row=2,
-                     col=1)
+    _layout(fig, data.axes[0], height=820)
+    for row, spec in enumerate(data.axes, 1):
+        fig.update_xaxes(title_text=spec.xlabel, type=spec.xscale, row=row, col=1)
     fig.update_layout(legend=dict(y=-0.08))
     return [fig]
 
@@ -264,7 +261,7 @@ def stable_step(data: ft.StableStep) -> list:
                         marker=dict(color=colours[p.method], symbol=symbol, size=8)))
                     first, failed_shown = False, failed_shown or symbol == "x"
     _verdict_lines(fig, data.verdicts, colours, x=data.x_span)
-    _layout(fig, data.xlabel, "largest stable step h [s]", logy=True, height=560)
+    _layout(fig, data.axes[0], height=560)
     return [fig]
 
 
@@ -305,9 +302,9 @@ def _plan_figure(m: ft.PlanMap) -> go.Figure:
             hovertemplate=f"{label}: X = {pose[0]:.3f} m, Y = {pose[1]:.3f} m, heading = "
             f"{pose[2]:.3f} rad<extra></extra>"))
     tall = max(min(height / width, 1.6), 0.4)
-    _layout(fig, "X [m]", "Y [m]", height=int(180 + 420 * tall))
+    _layout(fig, m.axes[0], height=int(180 + 420 * tall))
     fig.update_xaxes(range=[x0, x1], showgrid=False)
-    fig.update_yaxes(range=[y0, y1], scaleanchor="x", scaleratio=1, showgrid=False)
+    fig.update_yaxes(range=[y0, y1], showgrid=False)
     fig.update_layout(title=dict(text=f"{m.name}: {m.status}", font=dict(size=14)))
     return fig
 
@@ -339,8 +336,7 @@ def tradeoff(data: ft.Tradeoff) -> list:
     front = front[np.argsort(dev[front])]
     fig.add_trace(go.Scatter(x=dev[front], y=time[front], mode="lines", name="Pareto front",
                              line=dict(color="black", dash="dash", width=1)))
-    return [_layout(fig, "median replay deviation of the exact plans [m]",
-                    "median plan time [s]", logx=True, logy=True)]
+    return [_layout(fig, data.axes[0])]
 
 
 RENDER = {ft.Trajectories: trajectories, ft.Regions: regions, ft.ErrorVsStep: error_vs_step,
