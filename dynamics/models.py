@@ -11,7 +11,9 @@ from typing import Callable
 
 import numpy as np
 
-from stepzoo.dynamics import bicycle, detest, kinematic, single_track, solutions, stiff
+from stepzoo.dynamics import bicycle, kinematic, single_track, solutions
+from stepzoo.dynamics.problems import detest
+from stepzoo.dynamics.problems import stiff
 from stepzoo.dynamics.tyres import TYRES, tyre_name
 from stepzoo.dynamics.vehicles import physical, st_params, tyre_params
 

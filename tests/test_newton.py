@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
 
-from stepzoo.dynamics import detest
+from stepzoo.dynamics.problems import detest
 from stepzoo.integrators import integrate, integrate_batch, method
 
 

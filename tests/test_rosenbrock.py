@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 from scipy.linalg import expm
 
-from stepzoo.dynamics import detest, stiff
+from stepzoo.dynamics.problems import detest
+from stepzoo.dynamics.problems import stiff
 from stepzoo.integrators import METHODS, integrate, method, newton
 from stepzoo.integrators.stability import amplification_empirical, amplification_theory
 

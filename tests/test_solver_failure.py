@@ -1,5 +1,5 @@
 """A failed nonlinear solve is a result of the sweep, told apart from instability: on Van der
-Pol with mu = 1000 (dynamics/stiff.py) from (1.5, 0), backward Euler's Newton solves converge
+Pol with mu = 1000 (dynamics/problems/stiff.py) from (1.5, 0), backward Euler's Newton solves converge
 through the 50 stability steps of 1 s but fail at 10 s steps (A-stable: no step limit is
 predicted, so the limit measured is the solver's); explicit Euler blows up instead."""
 import numpy as np

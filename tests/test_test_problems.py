@@ -5,9 +5,9 @@ import numpy as np
 import pytest
 
 from stepzoo.dynamics import MODELS, model
-from stepzoo.dynamics.detest import kepler_exact
+from stepzoo.dynamics.problems.detest import kepler_exact
 from stepzoo.dynamics.solutions import solve
-from stepzoo.dynamics.stiff import PUBLISHED_END
+from stepzoo.dynamics.problems.stiff import PUBLISHED_END
 
 PROBLEMS = [n for n, m in MODELS.items() if m.family != "vehicle"]
 EXACT = [n for n in PROBLEMS if MODELS[n].exact is not None]

@@ -36,8 +36,8 @@ FIELDS_KEPT = 2
 
 # Peak memory a grid cell costs while a map is built: the occupancy, and the distance field
 # on a lattice SUBDIV times finer with the transform's intermediates (measured with
-# tracemalloc: docs/studies/measurements-behind-defaults-2026-11.md). A file's decoding adds its own per cell
-# (DECODE_BYTES).
+# tracemalloc: docs/studies/measurements-behind-defaults-2026-11.md). A file's decoding adds
+# its own per cell (DECODE_BYTES).
 MAP_BYTES_PER_CELL = 144
 # [bytes per cell] held while decoding: an image's pixels as float64 RGB and their grey mean;
 # a MovingAI grid's one-character strings; an array's own items come from its header.

@@ -62,7 +62,8 @@ OS_HINTS = {errno.EACCES: "check its permissions", errno.EPERM: "check its permi
 # XLA:CPU compiles a while loop into one native function only when the loop touches fewer
 # bytes than this option (1 kB by default); above it, every operation of every step is a
 # separate runtime call. The integration loops touch kilobytes to megabytes, and small
-# batches ran several times slower without it (docs/studies/measurements-behind-defaults-2026-11.md).
+# batches ran slower without it (the measurements:
+# docs/studies/measurements-behind-defaults-2026-11.md).
 # The command sets it for itself; the library never touches XLA_FLAGS.
 XLA_OPTION = "xla_cpu_small_while_loop_byte_threshold=100000000"
 
