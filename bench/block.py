@@ -142,7 +142,7 @@ class Block:
         rule's diagnosis, NaN/-1 under the "blowup" rule."""
         B = len(self.points)
         none = Diagnosis(np.full(B, -1), np.full(B, np.nan), np.full(B, np.nan),
-                         np.full(B, np.nan))
+                         np.full(B, np.nan), np.zeros(B, bool))
         runs = self.stability_runs()
         if not isinstance(runs, ModalRuns):
             return none

@@ -65,7 +65,10 @@ def method_chunk(block, name: str) -> dict:
                           | events[lane].columns() | _diagnosis(block, diagnosis, lane))
     model_nan.record(limits, model_nan.lane_times(block))
     for row in limits:
-        row["limit_note"] = metrics.limit_note(row, cfg.growth)
+        # The "blowup" rule's runs last stability.steps steps of the step probed.
+        horizon = cfg.stability_horizon if cfg.stab_rule == "modes" else \
+            cfg.stab_steps * row["h_meas"]
+        row["limit_note"] = metrics.limit_note(row, cfg.growth, horizon)
     traj = trajectory_runs.method_rows(block, meth) if block.block == 0 else pd.DataFrame()
     limits_df = pd.DataFrame(limits, columns=schema.limit_columns(block.spec.variables,
                                                                   block.spec.states))
@@ -94,7 +97,8 @@ def _diagnosis(block, diag, lane) -> dict:
     j = int(diag.state[lane])
     return {"unstable_state": block.spec.states[j] if j >= 0 else "",
             "unstable_t": float(diag.t[lane]), "growth_ratio": float(diag.growth_ratio[lane]),
-            "ref_growth": float(diag.ref_growth[lane])}
+            "ref_growth": float(diag.ref_growth[lane]),
+            "newton_retried": bool(diag.retried[lane])}
 
 
 def _accuracy_runs(block, meth) -> tuple[list[dict], np.ndarray]:

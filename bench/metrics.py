@@ -170,11 +170,12 @@ def own_limits(limits) -> dict:
             else float("nan")}
 
 
-def limit_note(row: dict, growth: float, tol: float = AGREE_TOL) -> str:
+def limit_note(row: dict, growth: float, horizon: float, tol: float = AGREE_TOL) -> str:
     """Why a `limits` row's h_meas and h_pred differ, from its columns ("agrees" where the
     ratio lies within [1 / (1 + tol), 1 + tol] or both are unbounded): the model's own
     divergence (ref_growth > growth), a failed solve, non-smooth f, or the measured run's
-    binding state and time against the prediction's."""
+    binding state and time against the prediction's, and how many steps of h_meas the
+    stability horizon [s] holds (a perturbation that grows little per step needs many)."""
     pred, meas, ratio = row["h_pred"], row["h_meas"], row["ratio"]
     close = np.isfinite(ratio) and ratio > 0 and abs(np.log(ratio)) <= np.log1p(tol)
     if close or (np.isinf(pred) and np.isinf(meas)):
@@ -186,7 +187,10 @@ def limit_note(row: dict, growth: float, tol: float = AGREE_TOL) -> str:
                 f"{row['ref_growth']:.3g}-fold within the horizon (the method is judged "
                 f"against that growth){'; ' + fail if fail else ''}")
     if row["limit_cause"] == "solver failed":
-        return "a nonlinear solve failed inside the horizon just above h_meas"
+        return ("a Newton solve failed inside the horizon just above h_meas, also with more "
+                "iterations")
+    if row.get("newton_retried"):
+        fail += (", " if fail else "") + "its solves converging only with more iterations"
     if np.isfinite(row.get("nonsmooth_t", np.nan)):
         return (f"f is not smooth at t = {row['nonsmooth_t']:.3g} s ({row['nonsmooth_what']}, "
                 f"{row['nonsmooth_kind']}): the frozen Jacobians do not bound the step there")
@@ -194,7 +198,8 @@ def limit_note(row: dict, growth: float, tol: float = AGREE_TOL) -> str:
         return f"nothing failed up to h_probe_max = {row['h_probe_max']:.3g} s"
     if meas > pred:
         return (f"measured above the prediction: the mode binding at t = {row['t_bind']:.3g} "
-                f"s is that fast only briefly or saturates within the horizon; just above "
-                f"h_meas {fail or 'no state departs'}")
+                f"s is that fast only briefly, saturates, or grows too little in the "
+                f"{np.ceil(horizon / meas - 1e-9):.0f} steps of h_meas within the horizon; "
+                f"just above h_meas {fail or 'no state departs'}")
     return (f"unstable below the prediction (a nonlinear effect the frozen Jacobians do not "
             f"see){': ' + fail if fail else ''}")

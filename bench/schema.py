@@ -44,7 +44,8 @@ SUMMARY = [*SUMMARY, "nonsmooth_points", "nonsmooth_note"]
 
 # The stability test's diagnosis just above the measured limit ("modes" rule;
 # bench.stability_runs.MODES_RULE), and why measured and predicted differ (metrics.limit_note).
-STABILITY_TAIL = ["unstable_state", "unstable_t", "growth_ratio", "ref_growth", "limit_note"]
+STABILITY_TAIL = ["unstable_state", "unstable_t", "growth_ratio", "ref_growth",
+                  "newton_retried", "limit_note"]
 SUMMARY = [*SUMMARY, "disagreeing_points", "disagreement_note"]
 
 # Measured wall times: they differ between two runs of the same config.
@@ -135,6 +136,8 @@ COLUMN_DOC = {
                     "over the run and the directions",
     "ref_growth": "the reference's own largest perturbation growth within the stability "
                   "horizon (above `growth`: the model itself diverges)",
+    "newton_retried": "the runs just above h_meas converged only with more Newton "
+                      "iterations (bench.stability_runs.RETRY_ITERATIONS times)",
     "limit_note": "agrees (ratio within the agreement tolerance), or why h_meas and h_pred "
                   "differ",
     "disagreeing_points": "points whose limit_note is not 'agrees'",

@@ -81,14 +81,15 @@ class StabilityRuns:
 # ---- the "modes" rule: every state, each direction alone, against the reference's growth --
 
 MODES = 3          # the fastest constraining eigenmodes perturbed, each in runs of its own
-DIRECTIONS = 4     # directions per point: the modes, then seeded random ones
-SEED = 20261128    # of the random directions, with the point's index
+SEED = 20261128    # of the random directions that stand in for missing modes
+RETRY_ITERATIONS = 4   # a failed solve is retried with this many times the iterations
 STATE_FLOOR = 1.0  # a state's scale where it and its error scale are absent or 0 [its unit]
 MODES_RULE = (
-    f"Each stability run starts from the initial state plus one of {DIRECTIONS} directions: "
-    f"the real part of each of the {MODES} fastest eigenmodes of df/dx there that bound a "
-    f"step (by |lambda|), then random ones (NumPy's default_rng seeded {SEED} and the "
-    "point's index); each direction alone, so that modes cannot cancel, sized "
+    f"Each stability run starts from the initial state plus one of {MODES} + d directions "
+    f"(d states): the real part of each of the {MODES} fastest eigenmodes of df/dx there "
+    f"that bound a step (by |lambda|; random directions where it has fewer, NumPy's "
+    f"default_rng seeded {SEED} and the point's index), then each state alone; each "
+    "direction in runs of its own, so that modes cannot cancel, sized "
     "`perturbation` in the state norm: the largest |dx_i| / scale_i over every state, "
     "scale_i the state's largest |x_i| along the reference (at least its error scale; "
     f"{STATE_FLOOR:g} where both are 0). It is compared with the same method's run from the "
@@ -96,19 +97,35 @@ MODES_RULE = (
     "is unstable at the first step where their distance in the state norm is not finite or "
     "exceeds `growth` times its start times the reference's own growth of that direction "
     "so far (at least 1: the reference solved from both states). A run whose nonlinear "
-    "solve failed inside the horizon is never stable; failures past it are not counted. "
+    f"solve failed inside the horizon (also when retried with {RETRY_ITERATIONS}x the Newton "
+    "iterations; a solve that converges then needed more iterations and the retry is "
+    "judged) is never stable; failures past the horizon are not counted. "
     "Where the reference's own growth exceeds `growth`, the model itself diverges there.")
 
 
 class Diagnosis(NamedTuple):
     """Per candidate (N,): the state whose deviation was largest where the run failed (its
     index, -1 where none), that time [s] (NaN where none), the method's growth over the
-    reference's (the largest over the run and the directions), and the reference's own
-    largest growth over the horizon."""
+    reference's (the largest over the run and the directions), the reference's own
+    largest growth over the horizon, and whether its solves converged only when retried
+    with RETRY_ITERATIONS times the Newton iterations."""
     state: np.ndarray
     t: np.ndarray
     growth_ratio: np.ndarray
     ref_growth: np.ndarray
+    retried: np.ndarray
+
+
+def more_iterations(meth):
+    """The method with RETRY_ITERATIONS times its Newton iterations (one Method per process:
+    `integrators.method` caches it, so it compiles once)."""
+    import dataclasses
+
+    from stepzoo.integrators import method
+    opts = meth.newton
+    return method(meth.name, dataclasses.replace(
+        opts, max_iter=RETRY_ITERATIONS * opts.max_iter,
+        max_iter_full=RETRY_ITERATIONS * max(opts.max_iter_full, opts.max_iter)))
 
 
 def state_scales(spec, xs: np.ndarray) -> np.ndarray:
@@ -123,12 +140,13 @@ def state_scales(spec, xs: np.ndarray) -> np.ndarray:
 
 
 def directions(jac0: np.ndarray, scales: np.ndarray, size: float, ids) -> np.ndarray:
-    """(B, DIRECTIONS, d) initial deviations: per point (ids: the config's point indices)
+    """(B, MODES + d, d) initial deviations: per point (ids: the config's point indices)
     the real part of each of its MODES fastest constraining eigenmodes at the Jacobian jac0
-    (B, d, d) (its imaginary part where that is 0), then seeded random directions, each
-    scaled to `size` in the state norm max_i |d_i| / scales_i."""
+    (B, d, d) (its imaginary part where that is 0; seeded random directions where it has
+    fewer), then each state alone, each scaled to `size` in the state norm max_i |d_i| /
+    scales_i."""
     B, d = jac0.shape[:2]
-    out = np.zeros((B, DIRECTIONS, d))
+    out = np.zeros((B, MODES + d, d))
     for b in range(B):
         modes = []
         if np.isfinite(jac0[b]).all():
@@ -138,9 +156,9 @@ def directions(jac0: np.ndarray, scales: np.ndarray, size: float, ids) -> np.nda
                 v = V[:, j].real if np.abs(V[:, j].real).max() > 0 else V[:, j].imag
                 modes.append(v)
         rng = np.random.default_rng([SEED, int(ids[b])])
-        while len(modes) < DIRECTIONS:
+        while len(modes) < MODES:
             modes.append(rng.standard_normal(d) * scales[b])
-        for k, v in enumerate(modes):
+        for k, v in enumerate([*modes, *np.eye(d)]):
             out[b, k] = size * v / np.max(np.abs(v) / scales[b])
     return out
 
@@ -179,14 +197,12 @@ class ModalRuns:
         n = np.ceil(self.horizon / np.asarray(h, float) - 1e-9)
         return np.minimum(n, self.runner.max_steps).astype(int)
 
-    def judge(self, meth, lanes, h) -> tuple[Outcome, Diagnosis]:
-        """The outcomes (N,) of candidates h (N,) [s] at lanes (N,) and their diagnosis. Per
-        call of the block's size: each candidate's run from the initial state and one per
-        direction, as lanes of their own."""
-        lanes, h = np.asarray(lanes), np.asarray(h, float)
-        N, K, B = len(h), self.delta.shape[1], len(self.points)
-        n_own = self.steps(h)
-        runs = [(i, k) for i in range(N) for k in range(-1, K)]     # k = -1: unperturbed
+    def _runs(self, meth, lanes, h, n_own) -> tuple[list, np.ndarray]:
+        """Each candidate's run from the initial state and one per direction, as lanes of
+        their own in calls of the block's size: their states up to the candidate's own
+        horizon (n_own (N,) steps), and whether their solves converged there."""
+        K, B = self.delta.shape[1], len(self.points)
+        runs = [(i, k) for i in range(len(h)) for k in range(-1, K)]   # k = -1: unperturbed
         x = [None] * len(runs)
         conv = np.zeros(len(runs), bool)
         for start in range(0, len(runs), B):
@@ -206,6 +222,28 @@ class ModalRuns:
                 # A solve that failed leaves NaN from its step on (the driver's contract):
                 # failures past this candidate's horizon are not its own.
                 conv[start + r] = run.converged[r] or np.isfinite(x[start + r]).all()
+        return x, conv
+
+    def judge(self, meth, lanes, h) -> tuple[Outcome, Diagnosis]:
+        """The outcomes (N,) of candidates h (N,) [s] at lanes (N,) and their diagnosis. A
+        candidate whose solves failed inside its horizon runs again with RETRY_ITERATIONS
+        times the Newton iterations: where that converges, the solve needed more iterations
+        (it is judged by that run, `retried`); where not, the solver failed."""
+        lanes, h = np.asarray(lanes), np.asarray(h, float)
+        N, K1 = len(h), self.delta.shape[1] + 1
+        K = K1 - 1
+        n_own = self.steps(h)
+        x, conv = self._runs(meth, lanes, h, n_own)
+        failed = np.array([i for i in range(N) if not conv[i * K1:(i + 1) * K1].all()], int)
+        retried = np.zeros(N, bool)
+        if len(failed) and meth.solves:
+            x2, conv2 = self._runs(more_iterations(meth), lanes[failed], h[failed],
+                                   n_own[failed])
+            for r, i in enumerate(failed):
+                if conv2[r * K1:(r + 1) * K1].all():
+                    x[i * K1:(i + 1) * K1] = x2[r * K1:(r + 1) * K1]
+                    conv[i * K1:(i + 1) * K1] = True
+                    retried[i] = True
         t0 = time.perf_counter()
         stable, t_fail, converged = np.zeros(N, bool), np.full(N, np.nan), np.zeros(N, bool)
         state, ratio = np.full(N, -1), np.zeros(N)
@@ -233,11 +271,13 @@ class ModalRuns:
                 t_fail[i] = j * h[i]
                 with np.errstate(invalid="ignore"):
                     d = np.abs(x[at + 1 + k][j] - base[j]) / sc
-                state[i] = int(np.argmax(np.where(np.isfinite(d), d, np.inf)))
+                # A failed solve's NaN names no state.
+                state[i] = int(np.argmax(np.where(np.isfinite(d), d, np.inf))) \
+                    if converged[i] else -1
             stable[i] = first[k] == len(base) and converged[i]
         self.runner.watch.add("stability_s", time.perf_counter() - t0)
         return (Outcome(stable, t_fail, converged),
-                Diagnosis(state, t_fail, ratio, ref))
+                Diagnosis(state, t_fail, ratio, ref, retried))
 
 
 def reference_growth(solve, points, base: np.ndarray, delta: np.ndarray,

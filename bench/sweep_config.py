@@ -209,9 +209,9 @@ class Stability(Schema):
     rel_tol: RelTol = Field(1e-3, description="the bisection of the largest stable step stops "
                             "when h_hi / h_lo - 1 <= rel_tol")
     rule: Literal[STABILITY_RULES] = Field(
-        "modes", description="modes: every state, each eigenmode alone, against the "
-        "reference's own growth, within the stability horizon; blowup: the error states, "
-        "the modes summed, `steps` steps (the rule before 2026-11-28)")
+        "blowup", description="modes: every state, each eigenmode alone, against the "
+        "reference's own growth, within the stability horizon (for stiff, saturating "
+        "models); blowup: the error states, the modes summed, `steps` steps")
     horizon: Horizon | None = Field(None, description="modes: how long a stability run lasts "
                                     "[s] (default: the accuracy horizon); events after it "
                                     "decide nothing")
