@@ -14,6 +14,7 @@ from stepzoo.bench.points import Points
 from stepzoo.bench.stability_runs import (Diagnosis, ModalRuns, StabilityRuns, directions,
                                           perturbation, reference_growth, state_scales)
 from stepzoo.bench.stopwatch import Stopwatch
+from stepzoo.bench.sweep_config import run_steps
 
 TRAJ_SAMPLES = 200     # reference samples of the figure trajectory
 ALONG_SAMPLES = 50     # reference samples whose Jacobians predict the stable step (divides
@@ -49,9 +50,8 @@ class Block:
         self.points = Points.block(cfg, block)
         self.watch = Stopwatch() if watch is None else watch
         self.reference_backend = reference_backend.choose(cfg)
-        from stepzoo.bench.sweep_config import run_steps
-        steps = run_steps(cfg)
-        self.run = Runner(cfg.spec, steps if max_steps is None else max_steps, self.watch)
+        steps = run_steps(cfg) if max_steps is None else max_steps
+        self.run = Runner(cfg.spec, steps, self.watch)
 
     def cached(self, key, make):
         """make(), computed once per (key, block) in the cache."""

@@ -1,6 +1,9 @@
-"""The sweep's stability test: a run from the initial state plus a small perturbation along
-the modes that bound the step, against a run from the initial state with the same method
-and step; the step blows up where their scaled distance grows past `growth` times its start."""
+"""The sweep's stability tests ([stability] rule). "blowup": a run from the initial state plus
+a small perturbation along the modes that bound the step, against a run from the initial
+state with the same method and step; the step blows up where their distance in the error
+norm grows past `growth` times its start. "modes" (MODES_RULE): each eigenmode and each
+state alone, in every state, against the reference's own growth, within the stability
+horizon; with a diagnosis of the run (the state and time it departs)."""
 from __future__ import annotations
 
 import time

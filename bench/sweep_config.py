@@ -434,6 +434,10 @@ def validate(raw: dict, source: str = "config") -> SweepConfig:
     if f.stability.h_probe_max < max(hs):
         bad.append(f"stability.h_probe_max ({f.stability.h_probe_max:g} s) is below the "
                    f"largest step ({max(hs):g} s); raise it")
+    if f.stability.horizon is not None and f.stability.rule == "blowup":
+        bad.append("stability.horizon is the length of the \"modes\" rule's runs; the "
+                   "\"blowup\" rule runs stability.steps steps: set stability.rule = "
+                   "\"modes\" or drop stability.horizon")
     traj_point = trajectory_point(f.trajectories, spec, bad)
     if exact and spec is not None and traj_point not in spec.points:
         bad.append("reference.exact solves the model's own problem alone; leave "
@@ -602,9 +606,15 @@ def check_workload(cfg: SweepConfig):
     # Per method and block, calls of one block's lanes: the accuracy runs at every step; for
     # stability a pair of runs (perturbed, unperturbed) a call apart, per grid step, per rung
     # of the ladders past the grid (at most ten) and per narrowing round (a bisection's at
-    # most, from a bracket of 1.3). The pair's two trajectory arrays are held at once.
+    # most, from a bracket of 1.3). The pair's two trajectory arrays are held at once. The
+    # "modes" rule runs one unperturbed and MODES + d perturbed runs per candidate, and also
+    # probes its ladder of multiples of h_pred.
+    from stepzoo.bench.limit_search import PRED_LADDER
+    from stepzoo.bench.stability_runs import MODES
     rounds = math.ceil(math.log2(math.log(1.3) / math.log1p(cfg.rel_tol))) + 1
-    calls = len(cfg.hs) + 2 * (len(cfg.hs) + 10 + rounds)
+    per, probes = (2, 0) if cfg.stab_rule == "blowup" else \
+        (MODES + len(cfg.spec.states) + 1, len(PRED_LADDER))
+    calls = len(cfg.hs) + per * (len(cfg.hs) + 10 + rounds + probes)
     memory = cfg.max_memory_gib and cfg.max_memory_gib * GIB
     check_budget(f"the sweep {cfg.name!r}", steps, 2 * lanes, len(cfg.spec.states),
                  calls=len(cfg.methods) * blocks * calls / 2,

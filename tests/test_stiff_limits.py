@@ -187,3 +187,73 @@ def test_directions_are_single_modes_sized_in_every_state():
     assert state_scales(sweep_config.validate(__import__("tomllib").loads(
         CANCEL.format(rule="modes")), "c").spec, np.zeros((1, 3, 4)))[0].tolist() == \
         [1.0, 1.0, 1.0, 1.0]
+
+
+class _Runs:
+    """A runner that returns given trajectories: the unperturbed run `base` (n+1,) of one
+    state and, for a perturbed one, base + `dev` (n+1,); `failed_from` NaNs every row from
+    that step on with converged False (a failed Newton solve, as the driver leaves it)."""
+
+    def __init__(self, base, dev, failed_from=None):
+        from stepzoo.bench.stopwatch import Stopwatch
+        self.base, self.dev, self.failed_from = base, dev, failed_from
+        self.max_steps, self.watch = len(base) - 1, Stopwatch()
+
+    def __call__(self, meth, x0, u, p, h, n):
+        from stepzoo.bench.method_runs import Run
+        x = np.where(x0[:, :1] != 0, self.base + self.dev, self.base)[:, : n + 1, None]
+        conv = np.ones(len(x0), bool)
+        if self.failed_from is not None:
+            x[:, self.failed_from:] = np.nan
+            conv[:] = False
+        return Run(x, np.zeros(len(x0)), conv, 0.0)
+
+
+def _judge(dev, ref_growth=1.0, failed_from=None, horizon=1.0, h=0.01):
+    """The "modes" rule's verdict on one lane whose perturbed run deviates by dev (steps,)."""
+    from types import SimpleNamespace
+
+    from stepzoo.bench.points import Points
+    from stepzoo.bench.stability_runs import ModalRuns
+    n = len(dev) - 1
+    runner = _Runs(np.ones(n + 1), np.asarray(dev, float), failed_from)
+    pts = Points((0,), (0,), np.zeros((1, 1)), np.zeros((1, 1)), np.zeros((1, 0)), {}, ("y",))
+    runs = ModalRuns(runner, pts, np.full((1, 1, 1), 1e-6), np.ones((1, 1)),
+                     np.linspace(0, horizon, 11), np.full((1, 1, 11), ref_growth), horizon,
+                     GROWTH)
+    out, diag = runs.judge(SimpleNamespace(solves=False), np.array([0]), np.array([h]))
+    return bool(out.stable[0]), bool(out.converged[0]), float(diag.growth_ratio[0])
+
+
+def test_a_bounded_chatter_is_unstable_and_a_growth_the_reference_shares_is_not():
+    k = np.arange(201)
+    chatter = np.clip(1e-6 * (-3.0) ** k, -1e-2, 1e-2)      # saturates, never blows up
+    assert _judge(chatter)[0] is False
+    decaying = 1e-6 * 0.5 ** k
+    assert _judge(decaying)[0] is True
+    physical = 1e-6 * 1.05 ** k                             # 1.7e4-fold over the horizon
+    assert _judge(physical, ref_growth=1e5)[0] is True
+    assert _judge(physical, ref_growth=1.0)[0] is False
+
+
+def test_what_happens_past_the_stability_horizon_decides_nothing():
+    """Runs of 0.5 s at h = 0.01 s: a blow-up and a failed solve after step 50 count for
+    nothing; a failed solve inside the horizon makes the step not stable."""
+    k = np.arange(201)
+    late = np.where(k > 60, 1e3, 1e-6)
+    assert _judge(late, horizon=0.5)[0] is True
+    assert _judge(late, horizon=2.0)[0] is False
+    assert _judge(np.full(201, 1e-6), failed_from=80, horizon=0.5)[:2] == (True, True)
+    assert _judge(np.full(201, 1e-6), failed_from=30, horizon=0.5)[:2] == (False, False)
+
+
+def test_a_stability_horizon_without_the_modes_rule_is_one_clear_line():
+    import tomllib
+
+    from stepzoo.errors import UsageError
+    raw = tomllib.loads(CANCEL.format(rule="blowup"))
+    raw["stability"]["horizon"] = 0.3
+    with pytest.raises(UsageError, match="stability.horizon is the length of the \"modes\""):
+        sweep_config.validate(raw, "c")
+    raw["stability"]["rule"] = "modes"
+    assert sweep_config.validate(raw, "c").stability_horizon == 0.3
