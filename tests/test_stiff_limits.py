@@ -39,6 +39,16 @@ def quarter_car(x, T):
     return np.array([v, dv, P["R"] * (T - P["R"] * fx) / P["J"] - dv])
 
 
+def quarter_car_relax(x, T):
+    """The quarter car with transient slip in NumPy: sigma dkappa_t/dt = v_slip - v kappa_t."""
+    s, v, slip, kappa = x
+    Bk = P["B"] * kappa
+    fx = P["m"] * G * P["D"] * np.sin(P["C"] * np.arctan(Bk - P["E"] * (Bk - np.arctan(Bk))))
+    dv = fx / P["m"]
+    return np.array([v, dv, P["R"] * (T - P["R"] * fx) / P["J"] - dv,
+                     (slip - max(v, P["v_min"]) * kappa) / 0.25])
+
+
 def rk_run(name, f, x0, h, n):
     A, b = (np.array(a, float) for a in TABLEAUS[name])
     xs = [np.array(x0, float)]
@@ -63,17 +73,18 @@ def real_axis_limit(order):
     return min(roots)
 
 
-def onset(name, x0, T, horizon, h_pred):
+def onset(name, x0, T, horizon, h_pred, model=quarter_car):
     """The smallest multiple c of h_pred (0.5 to 8, 2% apart) where a perturbation of one
     state (1e-6 of its scale), run by the method, grows GROWTH times more than the same
     perturbation in SciPy's Radau solution; per state alone, the worst kept."""
-    f = lambda x: quarter_car(x, T)
+    f = lambda x: model(x, T)
     ts = np.linspace(0, horizon, 51)
     ref = lambda y0: solve_ivp(lambda t, x: f(x), (0, horizon), y0, method="Radau", t_eval=ts,
                                rtol=1e-10, atol=1e-12).y.T
     base_ref = ref(x0)
     scale = np.maximum(np.abs(base_ref).max(axis=0), 1.0)
-    dirs = [1e-6 * scale[i] * np.eye(3)[i] for i in range(3)]
+    d = len(x0)
+    dirs = [1e-6 * scale[i] * np.eye(d)[i] for i in range(d)]
     allow = [np.fmax.accumulate(np.max(np.abs(ref(x0 + d) - base_ref) / scale, axis=1)
                                 / 1e-6) for d in dirs]
     for c in 0.5 * 1.02 ** np.arange(141):
@@ -257,3 +268,57 @@ def test_a_stability_horizon_without_the_modes_rule_is_one_clear_line():
         sweep_config.validate(raw, "c")
     raw["stability"]["rule"] = "modes"
     assert sweep_config.validate(raw, "c").stability_horizon == 0.3
+
+
+def ray_limit(order, lam):
+    """The largest h with |P(h lambda)| <= 1 on [0, h] for the Taylor polynomial P of e^z of
+    the method's order: a dense scan of the ray, refined by bisection."""
+    from math import factorial
+    P_abs = lambda h: abs(sum((h * lam) ** k / factorial(k) for k in range(order + 1)))
+    hs = np.linspace(0, 10 / abs(lam), 200001)[1:]
+    out = np.array([P_abs(h) for h in hs]) > 1 + 1e-12
+    lo, hi = hs[np.argmax(out) - 1], hs[np.argmax(out)]
+    for _ in range(60):
+        mid = (lo + hi) / 2
+        lo, hi = (mid, hi) if P_abs(mid) <= 1 else (lo, mid)
+    return lo
+
+
+RELAX = """
+name = "relax-test"
+model = "quarter_car_relax"
+horizon = 0.5
+methods = ["heun", "rk4"]
+envelope = { v = [3.0, 5.0], T = [0.0] }
+error = { states = ["s"] }
+steps = { h = { min = 0.001, max = 0.05, num = 3 } }
+timing = { rounds = 1 }
+stability = { rule = "modes" }
+"""
+
+
+def test_a_lightly_damped_mode_is_predicted_on_its_ray_and_measured_at_its_onset():
+    """The wheel-tyre mode of quarter_car_relax rolling freely, damping ratio v / 78 (0.038
+    at 3 m/s): h_pred is where |P(h lambda)| leaves 1 on the mode's ray (lambda from a
+    finite-difference Jacobian of the NumPy model), and h_meas lies within [0.85, 1.3] of
+    the independent onset."""
+    import tomllib
+
+    import pandas as pd
+    cfg = sweep_config.validate(tomllib.loads(RELAX), "relax-test")
+    cache = {}
+    lim = pd.concat([sweep.compute_chunk(cfg, c, cache)["limits"]
+                     for c in sweep.chunk_ids(cfg) if not c.startswith("reference")])
+    for _, row in lim.iterrows():
+        x0 = np.array([0.0, row["v"], 0.0, 0.0])
+        eps = 1e-7
+        J = np.column_stack([(quarter_car_relax(x0 + eps * e, 0.0)
+                              - quarter_car_relax(x0 - eps * e, 0.0)) / (2 * eps)
+                             for e in np.eye(4)])
+        lam = max(np.linalg.eigvals(J), key=abs)
+        assert abs(lam.imag) > 5 * abs(lam.real)                       # lightly damped
+        assert row["h_pred"] == pytest.approx(ray_limit(ORDER[row["method"]], lam), rel=1e-5)
+        h_on = onset(row["method"], x0, 0.0, cfg.horizon, row["h_pred"],
+                     model=quarter_car_relax)
+        assert 0.85 <= row["h_meas"] / h_on <= 1.3, (row["method"], row["v"], row["h_meas"],
+                                                     h_on)
