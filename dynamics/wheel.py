@@ -59,7 +59,7 @@ def _motion(v, v_slip, fx, T, p):
 
 def quarter_car(t, x, u, p):
     """Quarter car, tyre force F(kappa) at once; p: m, J, R, B, C, D, E, v_min."""
-    s, v, v_slip = x[0], x[1], x[2]
+    v, v_slip = x[1], x[2]
     fx = p["m"] * G * magic_formula(v_slip / _speed(v, p), p)
     return jnp.stack(_motion(v, v_slip, fx, u[0], p))
 
@@ -67,7 +67,7 @@ def quarter_car(t, x, u, p):
 def two_axle(t, x, u, p):
     """Longitudinal single track: both axles' forces on the car, each wheel its own slip;
     p: m, J (per axle), R, lf, lr [m], B, C, D, E, v_min."""
-    s, v, slip_f, slip_r = x[0], x[1], x[2], x[3]
+    v, slip_f, slip_r = x[1], x[2], x[3]
     L, speed = p["lf"] + p["lr"], _speed(v, p)
     fx_f = p["m"] * G * p["lr"] / L * magic_formula(slip_f / speed, p)
     fx_r = p["m"] * G * p["lf"] / L * magic_formula(slip_r / speed, p)
@@ -79,7 +79,7 @@ def two_axle(t, x, u, p):
 def quarter_car_relax(t, x, u, p):
     """Quarter car with transient slip: sigma dkappa_t/dt = v_slip - v kappa_t (Pacejka 2012,
     eq. 7.7, with V_sx = -v_slip); the force F(kappa_t). p: also sigma [m]."""
-    s, v, v_slip, kappa_t = x[0], x[1], x[2], x[3]
+    v, v_slip, kappa_t = x[1], x[2], x[3]
     fx = p["m"] * G * magic_formula(kappa_t, p)
     dkappa = (v_slip - _speed(v, p) * kappa_t) / p["sigma"]
     return jnp.stack([*_motion(v, v_slip, fx, u[0], p), dkappa])

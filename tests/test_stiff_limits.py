@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
 
-from stepzoo.bench import metrics, sweep, sweep_config
+from stepzoo.bench import sweep, sweep_config
 from stepzoo.bench.block import Block
 from stepzoo.bench.stability_runs import directions, state_scales
 
@@ -29,21 +29,24 @@ ORDER = {"euler": 1, "heun": 2, "rk3": 3, "rk4": 4}
 GROWTH = 100.0
 
 
+def tyre_force(kappa):
+    """Pacejka's magic formula at slip kappa, times the quarter car's load [N]."""
+    Bk = P["B"] * kappa
+    return P["m"] * G * P["D"] * np.sin(P["C"] * np.arctan(Bk - P["E"] * (Bk - np.arctan(Bk))))
+
+
 def quarter_car(x, T):
-    """The quarter car in NumPy (Pacejka's magic formula, wheel dynamics in slip velocity)."""
-    s, v, slip = x
-    k = slip / max(v, P["v_min"])
-    Bk = P["B"] * k
-    fx = P["m"] * G * P["D"] * np.sin(P["C"] * np.arctan(Bk - P["E"] * (Bk - np.arctan(Bk))))
+    """The quarter car in NumPy (wheel dynamics in slip velocity)."""
+    _, v, slip = x
+    fx = tyre_force(slip / max(v, P["v_min"]))
     dv = fx / P["m"]
     return np.array([v, dv, P["R"] * (T - P["R"] * fx) / P["J"] - dv])
 
 
 def quarter_car_relax(x, T):
     """The quarter car with transient slip in NumPy: sigma dkappa_t/dt = v_slip - v kappa_t."""
-    s, v, slip, kappa = x
-    Bk = P["B"] * kappa
-    fx = P["m"] * G * P["D"] * np.sin(P["C"] * np.arctan(Bk - P["E"] * (Bk - np.arctan(Bk))))
+    _, v, slip, kappa = x
+    fx = tyre_force(kappa)
     dv = fx / P["m"]
     return np.array([v, dv, P["R"] * (T - P["R"] * fx) / P["J"] - dv,
                      (slip - max(v, P["v_min"]) * kappa) / 0.25])
@@ -124,7 +127,7 @@ def wheel_limits():
 
 def test_predicted_limit_is_the_exact_stability_polynomials_root_at_free_rolling(wheel_limits):
     """Free rolling: the wheel mode is -(R^2/J + 1/m) Fz B C D / v, constant in time."""
-    cfg, lim = wheel_limits
+    _, lim = wheel_limits
     free = lim[lim["T"] == 0.0]
     for _, row in free.iterrows():
         lam = (P["R"] ** 2 / P["J"] + 1 / P["m"]) * P["m"] * G * P["B"] * P["C"] * P["D"] \
