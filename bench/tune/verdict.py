@@ -16,6 +16,7 @@ from stepzoo.bench.sweep import metrics
 from stepzoo.bench.model import nonfinite as model_nan
 from stepzoo.bench.sweep.block import Block
 from stepzoo.bench.sweep.engine import n_blocks
+from stepzoo.bench.sweep.config import run_steps
 
 # The per-point fields of `stepzoo verdict` (CSV columns, JSON keys), after the envelope's
 # variables.
@@ -37,7 +38,7 @@ def verdict(cfg, method_name: str, h: float) -> pd.DataFrame:
     cfg = dataclasses.replace(cfg, hs=(h,), h_probe_max=max(cfg.h_probe_max, 2.0 * h))
     cache, rows = {}, []
     for block in range(n_blocks(cfg)):
-        work = Block(cfg, block, cache, max_steps=max(n, cfg.stab_steps))
+        work = Block(cfg, block, cache, max_steps=max(n, run_steps(cfg)))
         pts = work.points
         grid = work.stable(meth, np.full((len(pts), 1), h))
         ok, conv = grid.stable, grid.converged
