@@ -28,6 +28,10 @@ def add_arguments(p):
     p.add_argument("--rounds", type=int, default=None, metavar="N",
                    help="timed rounds of each method's calibration (default "
                    f"{ROUNDS}): the fastest counts")
+    p.add_argument("--allow-beyond-predicted-limit", action="store_true",
+                   help="risky: let a step qualify above its predicted (frozen-Jacobian) "
+                   "largest stable step where the measurement saw no instability; by default "
+                   "h <= (1 - margin) x the smaller of the predicted and measured limits")
     tune_plans.add_arguments(p)
     p.add_argument("--out", required=True, metavar="FILE", help="tuned planner config (TOML)")
     p.add_argument("--format", choices=["text", "json"], default="text")
@@ -42,18 +46,21 @@ def planner_call() -> tuple[int, float]:
 
 
 def tune(results, pos_tol, margin: float, out, tol=None, cost: str = "time",
-         rounds: int | None = None, plans=None) -> dict:
+         rounds: int | None = None, plans=None, beyond_predicted: bool = False) -> dict:
     """Choose (method, h) from the sweep folder `results` (a position tolerance `pos_tol` [m]
     or a tolerance `tol` on the config's error norm, stability margin `margin`, a fraction),
     ranked by `cost` ("time", calibrated in the planner's call, or "evals"), and write it to
     the file `out`; returns the choice, chosen among the qualifying candidates by planning
-    when `plans` (a tune_plans.Trial) is given. `stepzoo tune` and `stepzoo run` call it."""
+    when `plans` (a tune_plans.Trial) is given; `beyond_predicted` drops the predicted limit
+    from the margin rule (--allow-beyond-predicted-limit). `stepzoo tune` and `stepzoo run`
+    call it."""
     from stepzoo.bench.tune import tune as choose
     from stepzoo.bench.tune import write
     out = check_file_target(out)          # before the work, not only when writing
     batch, interval = planner_call()
     tuned = choose(results, pos_tol, margin, tol, batch=batch, interval_s=interval, cost=cost,
-                   rounds=ROUNDS if rounds is None else rounds)
+                   rounds=ROUNDS if rounds is None else rounds,
+                   beyond_predicted=beyond_predicted)
     if plans is not None:
         tuned = plans.choose(tuned, results)
     write(tuned, out)
@@ -66,6 +73,8 @@ def show(tuned: dict, out, fmt: str = "text") -> None:
         print(to_json({"out": str(out), **tuned}))
         return
     print(f"chose {tuned['method']} at h = {tuned['h']:g} s: {tuned['why']}")
+    if not tuned["stiff"]:          # a stiff finding is in `why` already
+        print(tuned["stiffness"]["says"])
     rows = [{"method": r["method"], "h": r.get("h"), "evals_per_s": r.get("cost_evals_per_s"),
              "time_per_s": r.get("cost_time_per_s"), "reason": r["reason"]}
             for r in tuned["runners_up"]]
@@ -77,6 +86,6 @@ def show(tuned: dict, out, fmt: str = "text") -> None:
 
 def main(args) -> int:
     tuned = tune(args.results, args.pos_tol, args.margin, args.out, args.tol, args.cost,
-                 args.rounds, tune_plans.trial(args))
+                 args.rounds, tune_plans.trial(args), args.allow_beyond_predicted_limit)
     show(tuned, args.out, args.format)
     return 0
