@@ -131,8 +131,7 @@ def says(stiff: bool, h_explicit: float, h_accurate: float, method, found) -> st
     if stiff:
         return (f"the model is stiff: explicit steps are bound below {h_explicit:.3g} s by "
                 f"{describe(found)}, while {method} meets the tolerance within its limits up "
-                f"to h = {h_accurate:.3g} s ({ratio:.3g} x); implicit and Rosenbrock methods "
-                "are ranked with the explicit ones by measured time")
+                f"to h = {h_accurate:.3g} s ({ratio:.3g} x)")
     return (f"not stiff: accuracy allows {h_accurate:.3g} s ({method}), {ratio:.3g} x the "
             f"largest explicit limit {h_explicit:.3g} s (stiff from {STIFF_RATIO:g} x)")
 

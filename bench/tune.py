@@ -183,7 +183,8 @@ def tune(folder, pos_tol, margin: float, tol=None, *, batch: int = PLANNER_BATCH
         why += (f"; it is {choice['h_over_h_pred_max']:.3g} x its predicted limit at some "
                 f"point, allowed by {BEYOND_PREDICTED} only")
     if stiff["stiff"]:
-        why += f"; {stiff['says']}"
+        why += (f"; {stiff['says']}; implicit and Rosenbrock methods are ranked with the "
+                "explicit ones by measured time")
     runners = [_runner(r, choice, crit, cost) for _, r in per_method.iloc[1:].iterrows()]
     for name in sorted(set(table["method"]) - set(per_method["method"])):
         runners.append(_infeasible(table[table["method"] == name], name, crit, margin,
