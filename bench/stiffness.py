@@ -133,7 +133,8 @@ def says(stiff: bool, h_explicit: float, h_accurate: float, method, found) -> st
                 f"{describe(found)}, while {method} meets the tolerance within its limits up "
                 f"to h = {h_accurate:.3g} s ({ratio:.3g} x)")
     return (f"not stiff: accuracy allows {h_accurate:.3g} s ({method}), {ratio:.3g} x the "
-            f"largest explicit limit {h_explicit:.3g} s (stiff from {STIFF_RATIO:g} x)")
+            f"largest explicit limit {h_explicit:.3g} s (stiff from {STIFF_RATIO:g} x), bound "
+            f"by {describe(found)}")
 
 
 def of_sweep(runs, limits, column: str, tol: float, cfg=None, variables=()) -> dict:

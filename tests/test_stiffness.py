@@ -80,3 +80,21 @@ def test_the_tiny_bicycle_is_not_stiff(tiny_sweep, tmp_path):
     assert stepzoo(["tune", str(folder), "--tol", "0.05", "--out", str(tmp_path / "t.toml")]) == 0
     tuned = tomllib.loads((tmp_path / "t.toml").read_text())
     assert not tuned["stiff"] and tuned["stiffness"]["ratio"] < STIFF_RATIO
+
+
+def test_the_sweep_summary_names_the_binding_mode(wheel, capsys):
+    """`stepzoo sweep` prints the finding at the report's default tolerance (the error norm's
+    1e-3: there rk4 at 1 ms is what accuracy needs, so not stiff) with the mode, and its JSON
+    has it as `stiffness`."""
+    import json
+
+    from stepzoo.cli.sweep import show
+    folder, _ = wheel
+    manifest = json.loads((folder / "manifest.json").read_text())
+    show(manifest, folder)
+    line = next(ln for ln in capsys.readouterr().out.splitlines() if ln.startswith("at err"))
+    assert line.startswith("at err <= 0.001 (the report's default): not stiff")
+    assert "lambda = -589 1/s (mostly omega" in line
+    show(manifest, folder, "json")
+    got = json.loads(capsys.readouterr().out)["stiffness"]
+    assert got["mode"]["state"] == "omega" and got["tolerance"] == {"err": 0.001}
