@@ -11,7 +11,8 @@ from stepzoo.bench import frozen, limit_search, nonsmooth, reference_backend
 from stepzoo.bench.limit_search import MeasuredLimit, Outcome
 from stepzoo.bench.method_runs import Runner
 from stepzoo.bench.points import Points
-from stepzoo.bench.stability_runs import StabilityRuns, perturbation
+from stepzoo.bench.stability_runs import (Diagnosis, ModalRuns, StabilityRuns, directions,
+                                          perturbation, reference_growth, state_scales)
 from stepzoo.bench.stopwatch import Stopwatch
 
 TRAJ_SAMPLES = 200     # reference samples of the figure trajectory
@@ -48,7 +49,8 @@ class Block:
         self.points = Points.block(cfg, block)
         self.watch = Stopwatch() if watch is None else watch
         self.reference_backend = reference_backend.choose(cfg)
-        steps = max(round(cfg.horizon / cfg.hs[0]), cfg.stab_steps)
+        from stepzoo.bench.sweep_config import run_steps
+        steps = run_steps(cfg)
         self.run = Runner(cfg.spec, steps if max_steps is None else max_steps, self.watch)
 
     def cached(self, key, make):
@@ -108,9 +110,52 @@ class Block:
         return self.cached("perturbation", lambda: perturbation(
             self.spec, self.along().jac[:, 0], self.cfg.perturbation))
 
-    def stability_runs(self) -> StabilityRuns:
-        return StabilityRuns(self.run, self.points, self.delta, self.cfg.stab_steps,
-                             self.cfg.growth)
+    def modal(self) -> tuple:
+        """The "modes" rule's (deviations (B, K, d), state scales (B, d), times ts (T,) [s],
+        the reference's running-largest growth (B, K, T) of each deviation there), over the
+        stability horizon (stability_runs.MODES_RULE)."""
+        def make():
+            cfg = self.cfg
+            T = cfg.stability_horizon
+            dt = T / ALONG_SAMPLES
+            base = self.along().xs if T == cfg.horizon else \
+                self.reference(dt, ALONG_SAMPLES).x
+            scales = state_scales(self.spec, base)
+            delta = directions(self.along().jac[:, 0], scales, cfg.perturbation,
+                               self.points.lanes)
+            grow = reference_growth(lambda pts: self.reference(dt, ALONG_SAMPLES, pts),
+                                    self.points, base, delta, scales)
+            return delta, scales, dt * np.arange(ALONG_SAMPLES + 1), grow
+        return self.cached("modal", make)
+
+    def stability_runs(self):
+        """The stability test of the config's [stability] rule."""
+        cfg = self.cfg
+        if cfg.stab_rule == "blowup":
+            return StabilityRuns(self.run, self.points, self.delta, cfg.stab_steps, cfg.growth)
+        return ModalRuns(self.run, self.points, *self.modal(), cfg.stability_horizon,
+                         cfg.growth)
+
+    def diagnose(self, meth, h_meas) -> Diagnosis:
+        """Per lane, what fails just above its measured limit h_meas (B,) [s] (at the grid's
+        smallest step where nothing was stable; nothing where nothing failed): the "modes"
+        rule's diagnosis, NaN/-1 under the "blowup" rule."""
+        B = len(self.points)
+        none = Diagnosis(np.full(B, -1), np.full(B, np.nan), np.full(B, np.nan),
+                         np.full(B, np.nan))
+        runs = self.stability_runs()
+        if not isinstance(runs, ModalRuns):
+            return none
+        h = np.where(h_meas > 0, h_meas * (1 + self.cfg.rel_tol), self.cfg.hs[0])
+        lanes = np.where(np.isfinite(h))[0]
+        if not len(lanes):
+            return none._replace(ref_growth=np.nanmax(runs.ref_growth, axis=(1, 2)))
+        found = runs.judge(meth, lanes, h[lanes])[1]
+        out = Diagnosis(*(a.copy() for a in none))
+        for name, col in zip(Diagnosis._fields, found):
+            getattr(out, name)[lanes] = col
+        out.ref_growth[:] = np.nanmax(runs.ref_growth, axis=(1, 2))
+        return out
 
     def stable(self, meth, H) -> Outcome:
         """Outcomes (B, K) of the stability runs at steps H (B, K) [s], row b at lane b."""
@@ -124,7 +169,7 @@ class Block:
         cfg = self.cfg
         return limit_search.measured_limit(grid, self.stability_runs().probe(meth), cfg.hs,
                                            pred, cfg.h_probe_max, cfg.rel_tol,
-                                           len(self.points))
+                                           len(self.points), ladder=cfg.stab_rule != "blowup")
 
     # -- the figure trajectory --------------------------------------------------------------
     def trajectory_points(self) -> Points:

@@ -48,6 +48,7 @@ def method_chunk(block, name: str) -> dict:
         col["stable"] &= col["converged"]
     predicted = block.predicted(meth)
     measured = block.measured_limits(meth, grid, np.array([p.h for p in predicted]))
+    diagnosis = block.diagnose(meth, measured.h_meas)
     along = block.along()
     events = block.nonsmooth()
     with block.watch.clock("metrics_s"):
@@ -61,8 +62,10 @@ def method_chunk(block, name: str) -> dict:
             fit = metrics.order_fit(rows["h"], rows["err"], cfg.rtol, cfg.atol, err_scale[lane])
             limits.append(_limit_row(block, meth, lane, i, predicted[lane], fit, along,
                                      measured.h_meas[lane], measured.cause[lane])
-                          | events[lane].columns())
+                          | events[lane].columns() | _diagnosis(block, diagnosis, lane))
     model_nan.record(limits, model_nan.lane_times(block))
+    for row in limits:
+        row["limit_note"] = metrics.limit_note(row, cfg.growth)
     traj = trajectory_runs.method_rows(block, meth) if block.block == 0 else pd.DataFrame()
     limits_df = pd.DataFrame(limits, columns=schema.limit_columns(block.spec.variables,
                                                                   block.spec.states))
@@ -84,6 +87,14 @@ def _limit_row(block, meth, lane, point, pred, fit, along, h_meas, cause) -> dic
         lam_re_bind=bind.real, lam_im_bind=bind.imag, limit_cause=cause,
         **{f"bind_{s}": along.xs[lane, k, c] if k >= 0 else np.nan
            for c, s in enumerate(spec.states)})
+
+
+def _diagnosis(block, diag, lane) -> dict:
+    """The limits row's stability diagnosis columns of one lane (block.diagnose)."""
+    j = int(diag.state[lane])
+    return {"unstable_state": block.spec.states[j] if j >= 0 else "",
+            "unstable_t": float(diag.t[lane]), "growth_ratio": float(diag.growth_ratio[lane]),
+            "ref_growth": float(diag.ref_growth[lane])}
 
 
 def _accuracy_runs(block, meth) -> tuple[list[dict], np.ndarray]:

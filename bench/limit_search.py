@@ -16,6 +16,7 @@ NARROWING = ("the grid's bracket [lo, hi] (lo stable, hi not) shrinks to hi / lo
              "evenly; h_meas is lo, so ratio 1 means a limit in [h_pred, h_pred (1 + rel_tol))")
 RISE_DOUBLINGS = 64     # the upward ladder's doublings of the grid's largest step, at most
 FALL_HALVINGS = 10      # the downward ladder's halvings of its smallest
+PRED_LADDER = 2.0 ** (np.arange(-1, 7) / 2)   # multiples of h_pred probed besides the grid
 
 
 class Outcome(NamedTuple):
@@ -62,59 +63,61 @@ def _cause(converged: bool) -> str:
 
 
 def bracket(grid: Outcome, hs) -> Bracket:
-    """Brackets from the outcomes (B, K) at the grid's steps hs (K,) [s]: between the last
-    stable step before the first failure and that failure; NaN where the grid's first or no
-    step fails."""
-    hs = np.asarray(hs)
+    """Brackets from the outcomes (B, K) at the steps hs [s] (K,), or per lane (B, K),
+    ascending: between the last stable step before the first failure and that failure; NaN
+    where the first or no step fails."""
     B = len(grid.stable)
+    hs = np.broadcast_to(np.asarray(hs, float), grid.stable.shape)
     lo, hi = np.full(B, np.nan), np.full(B, np.nan)
     cause = np.full(B, "none", object)
     bad = ~grid.stable
     first = np.argmax(bad, axis=1)
-    inner = bad.any(axis=1) & (first > 0)
-    lo[inner], hi[inner] = hs[first[inner] - 1], hs[first[inner]]
+    inner = np.where(bad.any(axis=1) & (first > 0))[0]
+    lo[inner], hi[inner] = hs[inner, first[inner] - 1], hs[inner, first[inner]]
     cause[inner] = np.where(grid.converged[inner, first[inner]], "unstable", "solver failed")
     return Bracket(lo, hi, cause)
 
 
 def extend(br: Bracket, probe: Probe, grid: Outcome, hs, h_probe_max: float,
            pred) -> Bracket:
-    """Brackets for the lanes the grid left open: those stable at its largest step climb a
-    doubling ladder to h_probe_max [s] (both ends inf where nothing fails), those unstable at
-    its smallest descend a halving one (both 0 where nothing is stable). Where the predicted
-    limit pred [s] is inf, one probe at h_probe_max comes first; the ladder climbs only for
-    the lanes that fail there, where the prediction is off."""
-    hs = np.asarray(hs)
+    """Brackets for the lanes the grid (steps hs [s], (K,) or per lane (B, K)) left open:
+    those stable at its largest step climb a doubling ladder to h_probe_max [s] (both ends
+    inf where nothing fails), those unstable at its smallest descend a halving one (both 0
+    where nothing is stable). Where the predicted limit pred [s] is inf, one probe at
+    h_probe_max comes first; the ladder climbs only for the lanes that fail there, where the
+    prediction is off."""
+    hs = np.broadcast_to(np.asarray(hs, float), grid.stable.shape)
     lo, hi, cause = br.lo.copy(), br.hi.copy(), br.cause.copy()
-    up = [hs[-1] * 2.0 ** k for k in range(1, RISE_DOUBLINGS)
-          if hs[-1] * 2.0 ** k < h_probe_max]
     rising = np.where(np.isnan(lo) & grid.stable[:, -1])[0]
     unbounded = rising[np.isinf(pred[rising])]
     if len(unbounded):
         ok = at_steps(probe, unbounded, np.array([h_probe_max])).stable[:, 0]
         lo[unbounded[ok]] = hi[unbounded[ok]] = np.inf
         rising = np.setdiff1d(rising, unbounded[ok])
-    if len(rising):
-        ladder = np.array([*up, h_probe_max])
-        ok, _, conv = at_steps(probe, rising, ladder)
-        for r, b in enumerate(rising):
+    for top in np.unique(hs[rising, -1]):
+        lanes = rising[hs[rising, -1] == top]
+        ladder = np.array([*(top * 2.0 ** k for k in range(1, RISE_DOUBLINGS)
+                             if top * 2.0 ** k < h_probe_max), h_probe_max])
+        ok, _, conv = at_steps(probe, lanes, ladder)
+        for r, b in enumerate(lanes):
             fails = np.where(~ok[r])[0]
             if len(fails):
                 j = fails[0]
-                lo[b], hi[b] = ladder[j - 1] if j else hs[-1], ladder[j]
+                lo[b], hi[b] = ladder[j - 1] if j else top, ladder[j]
                 cause[b] = _cause(conv[r, j])
             else:
                 lo[b] = hi[b] = np.inf
     falling = np.where(np.isnan(lo))[0]
-    if len(falling):
-        ladder = hs[0] / 2.0 ** np.arange(1, FALL_HALVINGS + 1)
-        ok = at_steps(probe, falling, ladder).stable
-        for r, b in enumerate(falling):
+    for low in np.unique(hs[falling, 0]):
+        lanes = falling[hs[falling, 0] == low]
+        ladder = low / 2.0 ** np.arange(1, FALL_HALVINGS + 1)
+        ok = at_steps(probe, lanes, ladder).stable
+        for r, b in enumerate(lanes):
             fine = np.where(ok[r])[0]
             cause[b] = _cause(grid.converged[b, 0])
             if len(fine):
                 j = fine[0]
-                lo[b], hi[b] = ladder[j], ladder[j - 1] if j else hs[0]
+                lo[b], hi[b] = ladder[j], ladder[j - 1] if j else low
             else:
                 lo[b] = hi[b] = 0.0
     return Bracket(lo, hi, cause)
@@ -182,11 +185,31 @@ def candidates(lo, hi, guess, width, k, first, tau):
     return (hi - width * np.arange(1, k + 1) / k)[::-1]
 
 
+def with_ladder(grid: Outcome, probe: Probe, hs, pred) -> tuple[Outcome, np.ndarray]:
+    """The grid's outcomes (B, K) at steps hs (K,) [s] with the probes at PRED_LADDER times
+    each lane's finite predicted limit pred (B,) [s] merged in, per lane ascending: (the
+    outcomes (B, K + L), their steps (B, K + L)). A test that is not monotone in h (a
+    saturating model's chatter that needs steps within the horizon to grow) can pass at a
+    coarse grid step above a failing one; the ladder probes where the limit should be."""
+    B = len(grid.stable)
+    ok = np.isfinite(pred) & (pred > 0)
+    extra = np.where(ok[:, None], pred[:, None] * PRED_LADDER, np.asarray(hs, float)[-1])
+    more = at_steps(probe, np.arange(B), extra.T)
+    H = np.concatenate([np.broadcast_to(np.asarray(hs, float), grid.stable.shape), extra], 1)
+    order = np.argsort(H, axis=1, kind="stable")
+    pick = lambda a, b: np.take_along_axis(np.concatenate([a, b], 1), order, 1)
+    return Outcome(*(pick(a, b) for a, b in zip(grid, more))), \
+        np.take_along_axis(H, order, 1)
+
+
 def measured_limit(grid: Outcome, probe: Probe, hs, pred, h_probe_max: float,
-                   rel_tol: float, slots: int) -> MeasuredLimit:
+                   rel_tol: float, slots: int, ladder: bool = False) -> MeasuredLimit:
     """The largest stable step per lane [s] from the grid's outcomes (B, K) at steps hs (K,):
-    bracketed, extended, then narrowed to rel_tol from the predicted limits pred (B,) [s].
-    inf: nothing failed up to h_probe_max; 0: unstable even at the smallest probe."""
+    bracketed (with the probes of `with_ladder` where `ladder`), extended, then narrowed to
+    rel_tol from the predicted limits pred (B,) [s]. inf: nothing failed up to h_probe_max;
+    0: unstable even at the smallest probe."""
+    if ladder:
+        grid, hs = with_ladder(grid, probe, hs, pred)
     br = extend(bracket(grid, hs), probe, grid, hs, h_probe_max, pred)
     if (np.isfinite(br.hi) & (br.hi > br.lo * (1 + rel_tol))).any():
         br = narrow(br, probe, pred, rel_tol, slots)

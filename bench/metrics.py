@@ -14,6 +14,7 @@ BLOWUP_RULE = ("A stability run starts from the operating point's initial state 
                "distance in the error norm is not finite or exceeds `growth` times its start, "
                "and is stable if that never happens within `steps` steps and every nonlinear "
                "solve converged.")
+AGREE_TOL = 0.1          # h_meas / h_pred within [1 / (1 + tol), 1 + tol]: they agree
 ERR_CEIL = 1.0            # errors this many times the solution's size are not asymptotic
 FLOOR_FACTOR = 10.0       # errors below this many reference tolerances are not the method's
 SLOPE_SPREAD = 0.1        # local slopes of one asymptotic range differ by at most this
@@ -139,6 +140,15 @@ def order_status(observed: float, declared: float, note: str,
     return "below declared" if observed < declared else "above declared"
 
 
+def disagreement(limits) -> dict:
+    """A method's points (`limits` rows) whose limit_note is not "agrees", their number and
+    most common note."""
+    notes = limits["limit_note"] if "limit_note" in limits else limits.iloc[:0, 0]
+    off = notes[notes != "agrees"]
+    return {"disagreeing_points": int(len(off)),
+            "disagreement_note": str(off.value_counts().index[0]) if len(off) else ""}
+
+
 def own_limits(limits) -> dict:
     """A method's limits over its points (`limits` rows, one method), the solver's apart from
     the method's: h_meas_min [s] over the points where the method itself blew up or nothing
@@ -158,3 +168,33 @@ def own_limits(limits) -> dict:
             "solver_limited_points": int(failed.sum()),
             "h_solver_limit_min": float(limits["h_meas"][failed].min()) if failed.any()
             else float("nan")}
+
+
+def limit_note(row: dict, growth: float, tol: float = AGREE_TOL) -> str:
+    """Why a `limits` row's h_meas and h_pred differ, from its columns ("agrees" where the
+    ratio lies within [1 / (1 + tol), 1 + tol] or both are unbounded): the model's own
+    divergence (ref_growth > growth), a failed solve, non-smooth f, or the measured run's
+    binding state and time against the prediction's."""
+    pred, meas, ratio = row["h_pred"], row["h_meas"], row["ratio"]
+    close = np.isfinite(ratio) and ratio > 0 and abs(np.log(ratio)) <= np.log1p(tol)
+    if close or (np.isinf(pred) and np.isinf(meas)):
+        return "agrees"
+    fail = (f"state {row['unstable_state']} departs at t = {row['unstable_t']:.3g} s"
+            if row.get("unstable_state") else "")
+    if row.get("ref_growth", np.nan) > growth:
+        return (f"the model is unstable here: the reference's own perturbation grows "
+                f"{row['ref_growth']:.3g}-fold within the horizon (the method is judged "
+                f"against that growth){'; ' + fail if fail else ''}")
+    if row["limit_cause"] == "solver failed":
+        return "a nonlinear solve failed inside the horizon just above h_meas"
+    if np.isfinite(row.get("nonsmooth_t", np.nan)):
+        return (f"f is not smooth at t = {row['nonsmooth_t']:.3g} s ({row['nonsmooth_what']}, "
+                f"{row['nonsmooth_kind']}): the frozen Jacobians do not bound the step there")
+    if np.isinf(meas):
+        return f"nothing failed up to h_probe_max = {row['h_probe_max']:.3g} s"
+    if meas > pred:
+        return (f"measured above the prediction: the mode binding at t = {row['t_bind']:.3g} "
+                f"s is that fast only briefly or saturates within the horizon; just above "
+                f"h_meas {fail or 'no state departs'}")
+    return (f"unstable below the prediction (a nonlinear effect the frozen Jacobians do not "
+            f"see){': ' + fail if fail else ''}")

@@ -42,6 +42,11 @@ TIMING = ["chunk", "method", "compile_s", "ref_compile_s", "reference_s", "integ
 NONSMOOTH_TAIL = ["nonsmooth_t", "nonsmooth_what", "nonsmooth_kind", "nonsmooth_events"]
 SUMMARY = [*SUMMARY, "nonsmooth_points", "nonsmooth_note"]
 
+# The stability test's diagnosis just above the measured limit ("modes" rule;
+# bench.stability_runs.MODES_RULE), and why measured and predicted differ (metrics.limit_note).
+STABILITY_TAIL = ["unstable_state", "unstable_t", "growth_ratio", "ref_growth", "limit_note"]
+SUMMARY = [*SUMMARY, "disagreeing_points", "disagreement_note"]
+
 # Measured wall times: they differ between two runs of the same config.
 MEASURED = {*timing.MEASURED, "time_s", "compile_s", "ref_compile_s", "reference_s",
             "integration_s", "stability_s", "metrics_s", "total_s"}
@@ -123,6 +128,17 @@ COLUMN_DOC = {
     "nonsmooth_note": "where, and the remedy",
     "lam_re": "real part of an eigenvalue of df/dx at the initial state [1/s]",
     "lam_im": "imaginary part of that eigenvalue [1/s]", "t": "time [s]",
+    "unstable_state": "the state whose deviation was largest where the run just above h_meas "
+                      "failed (empty: nothing failed)",
+    "unstable_t": "when that run failed [s] (NaN: it did not)",
+    "growth_ratio": "that run's perturbation growth over the reference's own, the largest "
+                    "over the run and the directions",
+    "ref_growth": "the reference's own largest perturbation growth within the stability "
+                  "horizon (above `growth`: the model itself diverges)",
+    "limit_note": "agrees (ratio within the agreement tolerance), or why h_meas and h_pred "
+                  "differ",
+    "disagreeing_points": "points whose limit_note is not 'agrees'",
+    "disagreement_note": "the most common reason among them (empty: none)",
     STATE: "the state's value", "past_limit": "the sample step past the predicted limit",
 }
 
@@ -134,7 +150,7 @@ def run_columns(variables, states, vehicle: bool) -> list[str]:
 
 def limit_columns(variables, states) -> list[str]:
     return ["method", "point", *variables, *LIMIT_TAIL, *[f"bind_{s}" for s in states],
-            *ORDER_TAIL, *NONSMOOTH_TAIL, "model_nan_t"]
+            *ORDER_TAIL, *NONSMOOTH_TAIL, "model_nan_t", *STABILITY_TAIL]
 
 
 def eigen_columns(variables) -> list[str]:

@@ -6,6 +6,7 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass
 from functools import partial
+from typing import NamedTuple
 
 import numpy as np
 
@@ -75,3 +76,183 @@ class StabilityRuns:
             t_blow[part] = np.where(k < 0, np.nan, k * hh[:m])
             self.runner.watch.add("stability_s", a.run_s + b.run_s + time.perf_counter() - t0)
         return Outcome(ok, t_blow, conv)
+
+
+# ---- the "modes" rule: every state, each direction alone, against the reference's growth --
+
+MODES = 3          # the fastest constraining eigenmodes perturbed, each in runs of its own
+DIRECTIONS = 4     # directions per point: the modes, then seeded random ones
+SEED = 20261128    # of the random directions, with the point's index
+STATE_FLOOR = 1.0  # a state's scale where it and its error scale are absent or 0 [its unit]
+MODES_RULE = (
+    f"Each stability run starts from the initial state plus one of {DIRECTIONS} directions: "
+    f"the real part of each of the {MODES} fastest eigenmodes of df/dx there that bound a "
+    f"step (by |lambda|), then random ones (NumPy's default_rng seeded {SEED} and the "
+    "point's index); each direction alone, so that modes cannot cancel, sized "
+    "`perturbation` in the state norm: the largest |dx_i| / scale_i over every state, "
+    "scale_i the state's largest |x_i| along the reference (at least its error scale; "
+    f"{STATE_FLOOR:g} where both are 0). It is compared with the same method's run from the "
+    "initial state, step by step up to the stability horizon (ceil(horizon / h) steps), and "
+    "is unstable at the first step where their distance in the state norm is not finite or "
+    "exceeds `growth` times its start times the reference's own growth of that direction "
+    "so far (at least 1: the reference solved from both states). A run whose nonlinear "
+    "solve failed inside the horizon is never stable; failures past it are not counted. "
+    "Where the reference's own growth exceeds `growth`, the model itself diverges there.")
+
+
+class Diagnosis(NamedTuple):
+    """Per candidate (N,): the state whose deviation was largest where the run failed (its
+    index, -1 where none), that time [s] (NaN where none), the method's growth over the
+    reference's (the largest over the run and the directions), and the reference's own
+    largest growth over the horizon."""
+    state: np.ndarray
+    t: np.ndarray
+    growth_ratio: np.ndarray
+    ref_growth: np.ndarray
+
+
+def state_scales(spec, xs: np.ndarray) -> np.ndarray:
+    """(B, d) each state's scale: its largest |x_i| over the reference xs (B, T, d), at least
+    its error scale for an error state, STATE_FLOOR where both are 0 (or not finite)."""
+    with np.errstate(invalid="ignore"):
+        s = np.nanmax(np.abs(xs), axis=1)
+    floor = np.zeros(xs.shape[-1])
+    floor[spec.error_index] = spec.error_scales
+    s = np.fmax(np.nan_to_num(s, nan=0.0, posinf=0.0), floor)
+    return np.where(s > 0, s, STATE_FLOOR)
+
+
+def directions(jac0: np.ndarray, scales: np.ndarray, size: float, ids) -> np.ndarray:
+    """(B, DIRECTIONS, d) initial deviations: per point (ids: the config's point indices)
+    the real part of each of its MODES fastest constraining eigenmodes at the Jacobian jac0
+    (B, d, d) (its imaginary part where that is 0), then seeded random directions, each
+    scaled to `size` in the state norm max_i |d_i| / scales_i."""
+    B, d = jac0.shape[:2]
+    out = np.zeros((B, DIRECTIONS, d))
+    for b in range(B):
+        modes = []
+        if np.isfinite(jac0[b]).all():
+            w, V = np.linalg.eig(jac0[b])
+            keep = np.where(frozen.constraining(w) & (w.imag >= 0))[0]
+            for j in keep[np.argsort(-np.abs(w[keep]))][:MODES]:
+                v = V[:, j].real if np.abs(V[:, j].real).max() > 0 else V[:, j].imag
+                modes.append(v)
+        rng = np.random.default_rng([SEED, int(ids[b])])
+        while len(modes) < DIRECTIONS:
+            modes.append(rng.standard_normal(d) * scales[b])
+        for k, v in enumerate(modes):
+            out[b, k] = size * v / np.max(np.abs(v) / scales[b])
+    return out
+
+
+def _state_norm(dx, scales):
+    """max_i |dx_i| / scales_i over the last axis (inf where any is not finite)."""
+    with np.errstate(invalid="ignore", over="ignore"):
+        d = np.abs(dx) / scales
+        return np.where(np.isfinite(d).all(axis=-1), d.max(axis=-1), np.inf)
+
+
+@dataclass(frozen=True)
+class ModalRuns:
+    """The "modes" stability test (MODES_RULE) of a block's lanes: deviations delta (B, K,
+    d), state scales (B, d), the reference's running-largest growth ref_growth (B, K, T) of
+    each direction at the times ts (T,) [s] up to the stability horizon [s]; runs by
+    `runner` (bench.method_runs.Runner)."""
+    runner: object
+    points: object
+    delta: np.ndarray
+    scales: np.ndarray
+    ts: np.ndarray
+    ref_growth: np.ndarray
+    horizon: float
+    growth: float
+
+    def probe(self, meth) -> Probe:
+        return partial(self.runs_at, meth)
+
+    def runs_at(self, meth, lanes, h) -> Outcome:
+        """Outcomes (N,) of candidate steps h (N,) [s] at lanes (N,)."""
+        return self.judge(meth, lanes, h)[0]
+
+    def steps(self, h) -> np.ndarray:
+        """Steps that reach the stability horizon at h [s] (at most the runner's)."""
+        n = np.ceil(self.horizon / np.asarray(h, float) - 1e-9)
+        return np.minimum(n, self.runner.max_steps).astype(int)
+
+    def judge(self, meth, lanes, h) -> tuple[Outcome, Diagnosis]:
+        """The outcomes (N,) of candidates h (N,) [s] at lanes (N,) and their diagnosis. Per
+        call of the block's size: each candidate's run from the initial state and one per
+        direction, as lanes of their own."""
+        lanes, h = np.asarray(lanes), np.asarray(h, float)
+        N, K, B = len(h), self.delta.shape[1], len(self.points)
+        n_own = self.steps(h)
+        runs = [(i, k) for i in range(N) for k in range(-1, K)]     # k = -1: unperturbed
+        x = [None] * len(runs)
+        conv = np.zeros(len(runs), bool)
+        for start in range(0, len(runs), B):
+            part = runs[start: start + B]
+            idx = np.resize([lanes[i] for i, _ in part], B)
+            hh = np.resize([h[i] for i, _ in part], B)
+            x0, u, p = self.points.take(idx)
+            dx = np.zeros_like(x0)
+            for r, (i, k) in enumerate(part):
+                if k >= 0:
+                    dx[r] = self.delta[lanes[i], k]
+            n = int(max(n_own[i] for i, _ in part))
+            run = self.runner(meth, x0 + dx, u, p, hh, n)
+            self.runner.watch.add("stability_s", run.run_s)
+            for r, (i, _) in enumerate(part):
+                x[start + r] = run.x[r, : n_own[i] + 1]
+                # A solve that failed leaves NaN from its step on (the driver's contract):
+                # failures past this candidate's horizon are not its own.
+                conv[start + r] = run.converged[r] or np.isfinite(x[start + r]).all()
+        t0 = time.perf_counter()
+        stable, t_fail, converged = np.zeros(N, bool), np.full(N, np.nan), np.zeros(N, bool)
+        state, ratio = np.full(N, -1), np.zeros(N)
+        ref = np.nanmax(self.ref_growth[lanes], axis=(1, 2), initial=1.0)
+        for i in range(N):
+            at = i * (K + 1)
+            base, sc = x[at], self.scales[lanes[i]]
+            converged[i] = conv[at: at + K + 1].all()
+            ts = h[i] * np.arange(len(base))
+            first = np.full(K, len(base))
+            for k in range(K):
+                dev = _state_norm(x[at + 1 + k] - base, sc)
+                slot = np.minimum(np.searchsorted(self.ts, ts), len(self.ts) - 1)
+                allow = np.fmax(1.0, np.nan_to_num(self.ref_growth[lanes[i], k, slot], nan=1.0))
+                with np.errstate(invalid="ignore", divide="ignore"):
+                    excess = dev / (dev[0] * allow)
+                bad = ~(excess <= self.growth)
+                ratio[i] = max(ratio[i], float(np.nanmax(np.where(np.isfinite(excess), excess,
+                                                                  np.inf))))
+                if bad.any():
+                    first[k] = np.argmax(bad)
+            k = int(np.argmin(first))
+            if first[k] < len(base):
+                j = first[k]
+                t_fail[i] = j * h[i]
+                with np.errstate(invalid="ignore"):
+                    d = np.abs(x[at + 1 + k][j] - base[j]) / sc
+                state[i] = int(np.argmax(np.where(np.isfinite(d), d, np.inf)))
+            stable[i] = first[k] == len(base) and converged[i]
+        self.runner.watch.add("stability_s", time.perf_counter() - t0)
+        return (Outcome(stable, t_fail, converged),
+                Diagnosis(state, t_fail, ratio, ref))
+
+
+def reference_growth(solve, points, base: np.ndarray, delta: np.ndarray,
+                     scales: np.ndarray) -> np.ndarray:
+    """(B, K, T) the reference's own growth of each deviation delta (B, K, d): the distance in
+    the state norm of its solution from points' initial states plus delta[:, k] to `base`
+    (B, T, d, the reference from the initial states), over its start, the largest so far at
+    each of the T times; NaN where that reference failed. solve(points) -> Solution."""
+    import dataclasses
+    B, K, _ = delta.shape
+    out = np.full((B, K, base.shape[1]), np.nan)
+    for k in range(K):
+        ref = solve(dataclasses.replace(points, x0=points.x0 + delta[:, k]))
+        dev = _state_norm(ref.x - base, scales[:, None, :])
+        with np.errstate(invalid="ignore", divide="ignore"):
+            grow = np.fmax.accumulate(dev / dev[:, :1], axis=1)
+        out[:, k] = np.where(ref.ok[:, None], grow, np.nan)
+    return out

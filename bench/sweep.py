@@ -16,7 +16,7 @@ import pandas as pd
 
 from stepzoo import environment
 from stepzoo.bench import (chunk_tables, frozen, limit_search, metrics, nonsmooth,
-                           reference_backend, schema, sweep_folder)
+                           reference_backend, schema, stability_runs, sweep_folder)
 from stepzoo.bench.block import Block
 from stepzoo.bench.stopwatch import Stopwatch
 from stepzoo.bench.timing import RULE as TIMING_RULE
@@ -185,7 +185,8 @@ def summary(runs: pd.DataFrame, limits: pd.DataFrame) -> pd.DataFrame:
             evals_per_step=float((r["evals_per_s"] * r["h"]).median()),
             points=int(lim["point"].nunique()),
             solver_failures=int((~r["converged"]).sum()) if "converged" in r else 0,
-            nonsmooth_points=flagged, nonsmooth_note=nonsmooth.note(lim)))
+            nonsmooth_points=flagged, nonsmooth_note=nonsmooth.note(lim),
+            **metrics.disagreement(lim)))
     return pd.DataFrame(rows, columns=schema.SUMMARY)
 
 
@@ -220,8 +221,11 @@ def _write_manifest(cfg, out: Path, created, done, timing, complete) -> dict:
         "updated": datetime.now(timezone.utc).isoformat(timespec="seconds"),
         "complete": complete, "methods": list(cfg.methods), "chunks": list(done),
         "n_chunks": len(chunk_ids(cfg)), "timing": timing,
-        "blowup_rule": metrics.BLOWUP_RULE,
-        "stability": {"steps": cfg.stab_steps, "growth": cfg.growth,
+        "blowup_rule": metrics.BLOWUP_RULE if cfg.stab_rule == "blowup" else
+        stability_runs.MODES_RULE,
+        "stability": {"rule": cfg.stab_rule, "horizon_s": cfg.stability_horizon,
+                      "agreement_tol": metrics.AGREE_TOL,
+                      "steps": cfg.stab_steps, "growth": cfg.growth,
                       "perturbation": cfg.perturbation, "h_probe_max_s": cfg.h_probe_max,
                       "bisection_rel_tol": cfg.rel_tol, "narrowing": limit_search.NARROWING},
         "order_fit": metrics.ORDER_RULE,

@@ -49,6 +49,8 @@ ESTIMATES = {          # [error] estimate: which times of a run its error `err` 
 # limits came out several times the linear ones in straight running), and well above the
 # Newton solves' default tolerances, so their noise is no growth.
 DEFAULT_PERTURBATION = 1e-6
+# [stability] rule: bench.stability_runs.MODES_RULE, or metrics.BLOWUP_RULE.
+STABILITY_RULES = ("modes", "blowup")
 
 GridSize = quantity("a number of grid values", "", "more is a typo, and would be allocated "
                     "before any estimate of the work", whole=True, ge=1, le=MAX_GRID)
@@ -207,6 +209,13 @@ class Stability(Schema):
                               "least the largest of steps.h")
     rel_tol: RelTol = Field(1e-3, description="the bisection of the largest stable step stops "
                             "when h_hi / h_lo - 1 <= rel_tol")
+    rule: Literal[STABILITY_RULES] = Field(
+        "modes", description="modes: every state, each eigenmode alone, against the "
+        "reference's own growth, within the stability horizon; blowup: the error states, "
+        "the modes summed, `steps` steps (the rule before 2026-11-28)")
+    horizon: Horizon | None = Field(None, description="modes: how long a stability run lasts "
+                                    "[s] (default: the accuracy horizon); events after it "
+                                    "decide nothing")
 
 
 class Chunks(Schema):
@@ -364,6 +373,8 @@ class SweepConfig:
     perturbation: float = _default(Stability, "perturbation")
     h_probe_max: float = _default(Stability, "h_probe_max")    # [s] largest step probed
     rel_tol: float = _default(Stability, "rel_tol")     # bisection: h_hi / h_lo - 1 <= rel_tol
+    stab_rule: str = _default(Stability, "rule")        # a key of STABILITY_RULES
+    stab_horizon: float | None = _default(Stability, "horizon")   # [s] None: `horizon`
     points_per_chunk: int = _default(Chunks, "points")
     traj_fractions: tuple[float, ...] = _default(Trajectories, "fractions")
     traj_past_limit: float = _default(Trajectories, "past_limit")
@@ -395,6 +406,11 @@ class SweepConfig:
     @property
     def sha256(self) -> str:
         return config_schema.sha256(self)
+
+    @property
+    def stability_horizon(self) -> float:
+        """How long a stability run of the "modes" rule lasts [s]."""
+        return self.horizon if self.stab_horizon is None else self.stab_horizon
 
     @property
     def newton_options(self) -> dict:
@@ -461,7 +477,8 @@ def validate(raw: dict, source: str = "config") -> SweepConfig:
         traj_point=traj_point, rtol=f.reference.rtol, atol=f.reference.atol,
         stab_steps=f.stability.steps, growth=f.stability.growth,
         perturbation=f.stability.perturbation, h_probe_max=f.stability.h_probe_max,
-        rel_tol=f.stability.rel_tol, points_per_chunk=f.chunks.points,
+        rel_tol=f.stability.rel_tol, stab_rule=f.stability.rule,
+        stab_horizon=f.stability.horizon, points_per_chunk=f.chunks.points,
         traj_fractions=f.trajectories.fractions, traj_past_limit=f.trajectories.past_limit,
         timing_rounds=f.timing.rounds, exact_reference=exact, error_estimate=f.error.estimate,
         ref_solver=solver, newton=f.newton, source=source, max_memory_gib=f.limits.memory_gib,
@@ -684,7 +701,7 @@ def check_workload(cfg: SweepConfig):
     or integrate more steps than allowed ([limits], --max-memory, --max-steps)."""
     from stepzoo.validate import GIB, check_budget
     lanes = min(cfg.points_per_chunk, len(cfg.points))
-    steps = max(round(cfg.horizon / cfg.hs[0]), cfg.stab_steps) + 1   # every call's length
+    steps = run_steps(cfg) + 1                                           # every call's length
     blocks = -(-len(cfg.points) // cfg.points_per_chunk)
     # Per method and block, calls of one block's lanes: the accuracy runs at every step; for
     # stability a pair of runs (perturbed, unperturbed) a call apart, per grid step, per rung
@@ -696,6 +713,14 @@ def check_workload(cfg: SweepConfig):
     check_budget(f"the sweep {cfg.name!r}", steps, 2 * lanes, len(cfg.spec.states),
                  calls=len(cfg.methods) * blocks * calls / 2,
                  memory=memory, max_steps=cfg.max_steps)
+
+
+def run_steps(cfg: SweepConfig) -> int:
+    """The steps of a sweep's longest call: the accuracy run at the smallest step, or a
+    stability run (`stability.steps`, or the stability horizon at the smallest step)."""
+    stab = cfg.stab_steps if cfg.stab_rule == "blowup" else \
+        math.ceil(cfg.stability_horizon / cfg.hs[0] - 1e-9)
+    return max(round(cfg.horizon / cfg.hs[0]), stab)
 
 
 def selected(kind: str) -> list[str]:

@@ -17,6 +17,7 @@ from stepzoo.bench import frozen, metrics, model_nan, stiffness
 from stepzoo.bench import margin as margin_rule
 from stepzoo.bench.block import Block
 from stepzoo.bench.sweep import n_blocks
+from stepzoo.bench.sweep_config import run_steps
 
 # The per-point fields of `stepzoo verdict` (CSV columns, JSON keys), after the envelope's
 # variables.
@@ -47,7 +48,7 @@ def _verdict(cfg, method_name: str, h: float) -> tuple[pd.DataFrame, pd.DataFram
     cfg = dataclasses.replace(cfg, hs=(h,), h_probe_max=max(cfg.h_probe_max, 2.0 * h))
     cache, rows, explicit = {}, [], []
     for block in range(n_blocks(cfg)):
-        work = Block(cfg, block, cache, max_steps=max(n, cfg.stab_steps))
+        work = Block(cfg, block, cache, max_steps=max(n, run_steps(cfg)))
         pts = work.points
         grid = work.stable(meth, np.full((len(pts), 1), h))
         ok, conv = grid.stable, grid.converged

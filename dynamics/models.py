@@ -11,7 +11,7 @@ from typing import Callable
 
 import numpy as np
 
-from stepzoo.dynamics import bicycle, detest, kinematic, single_track, solutions, stiff
+from stepzoo.dynamics import bicycle, detest, kinematic, single_track, solutions, stiff, wheel
 from stepzoo.dynamics.tyres import TYRES, tyre_name
 from stepzoo.dynamics.vehicles import physical, st_params, tyre_params
 
@@ -32,7 +32,7 @@ class Model:
     t_span: tuple = VEHICLE_HORIZON  # [s] interval of the default problem
     exact: Callable | None = field(default=None, repr=False)  # exact(ts) -> (len(ts), n)
     stiff: bool = False             # its reference needs an implicit solver
-    family: str = "vehicle"         # vehicle | detest | stiff
+    family: str = "vehicle"         # vehicle | detest | stiff | wheel
     source: str = ""
     tyre: str | None = None         # the tyre law of a dynamic bicycle
     vehicle_params: Callable | None = field(default=None, repr=False)  # (vehicle, vx) -> p
@@ -141,13 +141,19 @@ def _build(name: str) -> Model:
         return Model(name, d["rhs"], tuple(f"y{i + 1}" for i in range(len(d["x0"]))), (),
                      d["description"], defaults={}, x0=tuple(d["x0"]), t_span=detest.T_SPAN,
                      exact=d["exact"], family="detest", source=detest.SOURCE)
+    if name in wheel.PROBLEMS:
+        d = wheel.PROBLEMS[name]
+        return Model(name, d["rhs"], d["states"], d["inputs"], d["description"],
+                     defaults=dict(d.get("params", wheel.PARAMS)), x0=d["x0"], u0=d["u0"], t_span=d["t_span"],
+                     family="wheel", source=wheel.SOURCE)
     d = stiff.PROBLEMS[name]
     return Model(name, d["rhs"], tuple(f"y{i + 1}" for i in range(len(d["x0"]))), (),
                  d["description"], defaults=d.get("params", {}), x0=tuple(d["x0"]), t_span=d["t_span"],
                  exact=d["exact"], stiff=True, family="stiff", source=d["source"])
 
 
-MODEL_NAMES = VEHICLE_MODELS + tuple(detest.PROBLEMS) + tuple(stiff.PROBLEMS)
+MODEL_NAMES = (VEHICLE_MODELS + tuple(detest.PROBLEMS) + tuple(stiff.PROBLEMS)
+               + tuple(wheel.PROBLEMS))
 DEFAULT_MODEL = "dynamic5"
 
 

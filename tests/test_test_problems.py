@@ -9,7 +9,7 @@ from stepzoo.dynamics.detest import kepler_exact
 from stepzoo.dynamics.solutions import solve
 from stepzoo.dynamics.stiff import PUBLISHED_END
 
-PROBLEMS = [n for n, m in MODELS.items() if m.family != "vehicle"]
+PROBLEMS = [n for n, m in MODELS.items() if m.family in ("detest", "stiff")]
 EXACT = [n for n in PROBLEMS if MODELS[n].exact is not None]
 REFERENCE = [n for n in PROBLEMS if MODELS[n].exact is None]
 
