@@ -189,9 +189,10 @@ def _missed_by_measurement(tiny_sweep, tmp_path, factor: float = 4.0):
 
 
 def test_tune_never_picks_a_step_beyond_its_predicted_limit(tiny_sweep, tmp_path):
-    """Measured limits 4x above the predicted ones: euler at 0.05 s is 87% of its measured
-    limit (inside a 10% margin), 3.5x its predicted one. Tune keeps 0.9 x the smaller limit at
-    every point; only the flag that names the risk lets it past, and the file says so."""
+    """Predictions 4x below the measured limits: euler at 0.05 s is inside a 10% margin
+    below its measured limit and well past its predicted one. Tune keeps 0.9 x the smaller
+    limit at every point; only the flag that names the risk lets it past, and the file says
+    so."""
     folder, limits = _missed_by_measurement(tiny_sweep, tmp_path)
     got = {}
     for flag in ([], ["--allow-beyond-predicted-limit"]):
@@ -205,5 +206,5 @@ def test_tune_never_picks_a_step_beyond_its_predicted_limit(tiny_sweep, tmp_path
     assert kept["h_over_h_pred_max"] <= 0.9 and not kept["allow_beyond_predicted_limit"]
     risky = got[True]
     assert (risky["method"], risky["h"]) == ("euler", 0.05)
-    assert risky["allow_beyond_predicted_limit"] and risky["h_over_h_pred_max"] > 3
+    assert risky["allow_beyond_predicted_limit"] and risky["h_over_h_pred_max"] > 1.1
     assert "--allow-beyond-predicted-limit" in risky["why"]
