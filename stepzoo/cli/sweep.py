@@ -56,11 +56,13 @@ def show(manifest: dict, out, fmt: str = "text") -> None:
     """Print what a sweep into `out` did: the summary table, whether the model is stiff (at
     the report's default tolerance) and timing, or JSON."""
     import pandas as pd
+
+    from stepzoo.bench.sweep import _finite
     suite = bool(manifest.get("problems"))
     if fmt == "json":
         print(to_json({"out": str(out), "config_sha256": manifest["config_sha256"],
                        "timing": manifest["timing"],
-                       **({} if suite else {"stiffness": stiffness(out)})}))
+                       **({} if suite else {"stiffness": _finite(stiffness(out))})}))
         return
     t = manifest["timing"]
     if suite:

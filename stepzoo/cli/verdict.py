@@ -46,6 +46,7 @@ def _csv(path, cfg, results) -> None:
 
 
 def main(args) -> int:
+    from stepzoo.bench.sweep import _finite
     from stepzoo.bench.sweep_config import load
     from stepzoo.bench.verdict import verdicts
     from stepzoo.integrators import METHODS
@@ -80,7 +81,7 @@ def main(args) -> int:
             # where the model returned NaN, is null.
             for key in ("worst_error", "h_meas_min", "h_pred_min", "h_over_h_pred_max"):
                 v[key] = v[key] if math.isfinite(v[key]) else None
-            v["stiffness"] = _null_nan(v["stiffness"])
+            v["stiffness"] = _finite(v["stiffness"])
             out.append(v)
         print(to_json({"model": cfg.model, "config": str(args.config), "verdicts": out}))
         return 0
@@ -89,13 +90,6 @@ def main(args) -> int:
     if args.csv is not None:
         print(f"wrote {args.csv}: one row per (method, h, operating point)")
     return 0
-
-
-def _null_nan(record: dict) -> dict:
-    """A record for JSON, which has neither inf nor NaN: those as null, nested alike."""
-    return {k: _null_nan(x) if isinstance(x, dict) else
-            (None if isinstance(x, float) and not math.isfinite(x) else x)
-            for k, x in record.items()}
 
 
 def _show(cfg, v, table, tol, unit) -> None:
