@@ -70,7 +70,9 @@ def tune(results, pos_tol, margin: float, out, tol=None, cost: str = "time",
 def show(tuned: dict, out, fmt: str = "text") -> None:
     """Print the choice, its runners-up and where it was written, or JSON."""
     if fmt == "json":
-        print(to_json({"out": str(out), **tuned}))
+        from stepzoo.bench.sweep import _finite
+        # JSON has neither inf nor NaN (an A-stable choice's limits are inf): null.
+        print(to_json(_finite({"out": str(out), **tuned})))
         return
     print(f"chose {tuned['method']} at h = {tuned['h']:g} s: {tuned['why']}")
     if not tuned["stiff"]:          # a stiff finding is in `why` already
