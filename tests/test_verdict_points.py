@@ -258,13 +258,13 @@ def test_a_step_beyond_its_predicted_limit_is_never_stable_with_margin():
         got[bool(flag)] = json.loads(_run(["verdict", str(WHEEL), "--method", "euler", "--h",
                                            str(h), "--tol", "10", "--format", "json",
                                            *flag]))["verdicts"][0]
-    slow = [p for p in got[False]["points"] if p["vx"] == 10.0][0]
+    slow = next(p for p in got[False]["points"] if p["vx"] == 10.0)
     assert slow["h_pred"] == pytest.approx(2 / (WHEEL_SLIP / 10.0), rel=1e-6)
     assert slow["stable"] and slow["beyond_predicted"]
     assert slow["h_over_h_pred"] == pytest.approx(h * WHEEL_SLIP / 20.0, rel=1e-6)
     assert slow["verdict"].startswith("beyond the predicted limit (1.47 x)")
     assert got[False]["stable_with_margin"] == 1                 # vx = 20 only
     assert got[False]["beyond_predicted_where"] == "vx = 10, T = 200"
-    risky = [p for p in got[True]["points"] if p["vx"] == 10.0][0]
+    risky = next(p for p in got[True]["points"] if p["vx"] == 10.0)
     assert risky["verdict"].startswith("stable with margin, beyond the predicted limit")
     assert got[True]["stable_with_margin"] == 2 and got[True]["allow_beyond_predicted_limit"]
