@@ -179,11 +179,23 @@ def xy_paths(sweep, why: str = "", tuned=None) -> Trajectories:
 
 # Figure 3: stability regions.
 
-def scaled_eigenvalues(sweep, tuned):
-    """(h [s] or None, h*lambda of every distinct eigenvalue of the envelope and its
-    conjugate, the (Re, Im) view that holds them and the regions' interesting part)."""
+def trajectory_eigenvalues(sweep) -> np.ndarray:
+    """The eigenvalues [1/s] of the envelope: at each point's initial state, and along its
+    reference where each method's predicted limit binds (limits' lam_*_bind, at t_bind)."""
     eig = sweep.eigenvalues
+    lim = sweep.limits
     lam = eig["lam_re"].to_numpy() + 1j * eig["lam_im"].to_numpy()
+    if "lam_re_bind" in lim:
+        bind = lim["lam_re_bind"].to_numpy(float) + 1j * lim["lam_im_bind"].to_numpy(float)
+        lam = np.concatenate([lam, bind[np.isfinite(bind)]])
+    return lam
+
+
+def scaled_eigenvalues(sweep, tuned):
+    """(h [s] or None, h*lambda of every distinct eigenvalue of the envelope along the
+    trajectories (trajectory_eigenvalues) and its conjugate, the (Re, Im) view that holds
+    them and the regions' interesting part)."""
+    lam = trajectory_eigenvalues(sweep)
     # Regions are symmetric: show both halves, each distinct eigenvalue once.
     lam = np.unique(np.concatenate([lam, lam.conj()]))
     h = float(tuned["h"]) if tuned else None
@@ -220,15 +232,17 @@ def stability_regions(sweep, tuned) -> Regions:
         out = _outside(METHODS[name], z) if z.size else np.zeros(0, bool)
         panels.append(RegionPanel(name, x, y, stable, _boundary(x, y, amp), out))
     if h:
-        safe = [p.method for p in panels if not p.outside.any()]
+        safe = [p.method for p in panels if not p.outside.any() and _measured_ok(sweep,
+                                                                                p.method, h)]
         caption = (f"Stability region of each method (shaded: |R(z)| <= 1, or the root "
-                   f"condition for multistep methods) with h*lambda for every eigenvalue of "
-                   f"df/dx at the initial state of each of the envelope's operating points at "
-                   f"the tuned step h = "
-                   f"{h:g} s (blue dots inside, red crosses outside; the tuned method "
-                   f"{tuned['method']} has a bold title). A method is stable at this step on "
-                   f"the whole envelope when every point lies in its region: "
-                   f"{', '.join(safe) or 'none'}.")
+                   f"condition for multistep methods) with h*lambda at the tuned step h = "
+                   f"{h:g} s for every eigenvalue of df/dx at the initial state of each of the "
+                   f"envelope's operating points and, along each point's reference, where "
+                   f"each method's predicted limit binds (blue dots inside, red crosses "
+                   f"outside; the tuned method {tuned['method']} has a bold title). A method "
+                   f"is stable at this step on the whole envelope, along the trajectories, "
+                   f"when every point lies in its region and the step is at most its smallest "
+                   f"measured limit: {', '.join(safe) or 'none'}.")
         outside = _outside(METHODS[tuned["method"]], z)
     else:
         caption = ("Stability region of each method (shaded: |R(z)| <= 1, or the root "
@@ -238,6 +252,12 @@ def stability_regions(sweep, tuned) -> Regions:
     return Regions(3, "Stability regions and h*lambda at the tuned step", caption,
                    "fig3_stability_regions.png", h, z, re, im, _tuned_name(tuned), outside,
                    panels)
+
+
+def _measured_ok(sweep, name: str, h: float) -> bool:
+    """h [s] is at most the method's smallest measured limit (NaN: none measured)."""
+    lim = sweep.limits[sweep.limits["method"] == name]["h_meas"].to_numpy(float)
+    return not (lim < h).any()
 
 
 # Figure 4: error against step.

@@ -48,7 +48,8 @@ def method_summary(sweep, tol: float, margin: float, error: str = "err_pos") -> 
     the same), plus the largest step [s] that is stable at every operating point, keeps
     `margin` below the measured limit (the solver's included) and has a worst error (the
     runs column `error`: position [m], or the error norm) <= tol, with its costs (None when
-    no step qualifies)."""
+    no step qualifies); the margin is kept below the predicted limit too, as tune keeps it
+    (bench/tune/margin.py)."""
     table = worst_case(sweep.runs, error)
     summary = sweep.summary.set_index("method")
     rows = []
@@ -57,7 +58,8 @@ def method_summary(sweep, tol: float, margin: float, error: str = "err_pos") -> 
         row = {key: _plain(s[key]) for key, _ in METHOD_COLUMNS if key in s.index}
         own = own_limits(sweep.limits[sweep.limits["method"] == name])
         row.update({k: _plain(v) for k, v in own.items()}, method=name)
-        limit = np.fmin(own["h_meas_min"], own["h_solver_limit_min"])
+        limit = np.fmin(np.fmin(own["h_meas_min"], own["h_solver_limit_min"]),
+                        float(s["h_pred_min"]))
         ok = table[(table["method"] == name) & (table["worst"] <= tol)]
         if np.isfinite(limit):
             ok = ok[stable_with_margin(True, ok["h"], limit, margin)]
@@ -77,7 +79,9 @@ def verdict_table(summary: dict, judged, variables, tol: float, unit: str = "") 
     caption = (f"{summary['method']} at h = {summary['h']:g} s on the sweep's envelope, point "
                f"by point, as `stepzoo verdict` gives it: stable (the sweep's blow-up test at "
                f"h), h / h_meas (the point's measured largest stable step; stable with margin "
-               f"when at most {1 - summary['margin']:g}), the error and whether it is within "
+               f"when h is at most {1 - summary['margin']:g} x the smaller of it and the "
+               f"predicted one, never beyond the predicted one), the error (finite wherever "
+               f"the run is) and whether it is within "
                f"{tol:g}{unit}. Of {summary['points']} points: {kinds}.")
     rows = [{**{v: float(r[v]) for v in variables}, "h_over_h_meas": _plain(r["h_over_h_meas"]),
              "stable": bool(r["stable"]), "error": _plain(r["error"]),

@@ -91,6 +91,33 @@ class Plans(Schema):
                                               "first")
 
 
+class StiffMode(Schema):
+    """[stiffness.mode]: the mode that bounds explicit steps, where it binds."""
+    method: str = Field(description="the explicit method with the largest limit")
+    lambda_re_per_s: float = Field(description="its eigenvalue's real part [1/s]")
+    lambda_im_per_s: float = Field(description="|its imaginary part| [1/s]")
+    t_s: float = Field(description="where along the reference it binds [s]")
+    point: dict[str, float] = Field(description="the operating point, by envelope variable")
+    state: str | None = Field(None, description="the state with the largest participation "
+                              "factor in it")
+    participation: float | None = Field(None, description="that state's participation "
+                                        "factor (0..1)")
+
+
+class Stiffness(Schema):
+    """[stiffness]: whether the model is stiff at the tolerance (bench/model/stiffness.py)."""
+    stiff: bool = Field(description="accuracy allows stiff_ratio x the largest explicit limit")
+    h_explicit_max_s: Measured | None = Field(None, description="the largest step an "
+                                           "explicit method may take at every point [s]")
+    h_accurate_max_s: Measured | None = Field(None, description="the largest step some method "
+                                           "meets the tolerance at within its limits [s]")
+    accurate_method: str | None = Field(None, description="that method")
+    ratio: Measured | None = Field(None, description="h_accurate_max_s / h_explicit_max_s")
+    stiff_ratio: float = Field(description="the ratio from which a model is stiff")
+    mode: StiffMode | None = Field(None, description="the binding mode")
+    says: str = Field("", description="the finding in words")
+
+
 class TunedEnvelope(Schema):
     """[envelope]: the swept envelope the choice holds over: each variable = [least,
     largest], and `points`."""
@@ -125,6 +152,16 @@ class TunedFile(Schema):
                                   "norm")
     h_meas_min_s: Measured | None = Field(None, description="the smallest measured largest "
                                        "stable step of the choice's method [s]")
+    h_pred_min_s: Measured | None = Field(None, description="the smallest predicted largest "
+                                       "stable step of the choice's method [s]")
+    h_over_h_pred_max: Measured | None = Field(None, description="the choice's largest h / "
+                                            "h_pred over the points (above 1 only with "
+                                            "allow_beyond_predicted_limit)")
+    allow_beyond_predicted_limit: bool = Field(False, description="tuned with "
+                                               "--allow-beyond-predicted-limit: the predicted "
+                                               "limit was not kept")
+    stiff: bool | None = Field(None, description="whether the model is stiff at the tolerance")
+    stiffness: Stiffness | None = Field(None, description="why (bench/model/stiffness.py)")
     horizon_s: Measured | None = Field(None, description="the sweep's "
                                     "horizon [s] (NaN: not recorded)")
     model: str | None = Field(None, description="the swept model")

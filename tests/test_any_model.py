@@ -155,7 +155,9 @@ def test_verdict_names_the_region_past_the_predicted_limit(tmp_path, capsys):
                     "--format", "json"]) == 0
     v = json.loads(capsys.readouterr().out)["verdicts"][0]
     assert len(v["points"]) == v["n_points"] == 6 and v["stable"] == 4
-    assert v["unstable_where"].startswith("k = 1000") and v["worst_error"] is None
+    # Past its limit the run grows, but stays finite over the horizon: its error is finite.
+    assert v["unstable_where"].startswith("k = 1000") and v["worst_cause"] == "unstable"
+    assert v["worst_error"] is not None and v["worst_error"] > 10
     assert v["worst_at"]["k"] == 1000.0
 
 
@@ -221,3 +223,61 @@ def test_a_batch_parameter_of_the_wrong_length_is_named():
     x = integrate_batch("rk4", f, np.ones((3, 1)), p={"k": np.array([1.0, 2.0, 3.0])}, h=0.01,
                         n_steps=10).x
     assert x.shape == (3, 11, 1)
+
+
+WHEEL = Path(__file__).resolve().parent / "user_model" / "quarter_wheel.toml"
+
+
+def _wheel_config(tmp_path, old: str = "", new: str = "") -> Path:
+    """The quarter wheel's config in tmp_path (its model folder made absolute), edited."""
+    text = WHEEL.read_text().replace('rhs = "quarter_wheel:wheel"',
+                                     f'rhs = "quarter_wheel:wheel"\npath = "{WHEEL.parent}"')
+    config = tmp_path / "wheel.toml"
+    config.write_text(text.replace(old, new))
+    return config
+
+
+@pytest.mark.parametrize("omega", ['"vx / wheel.r_w"', '"quarter_wheel:free_rolling"'])
+def test_an_initial_state_given_by_expression_or_hook_is_evaluated_at_every_point(
+        tmp_path, omega):
+    """omega rolls without slip at every operating point, vx / r_w, with vx and the nested
+    parameter wheel.r_w both varied by the envelope: as an expression and as a hook."""
+    config = _wheel_config(tmp_path, 'omega = "vx / wheel.r_w"', f"omega = {omega}")
+    config.write_text(config.read_text().replace(
+        "T = [200.0]", 'T = [200.0]\n"wheel.r_w" = [0.25, 0.3, 0.35]'))
+    spec = load(config).spec
+    x0, _, p = spec.arrays(spec.points)
+    vx, r = np.array([pt[0] for pt in spec.points]), np.array([pt[2] for pt in spec.points])
+    assert len(spec.points) == 6 and set(r) == {0.25, 0.3, 0.35}
+    np.testing.assert_array_equal(p["wheel.r_w"], r)
+    np.testing.assert_allclose(x0[:, 1], vx / r, rtol=1e-15)
+    np.testing.assert_array_equal(x0[:, 0], vx)
+
+
+def test_nested_params_are_dotted_names_and_the_model_reads_them_nested(tmp_path):
+    """[params.tyre] etc. become tyre.B etc. in the spec; the model reads p["tyre"]["B"]:
+    its f equals the Pacejka force written here in NumPy, at a slipping state."""
+    spec = load(_wheel_config(tmp_path)).spec
+    p = dict(spec.params)
+    assert {"body.m", "wheel.r_w", "wheel.J", "tyre.B", "tyre.C", "tyre.D", "tyre.Fz"} == set(p)
+    x, u = np.array([10.0, 35.0]), np.array([200.0])
+    slip = (35.0 * p["wheel.r_w"] - 10.0) / 10.0
+    fx = p["tyre.D"] * p["tyre.Fz"] * np.sin(p["tyre.C"] * np.arctan(p["tyre.B"] * slip))
+    want = [fx / p["body.m"], (200.0 - fx * p["wheel.r_w"]) / p["wheel.J"]]
+    np.testing.assert_allclose(np.asarray(spec.rhs(0.0, x, u, p)), want, rtol=1e-12)
+
+
+@pytest.mark.parametrize("new,message", [
+    ('omega = "__import__(\'os\').getcwd()"', "may hold numbers, names"),
+    ('omega = "vx.real"', "names vx.real, not a state"),
+    ('omega = "vx / wheel.r"', "names wheel.r, not a state"),
+    ('omega = "vx / (wheel.r_w - 0.3)"', "is not finite at vx = 10, T = 200"),
+    ('omega = "quarter_wheel:nothing"', "quarter_wheel has no function 'nothing'"),
+    ('omega = "omega + 1"', "reads omega, computed at or after it"),
+])
+def test_a_bad_initial_expression_is_one_line_and_exit_2(tmp_path, capsys, new, message):
+    config = _wheel_config(tmp_path, 'omega = "vx / wheel.r_w"', new)
+    assert stepzoo(["sweep", str(config), "--out", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and message in err, err
+    assert not (tmp_path / "out").exists()

@@ -56,21 +56,25 @@ def test_every_flag_that_help_prints_is_in_the_command_reference(ref):
         assert not missing, (name, missing)
 
 
-def _json_keys(schema: dict, node: dict, prefix: str = "") -> set[str]:
-    """Every key path of a JSON Schema (pydantic's own rendering of the validator)."""
+def _json_keys(schema: dict, node: dict, prefix: str = "", within: tuple = ()) -> set[str]:
+    """Every key path of a JSON Schema (pydantic's own rendering of the validator); a table
+    that holds tables of its own kind (nested [params]) is followed once."""
     while "$ref" in node:
+        if node["$ref"] in within:
+            return set()
+        within = (*within, node["$ref"])
         node = schema["$defs"][node["$ref"].split("/")[-1]]
     keys = set()
     for alt in node.get("anyOf", []) + node.get("oneOf", []) + node.get("allOf", []):
-        keys |= _json_keys(schema, alt, prefix)
+        keys |= _json_keys(schema, alt, prefix, within)
     if isinstance(node.get("items"), dict):
-        keys |= _json_keys(schema, node["items"], prefix + "[]")
+        keys |= _json_keys(schema, node["items"], prefix + "[]", within)
     if isinstance(node.get("additionalProperties"), dict):
-        keys |= _json_keys(schema, node["additionalProperties"], prefix + ".<name>")
+        keys |= _json_keys(schema, node["additionalProperties"], prefix + ".<name>", within)
     for name, sub in node.get("properties", {}).items():
         path = f"{prefix}.{name}" if prefix else name
         keys.add(path)
-        keys |= _json_keys(schema, sub, path)
+        keys |= _json_keys(schema, sub, path, within)
     return keys
 
 

@@ -131,3 +131,36 @@ def test_the_renderers_import_only_the_figure_records():
         assert ours <= {"stepzoo.reports", "stepzoo.reports.figure_types", "stepzoo.output",
                         "stepzoo.output.atomic_write"}, (name, ours)
         assert "pandas" not in imported and not any("figure_data" in m for m in ours)
+
+
+STIFFENING = '''import jax.numpy as jnp
+
+
+def f(t, x, u, p):
+    """x' = -(1 + a min(t, 1)) x: its one eigenvalue stiffens from -1 1/s at t = 0 to
+    -(1 + a) at t = 1 s, and stays there (the stability runs go on past the horizon)."""
+    return jnp.stack([-(1.0 + p["a"] * jnp.minimum(t, 1.0)) * x[0]])
+'''
+
+
+def test_figure_3_judges_stability_along_the_trajectory(tmp_path):
+    """x' = -(1 + 50 min(t, 1)) x over 1 s: at the initial state h lambda = -0.05 at h = 0.05 s, inside
+    Euler's disc; at t = 1 s it is -2.55, outside. Figure 3 draws the binding eigenvalue and
+    calls Euler stable on the envelope only where it is along the trajectory (rk4's -2.55 is
+    inside its region, to -2.785)."""
+    from stepzoo.bench.sweep.engine import run_sweep
+    from stepzoo.bench.sweep.config import load
+    (tmp_path / "stiffening.py").write_text(STIFFENING)
+    config = tmp_path / "s.toml"
+    config.write_text(f'name = "s"\nhorizon = 1.0\nmethods = ["euler", "rk4"]\n[model]\n'
+                      f'rhs = "stiffening:f"\nstates = ["x"]\npath = "{tmp_path}"\n'
+                      "[params]\na = 50.0\n[initial]\nx = 1.0\n[envelope]\na = [50.0]\n"
+                      "[steps]\nh = [0.01, 0.02]\n[stability]\nsteps = 100\n")
+    run_sweep(load(config), tmp_path / "out", progress=False)
+    sweep = load_sweep(tmp_path / "out")
+    data = figure_data.stability_regions(sweep, {"method": "euler", "h": 0.05})
+    # The binding eigenvalue is the last sample's, -(1 + 50 x 1 s), NumPy's own.
+    assert np.min(data.z.real) == pytest.approx(0.05 * -(1.0 + 50.0), rel=1e-9)
+    assert data.outside.any()
+    safe = data.caption.rsplit(":", 1)[1]
+    assert "rk4" in safe and "euler" not in safe

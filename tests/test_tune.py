@@ -172,3 +172,39 @@ def test_a_folder_that_is_no_sweep_is_one_line_and_exit_2(tmp_path, capsys):
                     str(tmp_path / "t.toml")]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "not a finished sweep folder" in err
+
+
+def _missed_by_measurement(tiny_sweep, tmp_path, factor: float = 4.0):
+    """A copy of the tiny sweep whose euler predictions lie `factor` x below its measured
+    limits, as on a saturating model whose chatter the measurement misses."""
+    import shutil
+    _, whole = tiny_sweep
+    folder = tmp_path / "sweep"
+    shutil.copytree(whole, folder)
+    limits = pd.read_parquet(folder / "limits.parquet")
+    euler = limits["method"] == "euler"
+    limits.loc[euler, "h_pred"] = limits.loc[euler, "h_meas"] / factor
+    limits.to_parquet(folder / "limits.parquet", index=False)
+    return folder, limits
+
+
+def test_tune_never_picks_a_step_beyond_its_predicted_limit(tiny_sweep, tmp_path):
+    """Predictions 4x below the measured limits: euler at 0.05 s is inside a 10% margin
+    below its measured limit and well past its predicted one. Tune keeps 0.9 x the smaller
+    limit at every point; only the flag that names the risk lets it past, and the file says
+    so."""
+    folder, limits = _missed_by_measurement(tiny_sweep, tmp_path)
+    got = {}
+    for flag in ([], ["--allow-beyond-predicted-limit"]):
+        out = tmp_path / f"t{len(flag)}.toml"
+        assert stepzoo(["tune", str(folder), "--tol", "10", "--margin", "0.1", "--cost",
+                        "evals", "--out", str(out), *flag]) == 0
+        got[bool(flag)] = tomllib.loads(out.read_text())
+    kept = got[False]
+    pred = limits[limits["method"] == kept["method"]]["h_pred"]
+    assert kept["h"] <= 1.1 * pred.min()
+    assert kept["h_over_h_pred_max"] <= 0.9 and not kept["allow_beyond_predicted_limit"]
+    risky = got[True]
+    assert (risky["method"], risky["h"]) == ("euler", 0.05)
+    assert risky["allow_beyond_predicted_limit"] and risky["h_over_h_pred_max"] > 1.1
+    assert "--allow-beyond-predicted-limit" in risky["why"]

@@ -3,9 +3,13 @@ parameter names, fixed values, an initial state, an operating envelope over any 
 input or initial state by name, and the states (with scales) that the error norm reads.
 
 A built-in model (`model = "dynamic5"`) and a user's own (`[model] rhs = "module:function"`)
-are read into the same `ModelSpec`; nothing downstream knows which it was."""
+are read into the same `ModelSpec`; nothing downstream knows which it was. An initial state may
+be an expression of the others, the inputs and the parameters (`omega = "vx / r_w"`, read by
+`Expression`, which evaluates arithmetic alone) or a "module:function" hook; nested [params]
+tables are flattened with dotted names ("tyre.r_w") and handed to a user's f nested again."""
 from __future__ import annotations
 
+import ast
 import contextlib
 import functools
 import hashlib
@@ -43,6 +47,10 @@ class ModelSpec:
     tyre: str | None = None      # the tyre law of a built-in dynamic bicycle
     source_sha256: str = ""      # of the user's module file, so a changed model is a new sweep
     folder: str = field(default="", compare=False)    # absolute folder of a user's module
+    # ((state, text), ...) initial states given as an expression or a "module:function" hook,
+    # in the file's order, and their evaluators (Expression or Hook) alike
+    derived: tuple = ()
+    derive: tuple = field(default=(), compare=False, repr=False)
 
     @property
     def variables(self) -> tuple:
@@ -85,7 +93,14 @@ class ModelSpec:
                 u[:, self.inputs.index(var)] = col
             else:
                 x0[:, self.states.index(var)] = col
+        for (state, _), value in zip(self.derived, self.derive):
+            x0[:, self.states.index(state)] = value(self.named(x0, u, p))
         return x0, u, p
+
+    def named(self, x0, u, p) -> dict:
+        """Every state, input and parameter by name, as columns over the points."""
+        return {**p, **{s: u[:, i] for i, s in enumerate(self.inputs)},
+                **{s: x0[:, i] for i, s in enumerate(self.states)}}
 
     def scaled(self, dx) -> np.ndarray:
         """max over error states of |dx_i| / scale_i along the last axis of dx (..., n)."""
@@ -99,7 +114,142 @@ class ModelSpec:
                 "inputs_values": list(self.u0), "stiff": self.stiff, "tyre": self.tyre,
                 "envelope": {v: list(vals) for v, vals in self.envelope},
                 "error_states": list(self.error_states),
-                "error_scales": list(self.error_scales), "source_sha256": self.source_sha256}
+                "error_scales": list(self.error_scales), "source_sha256": self.source_sha256,
+                **({"derived": dict(self.derived)} if self.derived else {})}
+
+
+# The functions an initial-state expression may call, on NumPy arrays over the points.
+FUNCTIONS = {"sqrt": np.sqrt, "exp": np.exp, "log": np.log, "sin": np.sin, "cos": np.cos,
+             "tan": np.tan, "atan": np.arctan, "atan2": np.arctan2, "hypot": np.hypot,
+             "abs": np.abs, "min": np.minimum, "max": np.maximum}
+CONSTANTS = {"pi": np.pi}
+_OPS = {ast.Add: np.add, ast.Sub: np.subtract, ast.Mult: np.multiply, ast.Div: np.divide,
+        ast.Pow: np.power, ast.USub: np.negative, ast.UAdd: np.positive}
+
+
+class Expression:
+    """An arithmetic expression of named values ("vx / tyre.r_w"): numbers, names (dotted
+    names of nested parameters), + - * / **, and FUNCTIONS; anything else (attributes of
+    objects, subscripts, lambdas, imports) is refused when it is read, and nothing is ever
+    handed to eval."""
+
+    def __init__(self, text: str):
+        self.text = text
+        try:
+            self.tree = ast.parse(text, mode="eval").body
+        except SyntaxError as err:
+            raise ValueError(f"is not an expression ({err.msg})") from None
+        self.names = set()
+        self._check(self.tree)
+
+    def _check(self, node):
+        if isinstance(node, ast.Constant) and isinstance(node.value, (int, float)) \
+                and not isinstance(node.value, bool):
+            return
+        if _dotted(node) is not None:
+            name = _dotted(node)
+            if name not in CONSTANTS:
+                self.names.add(name)
+            return
+        if isinstance(node, ast.BinOp) and type(node.op) in _OPS:
+            self._check(node.left)
+            self._check(node.right)
+            return
+        if isinstance(node, ast.UnaryOp) and type(node.op) in _OPS:
+            self._check(node.operand)
+            return
+        if isinstance(node, ast.Call) and isinstance(node.func, ast.Name) \
+                and node.func.id in FUNCTIONS and not node.keywords:
+            for arg in node.args:
+                self._check(arg)
+            return
+        raise ValueError(f"may hold numbers, names, + - * / ** and {', '.join(FUNCTIONS)}; "
+                         f"not {ast.unparse(node)!r}")
+
+    def __call__(self, values: dict):
+        return np.asarray(self._eval(self.tree, values), float)
+
+    def _eval(self, node, values):
+        if isinstance(node, ast.Constant):
+            return node.value
+        name = _dotted(node)
+        if name is not None:
+            return CONSTANTS[name] if name in CONSTANTS else values[name]
+        if isinstance(node, ast.BinOp):
+            return _OPS[type(node.op)](self._eval(node.left, values),
+                                       self._eval(node.right, values))
+        if isinstance(node, ast.UnaryOp):
+            return _OPS[type(node.op)](self._eval(node.operand, values))
+        return FUNCTIONS[node.func.id](*(self._eval(a, values) for a in node.args))
+
+
+def _dotted(node) -> str | None:
+    """"a.b.c" of a name or a chain of attributes of a name, else None."""
+    parts = []
+    while isinstance(node, ast.Attribute):
+        parts.append(node.attr)
+        node = node.value
+    if not isinstance(node, ast.Name):
+        return None
+    return ".".join([node.id, *reversed(parts)])
+
+
+class Hook:
+    """An initial state computed by the user's "module:function": called with every state,
+    input and parameter by name, as NumPy arrays over the operating points (the states
+    already set), it returns the state's values (one per point, or one for all)."""
+
+    def __init__(self, fn):
+        self.fn = fn
+        self.names = set()
+
+    def __call__(self, values: dict):
+        return np.asarray(self.fn(dict(values)), float)
+
+
+def flatten(params: dict, prefix: str = "") -> dict:
+    """Nested parameter tables as one table of dotted names: {"tyre": {"r_w": 0.3}} ->
+    {"tyre.r_w": 0.3}."""
+    out = {}
+    for key, value in params.items():
+        if isinstance(value, dict):
+            out.update(flatten(value, f"{prefix}{key}."))
+        else:
+            out[f"{prefix}{key}"] = value
+    return out
+
+
+def nest(p: dict) -> dict:
+    """The inverse of `flatten`: dotted names as nested dicts (any leaves: arrays, tracers)."""
+    out: dict = {}
+    for key, value in p.items():
+        *path, last = key.split(".")
+        table = out
+        for part in path:
+            table = table.setdefault(part, {})
+        table[last] = value
+    return out
+
+
+class Nested:
+    """A user's f(t, x, u, p) that reads nested parameter tables (p["tyre"]["r_w"]), called
+    with the flat dotted table the sweep varies; equal, hashed and pickled by f."""
+
+    def __init__(self, fn):
+        self.fn = fn
+        functools.update_wrapper(self, fn)
+
+    def __call__(self, t, x, u, p):
+        return self.fn(t, x, u, nest(p))
+
+    def __eq__(self, other):
+        return isinstance(other, Nested) and other.fn == self.fn
+
+    def __hash__(self):
+        return hash(("nested", self.fn))
+
+    def __reduce__(self):
+        return Nested, (self.fn,)
 
 
 def builtin(name: str, vehicle: str, tyre: str | None = None):

@@ -63,3 +63,21 @@ def test_envelope_sweep_compilation_cache(benchmark):
                                   rounds=1)
         warm = _command_sweep(Path(tmp) / "warm", Path(tmp) / "jax")
     benchmark.extra_info.update(kind="sweep_cache", cold=cold, warm=warm)
+
+
+WHEEL = Path(sweep.__file__).parent / "configs" / "wheel.toml"
+
+
+def test_stiff_sweep_wall_time_estimate(benchmark, tmp_path):
+    """The stiff wheel sweep (10 methods, 15 points): the wall time the sweep estimated
+    before it started (bench/sweep/estimate.py) against the wall time it took, in one run."""
+    cfg = sweep_config.load(WHEEL)
+    manifest = benchmark.pedantic(
+        lambda: sweep.run_sweep(cfg, tmp_path / "wheel", overwrite=True, progress=True),
+        rounds=1)
+    t = manifest["timing"]
+    est = t["estimate"]["total_s"]
+    benchmark.extra_info.update(kind="sweep_estimate", figures={
+        "sweep_estimate_s": est, "sweep_estimate_wall_s": t["wall_s"],
+        "sweep_estimate_calibration_s": t["estimate"]["calibration_s"],
+        "sweep_estimate_error": abs(est / t["wall_s"] - 1.0)})

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import re
 from pathlib import Path
 from typing import Annotated, Literal
 
@@ -15,8 +16,8 @@ from pydantic.dataclasses import dataclass
 
 from stepzoo import config_schema
 from stepzoo.bench.model import casadi_source as casadi_model
-from stepzoo.bench.model.spec import (BICYCLE_ERROR_STATES, ModelSpec, builtin, check_rhs,
-                                      load_function)
+from stepzoo.bench.model.spec import (BICYCLE_ERROR_STATES, Expression, Hook, ModelSpec,
+                                      Nested, builtin, check_rhs, flatten, load_function)
 from stepzoo.config_schema import Schema, by_shape, quantity, ranged
 from stepzoo.errors import UsageError
 from stepzoo.validate import problem, read_toml
@@ -255,6 +256,27 @@ class Trajectories(Schema):
                                   "of it")
 
 
+class ParamTable(Schema):
+    """[params.<name>]: a nested table of parameters (as simulators ship them); each key is
+    named "<name>.<key>" in [envelope], [initial] expressions and the tables, and a model
+    module's f reads it as p["<name>"]["<key>"]."""
+    model_config = ConfigDict(extra="allow")
+    __pydantic_extra__: dict[str, float | ParamTable] = Field(init=False)
+
+
+ParamTable.model_rebuild()
+
+
+def _plain_params(params: dict) -> dict:
+    """[params] as plain nested dicts of numbers."""
+    return {k: _plain_params(v.model_extra or {}) if isinstance(v, ParamTable) else v
+            for k, v in params.items()}
+
+
+# A "module:function" hook (an initial state computed by the user's code), not an expression.
+HOOK = re.compile(r"^[A-Za-z_][\w.]*:[A-Za-z_]\w*$")
+
+
 class Envelope(Schema):
     """[envelope]: the operating grid: any parameter, input or initial state by name = its
     values (a list, or {min, max, num}); every combination of the values is an operating
@@ -300,9 +322,16 @@ class SweepFile(Schema):
     methods: by_shape(value=Literal[SELECTORS],
                       list=Annotated[tuple[str, ...], AfterValidator(_known_methods)]) = Field(
         "all", description="the zoo's method names, or a kind: " + ", ".join(SELECTORS))
-    params: dict[str, float] = Field({}, description="parameter values by name, over the "
-                                     "model's own")
-    initial: dict[str, float] = Field({}, description="initial state values by name")
+    params: dict[str, float | ParamTable] = Field({}, description="parameter values by "
+                                                  "name, over the model's own; a nested "
+                                                  "table is named with dots (tyre.r_w)")
+    initial: dict[str, float | str] = Field({}, description="initial state values by name: a "
+                                            "number, an expression of the other states, "
+                                            'inputs and parameters ("vx / tyre.r_w"; + - * / '
+                                            "**, sqrt, exp, log, sin, cos, tan, atan, atan2, "
+                                            'hypot, abs, min, max, pi), or "module:function", '
+                                            "the user's function of them all (NumPy arrays "
+                                            "over the operating points, by name)")
     envelope: Envelope = Field(Envelope(), description="the operating grid")
     error: ErrorNorm = Field(ErrorNorm(), description="the error norm")
     steps: Steps = Field(description="the step sizes")
@@ -507,6 +536,7 @@ def model_spec(f: SweepFile, source: str, bad: list) -> tuple[ModelSpec | None, 
         bad.append(f"unknown vehicle {vehicle!r}; known: {', '.join(dynamics.vehicle_names())}")
         vehicle = dynamics.default_vehicle()
     sha, stiff, folder, model = "", False, "", f.model
+    given = flatten(_plain_params(f.params))
     if isinstance(model, str):
         if model not in dynamics.MODELS:
             bad.append(f"unknown model {model!r}; known: {', '.join(dynamics.MODELS)} (or a "
@@ -529,7 +559,7 @@ def model_spec(f: SweepFile, source: str, bad: list) -> tuple[ModelSpec | None, 
         try:
             if model.casadi is not None:
                 said: list[str] = []
-                p_names = casadi_model.check_p(list(model.p or ()), f.params, source, said)
+                p_names = casadi_model.check_p(list(model.p or ()), given, source, said)
                 bad.extend(line.removeprefix(f"{source}: ") for line in said)
                 if len(bad) > before:
                     return None, vehicle
@@ -537,28 +567,38 @@ def model_spec(f: SweepFile, source: str, bad: list) -> tuple[ModelSpec | None, 
                                              source)
             else:
                 rhs, sha = load_function(name, Path(folder), source)
+                if any("." in k for k in given):
+                    rhs = Nested(rhs)          # the module reads its tables nested
         except UsageError as err:
             bad.append(str(err).removeprefix(f"{source}: "))
             return None, vehicle
         params, initial, kinds = {}, dict.fromkeys([*states, *inputs], 0.0), {}
-    params.update(f.params)
+    params.update(given)
     if f.envelope.x0 is not None:
         if len(f.envelope.x0) != len(states):
             bad.append(f"envelope.x0 must be {len(states)} finite numbers "
                        f"[{', '.join(states)}]")
         else:
             initial.update(zip(states, f.envelope.x0))
+    derived = {}
     for key, value in f.initial.items():
         if key not in states:
             bad.append(f"initial.{key} is not a state; states: {', '.join(states)}")
+        elif isinstance(value, str):
+            derived[key] = value
         else:
             initial[key] = value
     known = set(states) | set(inputs) | set(params)
+    derive = _derive(derived, known, folder or str(Path(source).resolve().parent), source, bad)
     envelope = []
     for var, grid in (f.envelope.model_extra or {}).items():
         if var not in known:
             bad.append(f"envelope.{var} is not a parameter, input or state of {name}; "
                        f"known: {', '.join(sorted(known))}")
+            continue
+        if var in derived:
+            bad.append(f"envelope.{var} varies a state that initial.{var} computes; keep one "
+                       "of the two")
             continue
         values = grid_values(grid)
         kind = kinds.get(var)
@@ -588,12 +628,76 @@ def model_spec(f: SweepFile, source: str, bad: list) -> tuple[ModelSpec | None, 
                    f"({len(error_states)})")
     if len(bad) > before:
         return None, vehicle
-    return ModelSpec(name, rhs, tuple(states), tuple(inputs),
+    spec = ModelSpec(name, rhs, tuple(states), tuple(inputs),
                      tuple((k, float(v)) for k, v in params.items()),
                      tuple(float(initial[s]) for s in states),
                      tuple(float(initial[s]) for s in inputs), tuple(envelope),
                      tuple(error_states), tuple(float(s) for s in scales), stiff,
-                     f.tyre, sha, folder), vehicle
+                     f.tyre, sha, folder, tuple(derived.items()), tuple(derive))
+    return _check_derived(spec, bad), vehicle
+
+
+def _derive(derived: dict, known: set, folder: str, source: str, bad: list) -> list:
+    """The evaluators (model_spec.Expression or Hook) of the initial states given as text,
+    in order; each may read the states, inputs and parameters, but no state computed after
+    it (nor itself). Appends to `bad` when one cannot be had."""
+    from stepzoo.bench.model.spec import import_user_module
+    out, later = [], set(derived)
+    for key, text in derived.items():
+        later.discard(key)
+        if HOOK.match(text):
+            module, _, func = text.partition(":")
+            try:
+                fn = getattr(import_user_module(module, Path(folder), source,
+                                                f"initial.{key}"), func, None)
+            except UsageError as err:
+                bad.append(str(err).removeprefix(f"{source}: "))
+                continue
+            if not callable(fn):
+                bad.append(f"initial.{key} = {text!r}: {module} has no function {func!r}")
+                continue
+            out.append(Hook(fn))
+            continue
+        try:
+            expr = Expression(text)
+        except ValueError as err:
+            bad.append(f"initial.{key} = {text!r} {err}; write an arithmetic expression of "
+                       "states, inputs and parameters, or \"module:function\"")
+            continue
+        unknown = sorted(expr.names - known)
+        ahead = sorted(expr.names & (later | {key}))
+        if unknown:
+            bad.append(f"initial.{key} = {text!r} names {', '.join(unknown)}, not a state, "
+                       f"input or parameter; known: {', '.join(sorted(known))}")
+        elif ahead:
+            bad.append(f"initial.{key} = {text!r} reads {', '.join(ahead)}, computed at or "
+                       f"after it; list initial.{ahead[0]} before initial.{key}")
+        else:
+            out.append(expr)
+    return out
+
+
+def _check_derived(spec: ModelSpec, bad: list) -> ModelSpec | None:
+    """The spec, or None (with a line in `bad`) when an initial state it computes fails or is
+    not finite at some operating point."""
+    if not spec.derived:
+        return spec
+    try:
+        with np.errstate(all="ignore"):
+            x0, _, _ = spec.arrays(spec.points)
+    except Exception as err:     # the user's hook or a bad shape: one line, not a traceback
+        bad.append(f"the initial states computed by [initial] ({', '.join(dict(spec.derived))})"
+                   f" fail: {type(err).__name__}: {err}")
+        return None
+    for state, text in spec.derived:
+        col = x0[:, spec.states.index(state)]
+        if not np.isfinite(col).all():
+            at = spec.points[int(np.argmin(np.isfinite(col)))]
+            where = ", ".join(f"{v} = {a:g}" for v, a in zip(spec.variables, at))
+            bad.append(f"initial.{state} = {text!r} is not finite at {where}; keep it finite "
+                       "over the envelope")
+            return None
+    return spec
 
 
 def check_workload(cfg: SweepConfig):

@@ -25,6 +25,7 @@ from stepzoo.bench.sweep import tables as schema
 from stepzoo.bench.sweep.runs import stability_runs
 from stepzoo.bench.sweep import folder as sweep_folder
 from stepzoo.bench.sweep.block import Block
+from stepzoo.bench.sweep.estimate import estimate
 from stepzoo.bench.timing.chunk_stopwatch import Stopwatch
 from stepzoo.bench.timing.rounds import RULE as TIMING_RULE
 from stepzoo.errors import UsageError
@@ -92,6 +93,12 @@ def _fill(cfg, out: Path, resume, overwrite, progress, on_chunk, runner) -> dict
     _write_manifest(cfg, out, created, done, None, complete=False)
     ref_cache: dict = {}
     todo = [c for c in ids if c not in done]
+    # Before a fresh sweep here: its wall time, calibrated on the first block into the cache
+    # the chunks read (a cluster's workers, or a resumed sweep, are not estimated).
+    est = estimate(cfg, ref_cache, n_blocks(cfg)) if (progress and runner is None
+                                                      and not done) else None
+    if est is not None:
+        print(f"stepzoo sweep: {est.says()}", file=sys.stderr, flush=True)
     computed = runner(cfg, todo) if runner is not None else \
         ((cid, compute_chunk(cfg, cid, ref_cache)) for cid in todo)
     for cid, tables in tqdm(computed, total=len(todo), desc=f"sweep {cfg.name}", unit="chunk",
@@ -116,6 +123,8 @@ def _fill(cfg, out: Path, resume, overwrite, progress, on_chunk, runner) -> dict
     for name in schema.CSV:
         atomic_write(out / f"{name}.csv", tables[name].to_csv(index=False))
     timing = _timing(tables["timing"], time.perf_counter() - t0, time.perf_counter() - started)
+    if est is not None:
+        timing["estimate"] = est.record()
     return _write_manifest(cfg, out, created, ids, timing, complete=True)
 
 

@@ -1,6 +1,8 @@
 """Tuning: from a sweep's tables, the cheapest (method, h) that keeps a safety margin below
-the measured largest stable step and meets a tolerance at every operating point of the
-envelope: on the position error of a vehicle model, or on the config's error norm of any.
+the smaller of the predicted and measured largest stable steps (bench/tune/margin.py) and meets a
+tolerance at every operating point of the envelope: on the position error of a vehicle model,
+or on the config's error norm of any. Where the fastest mode bounds explicit steps far below
+what accuracy needs, the answer says the model is stiff and which mode (bench/model/stiffness.py).
 
 Cost is measured time per simulated second (`time`, the default): each qualifying method's
 time per step, calibrated where the planner spends it (bench/timing/calibrate.py), times its steps
@@ -10,6 +12,7 @@ evaluations per simulated second (median over points), ties to the smaller worst
 from __future__ import annotations
 
 import json
+import math
 import os
 from dataclasses import dataclass
 from datetime import datetime, timezone
@@ -19,7 +22,8 @@ import numpy as np
 import pandas as pd
 
 from stepzoo.bench.timing.calibrate import PLANNER_BATCH, PLANNER_INTERVAL_S, ROUNDS, calibrate
-from stepzoo.bench.tune.margin import stable_with_margin
+from stepzoo.bench.model import stiffness
+from stepzoo.bench.tune.margin import BEYOND_PREDICTED, beyond, limit, stable_with_margin
 from stepzoo.bench.sweep.folder import check_finished
 from stepzoo.errors import NoAnswer, UsageError
 from stepzoo.validate import check
@@ -79,11 +83,18 @@ def criterion(pos_tol=None, tol=None) -> Criterion:
 
 
 def candidates(runs: pd.DataFrame, limits: pd.DataFrame, tol, margin: float,
-               column: str = "err_pos"):
+               column: str = "err_pos", beyond_predicted: bool = False):
     """One row per (method, h): worst error (`column`) over the points, whether every point
-    is stable with the margin and within the tolerance, and the two costs."""
-    df = runs.merge(limits[["method", "point", "h_meas"]], on=["method", "point"])
-    df["in_margin"] = stable_with_margin(df["stable"], df["h"], df["h_meas"], margin)
+    is stable with the margin (below the smaller of h_pred and h_meas; below h_meas alone
+    with `beyond_predicted`) and within the tolerance, whether some point is beyond its
+    predicted limit (and by how much at most), and the two costs."""
+    df = runs.merge(limits[["method", "point", "h_meas", "h_pred"]], on=["method", "point"])
+    df["in_margin"] = stable_with_margin(df["stable"], df["h"], df["h_meas"], margin,
+                                         df["h_pred"], beyond_predicted)
+    df["h_limit"] = limit(df["h_meas"], df["h_pred"])
+    df["beyond_predicted"] = beyond(df["h"], df["h_pred"])
+    with np.errstate(divide="ignore", invalid="ignore"):
+        df["h_over_h_pred"] = df["h"] / df["h_pred"]
     df["time_per_s"] = df["time_per_step_s"] / df["h"]
     g = df.groupby(["method", "h"])
     table = pd.DataFrame({
@@ -92,6 +103,11 @@ def candidates(runs: pd.DataFrame, limits: pd.DataFrame, tol, margin: float,
         "cost_evals_per_s": g["evals_per_s"].median(),
         "cost_time_per_s": g["time_per_s"].median(),
         "h_meas_min": g["h_meas"].min(),
+        "h_pred_min": g["h_pred"].min(),
+        "h_limit_min": g["h_limit"].min(),
+        "beyond_predicted": g["beyond_predicted"].any(),
+        "h_over_h_pred_max": g["h_over_h_pred"].max(),
+        "stable_all": g["stable"].all(),
         "points": g["point"].nunique(),
     }).reset_index()
     table["ok"] = table["in_margin"] & np.isfinite(table[column]) & (table[column] <= tol)
@@ -112,19 +128,24 @@ def check_arguments(pos_tol, margin: float, tol=None, cost: str = "time",
 
 def tune(folder, pos_tol, margin: float, tol=None, *, batch: int = PLANNER_BATCH,
          interval_s: float = PLANNER_INTERVAL_S, cost: str = "time",
-         rounds: int = ROUNDS) -> dict:
+         rounds: int = ROUNDS, beyond_predicted: bool = False) -> dict:
     """The tuned config as a dict (the TOML's content): under --pos-tol (pos_tol [m]) or
     --tol (tol, in the sweep's error norm), ranked by `cost` ("time" or "evals"). Each
     qualifying method is calibrated at its largest qualifying step in calls of `batch`
     trajectories over `interval_s` [s] (default: the planner's default call), `rounds`
-    rounds: both costs are recorded whichever ranks."""
+    rounds: both costs are recorded whichever ranks. A step qualifies at or below (1 -
+    margin) x the smaller of its predicted and measured limits at every point; the measured
+    one alone with `beyond_predicted` (--allow-beyond-predicted-limit)."""
     crit = check_arguments(pos_tol, margin, tol, cost, rounds)
     runs, limits, manifest = load_results(folder)
     col = crit.column
     if col not in runs:
         raise UsageError(f"{folder} has no {col} column: its model has no position (X, Y); "
                          "tune it with --tol E, the config's error norm")
-    table = candidates(runs, limits, crit.tol, margin, col)
+    table = candidates(runs, limits, crit.tol, margin, col, beyond_predicted)
+    cfg = _config(folder)
+    variables = (manifest.get("model_spec") or {}).get("variables", ["vx", "delta"])
+    stiff = stiffness.of_sweep(runs, limits, col, crit.tol, cfg, variables)
     ok = table[table["ok"]].copy()
     if ok.empty:
         best = table[table["in_margin"]].sort_values(col).head(1)
@@ -133,8 +154,8 @@ def tune(folder, pos_tol, margin: float, tol=None, *, batch: int = PLANNER_BATCH
                 f"{best['h'].iloc[0]:g} s)" if len(best) else "no step is within the margin")
         raise NoAnswer(f"no (method, h) of {folder} is stable with margin {margin:g} and "
                        f"within {crit.show(crit.tol)} at every point: {hint}; loosen "
-                       f"{crit.flag} or sweep smaller steps")
-    cal = _calibrate(folder, ok, batch, interval_s, rounds)
+                       f"{crit.flag} or sweep smaller steps ({stiff['says']})")
+    cal = _calibrate(cfg, ok, batch, interval_s, rounds)
     ok["cost_time_per_s"] = [cal[m].per_sim_s(h) for m, h in zip(ok["method"], ok["h"])]
     ok["cost_time_spread_per_s"] = ok["method"].map(lambda m: cal[m].spread_s) / ok["h"]
     ok["spread"] = ok["method"].map(lambda m: cal[m].spread)
@@ -145,7 +166,7 @@ def tune(folder, pos_tol, margin: float, tol=None, *, batch: int = PLANNER_BATCH
     why = (f"{choice['method']} at h = {choice['h']:g} s is the "
            f"{'fastest (within the measured spread)' if cost == 'time' else 'cheapest'} step "
            "that stays within "
-           f"{1 - margin:g} x the measured largest stable step and within "
+           f"{1 - margin:g} x {_limit_words(beyond_predicted)} and within "
            f"{crit.show(crit.tol)} at all {n_points} operating points: "
            + (f"{choice['cost_time_per_s']:.3g} s of wall time per simulated second in the "
               f"planner's call ({batch} trajectories of {interval_s:g} s, the fastest of "
@@ -158,11 +179,17 @@ def tune(folder, pos_tol, margin: float, tol=None, *, batch: int = PLANNER_BATCH
         why += (f"; {f['method']} at h = {f['h']:g} s is {f['cost_time_per_s']:.3g} s, "
                 f"faster by less than the calibration's spread, with "
                 f"{_tie_loss(f, choice, col)}")
+    if choice["beyond_predicted"]:
+        why += (f"; it is {choice['h_over_h_pred_max']:.3g} x its predicted limit at some "
+                f"point, allowed by {BEYOND_PREDICTED} only")
+    if stiff["stiff"]:
+        why += (f"; {stiff['says']}; implicit and Rosenbrock methods are ranked with the "
+                "explicit ones by measured time")
     runners = [_runner(r, choice, crit, cost) for _, r in per_method.iloc[1:].iterrows()]
     for name in sorted(set(table["method"]) - set(per_method["method"])):
-        runners.append(_infeasible(table[table["method"] == name], name, crit, margin))
+        runners.append(_infeasible(table[table["method"] == name], name, crit, margin,
+                                   beyond_predicted))
     sweep_name = manifest.get("config_name", "sweep")
-    variables = (manifest.get("model_spec") or {}).get("variables", ["vx", "delta"])
     limit = {"pos_tol_m": float(crit.tol)} if col == "err_pos" else {"tol": float(crit.tol)}
     worst = {"err_pos_max_m" if col == "err_pos" else "err_max": float(choice[col])}
     return {
@@ -177,12 +204,17 @@ def tune(folder, pos_tol, margin: float, tol=None, *, batch: int = PLANNER_BATCH
         "cost_time_spread_per_s": float(choice["cost_time_spread_per_s"]),
         **worst,
         "h_meas_min_s": float(choice["h_meas_min"]),
+        "h_pred_min_s": float(choice["h_pred_min"]),
+        "h_over_h_pred_max": float(choice["h_over_h_pred_max"]),
+        "allow_beyond_predicted_limit": bool(beyond_predicted),
+        "stiff": stiff["stiff"],
+        "stiffness": _toml_safe(stiff),
         "horizon_s": float(manifest.get("horizon_s", float("nan"))),
         "model": str(manifest.get("model", "dynamic5")),
         "sweep_config_sha256": manifest["config_sha256"],
         "sweep": str(Path(folder).resolve()),
         "provenance": (f"stepzoo tune {folder} {crit.flag} {crit.tol:g} --margin {margin:g} "
-                       f"--cost {cost} at "
+                       f"--cost {cost}{' ' + BEYOND_PREDICTED if beyond_predicted else ''} at "
                        f"{datetime.now(timezone.utc).isoformat(timespec='seconds')}, from "
                        f"the sweep '{sweep_name}' created {manifest.get('created', '?')}"),
         "envelope": {**{v: [float(runs[v].min()), float(runs[v].max())] for v in variables
@@ -192,11 +224,33 @@ def tune(folder, pos_tol, margin: float, tol=None, *, batch: int = PLANNER_BATCH
     }
 
 
-def _calibrate(folder, ok: pd.DataFrame, batch: int, interval_s: float, rounds: int) -> dict:
+def _config(folder):
+    """The sweep's own config (its copy in the folder)."""
+    from stepzoo.bench.sweep.config import load
+    return load(Path(folder) / "config.toml")
+
+
+def _limit_words(beyond_predicted: bool) -> str:
+    return ("the measured largest stable step (the predicted one ignored: "
+            f"{BEYOND_PREDICTED})" if beyond_predicted else
+            "the smaller of the predicted and measured largest stable steps")
+
+
+def _toml_safe(record: dict) -> dict:
+    """A record for TOML, which has no null: None and NaN keys left out, nested alike."""
+    out = {}
+    for k, v in record.items():
+        if isinstance(v, dict):
+            v = _toml_safe(v)
+        if v is None or (isinstance(v, float) and math.isnan(v)):
+            continue
+        out[k] = v
+    return out
+
+
+def _calibrate(cfg, ok: pd.DataFrame, batch: int, interval_s: float, rounds: int) -> dict:
     """Each qualifying method's Calibration at its largest qualifying step (its cheapest in
     time, the per-step time being the method's), on the sweep's own model and envelope."""
-    from stepzoo.bench.sweep.config import load
-    cfg = load(Path(folder) / "config.toml")
     steps = ok.groupby("method", sort=True)["h"].max()
     return calibrate({str(m): float(h) for m, h in steps.items()}, cfg.spec, batch,
                      interval_s, rounds, resolve=cfg.method)
@@ -253,11 +307,12 @@ def _tie_loss(row, choice, col: str) -> str:
     return "as many RHS evaluations and a larger worst error"
 
 
-def _infeasible(rows: pd.DataFrame, name: str, crit, margin: float) -> dict:
+def _infeasible(rows: pd.DataFrame, name: str, crit, margin: float,
+                beyond_predicted: bool = False) -> dict:
     inside = rows[rows["in_margin"]]
     if inside.empty:
-        reason = (f"every step tried is past {1 - margin:g} x its measured largest stable "
-                  "step at some operating point")
+        reason = (f"every step tried is past {1 - margin:g} x "
+                  f"{_limit_words(beyond_predicted)} at some operating point")
     else:
         best = inside.loc[inside[crit.column].idxmin()]
         reason = (f"no step qualifies: within the margin its smallest worst-case {crit.what} "

@@ -207,23 +207,27 @@ def _named_values(model):
     return typing.get_type_hints(model, include_extras=True).get("__pydantic_extra__")
 
 
-def config_keys(model, prefix: str = ""):
-    """Every key a file of `model` may hold: (dotted path, its FieldInfo, its doc)."""
+def config_keys(model, prefix: str = "", within: tuple = ()):
+    """Every key a file of `model` may hold: (dotted path, its FieldInfo, its doc); a table
+    that holds tables of its own kind (nested [params]) is listed once, not unrolled."""
     from pydantic.fields import FieldInfo
+    within = (*within, model)
     named = _named_values(model)
     if named is not None:
         value = typing.get_args(named)[1]
         path = prefix + "<name>"
         yield path, FieldInfo.from_annotation(value), "any key you name, as the table says"
         for step, inner in _tables(value):
-            yield from config_keys(inner, f"{path}{step}.")
+            if inner not in within:
+                yield from config_keys(inner, f"{path}{step}.", within)
     for name, info in model.model_fields.items():
         path = prefix + (info.alias or name)
         tables = _tables(info.annotation)
         doc = info.description or ((tables[0][1].__doc__ or "") if tables else "")
         yield path, info, doc
         for step, inner in tables:
-            yield from config_keys(inner, f"{path}{step}.")
+            if inner not in within:
+                yield from config_keys(inner, f"{path}{step}.", within)
 
 
 def _default(info) -> str:

@@ -26,6 +26,10 @@ def add_arguments(p):
     p.add_argument("--rounds", type=int, default=None, metavar="N",
                    help="timed rounds of each method's calibration (default "
                    f"{ROUNDS}): the fastest counts")
+    p.add_argument("--allow-beyond-predicted-limit", action="store_true",
+                   help="risky: let a step qualify above its predicted (frozen-Jacobian) "
+                   "largest stable step where the measurement saw no instability; by default "
+                   "h <= (1 - margin) x the smaller of the predicted and measured limits")
     _for_plans_arguments(p)
     p.add_argument("--out", required=True, metavar="FILE", help="tuned planner config (TOML)")
     p.add_argument("--format", choices=["text", "json"], default="text")
@@ -33,7 +37,7 @@ def add_arguments(p):
 
 def main(args) -> int:
     tuned = tune(args.results, args.pos_tol, args.margin, args.out, args.tol, args.cost,
-                 args.rounds, tune_plans.trial(args))
+                 args.rounds, tune_plans.trial(args), args.allow_beyond_predicted_limit)
     show(tuned, args.out, args.format)
     return 0
 

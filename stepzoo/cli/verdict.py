@@ -22,6 +22,11 @@ def add_arguments(p):
     p.add_argument("--margin", type=float, default=DEFAULT_MARGIN, metavar="FRACTION",
                    help="stable with margin: h <= (1 - margin) x the measured largest stable "
                    f"step at the point, as `stepzoo tune` keeps (default {DEFAULT_MARGIN})")
+    p.add_argument("--allow-beyond-predicted-limit", action="store_true",
+                   help="risky: call a step stable with margin above its predicted "
+                   "(frozen-Jacobian) largest stable step where the measurement saw no "
+                   "instability; by default the margin is kept below the smaller of the "
+                   "predicted and measured limits")
     p.add_argument("--csv", metavar="FILE", help="also write one row per (method, h, point) "
                    "to this CSV file")
     p.add_argument("--format", choices=["text", "json"], default="text")
@@ -41,6 +46,7 @@ def _csv(path, cfg, results) -> None:
 
 
 def main(args) -> int:
+    from stepzoo.bench.sweep.engine import _finite
     from stepzoo.bench.sweep.config import load
     from stepzoo.bench.tune.verdict import verdicts
     from stepzoo.integrators import METHODS
@@ -62,7 +68,8 @@ def main(args) -> int:
     if column == "err_pos" and not cfg.spec.vehicle:
         raise UsageError(f"{cfg.model} has no position (X, Y); use --tol E")
     unit = " m" if column == "err_pos" else ""
-    results = verdicts(cfg, list(zip(args.method, hs)), column, tol, margin, unit)
+    results = verdicts(cfg, list(zip(args.method, hs)), column, tol, margin, unit,
+                       args.allow_beyond_predicted_limit)
     if args.csv is not None:
         _csv(args.csv, cfg, results)
     if args.format == "json":
@@ -72,8 +79,9 @@ def main(args) -> int:
             v["points"], v["n_points"] = v.pop("points_list"), v["points"]
             # JSON has neither inf nor NaN: a blown-up worst error, an unbounded limit, a limit
             # where the model returned NaN, is null.
-            for key in ("worst_error", "h_meas_min", "h_pred_min"):
+            for key in ("worst_error", "h_meas_min", "h_pred_min", "h_over_h_pred_max"):
                 v[key] = v[key] if math.isfinite(v[key]) else None
+            v["stiffness"] = _finite(v["stiffness"])
             out.append(v)
         print(to_json({"model": cfg.model, "config": str(args.config), "verdicts": out}))
         return 0
@@ -86,10 +94,15 @@ def main(args) -> int:
 
 def _show(cfg, v, table, tol, unit) -> None:
     variables = list(cfg.spec.variables)
-    # An infinite error is a run that is not stable: say why (a failed solve is no blow-up).
+    # An infinite error is a run that left the finite range: it blows up (or a failed solve
+    # left it so); a finite error at an unstable point is a bounded instability.
     first = v["worst_cause"].split("; ")[0]
-    worst = (f"inf ({'blows up' if first == 'unstable' else first})"
-             if math.isinf(v["worst_error"]) else f"{v['worst_error']:.3g}{unit}")
+    if math.isinf(v["worst_error"]):
+        worst = f"inf ({'blows up' if first == 'unstable' else first})"
+    else:
+        worst = f"{v['worst_error']:.3g}{unit}" + (
+            f" ({first}, the run stays finite)" if first in ("unstable", "solver failed")
+            else "")
     # As the sweep's summary does, a limit where a nonlinear solve failed is the solver's,
     # told apart from the measured stability limits.
     solver = table["limit_cause"] == "solver failed"
@@ -104,6 +117,12 @@ def _show(cfg, v, table, tol, unit) -> None:
           f"stable at {v['stable']} ({v['stable_with_margin']} with margin {v['margin']:g}), "
           f"within {tol:g}{unit} at {v['accurate']}; smallest predicted limit "
           f"{v['h_pred_min']:.4g} s, {measured}")
+    if v["beyond_predicted"]:
+        print(f"beyond the predicted limit at {v['beyond_predicted']} point(s), up to "
+              f"{v['h_over_h_pred_max']:.3g} x h_pred: "
+              + ("allowed by --allow-beyond-predicted-limit" if
+                 v["allow_beyond_predicted_limit"] else "never called stable with margin"))
+    print(v["stiffness"]["says"])
     rows = [{**{k: r[k] for k in variables},
              **{"h/h_meas": r["h_over_h_meas"], "stable": "yes" if r["stable"] else "no",
                 "error": r["error"], "accurate": "yes" if r["accurate"] else "no",

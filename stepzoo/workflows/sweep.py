@@ -26,14 +26,19 @@ def sweep(config, out, *, resume=False, overwrite=False, progress=True,
 
 
 def show(manifest: dict, out, fmt: str = "text") -> None:
-    """Print what a sweep into `out` did: the summary table and timing, or JSON."""
+    """Print what a sweep into `out` did: the summary table, whether the model is stiff (at
+    the report's default tolerance) and timing, or JSON."""
     import pandas as pd
+
+    from stepzoo.bench.sweep.engine import _finite
+    suite = bool(manifest.get("problems"))
     if fmt == "json":
         print(to_json({"out": str(out), "config_sha256": manifest["config_sha256"],
-                       "timing": manifest["timing"]}))
+                       "timing": manifest["timing"],
+                       **({} if suite else {"stiffness": _finite(stiffness(out))})}))
         return
     t = manifest["timing"]
-    if manifest.get("problems"):
+    if suite:
         _show_suite(manifest, out)
         return
     summary = pd.read_csv(f"{out}/summary.csv").to_dict("records")
@@ -43,6 +48,9 @@ def show(manifest: dict, out, fmt: str = "text") -> None:
     sys.stdout.write(text_table(summary, ["method", "order_declared", "order_fit_median",
                                           "h_pred_min", "h_meas_min", "worst_ratio",
                                           *solver]) + "\n")
+    found = stiffness(out)
+    (tol_column, tol), = found["tolerance"].items()
+    print(f"at {tol_column} <= {tol:g} (the report's default): {found['says']}")
     nan_note = model_nan.note(pd.read_csv(f"{out}/limits.csv"),
                               manifest["model_spec"]["variables"])
     if nan_note:
@@ -101,3 +109,18 @@ def _by_method(summary) -> list[dict]:
                      "others": "; ".join(f"{r.problem} {r.order_fit_median:.2f} "
                                          f"{r.order_status}" for r in off.itertuples())})
     return rows
+
+
+def stiffness(out) -> dict:
+    """Whether the swept model is stiff (bench/model/stiffness.py) at the report's default
+    tolerance (position, or the error norm), from the folder's tables and config."""
+    import pandas as pd
+
+    from stepzoo.bench.model import stiffness as rule
+    from stepzoo.bench.sweep.config import load
+    from stepzoo.workflows.report import DEFAULT_POS_TOL_M, DEFAULT_TOL
+    runs, limits = (pd.read_parquet(f"{out}/{t}.parquet") for t in ("runs", "limits"))
+    cfg = load(f"{out}/config.toml")
+    column, tol = ("err_pos", DEFAULT_POS_TOL_M) if "err_pos" in runs else ("err", DEFAULT_TOL)
+    found = rule.of_sweep(runs, limits, column, tol, cfg, list(cfg.spec.variables))
+    return {**found, "tolerance": {column: tol}}

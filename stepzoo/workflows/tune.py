@@ -17,18 +17,21 @@ def planner_call() -> tuple[int, float]:
 
 
 def tune(results, pos_tol, margin: float, out, tol=None, cost: str = "time",
-         rounds: int | None = None, plans=None) -> dict:
+         rounds: int | None = None, plans=None, beyond_predicted: bool = False) -> dict:
     """Choose (method, h) from the sweep folder `results` (a position tolerance `pos_tol` [m]
     or a tolerance `tol` on the config's error norm, stability margin `margin`, a fraction),
     ranked by `cost` ("time", calibrated in the planner's call, or "evals"), and write it to
     the file `out`; returns the choice, chosen among the qualifying candidates by planning
-    when `plans` (a tune_plans.Trial) is given. `stepzoo tune` and `stepzoo run` call it."""
+    when `plans` (a tune_plans.Trial) is given; `beyond_predicted` drops the predicted limit
+    from the margin rule (--allow-beyond-predicted-limit). `stepzoo tune` and `stepzoo run`
+    call it."""
     from stepzoo.bench.tune.cheapest import tune as choose
     from stepzoo.bench.tune.cheapest import write
     out = check_file_target(out)          # before the work, not only when writing
     batch, interval = planner_call()
     tuned = choose(results, pos_tol, margin, tol, batch=batch, interval_s=interval, cost=cost,
-                   rounds=ROUNDS if rounds is None else rounds)
+                   rounds=ROUNDS if rounds is None else rounds,
+                   beyond_predicted=beyond_predicted)
     if plans is not None:
         tuned = plans.choose(tuned, results)
     write(tuned, out)
@@ -38,9 +41,13 @@ def tune(results, pos_tol, margin: float, out, tol=None, cost: str = "time",
 def show(tuned: dict, out, fmt: str = "text") -> None:
     """Print the choice, its runners-up and where it was written, or JSON."""
     if fmt == "json":
-        print(to_json({"out": str(out), **tuned}))
+        from stepzoo.bench.sweep.engine import _finite
+        # JSON has neither inf nor NaN (an A-stable choice's limits are inf): null.
+        print(to_json(_finite({"out": str(out), **tuned})))
         return
     print(f"chose {tuned['method']} at h = {tuned['h']:g} s: {tuned['why']}")
+    if not tuned["stiff"]:          # a stiff finding is in `why` already
+        print(tuned["stiffness"]["says"])
     rows = [{"method": r["method"], "h": r.get("h"), "evals_per_s": r.get("cost_evals_per_s"),
              "time_per_s": r.get("cost_time_per_s"), "reason": r["reason"]}
             for r in tuned["runners_up"]]

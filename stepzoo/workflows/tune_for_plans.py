@@ -56,7 +56,9 @@ class Trial:
                                            "cost_time_spread_per_s") if k in new}})
         if won:                 # the sweep's numbers of a runner-up, as tune gives its choice
             row = _sweep_row(tuned, results, new, column)
-            out.update({worst: float(row[column]), "h_meas_min_s": float(row["h_meas_min"])})
+            out.update({worst: float(row[column]), "h_meas_min_s": float(row["h_meas_min"]),
+                        "h_pred_min_s": float(row["h_pred_min"]),
+                        "h_over_h_pred_max": float(row["h_over_h_pred_max"])})
         label = evidence[won]["integrator"]
         out["why"] = (f"{new['method']} at h = {new['h']:g} s: planning {self.path} "
                       f"({len(self.queries)} queries x {self.runs} runs) it has "
@@ -149,11 +151,13 @@ def _runner(entry: dict, evidence: dict) -> dict:
 
 
 def _sweep_row(tuned: dict, results, entry: dict, column: str):
-    """The sweep's row of candidate `entry` (worst error, smallest measured stable step)."""
+    """The sweep's row of candidate `entry` (worst error, smallest measured and predicted
+    stable steps)."""
     from stepzoo.bench.tune.cheapest import candidates, load_results
     runs, limits, _ = load_results(results)
     tol = tuned.get("pos_tol_m", tuned.get("tol"))
-    table = candidates(runs, limits, tol, tuned["margin"], column)
+    table = candidates(runs, limits, tol, tuned["margin"], column,
+                       tuned.get("allow_beyond_predicted_limit", False))
     return table[(table["method"] == entry["method"]) & (table["h"] == entry["h"])].iloc[0]
 
 

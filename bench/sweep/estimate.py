@@ -1,0 +1,155 @@
+"""A sweep's wall time, estimated before it starts from a short calibration on its first block
+of points: the references, Jacobians and stability references that every method's chunk
+shares (computed into the sweep's own cache, so the sweep reuses them), and per method its
+compiling call (the sweep's program, which JAX then keeps) and two timed calls that give a
+call's fixed cost and its cost per step. The calls a chunk makes are counted as the sweep
+would make them: the accuracy runs and timing rounds from the config, the stability probes by
+a dry run of the limit search whose probe answers from the predicted limits (no run)."""
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from stepzoo.bench.sweep import limit_search
+from stepzoo.bench.sweep.block import Block
+from stepzoo.bench.timing.rounds import CALIBRATION_STEPS
+
+# Steps of the timed call that gives a method's cost per step (past its fixed cost).
+CAL_STEPS = 200
+
+
+@dataclass(frozen=True)
+class Estimate:
+    """total_s: the sweep's estimated wall time [s], calibration_s of it already spent;
+    shared_s: per block, the references and Jacobians; per method {compile_s, call_s,
+    step_s, calls, steps} of one chunk."""
+    total_s: float
+    calibration_s: float
+    shared_s: float
+    methods: dict
+
+    def record(self) -> dict:
+        """The manifest's "estimate"."""
+        return {"total_s": round(self.total_s, 3), "calibration_s": round(self.calibration_s, 3),
+                "shared_per_block_s": round(self.shared_s, 3),
+                "methods": {m: {k: round(v, 6) if isinstance(v, float) else v
+                                for k, v in c.items()} for m, c in self.methods.items()}}
+
+    def says(self) -> str:
+        slow = max(self.methods.items(), key=lambda kv: kv[1]["chunk_s"], default=None)
+        most = f"; slowest method {slow[0]} ({slow[1]['chunk_s']:.3g} s a chunk)" if slow else ""
+        return (f"estimated wall time {self.total_s:.3g} s (calibrated in "
+                f"{self.calibration_s:.3g} s on the first block{most})")
+
+
+def estimate(cfg, cache: dict, blocks: int) -> Estimate:
+    """The wall time of a sweep of `cfg` in `blocks` blocks, calibrated on block 0 into
+    `cache` (the dict the sweep's chunks then read)."""
+    started = time.perf_counter()
+    block = Block(cfg, 0, cache)
+    t0 = time.perf_counter()
+    block.along()
+    for h in cfg.hs:
+        block.accuracy_reference(h)
+    block.nonsmooth()
+    if cfg.stab_rule != "blowup":
+        block.modal()
+    shared = time.perf_counter() - t0
+    methods = {name: _method(block, cfg.method(name)) for name in cfg.methods}
+    calibration = time.perf_counter() - started
+    # Block 0's shared work and compiling are done; the rest is the chunks' runs, and the
+    # other blocks' shared work (their references cost what block 0's did, compiling aside).
+    total = calibration + (blocks - 1) * shared + sum(
+        blocks * m["chunk_s"] for m in methods.values())
+    return Estimate(total, calibration, shared, methods)
+
+
+def _method(block: Block, meth) -> dict:
+    """A method's calibration and its chunk's counted calls and steps."""
+    cfg, pts = block.cfg, block.points
+    t0 = time.perf_counter()
+    block.run(meth, pts.x0, pts.u, pts.p, cfg.hs[0], 1)             # compiles, as the chunk
+    compile_s = time.perf_counter() - t0
+    h = cfg.hs[len(cfg.hs) // 2]
+    n = max(2, min(CAL_STEPS, block.run.max_steps))
+    one = _timed(block, meth, h, 1)
+    many = _timed(block, meth, h, n)
+    step_s = max(0.0, (many - one) / (n - 1))
+    call_s = max(0.0, one - step_s)
+    calls, steps, run_steps, predict_s = _chunk_work(block, meth)
+    # What a stability probe costs besides its calls (judging each run, step by step, in
+    # Python), per step of a run, from one probe of the block's lanes at that step.
+    B = len(pts)
+    c, s, r = _probe_work(cfg, block.run.max_steps, B, np.full(B, h))
+    t0 = time.perf_counter()
+    block.stable(meth, np.full((B, 1), h))
+    judge_s = max(0.0, time.perf_counter() - t0 - c * call_s - s * step_s) / r
+    return {"compile_s": compile_s, "call_s": call_s, "step_s": step_s, "calls": calls,
+            "steps": steps, "run_steps": run_steps, "judge_s": judge_s,
+            "predict_s": predict_s,
+            "chunk_s": calls * call_s + steps * step_s + run_steps * judge_s + predict_s}
+
+
+def _timed(block, meth, h: float, n: int, rounds: int = 3) -> float:
+    """The median wall time [s] of `rounds` calls of n steps of h [s] on the block's lanes:
+    the sweep's calls meet the machine as it is, not at its least busy."""
+    pts = block.points
+    walls = []
+    for _ in range(rounds):
+        t0 = time.perf_counter()
+        block.run(meth, pts.x0, pts.u, pts.p, h, n)
+        walls.append(time.perf_counter() - t0)
+    return float(np.median(walls))
+
+
+def _chunk_work(block: Block, meth) -> tuple[int, int, int, float]:
+    """(calls, steps per call summed, the stability runs' steps summed, the prediction's
+    time [s]) of one chunk of `meth`: the accuracy runs, the timing
+    rounds, and the stability probes of a dry run of the limit search (stable where h is at
+    most the predicted limit) in the calls the configured rule packs them in."""
+    cfg = block.cfg
+    n_acc = [round(cfg.horizon / h) for h in cfg.hs]
+    j = int(np.argmin(np.abs(np.array(n_acc) - CALIBRATION_STEPS)))   # the timed run
+    calls = len(n_acc) + cfg.timing_rounds - 1
+    steps = sum(n_acc) + (cfg.timing_rounds - 1) * n_acc[j]
+    t0 = time.perf_counter()
+    pred = np.array([p.h for p in block.predicted(meth)])      # the chunk computes it too
+    predict_s = time.perf_counter() - t0
+    asked = []
+
+    def probe(lanes, hs):
+        lanes, hs = np.asarray(lanes), np.asarray(hs, float)
+        asked.append(hs)
+        ok = hs <= pred[lanes]
+        return limit_search.Outcome(ok, np.where(ok, np.nan, hs), np.ones(len(hs), bool))
+
+    B = len(block.points)
+    grid = limit_search.at_steps(probe, np.arange(B), np.tile(np.asarray(cfg.hs), (B, 1)).T)
+    measured = limit_search.measured_limit(grid, probe, cfg.hs, pred, cfg.h_probe_max,
+                                           cfg.rel_tol, B, ladder=cfg.stab_rule != "blowup")
+    if cfg.stab_rule != "blowup":         # the diagnosis probes just above each limit
+        h = measured.h_meas * (1 + cfg.rel_tol)
+        asked.append(h[np.isfinite(h) & (h > 0)])
+    run_steps = 0
+    for hs in asked:
+        c, s, r = _probe_work(cfg, block.run.max_steps, B, hs)
+        calls, steps, run_steps = calls + c, steps + s, run_steps + r
+    return calls, steps, run_steps, predict_s
+
+
+def _probe_work(cfg, max_steps: int, B: int, hs: np.ndarray) -> tuple[int, int, int]:
+    """(calls, steps of the calls, steps of the runs) of one probe of candidates hs [s]: the
+    "blowup" rule runs each candidate twice for `stability.steps`, in calls of B; the
+    "modes" rule runs each with its directions, to the stability horizon, in calls of B
+    runs, each call as long as its longest run."""
+    from stepzoo.bench.sweep.runs.stability_runs import DIRECTIONS
+    if cfg.stab_rule == "blowup":
+        calls = 2 * math.ceil(len(hs) / B)
+        return calls, calls * cfg.stab_steps, 2 * len(hs) * cfg.stab_steps
+    n = np.minimum(np.ceil(cfg.stability_horizon / hs - 1e-9), max_steps).astype(int)
+    runs = np.repeat(n, DIRECTIONS + 1)
+    longest = [int(runs[i: i + B].max()) for i in range(0, len(runs), B)]
+    return len(longest), sum(longest), int(runs.sum())

@@ -1,0 +1,62 @@
+"""The wall-time estimate a sweep prints before it starts (bench/sweep/estimate.py): its count of
+the calls and steps a method's chunk makes is the sweep's own (counted in the sweep's
+runner), and calibrating into the sweep's cache changes no result. Its accuracy in seconds is
+a benchmark's (bench/perf/bench_sweep.py), not a test's."""
+
+import pandas as pd
+import pytest
+
+from stepzoo.bench.sweep.runs import method_runs
+from stepzoo.bench.sweep import tables as schema
+from stepzoo.bench.sweep.estimate import estimate
+from stepzoo.bench.sweep.engine import compute_chunk, run_sweep
+from stepzoo.bench.sweep.config import load
+
+
+@pytest.fixture(scope="module")
+def counted(tiny_sweep):
+    """(the estimate's record of each method, the calls and steps each method's chunk of
+    block 0 made) on the tiny bicycle, with every call of the sweep's runner counted."""
+    config, _ = tiny_sweep
+    cfg = load(config)
+    est = estimate(cfg, {}, 2)
+    seen = {}
+    plain = method_runs.Runner.__call__
+
+    def counting(self, meth, x0, u, p, h, n):
+        calls, steps = seen.setdefault(meth.name, [0, 0])
+        seen[meth.name] = [calls + 1, steps + n]
+        return plain(self, meth, x0, u, p, h, n)
+
+    method_runs.Runner.__call__ = counting
+    try:
+        cache: dict = {}
+        compute_chunk(cfg, "reference-b000", cache)
+        for name in cfg.methods:
+            compute_chunk(cfg, f"{name}-b000", cache)
+    finally:
+        method_runs.Runner.__call__ = plain
+    return est.methods, seen
+
+
+@pytest.mark.parametrize("name", ["euler", "heun"])
+def test_the_estimate_counts_the_calls_and_steps_a_chunk_makes(counted, name):
+    """Its dry run of the limit search answers from the predicted limits, which the tiny
+    bicycle's measured ones match to 1.2%: the same probes, but for the last narrowing
+    rounds, the compiling call and the figure runs of block 0 (a few calls of few steps)."""
+    est, seen = counted
+    calls, steps = seen[name]
+    assert est[name]["calls"] == pytest.approx(calls, rel=0.15)
+    assert est[name]["steps"] == pytest.approx(steps, rel=0.15)
+
+
+def test_calibrating_into_the_sweeps_cache_changes_no_result(tiny_sweep, tmp_path):
+    """The sweep that estimates itself first (progress on) writes the tables of the one that
+    does not, to the bit, but for the wall-clock columns."""
+    config, whole = tiny_sweep
+    manifest = run_sweep(load(config), tmp_path / "again", progress=True)
+    assert manifest["timing"]["estimate"]["total_s"] > 0
+    for table in ("runs", "limits"):
+        a, b = (pd.read_parquet(f / f"{table}.parquet") for f in (whole, tmp_path / "again"))
+        keep = [c for c in a.columns if c not in schema.MEASURED]
+        pd.testing.assert_frame_equal(a[keep], b[keep])
