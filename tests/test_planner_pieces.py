@@ -4,6 +4,7 @@ the status and cause words, the tree's columns and the declared parameters."""
 import json
 import math
 import tomllib
+import typing
 from time import perf_counter
 
 import numpy as np
@@ -142,6 +143,14 @@ def test_the_default_parameters_are_the_shipped_configs_planner_table():
 
 def test_every_parameter_declares_unit_and_reason_and_its_range_holds_at_both_ends():
     for name, info in PlannerParams.model_fields.items():
+        if isinstance(info.default, str):
+            # A choice: each of its names holds, any other is refused.
+            assert info.description.endswith("[1]"), name
+            for choice in typing.get_args(info.annotation):
+                assert getattr(planner_params({name: choice}), name) == choice
+            with pytest.raises(UsageError, match=f"^planner parameters: {name} must be"):
+                planner_params({name: "sometimes"})
+            continue
         extra = info.json_schema_extra
         bounds = {k: getattr(m, k) for m in info.metadata for k in ("ge", "le")
                   if getattr(m, k, None) is not None}
