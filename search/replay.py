@@ -44,11 +44,10 @@ def controls(result: PlanResult, method: str | None = None) -> list[dict]:
     out, t0 = [], 0.0
     tree = {"method": method} if method else {}
     rates = result.path_steer_rates or [None] * len(result.path_edges)
-    steer0 = 0.0
     for edge, steer, tight, way, rate in zip(result.path_edges, result.path_steers,
                                              result.path_tight, result.path_directions, rates):
         n = len(edge) - 1
-        start = float(steer) if rate is None else steer0
+        start = float(steer) if rate is None else float(steer - rate * n * result.h)
         ramp = {} if rate is None else {"delta_rate": float(rate)}
         if tight or way < 0:
             ramp = {k: [v] * n for k, v in ramp.items()}
@@ -62,7 +61,6 @@ def controls(result: PlanResult, method: str | None = None) -> list[dict]:
             out.append({"model": "dynamic5", "t0": t0, "duration": n * result.h,
                         "vx": result.vx, "inputs": {"delta": start, **ramp}, "move": "tree",
                         "steps": n, **tree, "h": result.h})
-        steer0 = float(steer)
         # As path_rows times the path: the same sums, so a node's time matches its row's.
         t0 = t0 + result.h * n
     conn = result.connection

@@ -7,6 +7,7 @@ import pytest
 from scipy.ndimage import label
 
 from stepzoo import dynamics
+from stepzoo.dynamics.models import steered
 from stepzoo.integrators import integrate
 from stepzoo.integrators.reference import reference
 from stepzoo.search.connect import resimulate
@@ -70,15 +71,20 @@ def dense_check(scenario, result):
     # moves more than a quarter cell between poses (speed plus rotation of the far corner).
     spacing = min(scenario.omap.resolution / 4, 0.1)
     collisions, joint_gap, previous_end = 0, 0.0, result.path_edges[0][0]
-    for edge, steer, kinematic in zip(result.path_edges, result.path_steers, result.path_tight):
+    rates = result.path_steer_rates or [None] * len(result.path_edges)
+    for edge, steer, kinematic, rate in zip(result.path_edges, result.path_steers,
+                                            result.path_tight, rates):
         # An edge may be the collision-free first part of a shooting: its own duration.
         duration = (len(edge) - 1) * result.h
         ts = np.linspace(0.0, duration, int(np.ceil(duration * scenario.speed * 4 / spacing)) + 1)
-        if kinematic:
-            ref = reference(tight.rhs, np.r_[edge[0, :3], scenario.speed], np.array([steer, 0.0]),
-                            p_tight, ts, rtol=1e-10, atol=1e-10)
-        else:
-            ref = reference(model.rhs, edge[0], np.array([steer]), p, ts, rtol=1e-10, atol=1e-10)
+        x0, u, rhs = np.r_[edge[0, :3], scenario.speed], np.array([steer, 0.0]), tight.rhs
+        if not kinematic:
+            x0, u, rhs = edge[0], np.array([steer]), model.rhs
+        if rate is not None:
+            # A steer ramp ending at `steer`: the steer a state, its rate the input.
+            x0, rhs = np.r_[x0, steer - rate * duration], steered(rhs)
+            u[0] = rate
+        ref = reference(rhs, x0, u, p_tight if kinematic else p, ts, rtol=1e-10, atol=1e-10)
         xs = np.asarray(ref.x)
         assert bool(ref.success)
         collisions += int(footprint_hits(scenario.omap, vehicle, xs[:, :3], spacing).sum())

@@ -123,10 +123,10 @@ def test_the_status_and_cause_words_are_plan_jsons_and_each_cause_has_an_ompl_st
 def test_the_tree_grows_past_its_capacity_in_one_append_keeping_every_row():
     tree = Tree(capacity=2)
     tree.add([None], states=np.zeros(5), parent=-1, g=0.0, H=9.0, rest=9.0, guide=9.0,
-             car=0.0, steer=0.0, direction=0, tight=False)
+             car=0.0, steer=0.0, steer0=0.0, direction=0, tight=False)
     rows = tree.add([np.ones((2, 5))] * 5, states=np.arange(25.0).reshape(5, 5),
                     parent=[0, 1, 2, 3, 4], g=np.arange(1.0, 6.0), H=1.0, rest=1.0,
-                    guide=1.0, car=1.0, steer=0.5, direction=1, tight=[0, 1, 0, 1, 0])
+                    guide=1.0, car=1.0, steer=0.5, steer0=0.25, direction=1, tight=[0, 1, 0, 1, 0])
     assert list(rows) == [1, 2, 3, 4, 5] and len(tree) == len(tree.edges) == 6
     assert tree.g.tolist() == [0.0, 1.0, 2.0, 3.0, 4.0, 5.0]
     assert tree.states[5].tolist() == [20.0, 21.0, 22.0, 23.0, 24.0]
