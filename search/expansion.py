@@ -50,8 +50,14 @@ class Expander:
                            random]
             # From the start or at a cusp the car stands: it turns the wheel before moving off.
             standing = (ways == 0) | (ways == -direction)
+            # Rate-limited, a dynamic edge after a standstill or a kinematic edge sets off at
+            # the lateral steady state of its steer: the car rolls without slip on a turn of
+            # that steer, so it carries the turn on instead of a transient of its own making.
+            settle = None
+            if s.f.rate_limited and direction > 0:
+                settle = standing | (ways < 0) | np.repeat(tree.tight[rows], self.per)
             new += self.add_all(nodes, direction, shooter.shoot(
-                states, np.vstack(points), s.goal, np.where(standing, np.nan, steers)))
+                states, np.vstack(points), s.goal, np.where(standing, np.nan, steers), settle))
         # Tight moves leave the region the tree exhausted: from its nodes and along chains of
         # tight moves; once a node is reached by the tree's own move, the tree goes on alone.
         tight = [i for i in nodes if i < s.widened_at or tree.tight[i]]

@@ -7,6 +7,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from stepzoo import dynamics
+from stepzoo.dynamics.linear import lateral_matrix
 from stepzoo.dynamics.models import steered
 from stepzoo.integrators import integrate_batch, method
 from stepzoo.search.validity import ValidityChecker
@@ -122,7 +123,20 @@ class Shooter:
         out[..., :3] = x[..., :3]
         return out
 
-    def shoot(self, state, points, destination, steer0=0.0) -> Shots:
+    def settled(self, x0, steer0, settle) -> np.ndarray:
+        """`x0` (B, 5) with the lateral states (vy, r) of the rows `settle` (B,) bool at the
+        dynamic bicycle's steady state for their steer `steer0` (B,) [rad]: -A^-1 b of its
+        linear lateral dynamics (dynamics.linear.lateral_matrix)."""
+        x0 = np.array(x0, float)
+        if self.kinematic or settle is None or not np.any(settle):
+            return x0
+        p = {k: float(v[0]) for k, v in self.p.items()}
+        for i in np.flatnonzero(settle):
+            A, b = lateral_matrix(self.vx, float(steer0[i]), p)
+            x0[i, 3:5] = -np.linalg.solve(np.asarray(A), np.asarray(b))
+        return x0
+
+    def shoot(self, state, points, destination, steer0=0.0, settle=None) -> Shots:
         """Shoot from `state` (5,), or from one state per point (B, 5), at steer `steer0`
         [rad] (one or (B,); NaN: from a standstill), towards each of `points` (B, 2) [m]."""
         start = np.broadcast_to(np.asarray(state, float), (self.batch, 5))
@@ -133,12 +147,17 @@ class Shooter:
             steer = -pure_pursuit(flipped, points, self.wheelbase, self.delta_max)
         else:
             steer = pure_pursuit(start, points, self.wheelbase, self.delta_max)
-        return self.shoot_steers(start, self.end_steers(steer0, steer), destination, steer0)
+        return self.shoot_steers(start, self.end_steers(steer0, steer), destination, steer0,
+                                 settle)
 
-    def shoot_steers(self, state, steer, destination, steer0=0.0) -> Shots:
+    def shoot_steers(self, state, steer, destination, steer0=0.0, settle=None) -> Shots:
         """Shoot from `state` (5,), or one state per steer (B, 5), at steer `steer0` [rad]
-        (rate-limited; NaN: from a standstill), to the end steers `steer` (B,) [rad]."""
+        (rate-limited; NaN: from a standstill), to the end steers `steer` (B,) [rad]; the
+        shootings `settle` (B,) bool start at the lateral steady state of their steer
+        (`settled`)."""
         start = np.broadcast_to(np.asarray(state, float), (self.batch, 5))
+        if settle is not None:
+            start = self.settled(start, self.start_steers(steer0, steer), settle)
         states = self.integrate(start, steer, steer0)
         # A blown-up shooting is a result (an invalid one), so its overflow warnings are noise;
         # first_collision treats non-finite poses as collisions, so it needs no branch either.

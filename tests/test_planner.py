@@ -292,13 +292,21 @@ def test_all_shootings_of_an_expansion_match_one_by_one_integration():
     shooter: Shooter = finder_for(scenario).shooter
     state = np.array([*scenario.start, 0.1, 0.05])
     points = point_selector(state, 4.0, shooter.batch, np.pi / 4)
-    shots = shooter.shoot(state, points, np.array(scenario.goal))
+    # From a standstill (NaN) each shooting holds one steer; at steer 0.1 rad it ramps.
+    shots = shooter.shoot(state, points, np.array(scenario.goal), np.nan)
+    ramps = shooter.shoot(state, points, np.array(scenario.goal), 0.1)
     model = dynamics.model("dynamic5")
     p = model.params(scenario.vehicle, scenario.speed)
     for k in (0, shooter.batch - 1):
         one = np.asarray(integrate(shooter.method, model.rhs, state, shots.steer[k:k + 1], p,
                                    shooter.h, shooter.n_steps).x)
         np.testing.assert_allclose(shots.states[k], one, rtol=1e-12, atol=1e-12)
+        rate = (ramps.steer[k] - 0.1) / (shooter.h * shooter.n_steps)
+        assert abs(rate) <= dynamics.vehicles.limits()["max_steer_rate"] + 1e-12
+        ramp = np.asarray(integrate(shooter.method, steered(model.rhs), np.r_[state, 0.1],
+                                    np.array([rate]), p, shooter.h, shooter.n_steps).x)
+        np.testing.assert_allclose(ramps.states[k], ramp[:, :5], rtol=1e-12, atol=1e-12)
+        assert ramp[-1, 5] == pytest.approx(ramps.steer[k], abs=1e-12)
         assert shots.g[k] == pytest.approx(np.hypot(*np.diff(one[:, :2], axis=0).T).sum(),
                                            rel=1e-12)
         assert shots.H[k] == pytest.approx(np.hypot(*(one[-1, :2] - scenario.goal[:2])))

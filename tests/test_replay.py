@@ -82,6 +82,8 @@ def independent_deviation(record):
     for seg in record["controls"]:
         if seg["model"] == "dynamic5":
             n = seg["steps"]
+            if "lateral0" in seg:
+                x = np.r_[x[:3], seg["lateral0"]]
             ts = seg["duration"] * np.arange(1, n + 1) / n
             sol = solve_ivp(dynamic_bicycle(seg["vx"], seg["inputs"]["delta"], v,
                                             seg["inputs"].get("delta_rate", 0.0)),
