@@ -138,7 +138,9 @@ def test_the_tree_grows_past_its_capacity_in_one_append_keeping_every_row():
 
 def test_the_default_parameters_are_the_shipped_configs_planner_table():
     raw = tomllib.loads(DEFAULT_CONFIG.read_text())
-    assert PlannerParams().model_dump() == raw["plans"]["planner"]
+    # Its plans were measured (2026-11-25) with the paper's instant steering, before the
+    # rate-limited default (issue 34): the record says so until tune --for-plans runs again.
+    assert {**PlannerParams().model_dump(), "steering": "instant"} == raw["plans"]["planner"]
 
 
 def test_every_parameter_declares_unit_and_reason_and_its_range_holds_at_both_ends():
