@@ -146,3 +146,10 @@ def test_an_open_field_is_crossed_forwards():
     grid[:, :2] = grid[:, -2:] = grid[:2] = grid[-2:] = True
     d, _ = plan_on(grid, (10.0, 20.0, 0.0), (35.0, 28.0, math.pi / 2))
     assert d["reverse_length_m"] == 0.0 and d["cusps"] == 0
+
+
+def test_a_car_that_stands_still_has_nothing_to_measure():
+    rows = rows_of(np.linspace(0.0, 1.0, 11), np.tile([3.0, 4.0, 0.5], (11, 1)))
+    d = measure(rows)
+    assert (d["max_curvature_1pm"], d["max_steer_rate_radps"], d["reverse_length_m"],
+            d["cusps"], d["drivable"]) == (0.0, 0.0, 0.0, 0, True)
