@@ -136,9 +136,13 @@ def test_same_inputs_give_the_same_path_and_another_seed_another_tree(plans):
         not np.array_equal(a, b) for a, b in zip(first.tree, other.tree))
 
 
-def test_no_two_tree_nodes_share_a_pruning_cell(plans):
-    scenario, result = plans["wall_between"]
-    prm = CONFIG.params
+def test_no_two_tree_nodes_share_a_pruning_cell():
+    # The paper's instant steering, whose cells are (x, y, heading) of the edges' ends; the
+    # rate-limited planner's also bin the steer, which the edges do not hold.
+    scenario = load_scenario("wall_between")
+    config = make_config(max_seconds=3600.0, steering="instant")
+    result = finder_for(scenario, config).plan(scenario.start, scenario.goal)
+    prm = config.params
     ends = np.array([scenario.start] + [e[-1, :3] for e in result.tree])
     cells = np.column_stack([np.floor(ends[:, :2] / prm.cell_xy),
                              np.floor(ends[:, 2] % (2 * np.pi) / prm.cell_heading)])
@@ -389,3 +393,12 @@ def test_street_queries_plan_exact_paths_that_the_dense_check_accepts(qid):
         (length for _, length in result.progress), reverse=True)
     collisions, joint_gap, miss = dense_check(scenario, result)
     assert (collisions, joint_gap < 1e-3, miss < 1e-3) == (0, True, True)
+    # Issue 34's targets, from the path rows alone: a plan the car can drive.
+    from stepzoo.search.path_metrics import drivability
+    from stepzoo.search.plan_output import path_rows
+    limits, car = dynamics.vehicles.limits(), dynamics.vehicle(None)
+    wheelbase = car["Lf"] + car["Lr"]
+    d = drivability(path_rows(result), wheelbase, np.pi / 4, **limits)
+    assert d["max_curvature_1pm"] <= 1.1 * np.tan(np.pi / 4) / wheelbase
+    assert d["max_steer_rate_radps"] <= 1.25 * limits["max_steer_rate"]
+    assert d["max_lateral_acceleration_mps2"] <= 1.15 * limits["max_lateral_acceleration"]
