@@ -26,7 +26,8 @@ def vehicle_names() -> list[str]:
 def vehicle(name: str | None = None) -> dict:
     """Parameters of a named set: m [kg], Iz [kg m^2], Lf, Lr [m], Caf, Car [N/rad],
     length, width [m], the limits max_steer_rate [rad/s] and max_lateral_acceleration
-    [m/s^2], and `source` (`limits_source` for the limits). Raises KeyError naming the known sets."""
+    [m/s^2], and `source` (`limits_source` for the limits). Raises KeyError naming the known
+    sets."""
     name = name or default_vehicle()
     table = _table()
     if name not in table or not isinstance(table[name], dict):
