@@ -12,7 +12,7 @@ from time import perf_counter
 
 from stepzoo.errors import UsageError
 from stepzoo.search.plans import schema as plan_schema
-from stepzoo.search.plans.schema import REPLAY_COLUMNS, RUN_COLUMNS, ordered
+from stepzoo.search.plans.schema import DRIVABILITY_COLUMNS, REPLAY_COLUMNS, RUN_COLUMNS, ordered
 
 # The tables' columns in their order (documented in plan_schema).
 SUMMARY_COLUMNS = list(plan_schema.SUMMARY_COLUMNS)
@@ -66,7 +66,7 @@ def plan_run(task: Task, finders: dict) -> dict:
     from stepzoo.search.plan_bench.ompl_log import STATUS_OF_CAUSE
     from stepzoo.search.plans.path_metrics import path_metrics
     from stepzoo.search.planner.pathfinder import PathFinder
-    from stepzoo.search.plans.files import path_rows
+    from stepzoo.search.plans.files import path_rows, plan_drivability
     from stepzoo.search.plans.replay import replay
     from stepzoo.search.world.scenarios import open_map
     q, config = task.q, task.config
@@ -81,8 +81,10 @@ def plan_run(task: Task, finders: dict) -> dict:
                       margin=finder.config.params.margin)
     replay_s = perf_counter() - t0
     exact = result.status == "exact"
-    metrics = path_metrics(path_rows(result), finder.omap, finder.vehicle_footprint) \
+    rows = path_rows(result) if exact else []
+    metrics = path_metrics(rows, finder.omap, finder.vehicle_footprint) \
         if exact else path_metrics([], None, None)
+    drivable = plan_drivability(rows, finder.vehicle, config.params)
     return ordered({
         "query": q.id, "map": q.map, "cell_size": q.cell_size, "run": task.run,
         "seed": task.seed, "status": result.status.value, "cause": result.cause.value,
@@ -100,6 +102,7 @@ def plan_run(task: Task, finders: dict) -> dict:
         **{k: fidelity[k] for k in REPLAY_COLUMNS},
         "replay_clearance_min_m": fidelity["clearance_min_m"],
         "replay_s": replay_s if fidelity["segments"] else None,   # a path to replay
+        **{k: drivable[k] for k in DRIVABILITY_COLUMNS if k != "cusps"},
         "progress": json.dumps(result.progress)}, RUN_COLUMNS, "plan-bench row")
 
 

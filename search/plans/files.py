@@ -10,9 +10,10 @@ from pathlib import Path
 import numpy as np
 
 from stepzoo.output import atomic_write
-from stepzoo.search.plans.path_metrics import cusps
+from stepzoo.dynamics.vehicles import limits
+from stepzoo.search.plans.path_metrics import cusps, drivability
 from stepzoo.search.planner.pathfinder import PlanResult
-from stepzoo.search.plans.schema import PLAN_KEYS, STATS_KEYS, ordered
+from stepzoo.search.plans.schema import DRIVABILITY_KEYS, PLAN_KEYS, STATS_KEYS, ordered
 from stepzoo.search.plans.replay import controls, path_nodes, replay, vehicle_params
 from stepzoo.search.world.scenarios import Scenario
 
@@ -65,7 +66,7 @@ def plan_record(result: PlanResult, scenario: Scenario, config, vehicle: dict, s
         "path": np.round(rows, 6).tolist(),
         "vehicle": {"name": vehicle["name"], "length": vehicle["length"],
                     "width": vehicle["width"], "wheelbase": vehicle["Lf"] + vehicle["Lr"],
-                    **vehicle_params(vehicle)},
+                    **vehicle_params(vehicle), **limits(vehicle["name"])},
         # The inputs, segment by segment, that drive the car along the path
         # (search/plans/replay.py).
         "controls": controls(result, config.method),
@@ -105,7 +106,16 @@ def plan_record(result: PlanResult, scenario: Scenario, config, vehicle: dict, s
     }
     # Those controls driven through the true models: how far the car strays from the path.
     record["replay"] = replay(record, scenario.omap)
+    record["drivability"] = plan_drivability(rows, vehicle, config.params)
     return ordered(record, PLAN_KEYS, "plan.json")
+
+
+def plan_drivability(rows, vehicle: dict, params) -> dict:
+    """plan.json's `drivability` block (path_metrics.drivability) of path rows (K, 4) for the
+    vehicle set `vehicle` and the planner parameters `params` (its steer limit delta_max)."""
+    return ordered(drivability(rows, vehicle["Lf"] + vehicle["Lr"], params.delta_max,
+                               **limits(vehicle["name"])), DRIVABILITY_KEYS,
+                   "plan.json drivability")
 
 
 def render_png(record: dict, scenario: Scenario) -> bytes:
