@@ -60,8 +60,9 @@ def finder_key(task: Task) -> FinderKey:
 
 def plan_run(task: Task, finders: dict) -> dict:
     """The table's row of one run, planned with the warmed-up planner of its (map,
-    integrator) from `finders` (made there if missing) and replayed through the true models
-    (REPLAY_COLUMNS, None without a path; replay_s [s], its time, is not in time_s); its
+    integrator) from `finders` (made there if missing), replayed through the true models
+    (REPLAY_COLUMNS, None without a path; replay_s [s], its time, is not in time_s) and
+    tracked (tracking_*, tracking_s likewise, search/tracking.py); its
     `progress` a JSON list of the (time [s], length [m]) of each shorter path."""
     from stepzoo.search.ompl_log import STATUS_OF_CAUSE
     from stepzoo.search.path_metrics import path_metrics
@@ -69,6 +70,7 @@ def plan_run(task: Task, finders: dict) -> dict:
     from stepzoo.search.plan_output import path_rows
     from stepzoo.search.replay import replay
     from stepzoo.search.scenarios import open_map
+    from stepzoo.search.tracking import tracking
     q, config = task.q, task.config
     key = finder_key(task)
     if key not in finders:
@@ -80,6 +82,10 @@ def plan_run(task: Task, finders: dict) -> dict:
     fidelity = replay(result, finder.omap, vehicle=finder.vehicle,
                       margin=finder.config.params.margin)
     replay_s = perf_counter() - t0
+    t0 = perf_counter()
+    tracked = tracking(result, finder.omap, vehicle=finder.vehicle,
+                       margin=finder.config.params.margin)
+    tracking_s = perf_counter() - t0
     exact = result.status == "exact"
     metrics = path_metrics(path_rows(result), finder.omap, finder.vehicle_footprint) \
         if exact else path_metrics([], None, None)
@@ -100,6 +106,8 @@ def plan_run(task: Task, finders: dict) -> dict:
         **{k: fidelity[k] for k in REPLAY_COLUMNS},
         "replay_clearance_min_m": fidelity["clearance_min_m"],
         "replay_s": replay_s if fidelity["segments"] else None,   # a path to replay
+        **{f"tracking_{k}": v for k, v in tracked.items()},
+        "tracking_s": tracking_s if fidelity["segments"] else None,
         "progress": json.dumps(result.progress)}, RUN_COLUMNS, "plan-bench row")
 
 

@@ -1,5 +1,5 @@
 """A plan as files: plan.json (status, path, the controls that produce it and their replay,
-tree, stats, params), plan.png in the paper's colours (black obstacles, blue tree, red path)
+the tracking replay, tree, stats, params), plan.png in the paper's colours (black obstacles, blue tree, red path)
 and map.npy, each written atomically."""
 from __future__ import annotations
 
@@ -12,9 +12,10 @@ import numpy as np
 from stepzoo.output import atomic_write
 from stepzoo.search.path_metrics import cusps
 from stepzoo.search.pathfinder import PlanResult
-from stepzoo.search.plan_schema import PLAN_KEYS, STATS_KEYS, ordered
+from stepzoo.search.plan_schema import PLAN_KEYS, STATS_KEYS, TRACKING_KEYS, ordered
 from stepzoo.search.replay import controls, path_nodes, replay, vehicle_params
 from stepzoo.search.scenarios import Scenario
+from stepzoo.search.tracking import tracking
 
 MAX_GAP_M = 0.1       # no two consecutive path rows farther apart [m] (the report's contract)
 ROW_SPACING_M = MAX_GAP_M / 2  # spacing the path is filled to: half, for rounding room
@@ -104,6 +105,9 @@ def plan_record(result: PlanResult, scenario: Scenario, config, vehicle: dict, s
     }
     # Those controls driven through the true models: how far the car strays from the path.
     record["replay"] = replay(record, scenario.omap)
+    # A tracking controller driving a richer car along the path: how far a real car strays.
+    record["tracking"] = ordered(tracking(record, scenario.omap), TRACKING_KEYS,
+                                 "plan.json tracking")
     return ordered(record, PLAN_KEYS, "plan.json")
 
 

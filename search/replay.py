@@ -112,18 +112,26 @@ def replay(plan, omap: OccupancyMap, footprint: Footprint | None = None,
     nodes, samples = drive(segs, start, vehicle)
     gap = np.hypot(*(nodes[:, :2] - planned[:, 1:3]).T)
     turn = np.abs(np.remainder(nodes[:, 2] - planned[:, 3] + math.pi, 2 * math.pi) - math.pi)
-    centres = footprint.disc_centres(samples).reshape(-1, 2)
+    collides, clearance = safety(omap, footprint, samples)
     block.update({
         "max_deviation_m": float(gap.max()),
         "final_deviation_m": float(gap[-1]),
         "max_heading_deviation_rad": float(turn.max()),
-        "collides": bool(first_collision(omap, footprint, samples[None])[0] >= 0),
+        "collides": collides,
         "goal_distance_m": float(np.hypot(*(samples[-1, :2] - np.asarray(goal, float)[:2]))),
-        "clearance_min_m": float(distance_to_obstacles(omap, centres).min()
-                                 - footprint.radius),
+        "clearance_min_m": clearance,
         "nodes": len(nodes), "samples": len(samples),
         "end": [float(v) for v in samples[-1]]})
     return block
+
+
+def safety(omap: OccupancyMap, footprint: Footprint, poses) -> tuple[bool, float]:
+    """(whether the footprint collides at the poses (M, 3+) [X, Y, psi] or on the straight
+    moves between them (first_collision), the least distance [m] of its disc cover to an
+    obstacle at the poses (<= 0 touches))."""
+    centres = footprint.disc_centres(poses).reshape(-1, 2)
+    return (bool(first_collision(omap, footprint, np.asarray(poses)[None])[0] >= 0),
+            float(distance_to_obstacles(omap, centres).min() - footprint.radius))
 
 
 def car_footprint(vehicle: dict, margin: float | None = None) -> Footprint:
