@@ -1,0 +1,131 @@
+"""The tracking replay against answers known without it: Stanley's loop from an offset start
+on a straight line, forwards and backwards, matches its linearised closed loop (matrix
+exponential, with the steering servo); on a circle its steady offset is the one solved from
+the car's steady-state cornering equations, written here from the tyre law and the geometry
+of a turning car."""
+import numpy as np
+import pytest
+from scipy.linalg import expm
+from scipy.optimize import fsolve
+
+from stepzoo import dynamics
+from stepzoo.search import tracking as T
+from stepzoo.search.tracking import track
+
+VEHICLE = dynamics.vehicle(None)
+LF, LR = VEHICLE["Lf"], VEHICLE["Lr"]
+L = LF + LR
+G = 9.81
+
+
+def line(v, length, way=1):
+    """Rows [t, X, Y, psi] along the X axis at speed v [m/s], forwards (way 1: +X, facing
+    +X) or backwards (way -1: towards -X, facing +X)."""
+    s = np.arange(0.0, length, 0.05)
+    return np.column_stack([s / v, way * s, np.zeros_like(s), np.zeros_like(s)])
+
+
+def linear_response(A, x0, times):
+    """States of dx/dt = A x from x0 at `times`."""
+    return np.array([expm(A * t) @ x0 for t in times])
+
+
+def servo_row(gains):
+    """The steering servo's row: d delta/dt = (gains . [e, psi] - delta) / tau."""
+    tau = T.STEER_SERVO_S
+    return [gains[0] / tau, gains[1] / tau, -1 / tau]
+
+
+@pytest.mark.parametrize("way", [1, -1])
+def test_an_offset_start_decays_as_the_linearised_stanley_loop(way):
+    """At 0.8 m/s the car is the kinematic single track (below the blend); from 1 cm off a
+    straight line the controlled axle's error follows the linear loop of states [e, psi,
+    delta]: forwards the front axle, e' = v (psi + delta), delta -> -psi - k e / (k_soft + v),
+    whose e decays at Stanley's rate k v / (k_soft + v) (the steer's servo adds a fast pole);
+    backwards the rear axle, e' = -v psi, psi' = -v delta / L, delta -> k_psi psi - k_r e /
+    (k_soft + v)."""
+    v, e0 = 0.8, 0.01
+    out = track(line(v, 12.0, way), [0.0, e0, 0.0], VEHICLE)
+    poses = out["poses"]
+    assert out["done"] and abs(out["end"][0] - way * 11.95) < 0.05
+    times = np.arange(1, 601) * T.H_S          # 6 s, before it brakes for the end
+    X, Y, psi = poses[:600].T
+    c = (T.GAIN_K if way > 0 else T.GAIN_K_REVERSE) / (T.K_SOFT + v)
+    if way > 0:
+        e = Y + LF * np.sin(psi)
+        A = np.array([[0, v, v], [0, 0, v / L], servo_row([-c, -1])])
+    else:
+        e = Y - LR * np.sin(psi)
+        A = np.array([[0, -v, 0], [0, 0, -v / L], servo_row([-c, T.HEADING_GAIN_REVERSE])])
+    expected = linear_response(A, np.array([e0, 0.0, 0.0]), times)[:, 0]
+    # The linear loop in continuous time against the sampled one (steps of 0.01 s): within 1%
+    # of the offset all along, where the offset itself falls by 90% or more.
+    assert np.abs(e - expected).max() < 0.01 * e0
+    assert abs(e[-1]) < 0.1 * e0
+    if way > 0:     # Stanley's own rate, the servo's delay aside: within 10%
+        rate = np.log(e[99] / e[299]) / 2.0
+        assert rate == pytest.approx(T.GAIN_K * v / (T.K_SOFT + v), rel=0.1)
+
+
+def fiala(alpha, C, grip):
+    """Fiala's brush tyre (Pacejka 2012, ch. 3): lateral force [N] at slip angle alpha."""
+    z = np.tan(alpha)
+    if abs(z) >= 3 * grip / C:
+        return -grip * np.sign(alpha)
+    return -C * z + C**2 / (3 * grip) * abs(z) * z - C**3 / (27 * grip**2) * z**3
+
+
+def steady_circle(R, v):
+    """The tracked car's steady state on a left circle of radius R [m] at the plan's speed v
+    [m/s]: (radius of its centre of gravity's circle [m], its speed [m/s]). Unknowns: that
+    radius, the body slip beta at the centre of gravity, the steer and the forward speed;
+    equations: lateral and yaw balance, Stanley's steer (the front axle's velocity along
+    the reference's tangent, so atan(k e / (k_soft + vx)) equals the front slip angle),
+    the speed loop supplying the drag of the steered front tyre."""
+    mu = 1.0489
+    Fzf, Fzr = VEHICLE["m"] * G * LR / L, VEHICLE["m"] * G * LF / L
+    Caf, Car, m, Iz = VEHICLE["Caf"], VEHICLE["Car"], VEHICLE["m"], VEHICLE["Iz"]
+    beta_ref = np.arcsin(LR / R)
+    front_ref = np.hypot(R + LF * np.sin(beta_ref), LF * np.cos(beta_ref))
+
+    def equations(z):
+        Rc, beta, delta, vx = z
+        vy, r = vx * np.tan(beta), vx / np.cos(beta) / Rc
+        vf = vy + LF * r
+        alpha_f = np.arctan((vf * np.cos(delta) - vx * np.sin(delta))
+                            / (vx * np.cos(delta) + vf * np.sin(delta)))
+        alpha_r = np.arctan((vy - LR * r) / vx)
+        Fyf, Fyr = fiala(alpha_f, Caf, mu * Fzf), fiala(alpha_r, Car, mu * Fzr)
+        front = np.hypot(Rc + LF * np.sin(beta), LF * np.cos(beta))
+        e = front_ref - front                     # to the left of the way: inwards
+        return [(Fyf * np.cos(delta) + Fyr) / m - vx * r,
+                (LF * Fyf * np.cos(delta) - LR * Fyr) / Iz,
+                np.arctan(T.GAIN_K * e / (T.K_SOFT + vx)) - alpha_f,
+                T.SPEED_GAIN * (v - vx) - (Fyf * np.sin(delta) / m - vy * r)]
+
+    Rc, beta, delta, vx = fsolve(equations, [R, LR / R, L / R, v], xtol=1e-13)
+    assert np.abs(equations([Rc, beta, delta, vx])).max() < 1e-9
+    return Rc, vx / np.cos(beta)
+
+
+def test_on_a_circle_the_car_settles_at_the_offset_of_its_steady_cornering():
+    """R = 10 m at 6 m/s (0.37 g): the front tyres slip, Stanley's front axle runs outside
+    its reference by (k_soft + v) tan(alpha_f) / k, and the body slips less than a rolling
+    car's; the centre of gravity settles where the steady-state equations put it."""
+    R, v = 10.0, 6.0
+    s = np.arange(0.0, 1.25 * 2 * np.pi * R, 0.05)
+    a = s / R
+    rows = np.column_stack([s / v, R * np.sin(a), R * (1 - np.cos(a)), a])
+    out = track(rows, [0.0, 0.0, 0.0], VEHICLE)
+    assert out["done"]
+    X, Y = out["poses"][:, 0], out["poses"][:, 1]
+    radius = np.hypot(X, Y - R)
+    settled = slice(int(6.0 / T.H_S), int(10.0 / T.H_S))   # 0.6 to 1 lap
+    Rc, speed = steady_circle(R, v)
+    assert abs(Rc - R) > 0.05                  # an offset worth predicting
+    assert radius[settled] == pytest.approx(Rc, abs=2e-4)
+    assert out["deviation"][settled] == pytest.approx(abs(Rc - R), abs=2e-4)
+    # Its lateral acceleration there: speed^2 / radius, as the travelled arc says.
+    step = np.hypot(np.diff(X[settled]), np.diff(Y[settled])) / T.H_S
+    assert step.mean() == pytest.approx(speed, rel=1e-3)
+    assert step.mean() ** 2 / radius[settled].mean() == pytest.approx(speed**2 / Rc, rel=2e-3)
