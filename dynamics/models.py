@@ -165,6 +165,19 @@ def model(name: str | None = None, tyre: str | None = None) -> Model:
     return _cached(name)
 
 
+@cache
+def steered(rhs: Callable) -> Callable:
+    """`rhs` (whose first input is the steer angle delta [rad]) with the steer a state instead,
+    driven by its rate, as CommonRoad's models take it: the state [*x, delta], the inputs
+    [ddelta [rad/s], *u[1:]]. The same function for the same `rhs`, so a driver compiles once."""
+    import jax.numpy as jnp
+
+    def steered_rhs(t, x, u, p):
+        inner = rhs(t, x[:-1], jnp.concatenate([x[-1:], u[1:]]), p)
+        return jnp.concatenate([inner, u[:1]])
+    return steered_rhs
+
+
 _cached = cache(_build)
 _dynamic_cached = cache(_dynamic)
 

@@ -4,6 +4,7 @@ from functools import cache
 from pathlib import Path
 
 PHYSICAL = ("m", "Iz", "Lf", "Lr", "Caf", "Car")
+LIMITS = ("max_steer_rate", "max_lateral_acceleration")  # [rad/s], [m/s^2]
 G = 9.81        # [m/s^2] gravity, CommonRoad's value
 
 
@@ -24,7 +25,8 @@ def vehicle_names() -> list[str]:
 
 def vehicle(name: str | None = None) -> dict:
     """Parameters of a named set: m [kg], Iz [kg m^2], Lf, Lr [m], Caf, Car [N/rad],
-    length, width [m], and `source`. Raises KeyError naming the known sets."""
+    length, width [m], the limits max_steer_rate [rad/s] and max_lateral_acceleration
+    [m/s^2], and `source` (`limits_source` for the limits). Raises KeyError naming the known sets."""
     name = name or default_vehicle()
     table = _table()
     if name not in table or not isinstance(table[name], dict):
@@ -36,6 +38,13 @@ def physical(name: str | None = None) -> dict:
     """Only the float parameters the right-hand sides read (a JAX-friendly pytree)."""
     v = vehicle(name)
     return {k: float(v[k]) for k in PHYSICAL}
+
+
+def limits(name: str | None = None) -> dict:
+    """The car's limits the planner respects: max_steer_rate [rad/s], max_lateral_acceleration
+    [m/s^2]."""
+    v = vehicle(name)
+    return {k: float(v[k]) for k in LIMITS}
 
 
 def _sub_table(name: str | None, kind: str) -> dict:

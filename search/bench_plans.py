@@ -12,7 +12,7 @@ from time import perf_counter
 
 from stepzoo.errors import UsageError
 from stepzoo.search import plan_schema
-from stepzoo.search.plan_schema import REPLAY_COLUMNS, RUN_COLUMNS, ordered
+from stepzoo.search.plan_schema import DRIVABILITY_COLUMNS, REPLAY_COLUMNS, RUN_COLUMNS, ordered
 
 # The tables' columns in their order (documented in plan_schema).
 SUMMARY_COLUMNS = list(plan_schema.SUMMARY_COLUMNS)
@@ -67,7 +67,7 @@ def plan_run(task: Task, finders: dict) -> dict:
     from stepzoo.search.ompl_log import STATUS_OF_CAUSE
     from stepzoo.search.path_metrics import path_metrics
     from stepzoo.search.pathfinder import PathFinder
-    from stepzoo.search.plan_output import path_rows
+    from stepzoo.search.plan_output import path_rows, plan_drivability
     from stepzoo.search.replay import replay
     from stepzoo.search.scenarios import open_map
     from stepzoo.search.tracking import tracking
@@ -87,8 +87,10 @@ def plan_run(task: Task, finders: dict) -> dict:
                        margin=finder.config.params.margin)
     tracking_s = perf_counter() - t0
     exact = result.status == "exact"
-    metrics = path_metrics(path_rows(result), finder.omap, finder.vehicle_footprint) \
+    rows = path_rows(result) if exact else []
+    metrics = path_metrics(rows, finder.omap, finder.vehicle_footprint) \
         if exact else path_metrics([], None, None)
+    drivable = plan_drivability(rows, finder.vehicle, config.params)
     return ordered({
         "query": q.id, "map": q.map, "cell_size": q.cell_size, "run": task.run,
         "seed": task.seed, "status": result.status.value, "cause": result.cause.value,
@@ -106,6 +108,7 @@ def plan_run(task: Task, finders: dict) -> dict:
         **{k: fidelity[k] for k in REPLAY_COLUMNS},
         "replay_clearance_min_m": fidelity["clearance_min_m"],
         "replay_s": replay_s if fidelity["segments"] else None,   # a path to replay
+        **{k: drivable[k] for k in DRIVABILITY_COLUMNS if k != "cusps"},
         **{f"tracking_{k}": v for k, v in tracked.items()},
         "tracking_s": tracking_s if fidelity["segments"] else None,
         "progress": json.dumps(result.progress)}, RUN_COLUMNS, "plan-bench row")

@@ -1,7 +1,9 @@
 """The connection of the paper (Section 2.4): a minimum-time optimal control problem on the
 kinematic bicycle from a tree node to the goal pose, solved with IPOPT through CasADi's nlpsol.
-One parametrised solver per (N, shooting, method, options) is built once and called with the
-problem's numbers as parameters and bounds."""
+With the car's limits, the steer is a state whose rate is the bounded control and v^2 kappa is
+bounded; without, the steer is a control, as the paper. One parametrised solver per (N,
+shooting, method, options) is built once and called with the problem's numbers as parameters
+and bounds."""
 from dataclasses import dataclass
 from functools import cache
 import math
@@ -14,6 +16,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from stepzoo.dynamics.kinematic import kinematic_bicycle, kinematic_terms
+from stepzoo.dynamics.models import steered
 from stepzoo.integrators import integrate, method as zoo_method
 from stepzoo.integrators.methods import TABLEAUS
 from stepzoo.integrators.steps import rk_slopes, weighted
@@ -42,24 +45,32 @@ class Connection:
     tf: float            # [s]
     t: np.ndarray        # (N+1,) [s]
     states: np.ndarray   # (N+1, 4) [X, Y, theta, v] in [m, m, rad, m/s]
-    inputs: np.ndarray   # (N, 2) [delta rad, F N], piecewise constant
+    inputs: np.ndarray   # (N, 2) [delta rad, F N], piecewise constant (delta: at each
+    #                      interval's start if steer_rates)
     solve_s: float       # wall time of `connect`: guess and every IPOPT try [s]
     shooting: str        # "single" | "multiple"
+    steer_rates: np.ndarray | None = None  # (N,) [rad/s] the steer's rate over each interval
+    #                      (the steer a state, piecewise linear); None: the steer a control
 
 
 @cache
-def step_function(method: str) -> ca.Function:
-    """One step x_{n+1} = step(x_n, u_n, h, L, m) of an explicit tableau of the zoo."""
+def step_function(method: str, steered: bool = False) -> ca.Function:
+    """One step x_{n+1} = step(x_n, u_n, h, L, m) of an explicit tableau of the zoo; `steered`:
+    the state [X, Y, theta, v, delta], the inputs [ddelta, F] (dynamics.models.steered)."""
     if method not in TABLEAUS:
         raise KeyError(f"unknown method {method!r}; known: {', '.join(TABLEAUS)}")
     tab = TABLEAUS[method]
     if not tab.explicit:
         raise ValueError(f"method {method!r} is implicit; the connection needs an explicit one")
-    x, u = ca.SX.sym("x", 4), ca.SX.sym("u", 2)
+    x, u = ca.SX.sym("x", 4 + steered), ca.SX.sym("u", 2)
     h, L, m = ca.SX.sym("h"), ca.SX.sym("L"), ca.SX.sym("m")
-    f = lambda t, y: ca.vertcat(*kinematic_terms(y, u, L, m, ca.cos, ca.sin, ca.tan))
+    if steered:
+        f = lambda t, y: ca.vertcat(*kinematic_terms(y, ca.vertcat(y[4], u[1]), L, m, ca.cos,
+                                                     ca.sin, ca.tan), u[0])
+    else:
+        f = lambda t, y: ca.vertcat(*kinematic_terms(y, u, L, m, ca.cos, ca.sin, ca.tan))
     x_next = x + h * weighted(tab.b, rk_slopes(tab.a, tab.c, f, 0.0, x, h, tab.needed))
-    return ca.Function(f"step_{method}", [x, u, h, L, m], [x_next])
+    return ca.Function(f"step_{method}{'_steered' * steered}", [x, u, h, L, m], [x_next])
 
 
 def unwrap(theta, reference):
@@ -68,10 +79,10 @@ def unwrap(theta, reference):
 
 
 @cache
-def _open_loop(N: int, method: str) -> ca.Function:
-    """States (4, N+1) of the discrete model from x0 under inputs (2, N), step h."""
-    step = step_function(method)
-    x0, us = ca.MX.sym("x0", 4), ca.MX.sym("u", 2, N)
+def _open_loop(N: int, method: str, steered: bool = False) -> ca.Function:
+    """States (4 or 5, N+1) of the discrete model from x0 under inputs (2, N), step h."""
+    step = step_function(method, steered)
+    x0, us = ca.MX.sym("x0", 4 + steered), ca.MX.sym("u", 2, N)
     h, L, m = ca.MX.sym("h"), ca.MX.sym("L"), ca.MX.sym("m")
     xs = step.mapaccum("roll", N)(x0, us, h, L, m)
     return ca.Function(f"open_loop{N}", [x0, us, h, L, m], [ca.horzcat(x0, xs)])
@@ -232,13 +243,14 @@ class _Guess(NamedTuple):
 
 
 class _Solution(NamedTuple):
-    """One OCP solve: whether it met the goal, IPOPT's status, t_f [s], the states (N+1, 4)
-    and the inputs (N, 2)."""
+    """One OCP solve: whether it met the goal, IPOPT's status, t_f [s], the states (N+1, 4),
+    the inputs (N, 2) [delta, F] and, steered, the steer rates (N,) [rad/s]."""
     success: bool
     status: str
     tf: float
     states: np.ndarray
     inputs: np.ndarray
+    steer_rates: np.ndarray | None
 
 
 def _profile(segs, radius, start, a_max, v_max, v_goal, v_back=0.0) -> _Guess:
@@ -260,6 +272,16 @@ def _profile(segs, radius, start, a_max, v_max, v_goal, v_back=0.0) -> _Guess:
         plans.append((v0, _fastest_profile(sum(q for _, q in run), v0, a_max,
                                            v_max if way > 0 else v_back, v_end)))
     return _Guess(turn, float(sum(profile[2] for _, profile in plans)), runs, plans)
+
+
+def _steer_ramps(signs, steer0, delta_max, rate_max, dt):
+    """(N,) scaled steer rates [1] (of rate_max) that follow the steers signs * delta_max
+    (N,) from steer0 [rad] as fast as rate_max [rad/s] allows, over intervals of dt [s]."""
+    rates, steer, step = np.zeros(len(signs)), steer0, rate_max * dt
+    for i, sign in enumerate(signs):
+        change = float(np.clip(sign * delta_max - steer, -step, step))
+        rates[i], steer = change / step, steer + change
+    return rates
 
 
 def _guess_inputs(N, runs, plans, a_max):
@@ -288,12 +310,14 @@ def _guess_inputs(N, runs, plans, a_max):
 class _Problem:
     """A built IPOPT solver and the maps from its variables to the connection."""
     solver: ca.Function   # nlpsol: x = [T, vec(U)(, vec(Z))], p = [x0, goal, L, m, d_max,
-    #                       a_max(, v_goal)]; g = [defects (multiple), end, state rows (single)]
-    rollout: ca.Function  # (T, U, p) -> states (4, N+1) simulated from x0
-    path: ca.Function     # (x, p) -> states (4, N+1), inputs (2, N) [rad, N]
+    #                       a_max(, rate_max, a_lat)(, v_goal)]; g = [defects (multiple), end,
+    #                       state rows (single), lateral acceleration / a_lat (steered)]
+    rollout: ca.Function  # (T, U, p) -> states (nx, N+1) simulated from x0
+    path: ca.Function     # (x, p) -> states (nx, N+1), inputs (2, N) [rad or rad/s, N]
     shooting: str
     n_end: int            # end-constraint rows: X, Y, theta (, v)
-    rows: slice           # which of [X, Y, theta, v] single shooting bounds in g
+    rows: slice           # which of [X, Y, theta, v(, delta)] single shooting bounds in g
+    nx: int               # 4, or 5 steered: the steer a state
 
 
 # Variable bounds instead of constraints, nlpsol instead of Opti, fast_step_computation and,
@@ -306,17 +330,22 @@ ADAPTIVE_MU = {"mu_strategy": "adaptive", "adaptive_mu_globalization": "kkt-erro
 
 
 @cache
-def _problem(N: int, shooting: str, method: str, bounded: bool, speed_fixed: bool) -> _Problem:
-    """The parametrised minimum-time OCP, positions relative to the start node."""
-    p = ca.MX.sym("p", 11 + speed_fixed)
-    x0, goal, L, m, d_max, a_max = p[:4], p[4:7], p[7], p[8], p[9], p[10]
+def _problem(N: int, shooting: str, method: str, bounded: bool, speed_fixed: bool,
+             steered: bool = False) -> _Problem:
+    """The parametrised minimum-time OCP, positions relative to the start node; `steered`:
+    the steer a state, its rate the control, and v^2 tan(delta) / L bounded."""
+    nx = 4 + steered
+    k = nx + 7                    # parameters before (rate_max, a_lat) and v_goal
+    p = ca.MX.sym("p", k + 2 * steered + speed_fixed)
+    x0, goal, L, m, d_max, a_max = p[:nx], p[nx:nx + 3], p[nx + 3], p[nx + 4], p[nx + 5], \
+        p[nx + 6]
     T, U = ca.MX.sym("T"), ca.MX.sym("U", 2, N)
-    inputs = ca.vertcat(d_max * U[0, :], m * a_max * U[1, :])
-    rollout = _open_loop(N, method)(x0, inputs, T / N, L, m)
+    inputs = ca.vertcat((p[k] if steered else d_max) * U[0, :], m * a_max * U[1, :])
+    rollout = _open_loop(N, method, steered)(x0, inputs, T / N, L, m)
     if shooting == "multiple":
-        Z = ca.MX.sym("Z", 4, N)
+        Z = ca.MX.sym("Z", nx, N)
         x, states = ca.veccat(T, U, Z), ca.horzcat(x0, Z)
-        defects = Z - step_function(method).map(N)(states[:, :-1], inputs, T / N, L, m)
+        defects = Z - step_function(method, steered).map(N)(states[:, :-1], inputs, T / N, L, m)
         g = [ca.vec(defects)]
     elif shooting == "single":
         x, states, g = ca.veccat(T, U), rollout, []
@@ -324,48 +353,65 @@ def _problem(N: int, shooting: str, method: str, bounded: bool, speed_fixed: boo
         raise ValueError(f"shooting must be 'single' or 'multiple', not {shooting!r}")
     g.append(states[:3, -1] - goal)
     if speed_fixed:
-        g.append(states[3, -1] - p[11])
-    rows = slice(0 if bounded else 2, 4)
+        g.append(states[3, -1] - p[-1])
+    rows = slice(0 if bounded else 2, nx)
     if shooting == "single":
         g.append(ca.vec(states[rows, 1:]))
+    if steered:
+        # Lateral acceleration v^2 kappa, scaled by its limit to order one.
+        g.append(ca.vec(states[3, 1:] ** 2 * ca.tan(states[4, 1:]) / (L * p[k + 1])))
     ipopt = {**IPOPT_OPTIONS, **ADAPTIVE_MU} if shooting == "multiple" else IPOPT_OPTIONS
-    solver = ca.nlpsol(f"connect_{shooting}{N}", "ipopt",
+    solver = ca.nlpsol(f"connect_{shooting}{N}{'_steered' * steered}", "ipopt",
                        {"x": x, "p": p, "f": T, "g": ca.vertcat(*g)},
                        {"expand": True, "print_time": False, "ipopt": ipopt})
     return _Problem(solver, ca.Function("rollout", [T, U, p], [rollout]),
                     ca.Function("path", [x, p], [states, inputs]), shooting, 3 + speed_fixed,
-                    rows)
+                    rows, nx)
 
 
 def _solve(prob, p, lo, hi, tf_range, tf_g, u_g) -> _Solution:
     """One IPOPT solve from the guess (tf_g [s], scaled inputs u_g (2, N)) with parameters p,
     states 1..N within lo..hi ([X, Y, theta, v]) and t_f within tf_range [s]:
     (success, status, tf, states, inputs)."""
-    N = u_g.shape[1]
+    N, nx = u_g.shape[1], prob.nx
     x_g = np.r_[tf_g, u_g.ravel(order="F")]
     lbx, ubx = np.r_[tf_range[0], np.full(2 * N, -1.0)], np.r_[tf_range[1], np.ones(2 * N)]
     if prob.shooting == "multiple":
         z_g = np.asarray(prob.rollout(tf_g, u_g, p))[:, 1:]
         x_g = np.r_[x_g, z_g.ravel(order="F")]
         lbx, ubx = np.r_[lbx, np.tile(lo, N)], np.r_[ubx, np.tile(hi, N)]
-        lbg = ubg = np.zeros(4 * N + prob.n_end)
+        lbg = ubg = np.zeros(nx * N + prob.n_end)
     else:
         lbg = np.r_[np.zeros(prob.n_end), np.tile(lo[prob.rows], N)]
         ubg = np.r_[np.zeros(prob.n_end), np.tile(hi[prob.rows], N)]
+    if nx == 5:
+        lbg, ubg = np.r_[lbg, -np.ones(N)], np.r_[ubg, np.ones(N)]
     sol = prob.solver(x0=x_g, p=p, lbx=lbx, ubx=ubx, lbg=lbg, ubg=ubg)
     stats = prob.solver.stats()
     states, inputs = (np.asarray(a).T.copy() for a in prob.path(sol["x"], p))
-    target = np.r_[p[4:7], p[11:]]  # goal (, v_goal)
+    # goal (, v_goal): v_goal is the last parameter when the speed is fixed
+    target = np.r_[p[nx:nx + 3], p[len(p) - (prob.n_end - 3):]]
     end = states[-1, :len(target)] - target
     success = bool(stats["success"]) and float(np.abs(end).max()) < END_TOL
-    return _Solution(success, str(stats["return_status"]), float(sol["x"][0]), states, inputs)
+    rates = None
+    if nx == 5:
+        rates = inputs[:, 0].copy()
+        inputs[:, 0] = states[:-1, 4]
+    return _Solution(success, str(stats["return_status"]), float(sol["x"][0]), states[:, :4],
+                     inputs, rates)
 
 
 def connect(start, goal, *, L, m, bounds=None, N=50, shooting=DEFAULT_SHOOTING,
             method=DEFAULT_METHOD, goal_speed=None, v_max=25.0, delta_max=pi / 4,
-            a_max=A_MAX, tf_bounds=None, v_min=0.0, paths=None) -> Connection:
+            a_max=A_MAX, tf_bounds=None, v_min=0.0, paths=None, steer0=0.0,
+            max_steer_rate=None, max_lateral_acceleration=None) -> Connection:
     """Minimum-time connection from `start` [X, Y, theta, v] to `goal` [X, Y, theta]
     ([m, m, rad, m/s]), N piecewise-constant input intervals of dt = t_f/N.
+
+    The car's limits: with `max_steer_rate` [rad/s] the steer is a state starting at steer0
+    [rad], its rate the control (|ddelta| <= max_steer_rate), and |v^2 tan(delta) / L| <=
+    max_lateral_acceleration [m/s^2] at every node (required with it); without (None, the
+    paper's OCP) the steer is a control.
 
     L [m] wheelbase, m [kg] mass; bounds (Xmin, Xmax, Ymin, Ymax) [m] or None; goal_speed
     [m/s] or None (free); v_min <= v <= v_max [m/s] (v_min < 0 lets the car reverse),
@@ -386,10 +432,13 @@ def connect(start, goal, *, L, m, bounds=None, N=50, shooting=DEFAULT_SHOOTING,
     start = np.asarray(start, dtype=float)
     goal = np.asarray(goal, dtype=float)
     tf_lo, tf_hi = TF_BOUNDS if tf_bounds is None else tf_bounds
-    prob = _problem(N, shooting, method, bounds is not None, goal_speed is not None)
+    rate_limited = max_steer_rate is not None
+    prob = _problem(N, shooting, method, bounds is not None, goal_speed is not None,
+                    rate_limited)
     # Positions relative to the start node keep the numbers small wherever the map lies.
     origin = start[:2]
     x0 = np.array([0.0, 0.0, start[2], start[3]])
+    limits = [max_steer_rate, max_lateral_acceleration] if rate_limited else []
     box = (np.array([-np.inf, np.inf, -np.inf, np.inf]) if bounds is None
            else np.asarray(bounds, dtype=float) - np.repeat(origin, 2))
     v_goal = [] if goal_speed is None else [goal_speed]
@@ -399,7 +448,9 @@ def connect(start, goal, *, L, m, bounds=None, N=50, shooting=DEFAULT_SHOOTING,
         paths = guess_paths(x0[:3], goal_local, radius, v_min < 0)
     # Fastest guess first; forwards only, that is the shortest Dubins path first.
     # The inputs, a Python loop per interval, are built only for the guesses tried.
-    guesses = sorted((_profile(segs, radius, x0, a_max, v_max, goal_speed, -v_min)
+    # Steered, the guess keeps to the speed at which its tightest turn meets the lateral limit.
+    v_guess = min(v_max, math.sqrt(max_lateral_acceleration * radius)) if rate_limited else v_max
+    guesses = sorted((_profile(segs, radius, x0, a_max, v_guess, goal_speed, -v_min)
                       for segs in paths), key=lambda guess: guess.tf)
     tried = set()
     for guess in guesses:
@@ -412,27 +463,38 @@ def connect(start, goal, *, L, m, bounds=None, N=50, shooting=DEFAULT_SHOOTING,
             continue
         tried.add(key)
         u_g = _guess_inputs(N, guess.runs, guess.plans, a_max)
-        p = np.r_[x0, goal_local[:2], theta_g, L, m, delta_max, a_max, v_goal]
+        tf_g = min(max(guess.tf, tf_lo), tf_hi)
         lo = np.array([box[0], box[2], min(start[2], theta_g) - THETA_MARGIN, v_min])
         hi = np.array([box[1], box[3], max(start[2], theta_g) + THETA_MARGIN, v_max])
-        solved = _solve(prob, p, lo, hi, (tf_lo, tf_hi), min(max(guess.tf, tf_lo), tf_hi), u_g)
+        x_start = x0
+        if rate_limited:
+            u_g[0] = _steer_ramps(u_g[0], steer0, delta_max, max_steer_rate, tf_g / N)
+            x_start = np.r_[x0, steer0]
+            lo, hi = np.r_[lo, -delta_max], np.r_[hi, delta_max]
+        p = np.r_[x_start, goal_local[:2], theta_g, L, m, delta_max, a_max, limits, v_goal]
+        solved = _solve(prob, p, lo, hi, (tf_lo, tf_hi), tf_g, u_g)
         if solved.success or len(tried) == MAX_TRIES:
             break
     solved.states[:, :2] += origin
     return Connection(success=solved.success, status=solved.status, tf=solved.tf,
                       t=np.linspace(0, solved.tf, N + 1), states=solved.states,
                       inputs=solved.inputs, solve_s=perf_counter() - t0,
-                      shooting=shooting)
+                      shooting=shooting, steer_rates=solved.steer_rates)
 
 
 def resimulate(conn: Connection, *, L, m, refine=10) -> np.ndarray:
     """States (N*refine+1, 4) re-integrated with the zoo's rk4 driver on a `refine`-times
-    finer step under the connection's piecewise-constant inputs: checks the discretisation."""
+    finer step under the connection's piecewise-constant inputs (steer rates, the steer a
+    state, if it has them): checks the discretisation."""
     rk4, p = zoo_method("rk4"), {"L": float(L), "m": float(m)}
     h = conn.tf / len(conn.inputs) / refine
-    x, rows = jnp.asarray(conn.states[0]), [conn.states[:1]]
-    for u in conn.inputs:
-        traj = integrate(rk4, kinematic_bicycle, x, jnp.asarray(u), p, h, refine)
-        rows.append(np.asarray(traj.x[1:]))
+    rhs, x, inputs = kinematic_bicycle, jnp.asarray(conn.states[0]), conn.inputs
+    if conn.steer_rates is not None:
+        rhs, x = steered(kinematic_bicycle), jnp.asarray(np.r_[conn.states[0], conn.inputs[0, 0]])
+        inputs = np.column_stack([conn.steer_rates, conn.inputs[:, 1]])
+    rows = [conn.states[:1]]
+    for u in inputs:
+        traj = integrate(rk4, rhs, x, jnp.asarray(u), p, h, refine)
+        rows.append(np.asarray(traj.x[1:, :4]))
         x = traj.x[-1]
     return np.concatenate(rows)

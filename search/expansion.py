@@ -35,6 +35,7 @@ class Expander:
             randoms.append(points)
         rows = self.filled(nodes)
         states = np.repeat(tree.states[rows], self.per, axis=0)
+        steers = np.repeat(tree.steer[rows], self.per)  # each shooting starts at its node's
         new = []
         gears = [(1, s.f.shooter)]
         if s.f.back_shooter is not None:
@@ -44,18 +45,25 @@ class Expander:
             for node, random in zip(rows, self.filled(randoms)):
                 state = tree.states[node]
                 ahead = np.r_[state[:2], state[2] + (0.0 if direction > 0 else math.pi)]
-                points += [point_selector(ahead, prm.arc_radius, prm.n_arc, prm.delta_max),
+                points += [point_selector(ahead, prm.arc_radius, prm.n_arc, s.f.delta_max),
                            random]
             new += self.add_all(nodes, direction, shooter.shoot(states, np.vstack(points),
-                                                                s.goal))
+                                                                s.goal, steers))
         # Tight moves leave the region the tree exhausted: from its nodes and along chains of
         # tight moves; once a node is reached by the tree's own move, the tree goes on alone.
         tight = [i for i in nodes if i < s.widened_at or tree.tight[i]]
         if tight:
             rows = self.filled(tight)
-            fan = np.linspace(-prm.delta_max, prm.delta_max, self.per)
-            shots = s.f.tight_shooter.shoot_steers(np.repeat(tree.states[rows], self.per, axis=0),
-                                                   np.tile(fan, len(rows)), s.goal)
+            shooter, steers = s.f.tight_shooter, np.repeat(tree.steer[rows], self.per)
+            if shooter.rate is None:
+                fan = np.tile(np.linspace(-s.f.delta_max, s.f.delta_max, self.per), len(rows))
+            else:
+                # Rate-limited, the fan spans the steers one shooting can reach.
+                reach = shooter.rate * shooter.duration
+                fan = np.clip(steers + np.tile(np.linspace(-reach, reach, self.per), len(rows)),
+                              -s.f.delta_max, s.f.delta_max)
+            shots = shooter.shoot_steers(np.repeat(tree.states[rows], self.per, axis=0), fan,
+                                         s.goal, steers)
             new += self.add_all(tight, 1, shots, tight=True)
         return new
 
@@ -91,11 +99,18 @@ class Expander:
         if not fresh:
             return []
         ends, keep = ends[fresh], keep[fresh]
-        # A change of direction costs cusp_cost [m] on top of the distance driven.
+        # A change of direction costs cusp_cost [m] on top of the distance driven, and a metre
+        # backwards reverse_penalty metres.
         cusp = s.prm.cusp_cost if tree.direction[node] == -direction else 0.0
+        per_metre = s.prm.reverse_penalty if direction < 0 else 1.0
+        steer = shots.steer[keep]
+        if s.f.rate_limited:
+            # A shooting cut short by a collision ends part of the way up its steer ramp.
+            steer = tree.steer[node] + (steer - tree.steer[node]) * (
+                last[keep] / (shots.states.shape[1] - 1))
         return list(tree.add(
             [shots.states[k, :last[k] + 1] for k in keep.tolist()], states=ends, parent=node,
-            g=tree.g[node] + shots.travelled[keep, last[keep]] + cusp,
+            g=tree.g[node] + per_metre * shots.travelled[keep, last[keep]] + cusp,
             H=np.hypot(*(ends[:, :2] - s.goal[:2]).T), rest=s.guide.rest(ends),
-            guide=s.guide.guide(ends), car=s.guide.car_bound(ends), steer=shots.steer[keep],
+            guide=s.guide.guide(ends), car=s.guide.car_bound(ends), steer=steer,
             direction=direction, tight=tight))

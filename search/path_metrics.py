@@ -1,13 +1,28 @@
 """Measures of a planned path, as planner benchmarks report them: length, cusps (changes of
-the direction of travel), clearance of the car's footprint, curvature and smoothness."""
+the direction of travel), clearance of the car's footprint, curvature and smoothness; and its
+drivability, from the path rows alone: the curvature, implied steer rate and lateral
+acceleration against the car's limits, and how much of it is driven backwards."""
 from __future__ import annotations
+
+import math
 
 import numpy as np
 from scipy.spatial import cKDTree
 
 from stepzoo.search.footprint import Footprint
 from stepzoo.search.maps import OccupancyMap
-from stepzoo.search.plan_schema import PATH_METRICS
+from stepzoo.search.plan_schema import DRIVABILITY_KEYS, PATH_METRICS
+
+# [s] the time over which the heading's change per metre gives the curvature: longer than the
+# path's node spacing (the rows between nodes are linear interpolation, whose curvature jumps
+# at each node), short enough to see a steer ramp. In time rather than arc length, so that
+# where the car slows to turn the wheel the window does not reach over the turning.
+WINDOW_S = 0.25
+MIN_TRAVEL_M = 1e-3   # [m] a window with less travel (the car all but stopped) has no curvature
+STILL_M = 1e-5        # [m] a step between rows this short is standing still (rows hold 1e-6 m)
+# What the rows' finite differences allow above each limit before a plan is not drivable: a
+# window straddling a node or a cusp sees a step in curvature as a short ramp.
+TOLERANCE = {"curvature_1pm": 1.1, "steer_rate_radps": 1.25, "lateral_acceleration_mps2": 1.15}
 
 
 def path_metrics(rows, omap: OccupancyMap, footprint: Footprint) -> dict:
@@ -37,13 +52,73 @@ def path_metrics(rows, omap: OccupancyMap, footprint: Footprint) -> dict:
             "smoothness": float((kappa ** 2 * ds[moving]).sum())}
 
 
+def drivability(rows, wheelbase, delta_max, max_steer_rate, max_lateral_acceleration,
+                window=WINDOW_S) -> dict:
+    """plan.json's `drivability` block of path rows (K, 4) [t s, X m, Y m, psi rad]: in each run
+    between cusps, windows of `window` [s] centred every window/4; in each, the curvature
+    kappa [1/m] is the heading's change over the distance travelled, the implied steer angle
+    atan(wheelbase * kappa) (its sign by the direction of travel), the lateral acceleration
+    v^2 |kappa| [m/s^2] at the window's mean speed v; the steer rate [rad/s] is the implied
+    steer's change between windows over that of their times weighted by distance (the
+    curvature's weights: exact for a steer ramp at any speed, also where the car slows to
+    turn the wheel). reverse_length_m [m] driven backwards; cusps. `drivable`:
+    every measure within TOLERANCE times the car's limit (curvature: tan(delta_max) /
+    wheelbase, delta_max [rad]; max_steer_rate [rad/s]; max_lateral_acceleration [m/s^2]). A
+    run shorter than a window adds no measure."""
+    rows = np.asarray(rows, float)
+    out = dict.fromkeys(DRIVABILITY_KEYS)
+    limit = {"curvature_1pm": math.tan(delta_max) / wheelbase,
+             "steer_rate_radps": max_steer_rate,
+             "lateral_acceleration_mps2": max_lateral_acceleration}
+    out.update(window_s=window, limits=limit, tolerance=dict(TOLERANCE))
+    if len(rows) < 2:
+        return out
+    step = np.diff(rows[:, 1:3], axis=0)
+    ds = np.hypot(step[:, 0], step[:, 1])
+    along = np.sign(step[:, 0] * np.cos(rows[:-1, 3]) + step[:, 1] * np.sin(rows[:-1, 3]))
+    moving = np.flatnonzero(ds > STILL_M)
+    kappa, rate, lateral = [0.0], [0.0], [0.0]
+    # Runs of one direction of travel: the moving steps, split where the direction flips.
+    for run in np.split(moving, np.flatnonzero(np.diff(along[moving]) != 0) + 1):
+        # Every row of the run, its stops included: the time stood still is time steered.
+        span = rows[run[0]:run[-1] + 2]
+        t = span[:, 0]
+        if t[-1] - t[0] < window:
+            continue
+        s = np.r_[0.0, np.cumsum(ds[run[0]:run[-1] + 1])]
+        weighted = np.r_[0.0, np.cumsum((t[1:] + t[:-1]) / 2 * np.diff(s))]  # of t ds
+        heading = np.unwrap(span[:, 3])
+        centre = np.arange(t[0] + window / 2, t[-1] - window / 2 + 1e-12, window / 4)
+        travel = np.interp(centre + window / 2, t, s) - np.interp(centre - window / 2, t, s)
+        turn = (np.interp(centre + window / 2, t, heading)
+                - np.interp(centre - window / 2, t, heading))
+        seen = travel > MIN_TRAVEL_M
+        if not seen.any():
+            continue
+        k, travel, centre = turn[seen] / travel[seen], travel[seen], centre[seen]
+        when = (np.interp(centre + window / 2, t, weighted)
+                - np.interp(centre - window / 2, t, weighted)) / travel
+        steer = np.arctan(wheelbase * k * along[run[0]])
+        kappa.append(float(np.abs(k).max()))
+        lateral.append(float(((travel / window) ** 2 * np.abs(k)).max()))
+        apart = np.diff(when) > 1e-6
+        if apart.any():
+            rate.append(float((np.abs(np.diff(steer))[apart] / np.diff(when)[apart]).max()))
+    measured = {"max_curvature_1pm": max(kappa), "max_steer_rate_radps": max(rate),
+                "max_lateral_acceleration_mps2": max(lateral)}
+    out.update(measured, reverse_length_m=float(ds[moving][along[moving] < 0].sum()),
+               cusps=cusps(rows), drivable=all(
+                   measured[f"max_{name}"] <= TOLERANCE[name] * limit[name] for name in limit))
+    return out
+
+
 def cusps(rows) -> int:
     """Changes of the direction of travel (forwards: along the heading) along path rows
     (K, 4) [t, X, Y, psi]."""
     rows = np.asarray(rows, float)
     step = np.diff(rows[:, 1:3], axis=0)
     along = step[:, 0] * np.cos(rows[:-1, 3]) + step[:, 1] * np.sin(rows[:-1, 3])
-    direction = np.sign(along[np.hypot(step[:, 0], step[:, 1]) > 1e-9])
+    direction = np.sign(along[np.hypot(step[:, 0], step[:, 1]) > STILL_M])
     return int(np.count_nonzero(direction[1:] != direction[:-1]))
 
 

@@ -12,6 +12,7 @@ from typing import NamedTuple
 import numpy as np
 
 from stepzoo import dynamics
+from stepzoo.dynamics.vehicles import limits as vehicle_limits
 from stepzoo.search.connect import Connection, connect
 from stepzoo.search.endpoints import bad_endpoint, departure_boxed_in, enclosed, walled_off
 from stepzoo.search.expansion import Expander
@@ -57,11 +58,19 @@ class PathFinder:
         self.checker = checker or FootprintChecker(omap, self.footprint)
         self.wheelbase = self.vehicle["Lf"] + self.vehicle["Lr"]
         self._components = None
+        self.limits = vehicle_limits(self.vehicle["name"])
+        # Rate-limited, the car's limits bound every move: the steer rate, and the steer
+        # (so the curvature tan(delta) / L) where v^2 kappa would exceed the lateral limit.
+        self.rate_limited = prm.steering == "rate_limited"
+        self.steer_rate = self.limits["max_steer_rate"] if self.rate_limited else None
+        self.delta_max = (min(prm.delta_max, math.atan(
+            self.wheelbase * self.limits["max_lateral_acceleration"] / self.vx ** 2))
+            if self.rate_limited else prm.delta_max)
 
         def shooter(**kind):
             return Shooter(self.checker, self.vehicle["name"], self.vx, config.method, config.h,
                            config.n_steps, prm.batch_nodes * (prm.n_arc + prm.n_random),
-                           prm.delta_max, **kind)
+                           self.delta_max, max_steer_rate=self.steer_rate, **kind)
         self.shooter = shooter()
         # Reverse gear: a second shooter drives backwards from every node, towards an arc
         # behind it and the random points.
@@ -74,9 +83,9 @@ class PathFinder:
         """Compile the driver and build the OCP once, so timed plans measure planning [s]."""
         t0 = perf_counter()
         batch = self.shooter.batch
-        self.shooter.integrate(np.zeros((batch, 5)), np.zeros(batch))
+        self.shooter.integrate(np.zeros((batch, 5)), np.zeros(batch), np.zeros(batch))
         if self.back_shooter is not None:
-            self.back_shooter.integrate(np.zeros((batch, 5)), np.zeros(batch))
+            self.back_shooter.integrate(np.zeros((batch, 5)), np.zeros(batch), np.zeros(batch))
         self.connect(np.array([0.0, 0.0, 0.0, 0.0, 0.0]), np.array([8.0, 2.0, 0.0]),
                      1.0 if goal_speed_fixed else None, bounds=(-50.0, 50.0, -50.0, 50.0))
         return perf_counter() - t0
@@ -127,9 +136,10 @@ class PathFinder:
         return cause, reason
 
     def turn_radius(self) -> float:
-        """[m] the kinematic bicycle's tightest turn, wheelbase / tan(delta_max): the radius of
-        the connection's car, the car bounds and the boxed-in proofs."""
-        return self.wheelbase / math.tan(self.config.params.delta_max)
+        """[m] the kinematic bicycle's tightest turn, wheelbase / tan(delta_max) (rate-limited:
+        the steer limit the lateral acceleration allows at vx, if smaller): the radius of the
+        connection's car, the car bounds and the boxed-in proofs."""
+        return self.wheelbase / math.tan(self.delta_max)
 
     def corridors(self) -> np.ndarray:
         """The lattice's corridor components for this car (guide.corridors), computed once."""
@@ -138,15 +148,20 @@ class PathFinder:
         return self._components
 
     def connect(self, node, goal, goal_speed, bounds=None, direction=1,
-                paths=None) -> tuple[Connection, str]:
-        """Connection from a node state (5,), reached driving `direction` (+1 forwards, -1
-        backwards), to the goal pose, its guesses driving `paths` (connect's); (connection,
-        '' or why not). With reverse gear the OCP lets the speed go down to -vx."""
+                paths=None, steer=0.0) -> tuple[Connection, str]:
+        """Connection from a node state (5,) at steer `steer` [rad], reached driving
+        `direction` (+1 forwards, -1 backwards), to the goal pose, its guesses driving `paths`
+        (connect's); (connection, '' or why not). With reverse gear the OCP lets the speed go
+        down to -vx; rate-limited, it starts at the node's steer and bounds the steer rate and
+        the lateral acceleration by the car's limits."""
         prm = self.config.params
+        limits = ({"steer0": steer, "max_steer_rate": self.steer_rate,
+                   "max_lateral_acceleration": self.limits["max_lateral_acceleration"]}
+                  if self.rate_limited else {})
         conn = connect([node[0], node[1], node[2], direction * self.vx], goal, L=self.wheelbase,
                        m=self.vehicle["m"], bounds=bounds or self.omap.bounds(),
-                       N=prm.connect_N, goal_speed=goal_speed, delta_max=prm.delta_max,
-                       v_min=-self.vx if prm.reverse else 0.0, paths=paths)
+                       N=prm.connect_N, goal_speed=goal_speed, delta_max=self.delta_max,
+                       v_min=-self.vx if prm.reverse else 0.0, paths=paths, **limits)
         if not conn.success:
             return conn, f"IPOPT: {conn.status}"
         if self.checker.first_invalid(conn.states[None, :, :3])[0] >= 0:
@@ -360,3 +375,8 @@ class Search:
         res.path_steers = t.steer[rows].tolist()
         res.path_tight = t.tight[rows].tolist()
         res.path_directions = t.direction[rows].tolist()
+        if self.f.rate_limited:
+            # Each edge ramps from its parent's steer to its own at a constant rate.
+            steps = np.array([len(t.edges[i]) - 1 for i in rows])
+            res.path_steer_rates = ((t.steer[rows] - t.steer[t.parent[rows]])
+                                    / (steps * self.f.config.h)).tolist()

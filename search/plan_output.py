@@ -10,9 +10,11 @@ from pathlib import Path
 import numpy as np
 
 from stepzoo.output import atomic_write
-from stepzoo.search.path_metrics import cusps
+from stepzoo.dynamics.vehicles import limits
+from stepzoo.search.path_metrics import cusps, drivability
 from stepzoo.search.pathfinder import PlanResult
-from stepzoo.search.plan_schema import PLAN_KEYS, STATS_KEYS, TRACKING_KEYS, ordered
+from stepzoo.search.plan_schema import (DRIVABILITY_KEYS, PLAN_KEYS, STATS_KEYS, TRACKING_KEYS,
+                                         ordered)
 from stepzoo.search.replay import controls, path_nodes, replay, vehicle_params
 from stepzoo.search.scenarios import Scenario
 from stepzoo.search.tracking import tracking
@@ -66,7 +68,7 @@ def plan_record(result: PlanResult, scenario: Scenario, config, vehicle: dict, s
         "path": np.round(rows, 6).tolist(),
         "vehicle": {"name": vehicle["name"], "length": vehicle["length"],
                     "width": vehicle["width"], "wheelbase": vehicle["Lf"] + vehicle["Lr"],
-                    **vehicle_params(vehicle)},
+                    **vehicle_params(vehicle), **limits(vehicle["name"])},
         # The inputs, segment by segment, that drive the car along the path (search/replay.py).
         "controls": controls(result, config.method),
         "stats": ordered({
@@ -105,10 +107,19 @@ def plan_record(result: PlanResult, scenario: Scenario, config, vehicle: dict, s
     }
     # Those controls driven through the true models: how far the car strays from the path.
     record["replay"] = replay(record, scenario.omap)
+    record["drivability"] = plan_drivability(rows, vehicle, config.params)
     # A tracking controller driving a richer car along the path: how far a real car strays.
     record["tracking"] = ordered(tracking(record, scenario.omap), TRACKING_KEYS,
                                  "plan.json tracking")
     return ordered(record, PLAN_KEYS, "plan.json")
+
+
+def plan_drivability(rows, vehicle: dict, params) -> dict:
+    """plan.json's `drivability` block (path_metrics.drivability) of path rows (K, 4) for the
+    vehicle set `vehicle` and the planner parameters `params` (its steer limit delta_max)."""
+    return ordered(drivability(rows, vehicle["Lf"] + vehicle["Lr"], params.delta_max,
+                               **limits(vehicle["name"])), DRIVABILITY_KEYS,
+                   "plan.json drivability")
 
 
 def render_png(record: dict, scenario: Scenario) -> bytes:

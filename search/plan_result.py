@@ -43,7 +43,7 @@ BOXED_IN = (Cause.START_BOXED_IN, Cause.GOAL_BOXED_IN)
 class PlanResult:
     """What a plan found. `path_edges` are the tree shootings from the start to the node the
     path ends at (each (n_steps+1, 5) [X, Y, psi, vy, r] at steps of h), `path_steers` their
-    constant steers [rad], `path_tight` whether each is a tight move (kinematic bicycle),
+    constant steers [rad] (rate-limited: their end steers, `path_steer_rates` their rates), `path_tight` whether each is a tight move (kinematic bicycle),
     `path_directions` the way each was driven (+1 forwards, -1 backwards: reverse gear, on the
     kinematic bicycle), `connection` the OCP segment to the goal (exact plans only); with
     `vx` they are the controls that produce the path (search/replay.py)."""
@@ -78,6 +78,9 @@ class PlanResult:
     widened: bool = False
     path_tight: list = field(default_factory=list)
     path_directions: list = field(default_factory=list)
+    # Rate-limited steering: each path edge's constant steer rate [rad/s], its steer ramping
+    # from the previous edge's end steer (the start's: 0) to path_steers; empty if instant.
+    path_steer_rates: list = field(default_factory=list)
 
     def path_length(self) -> float:
         """[m] along the tree edges and the connection."""

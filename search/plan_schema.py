@@ -16,6 +16,25 @@ PATH_METRICS = {
     "smoothness": "[1/m] integral of curvature^2 over length",
 }
 
+# plan.json's `drivability`, from the path rows alone (path_metrics.drivability); the first
+# six are also plan-bench columns.
+DRIVABILITY_COLUMNS = {
+    "max_curvature_1pm": "[1/m] largest |curvature|: heading change per metre over windows of "
+                         "window_s",
+    "max_steer_rate_radps": "[rad/s] largest rate of the implied steer atan(wheelbase kappa)",
+    "max_lateral_acceleration_mps2": "[m/s^2] largest v^2 |kappa|",
+    "reverse_length_m": "[m] driven backwards",
+    "cusps": "changes of the direction of travel",
+    "drivable": "whether each measure is within its tolerance times the car's limit",
+}
+DRIVABILITY_KEYS = {
+    **DRIVABILITY_COLUMNS,
+    "window_s": "[s] the time over which the heading's change per metre gives the curvature",
+    "limits": "the car's limits: curvature_1pm [1/m] (tan(delta_max) / wheelbase), "
+              "steer_rate_radps [rad/s], lateral_acceleration_mps2 [m/s^2]",
+    "tolerance": "the factor over each limit that the rows' finite differences are allowed",
+}
+
 # plan.json, in the order it is written.
 PLAN_KEYS = {
     "scenario": "the scenario's name (a query's: its map's)",
@@ -28,7 +47,8 @@ PLAN_KEYS = {
     "goal_speed": "[m/s] the speed the connection ends at, null: free",
     "speed": "[m/s] the tree's constant speed",
     "path": "rows [t s, X m, Y m, psi rad] at most 0.1 m apart, tree edges then connection",
-    "vehicle": "the car: name, length [m], width [m], wheelbase [m] and its parameters",
+    "vehicle": "the car: name, length [m], width [m], wheelbase [m], its parameters and its "
+               "limits max_steer_rate [rad/s], max_lateral_acceleration [m/s^2]",
     "controls": "the inputs, segment by segment, that drive the car along the path",
     "stats": "the search's measures (STATS_KEYS)",
     "params": "the planner parameters (planner_config.PlannerParams), every one",
@@ -36,6 +56,7 @@ PLAN_KEYS = {
     "tree": "every tree edge as a few [X, Y] points [m]",
     "map": "the grid: file (map.npy), resolution [m/cell], origin [m], source",
     "replay": "the controls driven through the true models: deviation, collision, clearance",
+    "drivability": "the path rows against the car's limits (DRIVABILITY_KEYS)",
     "tracking": "a path-tracking controller driving a richer car model along the path: "
                 "deviation, collision, clearance (TRACKING_KEYS)",
 }
@@ -114,6 +135,8 @@ RUN_COLUMNS = {
     **REPLAY_COLUMNS,
     "replay_clearance_min_m": "[m] the replayed path's least clearance",
     "replay_s": "[s] the replay's wall time (not in time_s), null without a path",
+    # The path rows against the car's limits (plan.json's drivability; cusps above).
+    **{k: v for k, v in DRIVABILITY_COLUMNS.items() if k != "cusps"},
     **{f"tracking_{k}": v for k, v in TRACKING_KEYS.items()},
     "tracking_s": "[s] the tracking replay's wall time (not in time_s), null without a path",
     "progress": "JSON list of (time [s], length [m]) of each shorter path",

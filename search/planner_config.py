@@ -8,6 +8,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Literal
 
 from pydantic import Field, field_validator
 
@@ -90,6 +91,18 @@ class PlannerParams(Schema):
         "1: when the tree exhausts unsolved, expand every node again with tight moves too (the "
         "kinematic bicycle, out to full lock), which chain until the tree's own moves take "
         "over; 0: the tree's own moves only, as the paper [1]"))
+    steering: Literal["rate_limited", "instant"] = Field("rate_limited", description=(
+        "rate_limited: the steer angle is a state whose rate is bounded by the vehicle's "
+        "max_steer_rate (tree edges are steer ramps, the connection's control is the steer "
+        "rate) and the curvature by its max_lateral_acceleration at the planned speed; "
+        "instant: each edge at one constant steer set at once, as the paper [1]"))
+    reverse_penalty: quantity("a factor", "", "1 makes a metre backwards cost what one "
+                              "forwards does; beyond 10 reversing is all but forbidden",
+                              ge=1.0, le=10.0) = Field(2.0, description=(
+                                  "a metre driven backwards costs this many metres in g (with "
+                                  "reverse = 1), as Nav2 Smac Hybrid-A*'s reverse_penalty "
+                                  "(default 2.0) and Kurzer's Hybrid A* penaltyReversing "
+                                  "(2.0) [1]"))
     cusp_cost: quantity("a length", "m", "0 makes cusps free; beyond 1 km one forbids them",
                         ge=0.0, le=1000.0) = Field(5.0, description=(
                             "added to the cost g at each change of direction (with reverse = "

@@ -10,6 +10,7 @@ from functools import cache
 import numpy as np
 
 from stepzoo import dynamics
+from stepzoo.dynamics.models import steered as steered_rhs
 from stepzoo.search.connect import DEFAULT_METHOD as CONNECT_METHOD
 from stepzoo.search.footprint import Footprint, first_collision
 from stepzoo.search.maps import OccupancyMap
@@ -35,30 +36,44 @@ def controls(result: PlanResult, method: str | None = None) -> list[dict]:
     {"model": "kinematic", "t0", "dt", "v0" [m/s, signed, at the segment's start],
     "inputs": {"delta" [rad] (n,), "F" [N] (n,)}}; each also says which `move` it is, its
     `steps`, and the integrator (`method`, step `h` [s]) that planned it. `method`: the tree's
-    integrator, recorded when given."""
+    integrator, recorded when given.
+
+    Rate-limited steering (the steer a state, dynamics.models.steered): `inputs` also hold
+    "delta_rate" [rad/s], the steer's constant rate over the segment (a tree edge) or over each
+    step (the connection, (n,)), and "delta" is the steer at its (each step's) start."""
     out, t0 = [], 0.0
     tree = {"method": method} if method else {}
-    for edge, steer, tight, way in zip(result.path_edges, result.path_steers,
-                                       result.path_tight, result.path_directions):
+    rates = result.path_steer_rates or [None] * len(result.path_edges)
+    steer0 = 0.0
+    for edge, steer, tight, way, rate in zip(result.path_edges, result.path_steers,
+                                             result.path_tight, result.path_directions, rates):
         n = len(edge) - 1
+        start = float(steer) if rate is None else steer0
+        ramp = {} if rate is None else {"delta_rate": float(rate)}
         if tight or way < 0:
+            ramp = {k: [v] * n for k, v in ramp.items()}
+            delta = ([start] * n if rate is None
+                     else (start + rate * result.h * np.arange(n)).tolist())
             out.append({"model": "kinematic", "t0": t0, "dt": result.h, "v0": way * result.vx,
-                        "inputs": {"delta": [float(steer)] * n, "F": [0.0] * n},
+                        "inputs": {"delta": delta, "F": [0.0] * n, **ramp},
                         "move": "tight" if tight else "reverse", "steps": n, **tree,
                         "h": result.h})
         else:
             out.append({"model": "dynamic5", "t0": t0, "duration": n * result.h,
-                        "vx": result.vx, "inputs": {"delta": float(steer)}, "move": "tree",
+                        "vx": result.vx, "inputs": {"delta": start, **ramp}, "move": "tree",
                         "steps": n, **tree, "h": result.h})
+        steer0 = float(steer)
         # As path_rows times the path: the same sums, so a node's time matches its row's.
         t0 = t0 + result.h * n
     conn = result.connection
     if conn is not None:
         n = len(conn.inputs)
+        ramp = ({} if conn.steer_rates is None
+                else {"delta_rate": conn.steer_rates.tolist()})
         out.append({"model": "kinematic", "t0": t0, "dt": conn.tf / n,
                     "v0": float(conn.states[0, 3]),
                     "inputs": {"delta": conn.inputs[:, 0].tolist(),
-                               "F": conn.inputs[:, 1].tolist()},
+                               "F": conn.inputs[:, 1].tolist(), **ramp},
                     "move": "connection", "steps": n, "method": CONNECT_METHOD,
                     "h": conn.tf / n})
     return out
@@ -150,17 +165,24 @@ def drive(segs: list[dict], start, vehicle: dict) -> tuple[np.ndarray, np.ndarra
     nodes, samples = [np.asarray(start, float)[None, :3]], [np.asarray(start, float)[None, :3]]
     state = np.r_[np.asarray(start, float)[:3], 0.0, 0.0]  # [X, Y, psi, vy, r]
     for seg in segs:
+        inputs = seg["inputs"]
+        steered = "delta_rate" in inputs  # the steer a state, driven by its rate
         if seg["model"] == "dynamic5":
             n = int(seg["steps"])
             p = dict(_params("dynamic5", vehicle), vx=float(seg["vx"]))
+            x0, u = state, [float(inputs["delta"])]
+            if steered:
+                x0, u = np.r_[state, u], [float(inputs["delta_rate"])]
             x, seg_nodes, seg_samples = _solve(
-                "dynamic5", state, [float(seg["inputs"]["delta"])], p, float(seg["duration"]),
-                n, abs(float(seg["vx"])))
-            state = x
+                "dynamic5", x0, u, p, float(seg["duration"]), n, abs(float(seg["vx"])), steered)
+            state = x[:5]
         elif seg["model"] == "kinematic":
             p = _params("kinematic", vehicle)
             x = np.r_[state[:3], float(seg["v0"])]
-            u = np.column_stack([seg["inputs"]["delta"], seg["inputs"]["F"]]).astype(float)
+            u = np.column_stack([inputs["delta_rate" if steered else "delta"],
+                                 inputs["F"]]).astype(float)
+            if steered:
+                x = np.r_[x, float(inputs["delta"][0])]
             dt = float(seg["dt"])
             seg_nodes, seg_samples = [], []
             # Runs of equal inputs are one smooth problem: solved in one call.
@@ -168,7 +190,7 @@ def drive(segs: list[dict], start, vehicle: dict) -> tuple[np.ndarray, np.ndarra
             for a, b in zip(breaks[:-1], breaks[1:]):
                 speed = abs(x[3]) + abs(u[a, 1]) / p["m"] * dt * (b - a)
                 x, run_nodes, run_samples = _solve("kinematic", x, u[a], p, dt * (b - a),
-                                                   b - a, speed)
+                                                   b - a, speed, steered)
                 seg_nodes.append(run_nodes)
                 seg_samples.append(run_samples)
             seg_nodes, seg_samples = np.vstack(seg_nodes), np.vstack(seg_samples)
@@ -182,14 +204,15 @@ def drive(segs: list[dict], start, vehicle: dict) -> tuple[np.ndarray, np.ndarra
     return np.vstack(nodes), np.vstack(samples)
 
 
-def _solve(model: str, x0, u, p, duration, steps, speed):
-    """One smooth piece: `model` from x0 under constant inputs u for `duration` [s]; (end
-    state, poses (steps, 3) at duration * k / steps for k = 1..steps, poses (m, 3) at most
-    CHECK_SPACING_M apart for a speed up to `speed` [m/s], the start excluded)."""
+def _solve(model: str, x0, u, p, duration, steps, speed, steered=False):
+    """One smooth piece: `model` (`steered`: its steer a state, driven by the first input)
+    from x0 under constant inputs u for `duration` [s]; (end state, poses (steps, 3) at
+    duration * k / steps for k = 1..steps, poses (m, 3) at most CHECK_SPACING_M apart for a
+    speed up to `speed` [m/s], the start excluded)."""
     import jax
     import jax.numpy as jnp
     from scipy.integrate import solve_ivp
-    fun = _rhs(model)
+    fun = _rhs(model, steered)
     # The replay is the float64 truth whatever precision the caller computes in: float64 in
     # this block only, no global setting changed.
     with jax.enable_x64(True):
@@ -208,10 +231,12 @@ def _solve(model: str, x0, u, p, duration, steps, speed):
 
 
 @cache
-def _rhs(model: str):
-    """The model's right-hand side, compiled once (per precision: _solve calls it in float64)."""
+def _rhs(model: str, steered: bool = False):
+    """The model's right-hand side (`steered`: with the steer a state), compiled once (per
+    precision: _solve calls it in float64)."""
     import jax
-    return jax.jit(dynamics.model(model).rhs)
+    rhs = dynamics.model(model).rhs
+    return jax.jit(steered_rhs(rhs) if steered else rhs)
 
 
 def _params(model: str, vehicle: dict) -> dict:

@@ -7,6 +7,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from stepzoo import dynamics
+from stepzoo.dynamics.models import steered
 from stepzoo.integrators import integrate_batch, method
 from stepzoo.search.validity import ValidityChecker
 
@@ -16,7 +17,8 @@ CHECK_SPACING_M = 0.2  # [m] at most between the poses of a shooting checked for
 
 class Shots(NamedTuple):
     states: np.ndarray  # (B, N+1, 5) [X, Y, psi, vy, r] at steps of h
-    steer: np.ndarray   # (B,) [rad] the constant steer of each shooting
+    steer: np.ndarray   # (B,) [rad] the steer at each shooting's end (its constant steer if
+    #                     instant; rate-limited, it ramps there from the start's steer)
     g: np.ndarray       # (B,) [m] distance travelled along each shooting
     H: np.ndarray       # (B,) [m] distance from each end to the destination
     valid: np.ndarray   # (B,) bool: finite and collision-free; invalid ones cost infinity
@@ -43,14 +45,22 @@ class Shooter:
     parking speeds the car rolls without slip), the lateral states vy, r reported as 0;
     `tight`: forwards on the kinematic bicycle, the car at parking speed, which turns at
     L / tan(delta) where eq. 4's understeer at vx widens the turn (3.3 m instead of 2.6 m at
-    full lock for the default car at 5 m/s)."""
+    full lock for the default car at 5 m/s).
+
+    `max_steer_rate` [rad/s] or None (instant): with a rate, the steer is a state (the model
+    `dynamics.models.steered`) and each shooting ramps it at a constant rate from the node's
+    steer to its end steer, which lies within max_steer_rate times the horizon of it, as
+    Hybrid A*'s and CommonRoad's steer-rate inputs do; without, each shooting holds one steer,
+    set at once, as the paper."""
 
     def __init__(self, checker: ValidityChecker, vehicle: str, vx: float, method_name: str,
                  h: float, n_steps: int, batch: int, delta_max: float, reverse: bool = False,
-                 tight: bool = False):
+                 tight: bool = False, max_steer_rate: float | None = None):
         self.reverse = reverse
         self.kinematic = reverse or tight
         self.model = dynamics.model("kinematic" if self.kinematic else "dynamic5")
+        self.rate = max_steer_rate
+        self.rhs = self.model.rhs if self.rate is None else steered(self.model.rhs)
         self.checker = checker
         self.method = method(method_name)
         self.h, self.n_steps, self.batch, self.delta_max = h, n_steps, batch, delta_max
@@ -61,27 +71,49 @@ class Shooter:
         # compiles once per (method, batch, n_steps).
         self.p = {k: jnp.full((batch,), float(v)) for k, v in p.items()}
 
-    def integrate(self, x0, steer) -> np.ndarray:
-        """(B, 5) states and (B,) steers -> (B, N+1, 5) trajectories."""
+    @property
+    def duration(self) -> float:
+        """[s] of one shooting."""
+        return self.n_steps * self.h
+
+    def end_steers(self, steer0, target) -> np.ndarray:
+        """(B,) [rad] the end steers of shootings from steers `steer0` aiming at `target`
+        (B,): the target, within max_steer_rate times the horizon of steer0 (rate-limited)."""
+        target = np.asarray(target, float)
+        if self.rate is None:
+            return target
+        reach = self.rate * self.duration
+        return np.clip(target, steer0 - reach, steer0 + reach)
+
+    def integrate(self, x0, steer, steer0=None) -> np.ndarray:
+        """(B, 5) states and (B,) end steers (and, rate-limited, (B,) start steers) -> (B, N+1,
+        5) trajectories."""
         # NumPy arguments go straight into the jitted driver; jnp conversions here would each
         # be a separate dispatch, costing more than the integration itself.
         x0, steer = np.asarray(x0, float), np.asarray(steer, float)
+        B = len(x0)
+        if self.kinematic:
+            speed = -self.vx if self.reverse else self.vx
+            x0 = np.column_stack([x0[:, :3], np.full(B, speed)])  # [X, Y, theta, v]
+        if self.rate is None:
+            inputs = steer[:, None]
+        else:
+            # The steer a state, its constant rate the input.
+            steer0 = np.broadcast_to(np.asarray(steer0, float), (B,))
+            x0, inputs = np.column_stack([x0, steer0]), ((steer - steer0) / self.duration)[:, None]
+        if self.kinematic:
+            inputs = np.column_stack([inputs, np.zeros(B)])            # [delta or rate, F = 0]
+        x = np.asarray(integrate_batch(self.method, self.rhs, x0, inputs, self.p, self.h,
+                                       self.n_steps).x)
         if not self.kinematic:
-            traj = integrate_batch(self.method, self.model.rhs, x0, steer[:, None], self.p,
-                                   self.h, self.n_steps)
-            return np.asarray(traj.x)
-        speed = -self.vx if self.reverse else self.vx
-        start = np.column_stack([x0[:, :3], np.full(len(x0), speed)])  # [X, Y, theta, v]
-        inputs = np.column_stack([steer, np.zeros(len(steer))])            # [delta, F = 0]
-        x = np.asarray(integrate_batch(self.method, self.model.rhs, start, inputs, self.p,
-                                       self.h, self.n_steps).x)
+            return x[..., :5]
         out = np.zeros((*x.shape[:2], 5))
         out[..., :3] = x[..., :3]
         return out
 
-    def shoot(self, state, points, destination) -> Shots:
-        """Shoot from `state` (5,), or from one state per point (B, 5), towards each of
-        `points` (B, 2) [m]."""
+    def shoot(self, state, points, destination, steer0=0.0) -> Shots:
+        """Shoot from `state` (5,), or from one state per point (B, 5), at steer `steer0`
+        [rad] (one or (B,)), towards each of `points` (B, 2) [m]."""
         start = np.broadcast_to(np.asarray(state, float), (self.batch, 5))
         if self.reverse:
             # Backwards, the car follows the circle of curvature -tan(delta)/L relative to
@@ -90,13 +122,13 @@ class Shooter:
             steer = -pure_pursuit(flipped, points, self.wheelbase, self.delta_max)
         else:
             steer = pure_pursuit(start, points, self.wheelbase, self.delta_max)
-        return self.shoot_steers(start, steer, destination)
+        return self.shoot_steers(start, self.end_steers(steer0, steer), destination, steer0)
 
-    def shoot_steers(self, state, steer, destination) -> Shots:
-        """Shoot from `state` (5,), or one state per steer (B, 5), at the constant steers
-        `steer` (B,) [rad]."""
+    def shoot_steers(self, state, steer, destination, steer0=0.0) -> Shots:
+        """Shoot from `state` (5,), or one state per steer (B, 5), at steer `steer0` [rad]
+        (rate-limited), to the end steers `steer` (B,) [rad]."""
         start = np.broadcast_to(np.asarray(state, float), (self.batch, 5))
-        states = self.integrate(start, steer)
+        states = self.integrate(start, steer, steer0)
         # A blown-up shooting is a result (an invalid one), so its overflow warnings are noise;
         # first_collision treats non-finite poses as collisions, so it needs no branch either.
         with np.errstate(invalid="ignore", over="ignore"):

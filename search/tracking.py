@@ -44,18 +44,20 @@ CHECK_SPACING_M = 0.05  # [m] at most between the tracked poses checked for coll
 
 
 def plant_params(vehicle: dict) -> dict:
-    """The tracked car's parameters: the set's m, Iz, Lf, Lr, Caf, Car (as plan.json's
-    `vehicle` records them), its Fiala friction coefficient and CommonRoad steering and
-    acceleration limits (from the default set where a set publishes none)."""
+    """The tracked car's parameters: the set's m, Iz, Lf, Lr, Caf, Car and max_steer_rate
+    [rad/s] (as plan.json's `vehicle` records them), its Fiala friction coefficient and
+    CommonRoad steer angle and acceleration limits (the default set's where a set publishes
+    none)."""
     name = vehicle.get("name")
     p = {k: float(vehicle[k]) for k in ("m", "Iz", "Lf", "Lr", "Caf", "Car")}
     tables = dynamics.vehicle(name) if name in dynamics.vehicle_names() else {}
     limits = st_params(name if "st" in tables else default_vehicle())
     mu = tyre_params(name if "fiala" in tables else default_vehicle(), "fiala")["mu"]
     Fzf, Fzr = axle_loads(p)
-    keep = ("delta_min", "delta_max", "ddelta_min", "ddelta_max", "v_min", "v_max",
-            "v_switch", "a_max")
-    return {**p, **{k: limits[k] for k in keep}, "mu": float(mu), "Fzf": Fzf, "Fzr": Fzr,
+    keep = ("delta_min", "delta_max", "v_min", "v_max", "v_switch", "a_max")
+    rate = float(vehicle["max_steer_rate"])
+    return {**p, **{k: limits[k] for k in keep}, "ddelta_min": -rate, "ddelta_max": rate,
+            "mu": float(mu), "Fzf": Fzf, "Fzr": Fzr,
             "v_blend_low": V_BLEND[0], "v_blend_high": V_BLEND[1]}
 
 

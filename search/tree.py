@@ -13,7 +13,8 @@ COLUMNS = {
     "rest": (float, ()),       # [m] geodesic lattice distance to the goal
     "guide": (float, ()),      # [m] the guide geodesic (room for the car) to the goal
     "car": (float, ()),        # [m] the car's obstacle-blind bound to the goal
-    "steer": (float, ()),      # [rad] the constant steer of the node's edge
+    "steer": (float, ()),      # [rad] the steer at the node: its edge's constant steer if
+    #                            instant, where its steer ramp ends if rate-limited
     "direction": (np.int8, ()),  # +1 forwards, -1 backwards, 0 the start (either way)
     "tight": (bool, ()),       # whether the node's edge is a tight move
 }

@@ -52,6 +52,20 @@ class Connector:
                            for p in paths])
         return bool((s.f.checker.first_invalid(padded) < 0).any())
 
+    def cost(self, conn, direction) -> float:
+        """[m] the connection's cost as the tree's g counts it: its length, a metre backwards
+        reverse_penalty metres, and cusp_cost per change of direction (from `direction`, the
+        way its node was reached, on)."""
+        prm = self.s.prm
+        step = np.hypot(*np.diff(conn.states[:, :2], axis=0).T)
+        way = np.sign(conn.states[:-1, 3] + conn.states[1:, 3])
+        if not prm.reverse:
+            return float(step.sum())
+        moving = way[way != 0]
+        cusps = np.count_nonzero(np.diff(np.r_[direction, moving]) != 0)
+        return float(step[way >= 0].sum() + prm.reverse_penalty * step[way < 0].sum()
+                     + prm.cusp_cost * cusps)
+
     def try_connect(self) -> bool:
         """Connect from the untried nodes within connect_radius of the goal that could shorten
         the best path, shortest g + car bound first, within the attempts left; True if the best
@@ -79,13 +93,14 @@ class Connector:
                                      else "every Dubins and Reeds-Shepp path collides")
                 continue
             t0 = perf_counter()
-            conn, why = s.f.connect(tree.states[i], s.goal, s.goal_speed,
-                                    direction=int(tree.direction[i]) or 1, paths=guesses)
+            direction = int(tree.direction[i]) or 1
+            conn, why = s.f.connect(tree.states[i], s.goal, s.goal_speed, direction=direction,
+                                    paths=guesses, steer=float(tree.steer[i]))
             self.seconds += perf_counter() - t0
             if why:
                 self.failures.append(why)
                 continue
-            length = float(g[i] + float(np.hypot(*np.diff(conn.states[:, :2], axis=0).T).sum()))
+            length = float(g[i] + self.cost(conn, direction))
             if length >= s.best * (1 - IMPROVE_TOL):
                 continue
             if not math.isfinite(s.best):

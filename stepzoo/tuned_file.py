@@ -17,7 +17,7 @@ Count = quantity("", "", "a count", whole=True, ge=0)
 Measured = Annotated[float, Field(allow_inf_nan=True)]
 Rate = quantity("", "", "a fraction of the runs", ge=0.0, le=1.0)
 # Planner parameters by name; their types and ranges are the planner's (the planner kind).
-PlannerValues = dict[str, float | int | bool]
+PlannerValues = dict[str, float | int | bool | str]
 
 
 class Calibrated(Schema):

@@ -19,7 +19,8 @@ from stepzoo.search.plan_request import ENV
 from stepzoo.validate import check
 
 SUMMARY_COLUMNS = ["scenario", "status", "expansions", "nodes", "search_s", "connect_s",
-                   "path_length_m", "connect_tf_s", "max_deviation_m"]
+                   "path_length_m", "connect_tf_s", "max_deviation_m", "drivable"]
+STATS_SHOWN = SUMMARY_COLUMNS[2:8]
 
 
 REVERSE_HELP = ("reverse gear: the tree and the connection may drive backwards, each change "
@@ -33,7 +34,8 @@ def settings_help() -> str:
     from stepzoo.search.planner_config import PlannerParams
     lines = ["planner settings (a config TOML's [planner] table; name = default, range, doc):"]
     for name, info in PlannerParams.model_fields.items():
-        lines += textwrap.wrap(f"{name} = {info.default:g}: {describe(info)}", 84,
+        default = info.default if isinstance(info.default, str) else f"{info.default:g}"
+        lines += textwrap.wrap(f"{name} = {default}: {describe(info)}", 84,
                                initial_indent="  ", subsequent_indent="      ")
         lines += [f"      {line}" for line in textwrap.wrap(info.description, 80)]
     return "\n".join(lines)
@@ -140,8 +142,9 @@ def _plan_on_worker(scenario, config, seed):
 def _summary_row(record):
     stats = record["stats"]
     return {"scenario": record["scenario"], "status": record["status"],
-            **{k: stats[k] for k in SUMMARY_COLUMNS[2:-1]},
-            "max_deviation_m": record["replay"]["max_deviation_m"]}
+            **{k: stats[k] for k in STATS_SHOWN},
+            "max_deviation_m": record["replay"]["max_deviation_m"],
+            "drivable": record["drivability"]["drivable"]}
 
 
 def plan(scenarios, out, config=None, seed: int = 0, *, reverse: bool = False,
@@ -245,14 +248,28 @@ def show(records: list[dict], out, batch: bool, fmt: str = "text") -> None:
             sys.stdout.write(f"{r['scenario']}: {r['status']} ({r['reason']}); "
                              f"{r['stats']['expansions']} expansions, search "
                              f"{r['stats']['search_s']:.3f} s, connection "
-                             f"{r['stats']['connect_s']:.3f} s{replayed} -> "
-                             f"{out / 'plan.json'}\n")
+                             f"{r['stats']['connect_s']:.3f} s{replayed}"
+                             f"{drivable_words(r['drivability'])} -> {out / 'plan.json'}\n")
         return
     rows = [_summary_row(r) for r in records]
     if fmt == "json":
         sys.stdout.write(json.dumps(rows) + "\n")
     else:
         sys.stdout.write(text_table(rows, SUMMARY_COLUMNS) + f"\nwritten to {out}\n")
+
+
+def drivable_words(block: dict) -> str:
+    """', drivable' or ', not drivable (what exceeds its limit)' for a plan's drivability
+    block; '' without a path."""
+    if block["drivable"] is None:
+        return ""
+    words = {"curvature_1pm": ("curvature", "1/m"), "steer_rate_radps": ("steer rate", "rad/s"),
+             "lateral_acceleration_mps2": ("lateral acceleration", "m/s^2")}
+    over = [f"{words[name][0]} {block['max_' + name]:.3g} > {block['tolerance'][name]:g} x "
+            f"{limit:.3g} {words[name][1]}"
+            for name, limit in block["limits"].items()
+            if block["max_" + name] > block["tolerance"][name] * limit]
+    return ", drivable" if block["drivable"] else f", not drivable ({'; '.join(over)})"
 
 
 def status(records) -> int:
