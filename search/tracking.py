@@ -12,6 +12,7 @@ import numpy as np
 
 from stepzoo import dynamics
 from stepzoo.dynamics.blended import blended_single_track
+from stepzoo.search.connect import A_MAX
 from stepzoo.dynamics.vehicles import axle_loads, default_vehicle, st_params, tyre_params
 
 CONTROLLER = "stanley"
@@ -31,10 +32,14 @@ K_SOFT = 1.0          # [m/s] softening: the cross-track term stays bounded as t
 # at speed v (docs/plan-fidelity.md derives it).
 GAIN_K_REVERSE = 2.0  # [1/s]
 HEADING_GAIN_REVERSE = 2.0
+STEER_LAG_RAD = 0.2   # [rad] steer lagging its command by this much halts the car ...
+SLOWEST = 0.1         # ... down to this fraction of the planned speed
 STEER_SERVO_S = 0.05  # [s] time constant of the steering servo (the plant limits its rate)
 SPEED_GAIN = 5.0      # [1/s] speed loop
-A_TRACK = 2.0         # [m/s^2] the tracker's largest braking and acceleration
+A_TRACK = 2 * A_MAX   # [m/s^2] the tracker's largest braking and acceleration: above the
+                      # connection's, so that it can follow the plan's speed
 A_BRAKE = 1.0         # [m/s^2] the braking it plans to stop at a cusp or the path's end
+STOPPED_MPS = 0.05    # [m/s] below this the speed loop alone stops the car
 END_TOL_M = 0.02      # [m] a piece is done when its end is this close along the path
 V_BLEND = (1.0, 2.0)  # [m/s] the plant blends from kinematic to dynamic between these speeds
 SPACING_M = 0.05      # [m] between the reference's points along the path
@@ -72,7 +77,7 @@ def pieces(rows) -> list[tuple[int, int, int]]:
     return [(int(a), int(b), int(way[a])) for a, b in zip(bounds[:-1], bounds[1:])]
 
 
-def reference(rows, p: dict) -> dict:
+def reference(rows, p: dict, kinematic=None) -> dict:
     """The path as the controller reads it, piece after piece (a cusp's row is in both):
     the centre of gravity's path P (n, 2), the controlled axle's path C (n, 2) (front axle
     forwards, rear axle backwards), the travel direction's heading along C `course` (n,),
@@ -80,15 +85,21 @@ def reference(rows, p: dict) -> dict:
     (n,), the plan's speed `speed` (n,) [m/s], the distance left to the piece's end `left`
     (n,) [m]; per piece `first`, `last` row and `way` (+1 | -1).
 
-    The body heading is the path's heading less the kinematic car's slip angle at the centre
-    of gravity, asin(Lr kappa): the axles of a car whose centre of gravity is on the path."""
+    The body heading is the plan's psi where the plan drove the dynamic bicycle (its (X, Y)
+    the centre of gravity); where it drove the kinematic bicycle (`kinematic`, a bool per
+    row; default: nowhere), whose (X, Y) moves along psi, it is the path's heading less the
+    rolling car's slip angle at the centre of gravity, asin(Lr kappa). Averaged over SMOOTH_M,
+    it sets the axles of a car whose centre of gravity is on the path."""
     rows = np.asarray(rows, float)
     keep = np.r_[True, np.hypot(*np.diff(rows[:, 1:3], axis=0).T) > 1e-9]
+    kinematic = (np.zeros(len(rows), bool) if kinematic is None
+                 else np.asarray(kinematic, bool))[keep]
     rows = rows[keep]
     L, Lr, Lf = p["Lf"] + p["Lr"], p["Lr"], p["Lf"]
     # The kinematic car's slip angle at full lock bounds the one the path asks for.
     sin_beta_max = math.sin(math.atan(Lr * math.tan(p["delta_max"]) / L))
-    out = {k: [] for k in ("P", "C", "course", "psi_body", "steer_ff", "speed", "left")}
+    out = {k: [] for k in ("P", "C", "course", "psi_body", "steer_ff", "speed", "accel",
+                           "left")}
     first, last, ways = [], [], []
     for a, b, way in pieces(rows):
         # Resampled evenly along the path: rows closer than their rounding would make the
@@ -99,23 +110,29 @@ def reference(rows, p: dict) -> dict:
         seg = np.column_stack([np.interp(s, along, rows[a:b + 1, k]) for k in range(3)])
         t, xy = seg[:, 0], seg[:, 1:3]
         d = np.diff(s)
-        # The heading of travel averaged over SMOOTH_M: a kink where the plan hands a
-        # slipping car's heading to the kinematic bicycle becomes a turn a car can drive.
-        travel = _smooth(np.unwrap(np.arctan2(*np.gradient(xy, s, axis=0).T[::-1])))
+        travel = np.unwrap(np.arctan2(*np.gradient(xy, s, axis=0).T[::-1]))
         kappa = way * np.gradient(travel, s) if len(s) > 2 else np.zeros(len(s))
         beta = np.arcsin(np.clip(Lr * kappa, -sin_beta_max, sin_beta_max))
-        psi_body = travel + (np.pi if way < 0 else 0.0) - beta
+        rolling = np.interp(s, along, kinematic[a:b + 1].astype(float)) > 0.5
+        facing = travel + (np.pi if way < 0 else 0.0)
+        planned = np.interp(s, along, np.unwrap(rows[a:b + 1, 3]))
+        planned += 2 * np.pi * np.round((facing[0] - planned[0]) / (2 * np.pi))
+        # Averaged over SMOOTH_M: a kink where the plan hands a slipping car's heading to the
+        # kinematic bicycle becomes a turn a car can drive.
+        psi_body = _smooth(np.where(rolling, facing - beta, planned))
         offset = Lf if way > 0 else -Lr
         axle = xy + offset * np.column_stack([np.cos(psi_body), np.sin(psi_body)])
-        course = np.unwrap(np.arctan2(*np.gradient(axle, s, axis=0).T[::-1]))
+        course = _smooth(np.unwrap(np.arctan2(*np.gradient(axle, s, axis=0).T[::-1])))
         dt = np.diff(t)
         v = np.where(dt > 0, d / np.where(dt > 0, dt, 1.0), 0.0)
+        speed = np.r_[v, v[-1:]]
         first.append(sum(len(c) for c in out["P"]))
         last.append(first[-1] + len(seg) - 1)
         ways.append(way)
         for k, val in (("P", xy), ("C", axle), ("course", course), ("psi_body", psi_body),
                        ("steer_ff", np.arctan(L * np.tan(beta) / Lr)),
-                       ("speed", np.r_[v, v[-1:]]), ("left", s[-1] - s)):
+                       ("speed", speed), ("accel", speed * np.gradient(speed, s)),
+                       ("left", s[-1] - s)):
             out[k].append(val)
     ref = {k: np.concatenate(v) for k, v in out.items()}
     return dict(ref, first=np.array(first), last=np.array(last), way=np.array(ways))
@@ -136,15 +153,28 @@ def _bucket(n: int, least: int) -> int:
     return max(least, 1 << max(0, math.ceil(math.log2(max(n, 1)))))
 
 
-def track(rows, start, vehicle: dict) -> dict:
+def kinematic_rows(rows, segs: list[dict]) -> np.ndarray:
+    """(K,) bool: which path rows (K, 4) [t, ...] the plan drove on the kinematic bicycle,
+    by the time spans of its controls (search/replay.py's `controls`)."""
+    t = np.asarray(rows, float)[:, 0]
+    out = np.zeros(len(t), bool)
+    for seg in segs:
+        span = seg["duration"] if seg["model"] == "dynamic5" else seg["dt"] * seg["steps"]
+        inside = (t >= seg["t0"] - 1e-9) & (t <= seg["t0"] + span + 1e-9)
+        out[inside] = seg["model"] == "kinematic"
+    return out
+
+
+def track(rows, start, vehicle: dict, kinematic=None) -> dict:
     """Drive the car of `vehicle` along path rows (K, 4) [t s, X m, Y m, psi rad] from the
     pose `start` [X, Y, psi] with Stanley's controller: {"poses": (N, 3) [X, Y, psi] every
     H_S until the car stopped at the path's end (or the time allowed ran out),
     "deviation": (N,) [m] the centre of gravity's distance to the path, "done": whether it
-    reached the end, "end": its last pose}. Float64 whatever the caller's precision."""
+    reached the end, "end": its last pose}; `kinematic`: the rows the plan drove on the
+    kinematic bicycle (`reference`). Float64 whatever the caller's precision."""
     import jax
     p = plant_params(vehicle)
-    ref = reference(rows, p)
+    ref = reference(rows, p, kinematic)
     n_rows, n_pieces = len(ref["P"]), len(ref["first"])
     size, n_p = _bucket(n_rows + WINDOW + 1, 256), _bucket(n_pieces, 4)
     pad = lambda a: np.concatenate([a, np.repeat(a[-1:], size - len(a), axis=0)])
@@ -220,20 +250,29 @@ def _scan(n_steps: int):
             steer = jnp.clip(jnp.where(way > 0, forward, backward), p["delta_min"],
                              p["delta_max"])
             # The plan's speed, or less where braking at A_BRAKE must start to stop at the
-            # piece's end, that braking fed forward so the speed loop does not lag it.
+            # piece's end; the plan's acceleration, or that braking, fed forward so that the
+            # speed loop does not lag it.
             left = at("left", j, f)
             brake = jnp.sqrt(2 * A_BRAKE * left)
             braking = brake < at("speed", j, f)
             target = jnp.where(braking, brake, at("speed", j, f))
             end = (left < END_TOL_M) | ((j >= hi - 1) & (f >= 1.0))
-            return steer, target * way, jnp.where(braking, -A_BRAKE * way, 0.0), j, end
+            ahead = jnp.where(braking, -A_BRAKE, at("accel", j, f)) * way
+            return steer, target * way, ahead, j, end
 
         def body(carry, _):
             x, i, k, done = carry
             steer, target, ahead, j, end = control(x, i, k)
+            # Slower while the steer lags its command (its rate is limited): the path, not
+            # the plan's timing, is what the car must keep to.
+            lag = jnp.clip(1 - jnp.abs(steer - x[6]) / STEER_LAG_RAD, SLOWEST, 1.0)
+            target, ahead = target * lag, jnp.where(lag < 1, 0.0, ahead)
             last = k >= n_pieces - 1
             finished = done | (end & last)
-            target, ahead = jnp.where(finished, 0.0, target), jnp.where(finished, 0.0, ahead)
+            # At the end, on braking at A_BRAKE until nearly stopped, then held.
+            stopping = -A_BRAKE * jnp.sign(x[3]) * (jnp.abs(x[3]) > STOPPED_MPS)
+            target, ahead = (jnp.where(finished, 0.0, target),
+                             jnp.where(finished, stopping, ahead))
             accel = jnp.clip(SPEED_GAIN * (target - x[3]) + ahead, -A_TRACK, A_TRACK)
             u = jnp.stack([(steer - x[6]) / STEER_SERVO_S, accel])
             x = integrate(METHOD, blended_single_track, x, u, p, H_S, 1).x[-1]
@@ -268,9 +307,10 @@ def tracking(plan, omap, footprint=None, vehicle: dict | None = None,
     from stepzoo.search.replay import car_footprint, safety
     if isinstance(plan, PlanResult):
         from stepzoo.search.plan_output import path_rows
-        rows, start = path_rows(plan), plan.start
+        from stepzoo.search.replay import controls
+        rows, start, segs = path_rows(plan), plan.start, controls(plan)
     else:
-        rows, start = np.asarray(plan["path"], float), plan["start"]
+        rows, start, segs = np.asarray(plan["path"], float), plan["start"], plan["controls"]
         vehicle = {**plan["vehicle"], **(vehicle or {})}
         margin = plan.get("params", {}).get("margin", margin)
     block = {"controller": CONTROLLER, "model": MODEL, **dict.fromkeys(METRICS)}
@@ -278,7 +318,7 @@ def tracking(plan, omap, footprint=None, vehicle: dict | None = None,
         return block
     if footprint is None:
         footprint = car_footprint(vehicle, margin)
-    run = track(rows, start, vehicle)
+    run = track(rows, start, vehicle, kinematic_rows(rows, segs))
     poses = run["poses"]
     step = np.hypot(*np.diff(poses[:, :2], axis=0).T)
     # Every pose whose travel since the last kept one reaches CHECK_SPACING_M, and the last.

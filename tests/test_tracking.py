@@ -85,8 +85,8 @@ def steady_circle(R, v):
     mu = 1.0489
     Fzf, Fzr = VEHICLE["m"] * G * LR / L, VEHICLE["m"] * G * LF / L
     Caf, Car, m, Iz = VEHICLE["Caf"], VEHICLE["Car"], VEHICLE["m"], VEHICLE["Iz"]
-    beta_ref = np.arcsin(LR / R)
-    front_ref = np.hypot(R + LF * np.sin(beta_ref), LF * np.cos(beta_ref))
+    # The rows' heading is the path's own: the front axle's path is a circle Lf further out.
+    front_ref = np.hypot(R, LF)
 
     def equations(z):
         Rc, beta, delta, vx = z
