@@ -87,7 +87,7 @@ def plan_run(task: Task, finders: dict) -> dict:
                        margin=finder.config.params.margin)
     tracking_s = perf_counter() - t0
     exact = result.status == "exact"
-    rows = path_rows(result) if exact else []
+    rows = path_rows(result, finder.vehicle) if exact else []
     metrics = path_metrics(rows, finder.omap, finder.vehicle_footprint) \
         if exact else path_metrics([], None, None)
     drivable = plan_drivability(rows, finder.vehicle, config.params)

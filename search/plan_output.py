@@ -15,7 +15,7 @@ from stepzoo.search.path_metrics import cusps, drivability
 from stepzoo.search.pathfinder import PlanResult
 from stepzoo.search.plan_schema import (DRIVABILITY_KEYS, PLAN_KEYS, STATS_KEYS, TRACKING_KEYS,
                                          ordered)
-from stepzoo.search.replay import controls, path_nodes, replay, vehicle_params
+from stepzoo.search.replay import controls, model_rows, replay, vehicle_params
 from stepzoo.search.scenarios import Scenario
 from stepzoo.search.tracking import tracking
 
@@ -24,20 +24,11 @@ ROW_SPACING_M = MAX_GAP_M / 2  # spacing the path is filled to: half, for roundi
 TREE_POINTS = 6       # points kept per tree edge: the picture needs shape, not every step
 
 
-def path_rows(result: PlanResult) -> np.ndarray:
-    """(K, 4) [t s, X m, Y m, psi rad] along the tree edges and the connection, filled by
-    linear interpolation so that rows are at most ROW_SPACING_M apart. The chord of a gap of
-    s on a turn of radius R strays s^2 / (8 R) from it: below 1 mm for R >= 1 m."""
-    rows = path_nodes(result)
-    if not len(rows):
-        return rows
-    gap = np.hypot(*np.diff(rows[:, 1:3], axis=0).T)
-    parts = np.maximum(np.ceil(gap / ROW_SPACING_M), 1).astype(int)
-    owner = np.repeat(np.arange(len(gap)), parts)
-    frac = np.arange(owner.size) - np.repeat(np.cumsum(parts) - parts, parts)
-    frac = frac / parts[owner]
-    filled = rows[owner] + frac[:, None] * (rows[owner + 1] - rows[owner])
-    return np.vstack([filled, rows[-1:]])
+def path_rows(result: PlanResult, vehicle: dict) -> np.ndarray:
+    """(K, 4) [t s, X m, Y m, psi rad] along the tree edges and the connection, rows at most
+    ROW_SPACING_M apart: the planner's nodes and, between them, the model's own states under
+    the plan's inputs (replay.model_rows), not chords. `vehicle`: PathFinder.vehicle."""
+    return model_rows(result, vehicle, ROW_SPACING_M)
 
 
 def tree_polylines(result: PlanResult) -> list:
@@ -52,7 +43,7 @@ def tree_polylines(result: PlanResult) -> list:
 def plan_record(result: PlanResult, scenario: Scenario, config, vehicle: dict, seed: int,
                 warmup_s: float) -> dict:
     """The plan.json content, its `replay` block measured on the scenario's map."""
-    rows = path_rows(result)
+    rows = path_rows(result, vehicle)
     conn = result.connection
     record = {
         "scenario": scenario.name,

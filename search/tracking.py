@@ -308,7 +308,7 @@ def tracking(plan, omap, footprint=None, vehicle: dict | None = None,
     if isinstance(plan, PlanResult):
         from stepzoo.search.plan_output import path_rows
         from stepzoo.search.replay import controls
-        rows, start, segs = path_rows(plan), plan.start, controls(plan)
+        rows, start, segs = path_rows(plan, vehicle), plan.start, controls(plan)
     else:
         rows, start, segs = np.asarray(plan["path"], float), plan["start"], plan["controls"]
         vehicle = {**plan["vehicle"], **(vehicle or {})}
