@@ -1,5 +1,5 @@
 """Plan fidelity: a plan's controls, replayed by SciPy's solve_ivp on right-hand sides written
-here from the paper's equations, give the replay block's deviation; a coarse step strays
+here from the paper's equations, give the replay block's deviation at every path row; a coarse step strays
 farther than the tuned one on the same query; `collides` checks the replayed path densely."""
 import json
 
@@ -43,54 +43,63 @@ def coarse():
 
 # --- the independent replay: the paper's equations (NOTES.md), SciPy's solver ----------------
 
-def dynamic_bicycle(vx, delta, v):
-    """Paper eq. 4, linear tyres, Fxf = 0: x = [X, Y, psi, vy, r]."""
+def dynamic_bicycle(vx, delta, rate, v):
+    """Paper eq. 4, linear tyres, Fxf = 0: x = [X, Y, psi, vy, r, delta], the steer moving
+    at `rate` [rad/s] (None: held at `delta`, not a state)."""
     def f(t, x):
-        _, _, psi, vy, r = x
-        fyf = -v["Caf"] * ((vy + v["Lf"] * r) / vx - delta)
+        _, _, psi, vy, r = x[:5]
+        d = x[5] if rate is not None else delta
+        fyf = -v["Caf"] * ((vy + v["Lf"] * r) / vx - d)
         fyr = -v["Car"] * (vy - v["Lr"] * r) / vx
-        return [vx * np.cos(psi) - vy * np.sin(psi), vx * np.sin(psi) + vy * np.cos(psi), r,
-                (fyf * np.cos(delta) + fyr) / v["m"] - vx * r,
-                (v["Lf"] * fyf * np.cos(delta) - v["Lr"] * fyr) / v["Iz"]]
+        out = [vx * np.cos(psi) - vy * np.sin(psi), vx * np.sin(psi) + vy * np.cos(psi), r,
+               (fyf * np.cos(d) + fyr) / v["m"] - vx * r,
+               (v["Lf"] * fyf * np.cos(d) - v["Lr"] * fyr) / v["Iz"]]
+        return out + ([rate] if rate is not None else [])
     return f
 
 
-def kinematic_bicycle(delta, force, v):
-    """Paper eq. "pm": x = [X, Y, theta, v]."""
+def kinematic_bicycle(delta, rate, force, v):
+    """Paper eq. "pm": x = [X, Y, theta, v] (+ delta when it moves at `rate`)."""
     def f(t, x):
-        return [x[3] * np.cos(x[2]), x[3] * np.sin(x[2]), x[3] * np.tan(delta) / v["wheelbase"],
-                force / v["m"]]
+        d = x[4] if rate is not None else delta
+        out = [x[3] * np.cos(x[2]), x[3] * np.sin(x[2]), x[3] * np.tan(d) / v["wheelbase"],
+               force / v["m"]]
+        return out + ([rate] if rate is not None else [])
     return f
 
 
 def independent_deviation(record):
     """Max distance [m] between the plan's path and its controls driven from the start, at
-    the path's rows that fall on the controls' steps."""
+    every path row (the dense solution at the row's time)."""
     v = record["vehicle"]
+    path = np.asarray(record["path"])
+    replayed = np.full((len(path), 2), np.nan)
+    replayed[path[:, 0] <= 0] = record["start"][:2]
     x = np.r_[record["start"], 0.0, 0.0]
-    times, poses = [0.0], [x[:3]]
+
+    def solve(f, x0, t0, span):
+        sol = solve_ivp(f, (0, span), x0, dense_output=True, rtol=1e-11, atol=1e-12)
+        rows = (path[:, 0] > t0) & (path[:, 0] <= t0 + span + 1e-5) & np.isnan(replayed[:, 0])
+        replayed[rows] = sol.sol(np.minimum(path[rows, 0] - t0, span))[:2].T
+        return sol.y[:, -1]
+
     for seg in record["controls"]:
+        u = seg["inputs"]
+        rate = u.get("delta_rate")
         if seg["model"] == "dynamic5":
-            n = seg["steps"]
-            ts = seg["duration"] * np.arange(1, n + 1) / n
-            sol = solve_ivp(dynamic_bicycle(seg["vx"], seg["inputs"]["delta"], v),
-                            (0, seg["duration"]), x, t_eval=ts, rtol=1e-11, atol=1e-12)
-            x = sol.y[:, -1]
-            times += list(seg["t0"] + ts)
-            poses += list(sol.y[:3].T)
+            x0 = x if rate is None else np.r_[x, u["delta"]]
+            x = solve(dynamic_bicycle(seg["vx"], u["delta"], rate, v), x0, seg["t0"],
+                      seg["duration"])[:5]
         else:
             k = np.r_[x[:3], seg["v0"]]
-            for i, (delta, force) in enumerate(zip(seg["inputs"]["delta"], seg["inputs"]["F"])):
-                sol = solve_ivp(kinematic_bicycle(delta, force, v), (0, seg["dt"]), k,
-                                rtol=1e-11, atol=1e-12)
-                k = sol.y[:, -1]
-                times.append(seg["t0"] + (i + 1) * seg["dt"])
-                poses.append(k[:3])
+            for i, force in enumerate(u["F"]):
+                step_rate = None if rate is None else rate[i]
+                k0 = k[:4] if rate is None else np.r_[k[:4], u["delta"][i]]
+                k = solve(kinematic_bicycle(u["delta"][i], step_rate, force, v), k0,
+                          seg["t0"] + i * seg["dt"], seg["dt"])
             x = np.r_[k[:3], 0.0, 0.0]
-    path = np.asarray(record["path"])
-    rows = [int(np.argmin(np.abs(path[:, 0] - t))) for t in times]
-    assert np.abs(path[rows, 0] - times).max() < 1e-5
-    return float(np.hypot(*(path[rows, 1:3] - np.asarray(poses)[:, :2]).T).max())
+    assert not np.isnan(replayed).any()
+    return float(np.hypot(*(path[:, 1:3] - replayed).T).max())
 
 
 def test_the_controls_replayed_independently_give_the_replay_blocks_deviation(tuned, coarse):
