@@ -36,6 +36,7 @@ class Expander:
         rows = self.filled(nodes)
         states = np.repeat(tree.states[rows], self.per, axis=0)
         steers = np.repeat(tree.steer[rows], self.per)  # each shooting starts at its node's
+        ways = np.repeat(tree.direction[rows], self.per)
         new = []
         gears = [(1, s.f.shooter)]
         if s.f.back_shooter is not None:
@@ -47,21 +48,31 @@ class Expander:
                 ahead = np.r_[state[:2], state[2] + (0.0 if direction > 0 else math.pi)]
                 points += [point_selector(ahead, prm.arc_radius, prm.n_arc, s.f.delta_max),
                            random]
-            new += self.add_all(nodes, direction, shooter.shoot(states, np.vstack(points),
-                                                                s.goal, steers))
+            # From the start or at a cusp the car stands: it turns the wheel before moving off.
+            standing = (ways == 0) | (ways == -direction)
+            # Rate-limited, a dynamic edge after a standstill or a kinematic edge sets off at
+            # the lateral steady state of its steer: the car rolls without slip on a turn of
+            # that steer, so it carries the turn on instead of a transient of its own making.
+            settle = None
+            if s.f.rate_limited and direction > 0:
+                settle = standing | (ways < 0) | np.repeat(tree.tight[rows], self.per)
+            new += self.add_all(nodes, direction, shooter.shoot(
+                states, np.vstack(points), s.goal, np.where(standing, np.nan, steers), settle))
         # Tight moves leave the region the tree exhausted: from its nodes and along chains of
         # tight moves; once a node is reached by the tree's own move, the tree goes on alone.
         tight = [i for i in nodes if i < s.widened_at or tree.tight[i]]
         if tight:
             rows = self.filled(tight)
-            shooter, steers = s.f.tight_shooter, np.repeat(tree.steer[rows], self.per)
-            if shooter.rate is None:
-                fan = np.tile(np.linspace(-s.f.delta_max, s.f.delta_max, self.per), len(rows))
-            else:
+            shooter = s.f.tight_shooter
+            steers = np.repeat(tree.steer[rows], self.per)
+            steers[np.repeat(tree.direction[rows], self.per) != 1] = np.nan  # standing
+            fan = np.tile(np.linspace(-s.f.delta_max, s.f.delta_max, self.per), len(rows))
+            if shooter.rate is not None:
                 # Rate-limited, the fan spans the steers one shooting can reach.
                 reach = shooter.rate * shooter.duration
-                fan = np.clip(steers + np.tile(np.linspace(-reach, reach, self.per), len(rows)),
-                              -s.f.delta_max, s.f.delta_max)
+                near = np.clip(steers + np.tile(np.linspace(-reach, reach, self.per), len(rows)),
+                               -s.f.delta_max, s.f.delta_max)
+                fan = np.where(np.isnan(steers), fan, near)
             shots = shooter.shoot_steers(np.repeat(tree.states[rows], self.per, axis=0), fan,
                                          s.goal, steers)
             new += self.add_all(tight, 1, shots, tight=True)
@@ -90,9 +101,11 @@ class Expander:
         least = shots.states.shape[1] // (PREFIX_FRACTION * 2 ** s.level)
         keep = np.flatnonzero(last >= max(1, least))
         ends = shots.states[keep, last[keep]]
+        ramp = last[keep] / (shots.states.shape[1] - 1)
+        steer_end = shots.steer0[keep] + (shots.steer[keep] - shots.steer0[keep]) * ramp
         fresh = []
         for j, end in enumerate(ends.tolist()):
-            cell = s.cell(end, direction)
+            cell = s.cell(end, direction, steer_end[j])
             if cell not in s.seen:
                 s.seen.add(cell)
                 fresh.append(j)
@@ -103,14 +116,12 @@ class Expander:
         # backwards reverse_penalty metres.
         cusp = s.prm.cusp_cost if tree.direction[node] == -direction else 0.0
         per_metre = s.prm.reverse_penalty if direction < 0 else 1.0
-        steer = shots.steer[keep]
-        if s.f.rate_limited:
-            # A shooting cut short by a collision ends part of the way up its steer ramp.
-            steer = tree.steer[node] + (steer - tree.steer[node]) * (
-                last[keep] / (shots.states.shape[1] - 1))
+        steer, steer0 = shots.steer[keep], shots.steer0[keep]
+        # A shooting cut short by a collision ends part of the way up its steer ramp.
+        steer = steer0 + (steer - steer0) * (last[keep] / (shots.states.shape[1] - 1))
         return list(tree.add(
             [shots.states[k, :last[k] + 1] for k in keep.tolist()], states=ends, parent=node,
             g=tree.g[node] + per_metre * shots.travelled[keep, last[keep]] + cusp,
             H=np.hypot(*(ends[:, :2] - s.goal[:2]).T), rest=s.guide.rest(ends),
-            guide=s.guide.guide(ends), car=s.guide.car_bound(ends), steer=steer,
+            guide=s.guide.guide(ends), car=s.guide.car_bound(ends), steer=steer, steer0=steer0,
             direction=direction, tight=tight))

@@ -80,6 +80,8 @@ def drivability(rows, wheelbase, delta_max, max_steer_rate, max_lateral_accelera
     kappa, rate, lateral = [0.0], [0.0], [0.0]
     # Runs of one direction of travel: the moving steps, split where the direction flips.
     for run in np.split(moving, np.flatnonzero(np.diff(along[moving]) != 0) + 1):
+        if not run.size:
+            continue
         # Every row of the run, its stops included: the time stood still is time steered.
         span = rows[run[0]:run[-1] + 2]
         t = span[:, 0]

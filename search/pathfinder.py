@@ -32,6 +32,7 @@ __all__ = ["BAD_ENDPOINT", "BOXED_IN", "Cause", "OCTILE_EXCESS", "PathFinder", "
            "PlannerStatus"]
 
 REFINE = 2              # times the pruning cells are halved when the heap empties unsolved
+STEER_CELL = 0.3   # [rad]
 OCTILE_EXCESS = 1.0824  # the 8-connected lattice metric's largest ratio to Euclidean length
 
 
@@ -176,6 +177,7 @@ class Cell(NamedTuple):
     y: int
     heading: int
     direction: int
+    steer: int
 
 
 class Search:
@@ -208,7 +210,7 @@ class Search:
         self.tree.add([None], states=root, parent=-1, g=0.0,
                       H=float(np.hypot(*(start[:2] - goal[:2]))),
                       rest=self.guide.rest(start[None]), guide=self.guide.guide(start[None]),
-                      car=self.guide.car_bound(start[None]), steer=0.0, direction=0,
+                      car=self.guide.car_bound(start[None]), steer=0.0, steer0=0.0, direction=0,
                       tight=False)
         self.widened_at = 0   # nodes below this id were there when the search widened
         self.seen = {self.cell(root, 0)}
@@ -217,13 +219,14 @@ class Search:
         self.t0 = perf_counter()
         result.lower_bound_m = self.bound(0)
 
-    def cell(self, state, direction) -> Cell:
+    def cell(self, state, direction, steer=0.0) -> Cell:
         """Pruning cell of a state: position cells of cell_xy, heading cells of cell_heading,
         and with reverse gear the direction it was reached in (as Hybrid A*)."""
         heading = state[2] % (2 * math.pi)
         return Cell(math.floor(state[0] / self.cell_xy), math.floor(state[1] / self.cell_xy),
                     math.floor(heading / self.cell_heading),
-                    direction if self.prm.reverse else 0)
+                    direction if self.prm.reverse else 0,
+                    math.floor(steer / STEER_CELL + 0.5) if self.f.rate_limited else 0)
 
     def order(self, nodes) -> list[float]:
         """The search's order of `nodes`: g + w H, w = h_weight (above 1: greedier first
@@ -345,7 +348,8 @@ class Search:
         self.cell_xy /= 2
         self.cell_heading /= 2
         t = self.tree
-        self.seen = {self.cell(s, d) for s, d in zip(t.states, t.direction.tolist())}
+        self.seen = {self.cell(s, d, a) for s, d, a in zip(t.states, t.direction.tolist(),
+                                                           t.steer.tolist())}
         return self.requeue()
 
     def requeue(self) -> list:
@@ -376,7 +380,8 @@ class Search:
         res.path_tight = t.tight[rows].tolist()
         res.path_directions = t.direction[rows].tolist()
         if self.f.rate_limited:
-            # Each edge ramps from its parent's steer to its own at a constant rate.
+            # Each edge ramps from its start steer (its parent's, unless the car stood) to its
+            # end steer at a constant rate.
             steps = np.array([len(t.edges[i]) - 1 for i in rows])
-            res.path_steer_rates = ((t.steer[rows] - t.steer[t.parent[rows]])
+            res.path_steer_rates = ((t.steer[rows] - t.steer0[rows])
                                     / (steps * self.f.config.h)).tolist()

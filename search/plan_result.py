@@ -79,7 +79,8 @@ class PlanResult:
     path_tight: list = field(default_factory=list)
     path_directions: list = field(default_factory=list)
     # Rate-limited steering: each path edge's constant steer rate [rad/s], its steer ramping
-    # from the previous edge's end steer (the start's: 0) to path_steers; empty if instant.
+    # to path_steers from the previous edge's end steer (from a standstill, the start or a
+    # cusp, from its own: the driver turns the wheel before moving off); empty if instant.
     path_steer_rates: list = field(default_factory=list)
 
     def path_length(self) -> float:

@@ -45,11 +45,11 @@ def controls(result: PlanResult, method: str | None = None) -> list[dict]:
     out, t0 = [], 0.0
     tree = {"method": method} if method else {}
     rates = result.path_steer_rates or [None] * len(result.path_edges)
-    steer0 = 0.0
+    previous = np.zeros(5)  # the state a segment starts from unless it says otherwise
     for edge, steer, tight, way, rate in zip(result.path_edges, result.path_steers,
                                              result.path_tight, result.path_directions, rates):
         n = len(edge) - 1
-        start = float(steer) if rate is None else steer0
+        start = float(steer) if rate is None else float(steer - rate * n * result.h)
         ramp = {} if rate is None else {"delta_rate": float(rate)}
         if tight or way < 0:
             ramp = {k: [v] * n for k, v in ramp.items()}
@@ -60,10 +60,14 @@ def controls(result: PlanResult, method: str | None = None) -> list[dict]:
                         "move": "tight" if tight else "reverse", "steps": n, **tree,
                         "h": result.h})
         else:
+            # Rate-limited, an edge after a standstill or a kinematic one sets off at the
+            # lateral steady state of its steer: its (vy, r) at the start.
+            settled = ({"lateral0": [float(v) for v in edge[0, 3:5]]}
+                       if rate is not None and np.any(edge[0, 3:5] != previous[3:5]) else {})
             out.append({"model": "dynamic5", "t0": t0, "duration": n * result.h,
                         "vx": result.vx, "inputs": {"delta": start, **ramp}, "move": "tree",
-                        "steps": n, **tree, "h": result.h})
-        steer0 = float(steer)
+                        "steps": n, **tree, "h": result.h, **settled})
+        previous = edge[-1]
         # As path_rows times the path: the same sums, so a node's time matches its row's.
         t0 = t0 + result.h * n
     conn = result.connection
@@ -197,6 +201,8 @@ def drive(segs: list[dict], start, vehicle: dict, times=None) -> tuple[np.ndarra
         last = i == len(segs) - 1
         if seg["model"] == "dynamic5":
             p = dict(_params("dynamic5", vehicle), vx=float(seg["vx"]))
+            if "lateral0" in seg:
+                state = np.r_[state[:3], seg["lateral0"]]  # set off at its recorded (vy, r)
             x0, u = state, [float(inputs["delta"])]
             if steered:
                 x0, u = np.r_[state, u], [float(inputs["delta_rate"])]

@@ -7,6 +7,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from stepzoo import dynamics
+from stepzoo.dynamics.linear import lateral_matrix
 from stepzoo.dynamics.models import steered
 from stepzoo.integrators import integrate_batch, method
 from stepzoo.search.validity import ValidityChecker
@@ -18,7 +19,8 @@ CHECK_SPACING_M = 0.2  # [m] at most between the poses of a shooting checked for
 class Shots(NamedTuple):
     states: np.ndarray  # (B, N+1, 5) [X, Y, psi, vy, r] at steps of h
     steer: np.ndarray   # (B,) [rad] the steer at each shooting's end (its constant steer if
-    #                     instant; rate-limited, it ramps there from the start's steer)
+    #                     instant; rate-limited, it ramps there from steer0)
+    steer0: np.ndarray  # (B,) [rad] the steer at each shooting's start
     g: np.ndarray       # (B,) [m] distance travelled along each shooting
     H: np.ndarray       # (B,) [m] distance from each end to the destination
     valid: np.ndarray   # (B,) bool: finite and collision-free; invalid ones cost infinity
@@ -50,8 +52,10 @@ class Shooter:
     `max_steer_rate` [rad/s] or None (instant): with a rate, the steer is a state (the model
     `dynamics.models.steered`) and each shooting ramps it at a constant rate from the node's
     steer to its end steer, which lies within max_steer_rate times the horizon of it, as
-    Hybrid A*'s and CommonRoad's steer-rate inputs do; without, each shooting holds one steer,
-    set at once, as the paper."""
+    Hybrid A*'s and CommonRoad's steer-rate inputs do, except from a standstill (a start steer
+    of NaN: the start, a cusp), where the driver turns the wheel before moving off and the
+    shooting holds its end steer; without, each shooting holds one steer, set at once, as the
+    paper."""
 
     def __init__(self, checker: ValidityChecker, vehicle: str, vx: float, method_name: str,
                  h: float, n_steps: int, batch: int, delta_max: float, reverse: bool = False,
@@ -83,11 +87,19 @@ class Shooter:
         if self.rate is None:
             return target
         reach = self.rate * self.duration
-        return np.clip(target, steer0 - reach, steer0 + reach)
+        with np.errstate(invalid="ignore"):
+            return np.where(np.isnan(steer0), target, np.clip(target, steer0 - reach,
+                                                              steer0 + reach))
+
+    def start_steers(self, steer0, steer) -> np.ndarray:
+        """(B,) [rad] the start steers of shootings to end steers `steer` (B,) from `steer0`
+        (one or (B,), NaN: from a standstill, where the shooting starts at its end steer)."""
+        steer0 = np.broadcast_to(np.asarray(steer0, float), np.shape(steer))
+        return np.where(np.isnan(steer0), steer, steer0)
 
     def integrate(self, x0, steer, steer0=None) -> np.ndarray:
-        """(B, 5) states and (B,) end steers (and, rate-limited, (B,) start steers) -> (B, N+1,
-        5) trajectories."""
+        """(B, 5) states and (B,) end steers (and, rate-limited, (B,) start steers, NaN: from a
+        standstill) -> (B, N+1, 5) trajectories."""
         # NumPy arguments go straight into the jitted driver; jnp conversions here would each
         # be a separate dispatch, costing more than the integration itself.
         x0, steer = np.asarray(x0, float), np.asarray(steer, float)
@@ -99,7 +111,7 @@ class Shooter:
             inputs = steer[:, None]
         else:
             # The steer a state, its constant rate the input.
-            steer0 = np.broadcast_to(np.asarray(steer0, float), (B,))
+            steer0 = self.start_steers(steer0, steer)
             x0, inputs = np.column_stack([x0, steer0]), ((steer - steer0) / self.duration)[:, None]
         if self.kinematic:
             inputs = np.column_stack([inputs, np.zeros(B)])            # [delta or rate, F = 0]
@@ -111,9 +123,22 @@ class Shooter:
         out[..., :3] = x[..., :3]
         return out
 
-    def shoot(self, state, points, destination, steer0=0.0) -> Shots:
+    def settled(self, x0, steer0, settle) -> np.ndarray:
+        """`x0` (B, 5) with the lateral states (vy, r) of the rows `settle` (B,) bool at the
+        dynamic bicycle's steady state for their steer `steer0` (B,) [rad]: -A^-1 b of its
+        linear lateral dynamics (dynamics.linear.lateral_matrix)."""
+        x0 = np.array(x0, float)
+        if self.kinematic or settle is None or not np.any(settle):
+            return x0
+        p = {k: float(v[0]) for k, v in self.p.items()}
+        for i in np.flatnonzero(settle):
+            A, b = lateral_matrix(self.vx, float(steer0[i]), p)
+            x0[i, 3:5] = -np.linalg.solve(np.asarray(A), np.asarray(b))
+        return x0
+
+    def shoot(self, state, points, destination, steer0=0.0, settle=None) -> Shots:
         """Shoot from `state` (5,), or from one state per point (B, 5), at steer `steer0`
-        [rad] (one or (B,)), towards each of `points` (B, 2) [m]."""
+        [rad] (one or (B,); NaN: from a standstill), towards each of `points` (B, 2) [m]."""
         start = np.broadcast_to(np.asarray(state, float), (self.batch, 5))
         if self.reverse:
             # Backwards, the car follows the circle of curvature -tan(delta)/L relative to
@@ -122,12 +147,17 @@ class Shooter:
             steer = -pure_pursuit(flipped, points, self.wheelbase, self.delta_max)
         else:
             steer = pure_pursuit(start, points, self.wheelbase, self.delta_max)
-        return self.shoot_steers(start, self.end_steers(steer0, steer), destination, steer0)
+        return self.shoot_steers(start, self.end_steers(steer0, steer), destination, steer0,
+                                 settle)
 
-    def shoot_steers(self, state, steer, destination, steer0=0.0) -> Shots:
+    def shoot_steers(self, state, steer, destination, steer0=0.0, settle=None) -> Shots:
         """Shoot from `state` (5,), or one state per steer (B, 5), at steer `steer0` [rad]
-        (rate-limited), to the end steers `steer` (B,) [rad]."""
+        (rate-limited; NaN: from a standstill), to the end steers `steer` (B,) [rad]; the
+        shootings `settle` (B,) bool start at the lateral steady state of their steer
+        (`settled`)."""
         start = np.broadcast_to(np.asarray(state, float), (self.batch, 5))
+        if settle is not None:
+            start = self.settled(start, self.start_steers(steer0, steer), settle)
         states = self.integrate(start, steer, steer0)
         # A blown-up shooting is a result (an invalid one), so its overflow warnings are noise;
         # first_collision treats non-finite poses as collisions, so it needs no branch either.
@@ -150,4 +180,5 @@ class Shooter:
         free = np.minimum(np.where(first >= 0, first, rows),
                           np.where(finite.all(axis=1), rows, np.argmin(finite, axis=1)))
         valid = free == rows
-        return Shots(states, steer, travelled[:, -1], H, valid, free, travelled)
+        steer0 = steer if self.rate is None else self.start_steers(steer0, steer)
+        return Shots(states, steer, steer0, travelled[:, -1], H, valid, free, travelled)

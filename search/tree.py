@@ -15,6 +15,7 @@ COLUMNS = {
     "car": (float, ()),        # [m] the car's obstacle-blind bound to the goal
     "steer": (float, ()),      # [rad] the steer at the node: its edge's constant steer if
     #                            instant, where its steer ramp ends if rate-limited
+    "steer0": (float, ()),     # [rad] the steer at the start of the node's edge
     "direction": (np.int8, ()),  # +1 forwards, -1 backwards, 0 the start (either way)
     "tight": (bool, ()),       # whether the node's edge is a tight move
 }

@@ -7,6 +7,7 @@ import pytest
 from scipy.ndimage import label
 
 from stepzoo import dynamics
+from stepzoo.dynamics.models import steered
 from stepzoo.integrators import integrate
 from stepzoo.integrators.reference import reference
 from stepzoo.search.connect import resimulate
@@ -70,15 +71,20 @@ def dense_check(scenario, result):
     # moves more than a quarter cell between poses (speed plus rotation of the far corner).
     spacing = min(scenario.omap.resolution / 4, 0.1)
     collisions, joint_gap, previous_end = 0, 0.0, result.path_edges[0][0]
-    for edge, steer, kinematic in zip(result.path_edges, result.path_steers, result.path_tight):
+    rates = result.path_steer_rates or [None] * len(result.path_edges)
+    for edge, steer, kinematic, rate in zip(result.path_edges, result.path_steers,
+                                            result.path_tight, rates):
         # An edge may be the collision-free first part of a shooting: its own duration.
         duration = (len(edge) - 1) * result.h
         ts = np.linspace(0.0, duration, int(np.ceil(duration * scenario.speed * 4 / spacing)) + 1)
-        if kinematic:
-            ref = reference(tight.rhs, np.r_[edge[0, :3], scenario.speed], np.array([steer, 0.0]),
-                            p_tight, ts, rtol=1e-10, atol=1e-10)
-        else:
-            ref = reference(model.rhs, edge[0], np.array([steer]), p, ts, rtol=1e-10, atol=1e-10)
+        x0, u, rhs = np.r_[edge[0, :3], scenario.speed], np.array([steer, 0.0]), tight.rhs
+        if not kinematic:
+            x0, u, rhs = edge[0], np.array([steer]), model.rhs
+        if rate is not None:
+            # A steer ramp ending at `steer`: the steer a state, its rate the input.
+            x0, rhs = np.r_[x0, steer - rate * duration], steered(rhs)
+            u[0] = rate
+        ref = reference(rhs, x0, u, p_tight if kinematic else p, ts, rtol=1e-10, atol=1e-10)
         xs = np.asarray(ref.x)
         assert bool(ref.success)
         collisions += int(footprint_hits(scenario.omap, vehicle, xs[:, :3], spacing).sum())
@@ -286,13 +292,21 @@ def test_all_shootings_of_an_expansion_match_one_by_one_integration():
     shooter: Shooter = finder_for(scenario).shooter
     state = np.array([*scenario.start, 0.1, 0.05])
     points = point_selector(state, 4.0, shooter.batch, np.pi / 4)
-    shots = shooter.shoot(state, points, np.array(scenario.goal))
+    # From a standstill (NaN) each shooting holds one steer; at steer 0.1 rad it ramps.
+    shots = shooter.shoot(state, points, np.array(scenario.goal), np.nan)
+    ramps = shooter.shoot(state, points, np.array(scenario.goal), 0.1)
     model = dynamics.model("dynamic5")
     p = model.params(scenario.vehicle, scenario.speed)
     for k in (0, shooter.batch - 1):
         one = np.asarray(integrate(shooter.method, model.rhs, state, shots.steer[k:k + 1], p,
                                    shooter.h, shooter.n_steps).x)
         np.testing.assert_allclose(shots.states[k], one, rtol=1e-12, atol=1e-12)
+        rate = (ramps.steer[k] - 0.1) / (shooter.h * shooter.n_steps)
+        assert abs(rate) <= dynamics.vehicles.limits()["max_steer_rate"] + 1e-12
+        ramp = np.asarray(integrate(shooter.method, steered(model.rhs), np.r_[state, 0.1],
+                                    np.array([rate]), p, shooter.h, shooter.n_steps).x)
+        np.testing.assert_allclose(ramps.states[k], ramp[:, :5], rtol=1e-12, atol=1e-12)
+        assert ramp[-1, 5] == pytest.approx(ramps.steer[k], abs=1e-12)
         assert shots.g[k] == pytest.approx(np.hypot(*np.diff(one[:, :2], axis=0).T).sum(),
                                            rel=1e-12)
         assert shots.H[k] == pytest.approx(np.hypot(*(one[-1, :2] - scenario.goal[:2])))

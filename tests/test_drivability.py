@@ -1,0 +1,155 @@
+"""A plan a car can drive (issue 34): the drivability block's measures agree with paths whose
+curvature and steer rate are known (a circle, a steer ramp driven by SciPy) and with an
+independent finite difference of a plan's rows; the default planner's plans keep within the
+car's limits where the paper's instant steering does not; reversing is used where it is
+needed and priced so that it is not used where it is not."""
+import math
+
+import numpy as np
+import pytest
+from scipy.integrate import solve_ivp
+
+from stepzoo.dynamics.vehicles import limits, vehicle
+from stepzoo.search.maps import from_array
+from stepzoo.search.path_metrics import TOLERANCE, drivability
+from stepzoo.search.pathfinder import PathFinder
+from stepzoo.search.plan_output import path_rows
+from stepzoo.search.planner_config import load_config, make_config, with_params
+from stepzoo.search.scenarios import load_scenario
+
+CAR = vehicle()
+L = CAR["Lf"] + CAR["Lr"]
+LIMITS = limits()
+
+
+def measure(rows):
+    return drivability(rows, L, math.pi / 4, **LIMITS)
+
+
+def rows_of(ts, poses):
+    """Path rows [t, X, Y, psi] as plan.json holds them: rounded to 1e-6."""
+    return np.round(np.column_stack([ts, poses]), 6)
+
+
+def test_a_circle_has_its_curvature_and_lateral_acceleration_and_no_steer_rate():
+    radius, v = 8.0, 5.0
+    ts = np.arange(0.0, 6.0, 0.01)
+    a = v * ts / radius
+    rows = rows_of(ts, np.column_stack([radius * np.sin(a), radius * (1 - np.cos(a)),
+                                        a]))
+    d = measure(rows)
+    assert d["max_curvature_1pm"] == pytest.approx(1 / radius, rel=1e-3)
+    assert d["max_lateral_acceleration_mps2"] == pytest.approx(v ** 2 / radius, rel=2e-3)
+    assert d["max_steer_rate_radps"] < 1e-3
+    assert d["reverse_length_m"] == 0.0 and d["cusps"] == 0 and d["drivable"]
+
+
+@pytest.mark.parametrize("rate", [0.3, 2.0])
+def test_a_steer_ramp_driven_by_scipy_shows_its_rate_and_a_fast_one_is_not_drivable(rate):
+    """The kinematic bicycle at a speed that slows to a stop and speeds up again, its steer
+    ramping at `rate` [rad/s] from -0.5 rad to 0.5 rad, then held for a second: the implied
+    steer rate is the ramp's, the curvature the held steer's."""
+    def f(t, x):
+        v = 4.0 * abs(math.cos(0.4 * t))
+        delta = min(-0.5 + rate * t, 0.5)
+        return [v * math.cos(x[2]), v * math.sin(x[2]), v * math.tan(delta) / L]
+    duration = 1.0 / rate + 1.0
+    ts = np.linspace(0.0, duration, 2001)
+    sol = solve_ivp(f, (0.0, duration), [0.0, 0.0, 0.0], t_eval=ts, rtol=1e-11, atol=1e-12)
+    d = measure(rows_of(ts, sol.y.T))
+    assert d["max_steer_rate_radps"] == pytest.approx(rate, rel=0.03)
+    assert d["max_curvature_1pm"] == pytest.approx(math.tan(0.5) / L, rel=0.03)
+    assert d["drivable"] is (rate <= LIMITS["max_steer_rate"])
+
+
+def test_driving_backwards_is_counted_and_a_cusp_splits_the_measures():
+    ts = np.linspace(0.0, 8.0, 801)
+    x = np.where(ts < 4.0, 5.0 * ts, 20.0 - 2.0 * (ts - 4.0))  # 20 m on, 8 m back
+    rows = rows_of(ts, np.column_stack([x, np.zeros_like(x), np.zeros_like(x)]))
+    d = measure(rows)
+    assert d["reverse_length_m"] == pytest.approx(8.0, abs=0.02)
+    assert d["cusps"] == 1 and d["max_curvature_1pm"] == 0 and d["max_steer_rate_radps"] == 0
+
+
+def finite_difference(rows, dt=0.1):
+    """(max |curvature| [1/m], max implied steer rate [rad/s]) of path rows, by a route of
+    its own: the rows resampled every `dt` s, the heading's and the position's central
+    differences over two samples (where the car moves at least 1 cm), np.gradient of the
+    implied steer over the samples' times."""
+    t = np.arange(rows[0, 0], rows[-1, 0], dt)
+    heading = np.interp(t, rows[:, 0], np.unwrap(rows[:, 3]))
+    s = np.r_[0.0, np.cumsum(np.hypot(*np.diff(rows[:, 1:3], axis=0).T))]
+    s = np.interp(t, rows[:, 0], s)
+    travel, turn = s[2:] - s[:-2], heading[2:] - heading[:-2]
+    moving = travel > 0.01
+    kappa = turn[moving] / travel[moving]
+    steer = np.arctan(L * kappa)
+    return np.abs(kappa).max(), np.abs(np.gradient(steer, t[1:-1][moving])).max()
+
+
+@pytest.fixture(scope="module")
+def plans():
+    """wall_between with the default (rate-limited) planner and the paper's instant one."""
+    scenario = load_scenario("wall_between")
+    out = {}
+    for steering in ("rate_limited", "instant"):
+        config = with_params(load_config(), steering=steering, max_seconds=3600.0)
+        finder = PathFinder(scenario.omap, config, scenario.vehicle, scenario.speed)
+        result = finder.plan(scenario.start, scenario.goal, scenario.goal_speed)
+        assert result.status == "exact", result.reason
+        out[steering] = path_rows(result)
+    return out
+
+
+def test_the_rows_finite_difference_agrees_and_only_the_rate_limited_plan_is_drivable(plans):
+    d = measure(plans["rate_limited"])
+    kappa, rate = finite_difference(plans["rate_limited"])
+    assert d["max_curvature_1pm"] == pytest.approx(kappa, rel=0.05)
+    assert d["max_steer_rate_radps"] == pytest.approx(rate, rel=0.25)
+    assert d["drivable"]
+    assert d["max_curvature_1pm"] <= TOLERANCE["curvature_1pm"] * math.tan(math.pi / 4) / L
+    # The paper's instant steering jumps between edges: many times the car's steer rate.
+    instant = measure(plans["instant"])
+    assert finite_difference(plans["instant"])[1] > 4 * LIMITS["max_steer_rate"]
+    assert instant["max_steer_rate_radps"] > 4 * LIMITS["max_steer_rate"]
+    assert not instant["drivable"]
+
+
+def plan_on(occupied, start, goal, **params):
+    omap = from_array(occupied, 0.5)
+    config = make_config(reverse=1, improve_expansions=100, max_seconds=3600.0, **params)
+    finder = PathFinder(omap, config, None, 2.0)
+    result = finder.plan(start, goal)
+    assert result.status == "exact", result.reason
+    return measure(path_rows(result)), result
+
+
+def test_a_dead_end_is_left_backwards():
+    """A corridor 3.2 m wide, closed ahead of the car: the goal behind it, facing the other
+    way, is reached only by backing out of it."""
+    grid = np.zeros((60, 80), bool)
+    grid[:, :2] = grid[:, -2:] = grid[:2] = grid[-2:] = True
+    grid[:24, 40:] = grid[30:, 40:] = True  # the corridor: rows 24..29 (y 12..15 m), x >= 20 m
+    d, result = plan_on(grid, (34.0, 13.5, 0.0), (8.0, 20.0, math.pi / 2))
+    assert d["cusps"] >= 1
+    assert d["reverse_length_m"] >= 10.0  # out of the corridor, whose mouth is 14 m behind
+    # The plan's cost is its length, a metre backwards counting reverse_penalty (2) metres,
+    # and cusp_cost (5 m) per change of direction.
+    forwards = result.path_length() - d["reverse_length_m"]
+    cost = forwards + 2.0 * d["reverse_length_m"] + 5.0 * d["cusps"]
+    assert result.progress[-1][1] == pytest.approx(cost, rel=1e-6)
+
+
+def test_an_open_field_is_crossed_forwards():
+    """Goal 25 m ahead, turned a quarter: forwards is the way a driver goes."""
+    grid = np.zeros((80, 100), bool)
+    grid[:, :2] = grid[:, -2:] = grid[:2] = grid[-2:] = True
+    d, _ = plan_on(grid, (10.0, 20.0, 0.0), (35.0, 28.0, math.pi / 2))
+    assert d["reverse_length_m"] == 0.0 and d["cusps"] == 0
+
+
+def test_a_car_that_stands_still_has_nothing_to_measure():
+    rows = rows_of(np.linspace(0.0, 1.0, 11), np.tile([3.0, 4.0, 0.5], (11, 1)))
+    d = measure(rows)
+    assert (d["max_curvature_1pm"], d["max_steer_rate_radps"], d["reverse_length_m"],
+            d["cusps"], d["drivable"]) == (0.0, 0.0, 0.0, 0, True)
