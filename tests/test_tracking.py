@@ -10,6 +10,7 @@ from scipy.optimize import fsolve
 
 from stepzoo import dynamics
 from stepzoo.search import tracking as T
+from stepzoo.search.path_metrics import cusps
 from stepzoo.search.tracking import track
 
 VEHICLE = dynamics.vehicle(None)
@@ -129,3 +130,67 @@ def test_on_a_circle_the_car_settles_at_the_offset_of_its_steady_cornering():
     step = np.hypot(np.diff(X[settled]), np.diff(Y[settled])) / T.H_S
     assert step.mean() == pytest.approx(speed, rel=1e-3)
     assert step.mean() ** 2 / radius[settled].mean() == pytest.approx(speed**2 / Rc, rel=2e-3)
+
+
+def plan_record_of(scenario_name=None, omap=None, start=None, goal=None, vx=None, **params):
+    """plan.json's record (through JSON) of a repository scenario, or of a map and ends, with
+    the default planner (its steering rate-limited), stopping at the first exact path."""
+    import json
+
+    from stepzoo.search.pathfinder import PathFinder
+    from stepzoo.search.plan_output import plan_record
+    from stepzoo.search.planner_config import load_config, with_params
+    from stepzoo.search.scenarios import Scenario, load_scenario
+    config = with_params(load_config(), improve_expansions=0, max_seconds=3600.0, **params)
+    if scenario_name is not None:
+        scenario = load_scenario(scenario_name)
+    else:
+        scenario = Scenario("generated", "", omap, "generated", start, goal, None, None, vx)
+    finder = PathFinder(scenario.omap, config, scenario.vehicle, scenario.speed)
+    result = finder.plan(scenario.start, scenario.goal, scenario.goal_speed, seed=0)
+    record = plan_record(result, scenario, config, finder.vehicle, 0, 0.0)
+    return json.loads(json.dumps(record)), scenario.omap
+
+
+def test_a_scenarios_plan_is_tracked_within_a_quarter_metre_without_collision():
+    from stepzoo.search.plan_schema import TRACKING_KEYS
+    record, omap = plan_record_of("wall_between")
+    block = record["tracking"]
+    assert record["status"] == "exact" and list(block) == list(TRACKING_KEYS)
+    assert (block["controller"], block["model"]) == ("stanley", "single_track_fiala")
+    assert block["max_deviation_m"] < 0.25 and block["final_deviation_m"] < 0.25
+    assert block["collides"] is False and block["clearance_min_m"] > 0
+    # The record's own path, tracked again from plan.json alone, gives the same block.
+    assert T.tracking(record, omap) == block
+
+
+def test_reverse_gear_and_its_cusp_are_tracked():
+    """A start facing a wall (as test_planner's): the plan backs away, then drives forwards;
+    the car stops at the cusp, changes direction and follows both pieces."""
+    from stepzoo.search.maps import from_array
+    occupied = np.zeros((40, 60), bool)
+    occupied[:, -2:] = occupied[:, :2] = occupied[:2] = occupied[-2:] = True
+    omap = from_array(occupied, 0.5)
+    record, _ = plan_record_of(omap=omap, start=(26.0, 10.0, 0.0), goal=(8.0, 10.0, np.pi),
+                               vx=2.0, reverse=1)
+    assert record["status"] == "exact" and record["stats"]["cusps"] >= 1
+    rows = np.asarray(record["path"])
+    out = track(rows, record["start"], record["vehicle"],
+                T.kinematic_rows(rows, record["controls"]))
+    assert out["done"]
+    # The car changes its direction of travel where the plan does, and only there.
+    poses = out["poses"]
+    assert cusps(np.column_stack([np.arange(len(poses)) * T.H_S, poses])) == \
+        record["stats"]["cusps"]
+    assert record["tracking"]["max_deviation_m"] < 0.25
+    assert record["tracking"]["collides"] is False
+
+
+def test_a_plan_without_a_path_has_a_tracking_block_of_nulls():
+    from stepzoo.search.maps import from_array
+    block = T.tracking({"path": [], "start": [0.0, 0.0, 0.0], "controls": [],
+                        "vehicle": dict(VEHICLE, wheelbase=L), "params": {"margin": 0.1}},
+                       from_array(np.zeros((4, 4), bool), 1.0))
+    assert block == {"controller": "stanley", "model": "single_track_fiala",
+                     "max_deviation_m": None, "final_deviation_m": None, "collides": None,
+                     "clearance_min_m": None}
