@@ -11,7 +11,7 @@ from functools import cache
 import numpy as np
 
 from stepzoo import dynamics
-from stepzoo.dynamics.blended import blended_single_track
+from stepzoo.dynamics.blended import blended_single_track, kinematic_lateral
 from stepzoo.search.connect import A_MAX
 from stepzoo.dynamics.vehicles import axle_loads, default_vehicle, st_params, tyre_params
 
@@ -185,8 +185,15 @@ def track(rows, start, vehicle: dict, kinematic=None) -> dict:
     v_max = float(ref["speed"].max())
     allowed = float(rows[-1, 0] - rows[0, 0]) + n_pieces * (2 * v_max / A_BRAKE + 2.0) + 5.0
     n_steps = _bucket(math.ceil(allowed / H_S), 1024)
-    # At the start pose, rolling straight at the plan's first speed (the planner starts so).
-    x0 = np.r_[np.asarray(start, float)[:3], ref["way"][0] * ref["speed"][0], 0.0, 0.0, 0.0]
+    # At the start pose at the plan's first speed, the wheel turned (before moving off, as
+    # the planner's driver turns it) to the controller's first command for a car on its path,
+    # the lateral motion the rolling car's at that steer.
+    start = np.asarray(start, float)[:3]
+    way, v0 = ref["way"][0], ref["way"][0] * ref["speed"][0]
+    delta0 = float(np.clip(
+        np.remainder(ref["course"][0] - start[2] + np.pi, 2 * np.pi) - np.pi if way > 0
+        else ref["steer_ff"][0], p["delta_min"], p["delta_max"]))
+    x0 = np.r_[start, v0, *kinematic_lateral(v0, delta0, p), delta0]
     with jax.enable_x64(True):
         global DBG
         DBG = _scan(n_steps)(x0, arrays, n_pieces, p)
