@@ -32,7 +32,10 @@ __all__ = ["BAD_ENDPOINT", "BOXED_IN", "Cause", "OCTILE_EXCESS", "PathFinder", "
            "PlannerStatus"]
 
 REFINE = 2              # times the pruning cells are halved when the heap empties unsolved
-STEER_CELL = 0.3   # [rad]
+# [rad] steer cell of duplicate pruning when the steer is a state (rate-limited): about what
+# one 0.8 s edge can change it by, so a node whose steer can still turn is not pruned by one
+# in its cell whose steer cannot.
+STEER_CELL = 0.3
 OCTILE_EXCESS = 1.0824  # the 8-connected lattice metric's largest ratio to Euclidean length
 
 
@@ -221,7 +224,8 @@ class Search:
 
     def cell(self, state, direction, steer=0.0) -> Cell:
         """Pruning cell of a state: position cells of cell_xy, heading cells of cell_heading,
-        and with reverse gear the direction it was reached in (as Hybrid A*)."""
+        with reverse gear the direction it was reached in (as Hybrid A*), and rate-limited the
+        steer [rad] at it in cells of STEER_CELL."""
         heading = state[2] % (2 * math.pi)
         return Cell(math.floor(state[0] / self.cell_xy), math.floor(state[1] / self.cell_xy),
                     math.floor(heading / self.cell_heading),

@@ -102,7 +102,9 @@ def replay(plan, omap: OccupancyMap, footprint: Footprint | None = None,
     planner's does; a record brings its own in params). The controls are driven open loop from the start pose, segment after segment,
     by DOP853 at rtol 1e-10: the dynamic bicycle's state carried across tree edges; a
     kinematic segment starting from the pose reached at its v0; a tree edge after a
-    kinematic one from that pose with vy = r = 0, as the planner starts it.
+    kinematic one from that pose with vy = r = 0, as the planner starts it; a tree edge
+    that records `lateral0` (rate-limited, after a standstill or a kinematic edge) from its
+    (vy, r), the steady state of its steer.
 
     Against the planned path at its nodes (the planner's integration steps and the
     connection's intervals): max_deviation_m, final_deviation_m [m] (position) and

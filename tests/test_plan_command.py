@@ -16,7 +16,7 @@ from stepzoo.search.scenarios import builtin_names, load_scenario
 STATS = {"expansions", "nodes", "search_s", "connect_s", "path_length_m", "connect_tf_s",
          "seed", "method", "h"}
 SUMMARY = ["scenario", "status", "expansions", "nodes", "search_s", "connect_s",
-           "path_length_m", "connect_tf_s", "max_deviation_m"]
+           "path_length_m", "connect_tf_s", "max_deviation_m", "drivable"]
 
 
 def run(*argv):
