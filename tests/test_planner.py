@@ -364,7 +364,7 @@ def test_a_start_facing_a_wall_needs_reverse_gear_and_reports_its_cusps():
     config = make_config(reverse=1, max_seconds=3600.0)
     result = PathFinder(omap, config, None, 2.0).plan(start, goal)
     assert result.status == "exact", result.reason
-    rows = path_rows(result)
+    rows = path_rows(result, dynamics.vehicle(None))
     assert cusps(rows) >= 1
     # The path rows (at most 5 cm apart) never put the car on an obstacle cell.
     vehicle = dynamics.vehicle(None)

@@ -94,7 +94,7 @@ def test_the_plan_goes_through_the_validity_checker_it_is_given(finder, full):
     plain = PathFinder(empty, CONFIG, None, 4.0).plan(START, GOAL)
     for result in (plugged, plain, full):
         assert result.status == "exact"
-    hits = [poses_collide(finder.omap, finder.footprint, path_rows(r)[:, 1:4]).sum()
+    hits = [poses_collide(finder.omap, finder.footprint, path_rows(r, finder.vehicle)[:, 1:4]).sum()
             for r in (plugged, plain, full)]
     assert hits[0] == 0 and hits[1] > 0 and hits[2] == 0
 

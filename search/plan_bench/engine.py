@@ -60,8 +60,9 @@ def finder_key(task: Task) -> FinderKey:
 
 def plan_run(task: Task, finders: dict) -> dict:
     """The table's row of one run, planned with the warmed-up planner of its (map,
-    integrator) from `finders` (made there if missing) and replayed through the true models
-    (REPLAY_COLUMNS, None without a path; replay_s [s], its time, is not in time_s); its
+    integrator) from `finders` (made there if missing), replayed through the true models
+    (REPLAY_COLUMNS, None without a path; replay_s [s], its time, is not in time_s) and
+    tracked (tracking_*, tracking_s likewise, search/plans/tracking.py); its
     `progress` a JSON list of the (time [s], length [m]) of each shorter path."""
     from stepzoo.search.plan_bench.ompl_log import STATUS_OF_CAUSE
     from stepzoo.search.plans.path_metrics import path_metrics
@@ -69,6 +70,7 @@ def plan_run(task: Task, finders: dict) -> dict:
     from stepzoo.search.plans.files import path_rows, plan_drivability
     from stepzoo.search.plans.replay import replay
     from stepzoo.search.world.scenarios import open_map
+    from stepzoo.search.plans.tracking import tracking
     q, config = task.q, task.config
     key = finder_key(task)
     if key not in finders:
@@ -80,8 +82,12 @@ def plan_run(task: Task, finders: dict) -> dict:
     fidelity = replay(result, finder.omap, vehicle=finder.vehicle,
                       margin=finder.config.params.margin)
     replay_s = perf_counter() - t0
+    t0 = perf_counter()
+    tracked = tracking(result, finder.omap, vehicle=finder.vehicle,
+                       margin=finder.config.params.margin)
+    tracking_s = perf_counter() - t0
     exact = result.status == "exact"
-    rows = path_rows(result) if exact else []
+    rows = path_rows(result, finder.vehicle) if exact else []
     metrics = path_metrics(rows, finder.omap, finder.vehicle_footprint) \
         if exact else path_metrics([], None, None)
     drivable = plan_drivability(rows, finder.vehicle, config.params)
@@ -103,6 +109,8 @@ def plan_run(task: Task, finders: dict) -> dict:
         "replay_clearance_min_m": fidelity["clearance_min_m"],
         "replay_s": replay_s if fidelity["segments"] else None,   # a path to replay
         **{k: drivable[k] for k in DRIVABILITY_COLUMNS if k != "cusps"},
+        **{f"tracking_{k}": v for k, v in tracked.items()},
+        "tracking_s": tracking_s if fidelity["segments"] else None,
         "progress": json.dumps(result.progress)}, RUN_COLUMNS, "plan-bench row")
 
 

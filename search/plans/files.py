@@ -1,5 +1,5 @@
 """A plan as files: plan.json (status, path, the controls that produce it and their replay,
-tree, stats, params), plan.png in the paper's colours (black obstacles, blue tree, red path)
+the tracking replay, tree, stats, params), plan.png in the paper's colours (black obstacles, blue tree, red path)
 and map.npy, each written atomically."""
 from __future__ import annotations
 
@@ -13,29 +13,22 @@ from stepzoo.output import atomic_write
 from stepzoo.dynamics.vehicles import limits
 from stepzoo.search.plans.path_metrics import cusps, drivability
 from stepzoo.search.planner.pathfinder import PlanResult
-from stepzoo.search.plans.schema import DRIVABILITY_KEYS, PLAN_KEYS, STATS_KEYS, ordered
-from stepzoo.search.plans.replay import controls, path_nodes, replay, vehicle_params
+from stepzoo.search.plans.schema import (DRIVABILITY_KEYS, PLAN_KEYS, STATS_KEYS, TRACKING_KEYS,
+                                         ordered)
+from stepzoo.search.plans.replay import controls, model_rows, replay, vehicle_params
 from stepzoo.search.world.scenarios import Scenario
+from stepzoo.search.plans.tracking import tracking
 
 MAX_GAP_M = 0.1       # no two consecutive path rows farther apart [m] (the report's contract)
 ROW_SPACING_M = MAX_GAP_M / 2  # spacing the path is filled to: half, for rounding room
 TREE_POINTS = 6       # points kept per tree edge: the picture needs shape, not every step
 
 
-def path_rows(result: PlanResult) -> np.ndarray:
-    """(K, 4) [t s, X m, Y m, psi rad] along the tree edges and the connection, filled by
-    linear interpolation so that rows are at most ROW_SPACING_M apart. The chord of a gap of
-    s on a turn of radius R strays s^2 / (8 R) from it: below 1 mm for R >= 1 m."""
-    rows = path_nodes(result)
-    if not len(rows):
-        return rows
-    gap = np.hypot(*np.diff(rows[:, 1:3], axis=0).T)
-    parts = np.maximum(np.ceil(gap / ROW_SPACING_M), 1).astype(int)
-    owner = np.repeat(np.arange(len(gap)), parts)
-    frac = np.arange(owner.size) - np.repeat(np.cumsum(parts) - parts, parts)
-    frac = frac / parts[owner]
-    filled = rows[owner] + frac[:, None] * (rows[owner + 1] - rows[owner])
-    return np.vstack([filled, rows[-1:]])
+def path_rows(result: PlanResult, vehicle: dict) -> np.ndarray:
+    """(K, 4) [t s, X m, Y m, psi rad] along the tree edges and the connection, rows at most
+    ROW_SPACING_M apart: the planner's nodes and, between them, the model's own states under
+    the plan's inputs (replay.model_rows), not chords. `vehicle`: PathFinder.vehicle."""
+    return model_rows(result, vehicle, ROW_SPACING_M)
 
 
 def tree_polylines(result: PlanResult) -> list:
@@ -50,7 +43,7 @@ def tree_polylines(result: PlanResult) -> list:
 def plan_record(result: PlanResult, scenario: Scenario, config, vehicle: dict, seed: int,
                 warmup_s: float) -> dict:
     """The plan.json content, its `replay` block measured on the scenario's map."""
-    rows = path_rows(result)
+    rows = path_rows(result, vehicle)
     conn = result.connection
     record = {
         "scenario": scenario.name,
@@ -107,6 +100,9 @@ def plan_record(result: PlanResult, scenario: Scenario, config, vehicle: dict, s
     # Those controls driven through the true models: how far the car strays from the path.
     record["replay"] = replay(record, scenario.omap)
     record["drivability"] = plan_drivability(rows, vehicle, config.params)
+    # A tracking controller driving a richer car along the path: how far a real car strays.
+    record["tracking"] = ordered(tracking(record, scenario.omap), TRACKING_KEYS,
+                                 "plan.json tracking")
     return ordered(record, PLAN_KEYS, "plan.json")
 
 

@@ -18,6 +18,7 @@ from stepzoo.search.plans.path_metrics import distance_to_obstacles
 from stepzoo.search.planner.pathfinder import PlanResult
 
 METHOD, RTOL, ATOL = "DOP853", 1e-10, 1e-12
+FILL_METHOD = CONNECT_METHOD  # one step of it from a node gives the path rows between nodes
 CHECK_SPACING_M = 0.05  # [m] at most between the replayed poses checked for collision
 # [s] a planned node is the path row this close in time to its step: plan.json rounds times
 # to 1e-6 s, and the rows filled in between nodes are far more than this apart.
@@ -124,28 +125,41 @@ def replay(plan, omap: OccupancyMap, footprint: Footprint | None = None,
         vehicle = {**plan["vehicle"], **(vehicle or {})}
         margin = plan.get("params", {}).get("margin", margin)
     block = {"method": METHOD, "rtol": RTOL, "atol": ATOL, "segments": len(segs),
-             **dict.fromkeys(METRICS), "nodes": 0, "samples": 0, "end": None}
+             **dict.fromkeys(METRICS), "nodes": 0, "rows": 0, "samples": 0, "end": None}
     if not segs:
         return block
-    planned = (path_nodes(plan) if isinstance(plan, PlanResult)
-               else _path_nodes(np.asarray(plan["path"], float), segs))
+    if isinstance(plan, PlanResult):
+        from stepzoo.search.plans.files import path_rows
+        planned = path_rows(plan, vehicle)
+    else:
+        planned = np.asarray(plan["path"], float)
     if footprint is None:
         footprint = car_footprint(vehicle, margin)
-    nodes, samples = drive(segs, start, vehicle)
-    gap = np.hypot(*(nodes[:, :2] - planned[:, 1:3]).T)
-    turn = np.abs(np.remainder(nodes[:, 2] - planned[:, 3] + math.pi, 2 * math.pi) - math.pi)
-    centres = footprint.disc_centres(samples).reshape(-1, 2)
+    replayed, samples = drive(segs, start, vehicle, planned[:, 0])
+    gap = np.hypot(*(replayed[:, :2] - planned[:, 1:3]).T)
+    turn = np.abs(np.remainder(replayed[:, 2] - planned[:, 3] + math.pi, 2 * math.pi)
+                  - math.pi)
+    collides, clearance = safety(omap, footprint, samples)
     block.update({
         "max_deviation_m": float(gap.max()),
         "final_deviation_m": float(gap[-1]),
         "max_heading_deviation_rad": float(turn.max()),
-        "collides": bool(first_collision(omap, footprint, samples[None])[0] >= 0),
+        "collides": collides,
         "goal_distance_m": float(np.hypot(*(samples[-1, :2] - np.asarray(goal, float)[:2]))),
-        "clearance_min_m": float(distance_to_obstacles(omap, centres).min()
-                                 - footprint.radius),
-        "nodes": len(nodes), "samples": len(samples),
+        "clearance_min_m": clearance,
+        "nodes": 1 + sum(int(seg["steps"]) for seg in segs), "rows": len(planned),
+        "samples": len(samples),
         "end": [float(v) for v in samples[-1]]})
     return block
+
+
+def safety(omap: OccupancyMap, footprint: Footprint, poses) -> tuple[bool, float]:
+    """(whether the footprint collides at the poses (M, 3+) [X, Y, psi] or on the straight
+    moves between them (first_collision), the least distance [m] of its disc cover to an
+    obstacle at the poses (<= 0 touches))."""
+    centres = footprint.disc_centres(poses).reshape(-1, 2)
+    return (bool(first_collision(omap, footprint, np.asarray(poses)[None])[0] >= 0),
+            float(distance_to_obstacles(omap, centres).min() - footprint.radius))
 
 
 def car_footprint(vehicle: dict, margin: float | None = None) -> Footprint:
@@ -157,25 +171,46 @@ def car_footprint(vehicle: dict, margin: float | None = None) -> Footprint:
                                   2 * math.ceil((length + grow) / (width + grow)))
 
 
-def drive(segs: list[dict], start, vehicle: dict) -> tuple[np.ndarray, np.ndarray]:
+def drive(segs: list[dict], start, vehicle: dict, times=None) -> tuple[np.ndarray, np.ndarray]:
     """The controls `segs` driven open loop from the pose `start` [X, Y, psi]: (replayed
-    poses (K, 3) at the segments' steps, the planned nodes' times, in order, each joint
-    once; replayed poses (M, 3) at most CHECK_SPACING_M apart, the ends included)."""
-    nodes, samples = [np.asarray(start, float)[None, :3]], [np.asarray(start, float)[None, :3]]
+    poses (K, 3) at `times` [s] (ascending, from the start; default: the segments' steps,
+    each joint once), replayed poses (M, 3) at most CHECK_SPACING_M apart, the ends
+    included). A time on a joint is the earlier segment's end; times past the last segment
+    are its end."""
+    if times is None:
+        times = np.r_[0.0, np.concatenate([
+            float(seg["t0"]) + _span(seg) * np.arange(1, int(seg["steps"]) + 1) / int(seg["steps"])
+            for seg in segs])] if segs else np.zeros(1)
+    times = np.asarray(times, float)
+    poses = np.tile(np.asarray(start, float)[:3], (len(times), 1))
+    samples = [np.asarray(start, float)[None, :3]]
+    todo = times > 0.0
     state = np.r_[np.asarray(start, float)[:3], 0.0, 0.0]  # [X, Y, psi, vy, r]
-    for seg in segs:
+
+    def solve(model, x0, u, p, t0, duration, speed, steered, last):
+        """One smooth piece from t0 [s]: poses at the times it covers written, its end
+        state returned."""
+        inside = todo & ((times <= t0 + duration) | last)
+        x, at, fine = _solve(model, x0, u, p, duration, np.clip(times[inside] - t0, 0.0,
+                                                                 duration), speed, steered)
+        poses[inside] = at
+        todo[inside] = False
+        samples.append(fine)
+        return x
+
+    for i, seg in enumerate(segs):
         inputs = seg["inputs"]
         steered = "delta_rate" in inputs  # the steer a state, driven by its rate
+        last = i == len(segs) - 1
         if seg["model"] == "dynamic5":
-            n = int(seg["steps"])
             p = dict(_params("dynamic5", vehicle), vx=float(seg["vx"]))
             if "lateral0" in seg:
                 state = np.r_[state[:3], seg["lateral0"]]  # set off at its recorded (vy, r)
             x0, u = state, [float(inputs["delta"])]
             if steered:
                 x0, u = np.r_[state, u], [float(inputs["delta_rate"])]
-            x, seg_nodes, seg_samples = _solve(
-                "dynamic5", x0, u, p, float(seg["duration"]), n, abs(float(seg["vx"])), steered)
+            x = solve("dynamic5", x0, u, p, float(seg["t0"]), float(seg["duration"]),
+                      abs(float(seg["vx"])), steered, last)
             state = x[:5]
         elif seg["model"] == "kinematic":
             p = _params("kinematic", vehicle)
@@ -185,30 +220,29 @@ def drive(segs: list[dict], start, vehicle: dict) -> tuple[np.ndarray, np.ndarra
             if steered:
                 x = np.r_[x, float(inputs["delta"][0])]
             dt = float(seg["dt"])
-            seg_nodes, seg_samples = [], []
             # Runs of equal inputs are one smooth problem: solved in one call.
             breaks = np.r_[0, 1 + np.flatnonzero((np.diff(u, axis=0) != 0).any(axis=1)), len(u)]
             for a, b in zip(breaks[:-1], breaks[1:]):
                 speed = abs(x[3]) + abs(u[a, 1]) / p["m"] * dt * (b - a)
-                x, run_nodes, run_samples = _solve("kinematic", x, u[a], p, dt * (b - a),
-                                                   b - a, speed, steered)
-                seg_nodes.append(run_nodes)
-                seg_samples.append(run_samples)
-            seg_nodes, seg_samples = np.vstack(seg_nodes), np.vstack(seg_samples)
+                x = solve("kinematic", x, u[a], p, float(seg["t0"]) + a * dt, dt * (b - a),
+                          speed, steered, last and b == len(u))
             # The kinematic bicycle has no lateral motion: a tree edge after it starts at rest
             # laterally, as the planner starts it.
             state = np.r_[x[:3], 0.0, 0.0]
         else:
             raise ValueError(f"unknown control model {seg['model']!r}: dynamic5 or kinematic")
-        nodes.append(seg_nodes)
-        samples.append(seg_samples)
-    return np.vstack(nodes), np.vstack(samples)
+    return poses, np.vstack(samples)
 
 
-def _solve(model: str, x0, u, p, duration, steps, speed, steered=False):
+def _span(seg: dict) -> float:
+    """[s] how long a control segment lasts."""
+    return float(seg["duration"] if seg["model"] == "dynamic5" else seg["dt"] * seg["steps"])
+
+
+def _solve(model: str, x0, u, p, duration, at, speed, steered=False):
     """One smooth piece: `model` (`steered`: its steer a state, driven by the first input)
-    from x0 under constant inputs u for `duration` [s]; (end state, poses (steps, 3) at
-    duration * k / steps for k = 1..steps, poses (m, 3) at most CHECK_SPACING_M apart for a
+    from x0 under constant inputs u for `duration` [s]; (end state, poses (len(at), 3) at
+    the times `at` [s] from its start, poses (m, 3) at most CHECK_SPACING_M apart for a
     speed up to `speed` [m/s], the start excluded)."""
     import jax
     import jax.numpy as jnp
@@ -224,11 +258,11 @@ def _solve(model: str, x0, u, p, duration, steps, speed, steered=False):
                         dense_output=True)
     if not sol.success:
         raise RuntimeError(f"replay of a {model} segment failed: {sol.message}")
-    at = duration * np.arange(1, steps + 1) / steps
     # 10% above the largest speed: a dynamic bicycle's lateral speed adds a little to vx.
     m = max(1, math.ceil(1.1 * speed * duration / CHECK_SPACING_M))
     fine = duration * np.arange(1, m + 1) / m
-    return sol.y[:, -1], sol.sol(at).T[:, :3], sol.sol(fine).T[:, :3]
+    poses = sol.sol(np.asarray(at)).T[:, :3] if len(at) else np.zeros((0, 3))
+    return sol.y[:, -1], poses, sol.sol(fine).T[:, :3]
 
 
 @cache
@@ -262,19 +296,64 @@ def path_nodes(result: PlanResult) -> np.ndarray:
     return np.vstack([pieces[0]] + [p[1:] for p in pieces[1:]])
 
 
-def _path_nodes(path: np.ndarray, segs: list[dict]) -> np.ndarray:
-    """(K, 4) the rows of plan.json's path (K', 4) [t s, X, Y, psi] at the segments' steps
-    (the rows filled in between them are linear interpolation, not the planner's)."""
-    times = [np.zeros(1)]
-    for seg in segs:
-        n = int(seg["steps"])
-        span = float(seg["duration"] if seg["model"] == "dynamic5" else seg["dt"] * n)
-        times.append(float(seg["t0"]) + span * np.arange(1, n + 1) / n)
-    times = np.concatenate(times)
-    k = np.clip(np.searchsorted(path[:, 0], times), 1, len(path) - 1)
-    k = np.where(np.abs(path[k - 1, 0] - times) < np.abs(path[k, 0] - times), k - 1, k)
-    off = np.abs(path[k, 0] - times).max()
-    if off > NODE_TIME_TOL_S:
-        raise ValueError(f"the plan's path has no row within {NODE_TIME_TOL_S:g} s of a "
-                         f"control step ({off:.3g} s off): controls and path disagree")
-    return path[k]
+def model_rows(result: PlanResult, vehicle: dict, spacing: float) -> np.ndarray:
+    """(K, 4) [t s, X m, Y m, psi rad]: the planned path at its nodes (path_nodes) and, between
+    two nodes farther apart than `spacing` [m], rows that split the gap evenly: the model's
+    own states, each one step of FILL_METHOD from the earlier node under its inputs (the
+    segment's model, steer state included, as `controls` records it), so that the path is
+    what the model drives between the nodes, not a chord. `vehicle`: PathFinder.vehicle."""
+    import jax
+    nodes = path_nodes(result)
+    if not len(nodes):
+        return nodes
+    filled = [nodes]
+    with jax.enable_x64(True):
+        for seg, states in zip(controls(result), _segment_states(result)):
+            filled.append(_fill(seg, states, vehicle, spacing))
+    rows = np.vstack(filled)
+    return rows[np.argsort(rows[:, 0], kind="stable")]
+
+
+def _segment_states(result: PlanResult):
+    """Each control segment's states at its steps (steps + 1, d), in `controls`' order: a
+    tree edge's [X, Y, psi, vy, r] (a kinematic move's [X, Y, psi] with v appended by
+    _fill), the connection's [X, Y, theta, v]."""
+    yield from result.path_edges
+    if result.connection is not None:
+        yield result.connection.states
+
+
+def _fill(seg: dict, states: np.ndarray, vehicle: dict, spacing: float) -> np.ndarray:
+    """The rows (M, 4) of one segment strictly between its steps (see model_rows)."""
+    from stepzoo.integrators import integrate_batch
+    n, h, inputs = int(seg["steps"]), _span(seg) / int(seg["steps"]), seg["inputs"]
+    steered = "delta_rate" in inputs
+    gap = np.hypot(*np.diff(states[:, :2], axis=0).T)
+    parts = np.maximum(np.ceil(gap / spacing), 1).astype(int)
+    owner = np.repeat(np.arange(n), parts - 1)
+    if not owner.size:
+        return np.zeros((0, 4))
+    frac = (np.arange(owner.size) - np.repeat(np.cumsum(parts - 1) - (parts - 1), parts - 1)
+            + 1) / parts[owner]
+    if seg["model"] == "dynamic5":
+        model, p = "dynamic5", dict(_params("dynamic5", vehicle), vx=float(seg["vx"]))
+        x = states[:n, :5]
+        steer = float(inputs["delta"]) + float(inputs.get("delta_rate", 0.0)) * h * np.arange(n)
+        u = np.full((n, 1), float(inputs["delta_rate"] if steered else inputs["delta"]))
+    else:
+        model, p = "kinematic", _params("kinematic", vehicle)
+        x = states[:n, :4] if states.shape[1] == 4 and seg["move"] == "connection" else \
+            np.column_stack([states[:n, :3], np.full(n, float(seg["v0"]))])
+        steer = np.asarray(inputs["delta"], float)[:n]
+        u = np.column_stack([inputs["delta_rate" if steered else "delta"], inputs["F"]])[:n]
+    if steered:
+        x = np.column_stack([x, steer])
+    rhs = steered_rhs(dynamics.model(model).rhs) if steered else dynamics.model(model).rhs
+    # Padded to a power of two: the driver compiles once per batch size.
+    size = 1 << max(4, math.ceil(math.log2(owner.size)))
+    pad = np.r_[owner, np.full(size - owner.size, owner[0])]
+    step = np.r_[frac, np.ones(size - owner.size)] * h
+    x1 = np.asarray(integrate_batch(FILL_METHOD, rhs, x[pad].astype(float),
+                                    u[pad].astype(float), p, step, 1).x[:owner.size, 1])
+    t = float(seg["t0"]) + (owner + frac) * h
+    return np.column_stack([t, x1[:, :3]])

@@ -58,6 +58,18 @@ PLAN_KEYS = {
     "map": "the grid: file (map.npy), resolution [m/cell], origin [m], source",
     "replay": "the controls driven through the true models: deviation, collision, clearance",
     "drivability": "the path rows against the car's limits (DRIVABILITY_KEYS)",
+    "tracking": "a path-tracking controller driving a richer car model along the path: "
+                "deviation, collision, clearance (TRACKING_KEYS)",
+}
+
+# plan.json's `tracking`, in the order they are written (search/plans/tracking.py).
+TRACKING_KEYS = {
+    "controller": "the path-tracking controller: stanley",
+    "model": "the car it drives: single_track_fiala (dynamics/blended.py)",
+    "max_deviation_m": "[m] largest distance of the car's centre of gravity from the path",
+    "final_deviation_m": "[m] where the car stopped, to the path's last row",
+    "collides": "whether the car's footprint collides along the tracked trajectory",
+    "clearance_min_m": "[m] least distance of its disc cover to an obstacle (<= 0 touches)",
 }
 
 # plan.json's `stats`, in the order they are written.
@@ -126,6 +138,8 @@ RUN_COLUMNS = {
     "replay_s": "[s] the replay's wall time (not in time_s), null without a path",
     # The path rows against the car's limits (plan.json's drivability; cusps above).
     **{k: v for k, v in DRIVABILITY_COLUMNS.items() if k != "cusps"},
+    **{f"tracking_{k}": v for k, v in TRACKING_KEYS.items()},
+    "tracking_s": "[s] the tracking replay's wall time (not in time_s), null without a path",
     "progress": "JSON list of (time [s], length [m]) of each shorter path",
 }
 

@@ -1,0 +1,340 @@
+"""The closed-loop tracking replay (plan.json's `tracking`): a Stanley path-tracking
+controller drives a richer car than the planner's (dynamics/blended.py: Fiala tyres with their
+friction limit, the steering-rate limit, the speed a state) along the planned path, integrated
+with the zoo's rk4 in one compiled scan; how far the car's centre of gravity strays from the
+path, and whether its footprint collides along the way."""
+from __future__ import annotations
+
+import math
+from functools import cache
+
+import numpy as np
+
+from stepzoo import dynamics
+from stepzoo.dynamics.blended import blended_single_track, kinematic_lateral
+from stepzoo.search.planner.connection_ocp import A_MAX
+from stepzoo.dynamics.vehicles import axle_loads, default_vehicle, st_params, tyre_params
+
+CONTROLLER = "stanley"
+MODEL = "single_track_fiala"
+METRICS = ("max_deviation_m", "final_deviation_m", "collides", "clearance_min_m")
+KEYS = ("controller", "model") + METRICS
+
+METHOD = "rk4"
+H_S = 0.01            # [s] integration step and control period (zero-order hold)
+# Stanley (Thrun et al., 'Stanley: the robot that won the DARPA Grand Challenge', J. Field
+# Robotics 23, 2006, eq. 2; Hoffmann et al., ACC 2007): steer = heading error + atan(k e /
+# (k_soft + v)); on the kinematic car the front axle's cross-track error then decays at rate k.
+GAIN_K = 2.0          # [1/s] cross-track gain k
+K_SOFT = 1.0          # [m/s] softening: the cross-track term stays bounded as the car stops
+# Backwards the rear axle leads and steering does not turn it: linearised, its cross-track
+# error obeys s^2 + HEADING_GAIN_REVERSE v / L s + GAIN_K_REVERSE v^2 / (L (K_SOFT + v)) = 0
+# at speed v (docs/plan-fidelity.md derives it).
+GAIN_K_REVERSE = 2.0  # [1/s]
+HEADING_GAIN_REVERSE = 2.0
+STEER_LAG_RAD = 0.2   # [rad] steer lagging its command by this much halts the car ...
+SLOWEST = 0.1         # ... down to this fraction of the planned speed
+STEER_SERVO_S = 0.05  # [s] time constant of the steering servo (the plant limits its rate)
+SPEED_GAIN = 5.0      # [1/s] speed loop
+A_TRACK = 2 * A_MAX   # [m/s^2] the tracker's largest braking and acceleration: above the
+                      # connection's, so that it can follow the plan's speed
+A_BRAKE = 1.0         # [m/s^2] the braking it plans to stop at a cusp or the path's end
+STOPPED_MPS = 0.05    # [m/s] below this the speed loop alone stops the car
+END_TOL_M = 0.02      # [m] a piece is done when its end is this close along the path
+V_BLEND = (1.0, 2.0)  # [m/s] the plant blends from kinematic to dynamic between these speeds
+SPACING_M = 0.05      # [m] between the reference's points along the path
+SMOOTH_M = 1.0        # [m] the path's heading is averaged over this length
+WINDOW = 16           # path segments searched ahead of the last nearest one per step
+CHECK_SPACING_M = 0.05  # [m] at most between the tracked poses checked for collision
+
+
+def plant_params(vehicle: dict) -> dict:
+    """The tracked car's parameters: the set's m, Iz, Lf, Lr, Caf, Car and max_steer_rate
+    [rad/s] (as plan.json's `vehicle` records them), its Fiala friction coefficient and
+    CommonRoad steer angle and acceleration limits (the default set's where a set publishes
+    none)."""
+    name = vehicle.get("name")
+    p = {k: float(vehicle[k]) for k in ("m", "Iz", "Lf", "Lr", "Caf", "Car")}
+    tables = dynamics.vehicle(name) if name in dynamics.vehicle_names() else {}
+    limits = st_params(name if "st" in tables else default_vehicle())
+    mu = tyre_params(name if "fiala" in tables else default_vehicle(), "fiala")["mu"]
+    Fzf, Fzr = axle_loads(p)
+    keep = ("delta_min", "delta_max", "v_min", "v_max", "v_switch", "a_max")
+    rate = float(vehicle["max_steer_rate"])
+    return {**p, **{k: limits[k] for k in keep}, "ddelta_min": -rate, "ddelta_max": rate,
+            "mu": float(mu), "Fzf": Fzf, "Fzr": Fzr,
+            "v_blend_low": V_BLEND[0], "v_blend_high": V_BLEND[1]}
+
+
+def pieces(rows) -> list[tuple[int, int, int]]:
+    """(first row, last row, direction +1 | -1) of each stretch of path rows (K, 4) [t, X,
+    Y, psi] driven one way (forwards: along psi); rows that do not move are dropped first."""
+    step = np.diff(rows[:, 1:3], axis=0)
+    along = step[:, 0] * np.cos(rows[:-1, 3]) + step[:, 1] * np.sin(rows[:-1, 3])
+    way = np.where(along >= 0, 1, -1)
+    cuts = np.flatnonzero(way[1:] != way[:-1]) + 1
+    bounds = np.r_[0, cuts, len(way)]
+    return [(int(a), int(b), int(way[a])) for a, b in zip(bounds[:-1], bounds[1:])]
+
+
+def reference(rows, p: dict, kinematic=None) -> dict:
+    """The path as the controller reads it, piece after piece (a cusp's row is in both):
+    the centre of gravity's path P (n, 2), the controlled axle's path C (n, 2) (front axle
+    forwards, rear axle backwards), the travel direction's heading along C `course` (n,),
+    the body heading `psi_body` (n,), the steer that holds the path's curvature `steer_ff`
+    (n,), the plan's speed `speed` (n,) [m/s], the distance left to the piece's end `left`
+    (n,) [m]; per piece `first`, `last` row and `way` (+1 | -1).
+
+    The body heading is the plan's psi where the plan drove the dynamic bicycle (its (X, Y)
+    the centre of gravity); where it drove the kinematic bicycle (`kinematic`, a bool per
+    row; default: nowhere), whose (X, Y) moves along psi, it is the path's heading less the
+    rolling car's slip angle at the centre of gravity, asin(Lr kappa). Averaged over SMOOTH_M,
+    it sets the axles of a car whose centre of gravity is on the path."""
+    rows = np.asarray(rows, float)
+    keep = np.r_[True, np.hypot(*np.diff(rows[:, 1:3], axis=0).T) > 1e-9]
+    kinematic = (np.zeros(len(rows), bool) if kinematic is None
+                 else np.asarray(kinematic, bool))[keep]
+    rows = rows[keep]
+    L, Lr, Lf = p["Lf"] + p["Lr"], p["Lr"], p["Lf"]
+    # The kinematic car's slip angle at full lock bounds the one the path asks for.
+    sin_beta_max = math.sin(math.atan(Lr * math.tan(p["delta_max"]) / L))
+    out = {k: [] for k in ("P", "C", "course", "psi_body", "steer_ff", "speed", "accel",
+                           "left")}
+    first, last, ways = [], [], []
+    for a, b, way in pieces(rows):
+        # Resampled evenly along the path: rows closer than their rounding would make the
+        # differences below noise.
+        d = np.hypot(*np.diff(rows[a:b + 1, 1:3], axis=0).T)
+        along = np.r_[0.0, np.cumsum(d)]
+        s = np.linspace(0.0, along[-1], max(2, math.ceil(along[-1] / SPACING_M) + 1))
+        seg = np.column_stack([np.interp(s, along, rows[a:b + 1, k]) for k in range(3)])
+        t, xy = seg[:, 0], seg[:, 1:3]
+        d = np.diff(s)
+        travel = np.unwrap(np.arctan2(*np.gradient(xy, s, axis=0).T[::-1]))
+        kappa = way * np.gradient(travel, s) if len(s) > 2 else np.zeros(len(s))
+        beta = np.arcsin(np.clip(Lr * kappa, -sin_beta_max, sin_beta_max))
+        rolling = np.interp(s, along, kinematic[a:b + 1].astype(float)) > 0.5
+        facing = travel + (np.pi if way < 0 else 0.0)
+        planned = np.interp(s, along, np.unwrap(rows[a:b + 1, 3]))
+        planned += 2 * np.pi * np.round((facing[0] - planned[0]) / (2 * np.pi))
+        # Averaged over SMOOTH_M: a kink where the plan hands a slipping car's heading to the
+        # kinematic bicycle becomes a turn a car can drive.
+        psi_body = _smooth(np.where(rolling, facing - beta, planned))
+        offset = Lf if way > 0 else -Lr
+        axle = xy + offset * np.column_stack([np.cos(psi_body), np.sin(psi_body)])
+        course = _smooth(np.unwrap(np.arctan2(*np.gradient(axle, s, axis=0).T[::-1])))
+        dt = np.diff(t)
+        v = np.where(dt > 0, d / np.where(dt > 0, dt, 1.0), 0.0)
+        speed = np.r_[v, v[-1:]]
+        first.append(sum(len(c) for c in out["P"]))
+        last.append(first[-1] + len(seg) - 1)
+        ways.append(way)
+        for k, val in (("P", xy), ("C", axle), ("course", course), ("psi_body", psi_body),
+                       ("steer_ff", np.arctan(L * np.tan(beta) / Lr)),
+                       ("speed", speed), ("accel", speed * np.gradient(speed, s)),
+                       ("left", s[-1] - s)):
+            out[k].append(val)
+    ref = {k: np.concatenate(v) for k, v in out.items()}
+    return dict(ref, first=np.array(first), last=np.array(last), way=np.array(ways))
+
+
+def _smooth(a):
+    """Moving average of samples SPACING_M apart over SMOOTH_M, the ends held."""
+    half = int(SMOOTH_M / SPACING_M / 2)
+    if len(a) < 3 or half < 1:
+        return a
+    padded = np.r_[np.repeat(a[0], half), a, np.repeat(a[-1], half)]
+    return np.convolve(padded, np.full(2 * half + 1, 1 / (2 * half + 1)), mode="valid")
+
+
+def _bucket(n: int, least: int) -> int:
+    """n rounded up to a power of two (at least `least`): plans of similar size share one
+    compilation."""
+    return max(least, 1 << max(0, math.ceil(math.log2(max(n, 1)))))
+
+
+def kinematic_rows(rows, segs: list[dict]) -> np.ndarray:
+    """(K,) bool: which path rows (K, 4) [t, ...] the plan drove on the kinematic bicycle,
+    by the time spans of its controls (search/plans/replay.py's `controls`)."""
+    t = np.asarray(rows, float)[:, 0]
+    out = np.zeros(len(t), bool)
+    for seg in segs:
+        span = seg["duration"] if seg["model"] == "dynamic5" else seg["dt"] * seg["steps"]
+        inside = (t >= seg["t0"] - 1e-9) & (t <= seg["t0"] + span + 1e-9)
+        out[inside] = seg["model"] == "kinematic"
+    return out
+
+
+def track(rows, start, vehicle: dict, kinematic=None) -> dict:
+    """Drive the car of `vehicle` along path rows (K, 4) [t s, X m, Y m, psi rad] from the
+    pose `start` [X, Y, psi] with Stanley's controller: {"poses": (N, 3) [X, Y, psi] every
+    H_S until the car stopped at the path's end (or the time allowed ran out),
+    "deviation": (N,) [m] the centre of gravity's distance to the path, "done": whether it
+    reached the end, "end": its last pose}; `kinematic`: the rows the plan drove on the
+    kinematic bicycle (`reference`). Float64 whatever the caller's precision."""
+    import jax
+    p = plant_params(vehicle)
+    ref = reference(rows, p, kinematic)
+    n_rows, n_pieces = len(ref["P"]), len(ref["first"])
+    size, n_p = _bucket(n_rows + WINDOW + 1, 256), _bucket(n_pieces, 4)
+    pad = lambda a: np.concatenate([a, np.repeat(a[-1:], size - len(a), axis=0)])
+    arrays = {k: pad(v) for k, v in ref.items() if k not in ("first", "last", "way")}
+    for k in ("first", "last", "way"):
+        arrays[k] = np.r_[ref[k], np.repeat(ref[k][-1:], n_p - n_pieces)]
+    # Time allowed: the plan's, plus a stop and a start at A_TRACK per piece, plus slack.
+    v_max = float(ref["speed"].max())
+    allowed = float(rows[-1, 0] - rows[0, 0]) + n_pieces * (2 * v_max / A_BRAKE + 2.0) + 5.0
+    n_steps = _bucket(math.ceil(allowed / H_S), 1024)
+    # At the start pose at the plan's first speed, the wheel turned (before moving off, as
+    # the planner's driver turns it) to the controller's first command for a car on its path,
+    # the lateral motion the rolling car's at that steer.
+    start = np.asarray(start, float)[:3]
+    way, v0 = ref["way"][0], ref["way"][0] * ref["speed"][0]
+    delta0 = float(np.clip(
+        np.remainder(ref["course"][0] - start[2] + np.pi, 2 * np.pi) - np.pi if way > 0
+        else ref["steer_ff"][0], p["delta_min"], p["delta_max"]))
+    x0 = np.r_[start, v0, *kinematic_lateral(v0, delta0, p), delta0]
+    with jax.enable_x64(True):
+        global DBG
+        DBG = _scan(n_steps)(x0, arrays, n_pieces, p)
+        poses, dev, done = DBG[0][:, :3], DBG[1], DBG[2]
+        DBG = [np.asarray(a) for a in DBG] + [arrays]
+        poses, dev, done = np.asarray(poses), np.asarray(dev), np.asarray(done)
+    # Up to the step it finished (and one more: the stopped pose).
+    n = int(np.argmax(done)) + 1 if done.any() else len(done)
+    return {"poses": poses[:n], "deviation": dev[:n], "done": bool(done.any()),
+            "end": poses[n - 1]}
+
+
+@cache
+def _scan(n_steps: int):
+    """The compiled closed loop of n_steps control periods (one per plan size bucket)."""
+    import jax
+    import jax.numpy as jnp
+    from jax import lax
+
+    from stepzoo.integrators import integrate
+
+    def wrap(a):
+        return jnp.remainder(a + jnp.pi, 2 * jnp.pi) - jnp.pi
+
+    def nearest(points, i, lo, hi, q, reach=WINDOW):
+        """Nearest point to q on the segments i..i+reach-1 (reach <= WINDOW) of `points`
+        within rows lo..hi: (segment, fraction along it, distance, signed offset to its
+        left)."""
+        j = jnp.clip(i + jnp.arange(WINDOW), lo, jnp.maximum(hi - 1, lo))
+        a, b = points[j], points[j + 1]
+        ab = b - a
+        frac = jnp.clip(jnp.sum((q - a) * ab, axis=1) / jnp.maximum(jnp.sum(ab * ab, 1), 1e-18),
+                        0.0, 1.0)
+        gap = q - (a + frac[:, None] * ab)
+        dist = jnp.where(jnp.arange(WINDOW) < reach, jnp.hypot(gap[:, 0], gap[:, 1]), jnp.inf)
+        k = jnp.argmin(dist)
+        side = (ab[k, 0] * gap[k, 1] - ab[k, 1] * gap[k, 0]) / jnp.maximum(
+            jnp.hypot(ab[k, 0], ab[k, 1]), 1e-18)
+        return j[k], frac[k], dist[k], side
+
+    def run(x0, ref, n_pieces, p):
+        at = lambda name, j, f: ref[name][j] + f * (ref[name][j + 1] - ref[name][j])
+
+        def control(x, i, k):
+            way = ref["way"][k]
+            lo, hi = ref["first"][k], ref["last"][k]
+            psi, v = x[2], x[3]
+            heading = jnp.stack([jnp.cos(psi), jnp.sin(psi)])
+            axle = x[:2] + jnp.where(way > 0, p["Lf"], -p["Lr"]) * heading
+            # No farther along than twice the step's travel: a car far off the path (one
+            # it cannot drive) is not drawn along it by a nearest point racing ahead.
+            reach = 2 + jnp.ceil(2 * jnp.abs(v) * H_S / SPACING_M).astype(int)
+            j, f, _, side = nearest(ref["C"], i, lo, hi, axle, reach)
+            # The offset to the left of the body's forward direction along the path.
+            e = side * way
+            soft = K_SOFT + jnp.abs(v)
+            forward = wrap(at("course", j, f) - psi) - jnp.arctan(GAIN_K * e / soft)
+            backward = (at("steer_ff", j, f)
+                        + HEADING_GAIN_REVERSE * wrap(psi - at("psi_body", j, f))
+                        - jnp.arctan(GAIN_K_REVERSE * e / soft))
+            steer = jnp.clip(jnp.where(way > 0, forward, backward), p["delta_min"],
+                             p["delta_max"])
+            # The plan's speed, or less where braking at A_BRAKE must start to stop at the
+            # piece's end; the plan's acceleration, or that braking, fed forward so that the
+            # speed loop does not lag it.
+            left = at("left", j, f)
+            brake = jnp.sqrt(2 * A_BRAKE * left)
+            braking = brake < at("speed", j, f)
+            target = jnp.where(braking, brake, at("speed", j, f))
+            end = (left < END_TOL_M) | ((j >= hi - 1) & (f >= 1.0))
+            ahead = jnp.where(braking, -A_BRAKE, at("accel", j, f)) * way
+            return steer, target * way, ahead, j, end
+
+        def body(carry, _):
+            x, i, k, done = carry
+            steer, target, ahead, j, end = control(x, i, k)
+            # Slower while the steer lags its command (its rate is limited): the path, not
+            # the plan's timing, is what the car must keep to.
+            lag = jnp.clip(1 - jnp.abs(steer - x[6]) / STEER_LAG_RAD, SLOWEST, 1.0)
+            target, ahead = target * lag, jnp.where(lag < 1, 0.0, ahead)
+            last = k >= n_pieces - 1
+            finished = done | (end & last)
+            # At the end, on braking at A_BRAKE until nearly stopped, then held.
+            stopping = -A_BRAKE * jnp.sign(x[3]) * (jnp.abs(x[3]) > STOPPED_MPS)
+            target, ahead = (jnp.where(finished, 0.0, target),
+                             jnp.where(finished, stopping, ahead))
+            accel = jnp.clip(SPEED_GAIN * (target - x[3]) + ahead, -A_TRACK, A_TRACK)
+            u = jnp.stack([(steer - x[6]) / STEER_SERVO_S, accel])
+            x = integrate(METHOD, blended_single_track, x, u, p, H_S, 1).x[-1]
+            switch = end & ~last
+            k = jnp.where(switch, k + 1, k)
+            i = jnp.where(switch, ref["first"][k], j)
+            # The centre of gravity's distance to its path, near the controlled axle's row.
+            lo = ref["first"][k]
+            _, _, dev, _ = nearest(ref["P"], jnp.maximum(i - WINDOW // 2, lo), lo,
+                                   ref["last"][k], x[:2])
+            stopped = finished & (jnp.abs(x[3]) < 1e-3)
+            return (x, i, k, done | finished), (x, dev, stopped, j, steer, target)
+
+        init = (x0, ref["first"][0], jnp.zeros((), int), jnp.zeros((), bool))
+        _, out = lax.scan(body, init, None, length=n_steps)
+        return out
+
+    return jax.jit(run)
+
+
+def tracking(plan, omap, footprint=None, vehicle: dict | None = None,
+             margin: float | None = None) -> dict:
+    """tracking(plan, omap, footprint=None, vehicle=None, margin=None) -> dict, plan.json's
+    `tracking` block: `controller`, `model`, and along the tracked trajectory (`track`)
+    max_deviation_m [m] (the centre of gravity's largest distance to the planned path),
+    final_deviation_m [m] (where the car stopped, to the path's last row), collides (the
+    car's footprint, as `replay` checks it, at poses at most CHECK_SPACING_M apart and the
+    moves between them) and clearance_min_m [m] (least distance of its disc cover to an
+    obstacle, <= 0 touches). `plan`: the plan.json record or a PlanResult (with the planner's
+    vehicle set and margin, as `replay` takes them). No path: the measures are None."""
+    from stepzoo.search.planner.pathfinder import PlanResult
+    from stepzoo.search.plans.replay import car_footprint, safety
+    if isinstance(plan, PlanResult):
+        from stepzoo.search.plans.files import path_rows
+        from stepzoo.search.plans.replay import controls
+        rows, start, segs = path_rows(plan, vehicle), plan.start, controls(plan)
+    else:
+        rows, start, segs = np.asarray(plan["path"], float), plan["start"], plan["controls"]
+        vehicle = {**plan["vehicle"], **(vehicle or {})}
+        margin = plan.get("params", {}).get("margin", margin)
+    block = {"controller": CONTROLLER, "model": MODEL, **dict.fromkeys(METRICS)}
+    if len(rows) < 2:
+        return block
+    if footprint is None:
+        footprint = car_footprint(vehicle, margin)
+    run = track(rows, start, vehicle, kinematic_rows(rows, segs))
+    poses = run["poses"]
+    step = np.hypot(*np.diff(poses[:, :2], axis=0).T)
+    # Every pose whose travel since the last kept one reaches CHECK_SPACING_M, and the last.
+    kept = np.r_[0, 1 + np.flatnonzero(np.diff(np.floor(np.r_[0.0, np.cumsum(step)]
+                                                           / CHECK_SPACING_M)) > 0)]
+    kept = np.unique(np.r_[kept, len(poses) - 1])
+    collides, clearance = safety(omap, footprint, poses[kept])
+    block.update({
+        "max_deviation_m": float(run["deviation"].max()),
+        "final_deviation_m": float(np.hypot(*(run["end"][:2] - rows[-1, 1:3]))),
+        "collides": collides, "clearance_min_m": clearance})
+    return block
