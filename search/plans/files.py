@@ -1,6 +1,6 @@
 """A plan as files: plan.json (status, path, the controls that produce it and their replay,
-the tracking replay, tree, stats, params), plan.png in the paper's colours (black obstacles, blue tree, red path)
-and map.npy, each written atomically."""
+the tracking replay, tree, stats, params), plan.png in the paper's colours (black obstacles,
+blue tree, red path) and map.npy, each written atomically."""
 from __future__ import annotations
 
 import io
