@@ -2,9 +2,10 @@
 kind)` checks the folder, creates it if needed and holds its lock file while a command writes
 there: a second writer is refused in one line, and since the operating system drops the lock
 (flock) of a process that dies, a killed writer never leaves a stale lock behind. A folder is
-written only where the user meant it and only over what stepzoo wrote: an empty name, a path
-through a symbolic link, a folder of another command's results or of anything stepzoo did
-not write is refused, in one line, before anything is written (docs/folders-and-server.md).
+written only where the user meant it and only over what stepzoo wrote: an empty name, a
+folder of another command's results or of anything stepzoo did not write (also where a link
+as the folder's own name leads) is refused, in one line, before anything is written
+(docs/folders-and-server.md).
 `replacing(folder, kind)` writes a folder's results anew beside it and swaps them in whole."""
 from __future__ import annotations
 
@@ -78,29 +79,34 @@ def _listing(names) -> str:
 
 
 def check_path(folder, flag: str = "--out") -> Path:
-    """`folder` as a Path if a command may write there: a name is given, and no symbolic
-    link lies on its way (the resolved path is the given one), so results land exactly where
-    the user named, never where a link someone planted leads. Else UsageError."""
+    """`folder` as a Path if a command may write there: a name is given, of a folder or of
+    nothing yet. Links among its parents are the user's own layout (macOS's /tmp is one) and
+    followed; a name that is itself a link is followed to the folder it leads to, which is
+    returned (check_kind then checks what it holds), and refused where it leads to no folder.
+    Else UsageError."""
     if not str(folder).strip():
         raise UsageError(f"{flag} is empty; give the name of a folder, such as {flag} results")
-    given = os.path.abspath(folder)
-    real = os.path.realpath(folder)
-    if given != real:
-        raise UsageError(f"{flag} {folder} leads through a symbolic link to {real}; stepzoo "
-                         f"writes only to a path without links: give {flag} {real} if that "
-                         "is the folder meant")
     folder = Path(folder)
+    if folder.is_symlink():
+        real = Path(os.path.realpath(folder))
+        if not real.is_dir():
+            raise UsageError(f"{flag} {folder} is a symbolic link to {real}, which is not a "
+                             f"folder; give a folder, such as {flag} results")
+        return real
     if folder.exists() and not folder.is_dir():
         raise UsageError(f"{flag} {folder} exists and is not a folder; give a folder")
     return folder
 
 
 def check_kind(folder, kind: str, flag: str = "--out", *, overwrite: bool | None = None) -> Path:
-    """`folder` if `kind` may write its results there (check_path, then what it holds):
-    nothing, or what `kind` itself wrote (its manifest says so; without one, its lock file
-    or its result files, MARKS). A folder of another command's results is refused; one of
-    anything else too, unless `overwrite` is True. `overwrite` None: the command has no
-    --overwrite flag."""
+    """`folder` (where a link as its name leads: check_path) if `kind` may write its results
+    there: nothing, or what `kind` itself wrote (its manifest says so; without one, its lock
+    file or its result files, MARKS). A folder of another command's results is refused; one
+    of anything else too, unless `overwrite` is True and `folder` is no link (a link could
+    expose any folder of other files). `overwrite` None: the command has no --overwrite
+    flag."""
+    given = folder
+    linked = Path(folder).is_symlink()
     folder = check_path(folder, flag)
     if not folder.is_dir():
         return folder
@@ -112,17 +118,18 @@ def check_kind(folder, kind: str, flag: str = "--out", *, overwrite: bool | None
     writer = written_by(folder) or kind_of(folder)
     if writer == kind:
         return folder
+    name = f"{flag} {given}" + (f" (a symbolic link to {folder})" if linked else "")
     if writer is not None:
         found = next((m for m in (*MARKS.get(writer, ()), MANIFEST) if (folder / m).exists()),
                      LOCK)
-        raise UsageError(f"{flag} {folder} holds the results of `stepzoo {writer}` ({found}), "
+        raise UsageError(f"{name} holds the results of `stepzoo {writer}` ({found}), "
                          f"not of `stepzoo {kind}`; give another {flag} (or remove that folder "
                          "first)")
-    if overwrite:
+    if overwrite and not linked:
         return folder
     how = (f"give an empty or new {flag}, or pass --overwrite to write into it anyway"
-           if overwrite is False else f"give an empty or new {flag}")
-    raise UsageError(f"{flag} {folder} holds files that `stepzoo {kind}` did not write "
+           if overwrite is False and not linked else f"give an empty or new {flag}")
+    raise UsageError(f"{name} holds files that `stepzoo {kind}` did not write "
                      f"({_listing(entries)}); {how}")
 
 

@@ -456,21 +456,40 @@ def test_an_empty_out_is_refused_and_nothing_is_written_here(finished, tmp_path,
     assert list(tmp_path.iterdir()) == []
 
 
-def test_an_out_through_a_symbolic_link_is_refused_unless_the_resolved_path_is_given(
+def test_an_out_through_a_linked_parent_is_taken_and_a_link_exposing_other_files_refused(
         finished, tmp_path, capsys):
-    """A link as --out, or on its way, could lead anywhere (as root, into a system folder):
-    refused, naming where it leads, so the user who means it can give that path."""
+    """Links among --out's parents are the user's layout (macOS's /tmp and /var are links):
+    the second battery's case, refused before, now writes there. A link as --out itself is
+    followed only to a folder it may write (empty, or its own results): one of other files,
+    or no folder, is refused even with --overwrite, naming where the link leads."""
+    config, _, _ = finished
     elsewhere = tmp_path / "elsewhere"
     elsewhere.mkdir()
     (tmp_path / "link").symlink_to(elsewhere)
-    for argv, _ in _folder_commands(finished):
-        for out, real in ((tmp_path / "link", elsewhere),
-                          (tmp_path / "link" / "sub", elsewhere / "sub")):
-            assert refused(capsys, *argv, "--out", out) == (
-                f"stepzoo {argv[0]}: error: --out {out} leads through a symbolic link to "
-                f"{real}; stepzoo writes only to a path without links: give --out {real} if "
-                "that is the folder meant")
-    assert list(elsewhere.iterdir()) == []
+    assert stepzoo(["sweep", str(config), "--out", str(tmp_path / "link" / "sub"),
+                    "--no-progress"]) == 0
+    assert (elsewhere / "sub" / "runs.parquet").is_file()
+    theirs = tmp_path / "theirs"
+    theirs.mkdir()
+    (theirs / "notes.txt").write_text("kept")
+    (tmp_path / "to_theirs").symlink_to(theirs)
+    (tmp_path / "to_file").symlink_to(theirs / "notes.txt")
+    (tmp_path / "dangling").symlink_to(tmp_path / "nowhere")
+    capsys.readouterr()
+    for argv, overwrite in _folder_commands(finished):
+        extra = ["--overwrite"] if overwrite and "--resume" not in argv else []
+        assert refused(capsys, *argv, "--out", tmp_path / "to_theirs", *extra) == (
+            f"stepzoo {argv[0]}: error: --out {tmp_path / 'to_theirs'} (a symbolic link to "
+            f"{theirs}) holds files that `stepzoo {argv[0]}` did not write (notes.txt); give "
+            "an empty or new --out")
+        for link, real in (("to_file", theirs / "notes.txt"), ("dangling", tmp_path / "nowhere")):
+            assert refused(capsys, *argv, "--out", tmp_path / link) == (
+                f"stepzoo {argv[0]}: error: --out {tmp_path / link} is a symbolic link to "
+                f"{real}, which is not a folder; give a folder, such as --out results")
+    assert digest(theirs) == {"notes.txt": digest(theirs)["notes.txt"]}
+    assert not (tmp_path / "nowhere").exists()
     from stepzoo.results_folder import claim
-    with claim(elsewhere / "sub", "plan") as folder:       # the resolved path is taken
-        assert folder == elsewhere / "sub" and folder.is_dir()
+    (tmp_path / "empty").mkdir()
+    (tmp_path / "to_empty").symlink_to(tmp_path / "empty")
+    with claim(tmp_path / "to_empty", "plan") as folder:   # an empty folder, through its link
+        assert folder == tmp_path / "empty" and (tmp_path / "to_empty").is_symlink()

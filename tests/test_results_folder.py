@@ -325,3 +325,18 @@ def test_every_column_of_a_finished_sweeps_tables_has_a_documented_meaning(tiny_
     assert {"runs", "limits", "summary"} <= {p.stem for p in folder.glob("*.parquet")}
     undocumented = sorted(c for c in seen if not schema.COLUMN_DOC.get(c, "").strip())
     assert not undocumented, f"columns without a line in schema.COLUMN_DOC: {undocumented}"
+
+
+def test_a_report_replaced_through_a_link_keeps_the_link(tmp_path):
+    """A folder named by a link to the user's own empty folder: the results are swapped in
+    whole where the link leads, and the link stays a link to them (the exchange is made on
+    the folder, not on the link)."""
+    (tmp_path / "real").mkdir()
+    (tmp_path / "link").symlink_to(tmp_path / "real")
+    for text in ("first", "second"):
+        with replacing(tmp_path / "link", "report") as into:
+            (into / "index.html").write_text(text)
+            (into / "manifest.json").write_text(json.dumps(
+                {"written_by": "report", "files": ["index.html"]}))
+        assert (tmp_path / "link").is_symlink()
+        assert (tmp_path / "real" / "index.html").read_text() == text
