@@ -270,8 +270,8 @@ def write(tuned: dict, out) -> Path:
     import tomli_w
 
     from stepzoo.output import atomic_write
-    from stepzoo.results_folder import check_file_target
-    check_file_target(out)
+    from stepzoo.results_folder import TUNED_FILE, check_file_target
+    check_file_target(out, kind=TUNED_FILE)
     header = ("# Planner config written by `stepzoo tune`: `method` and `h` [s] are what the "
               "planner reads.\n")
     return atomic_write(out, header + tomli_w.dumps(tuned))

@@ -238,13 +238,62 @@ def _exchange(a: Path, b: Path):
     os.rename(old, a)
 
 
-def check_file_target(path, flag: str = "--out") -> Path:
+def check_file_target(path, flag: str = "--out", *, kind: FileKind | None = None,
+                      inputs=()) -> Path:
     """`path` if a command may write a file there: nothing there yet, or a regular file (a
-    folder, a device such as /dev/null, a link or a pipe is refused, never replaced)."""
+    folder, a device such as /dev/null, a link or a pipe is refused, never replaced) that is
+    none of the run's `inputs` (paths it reads) and, where `kind` is given, of the kind the
+    command writes (a user's model module or config given by mistake is refused, never
+    replaced)."""
     path = Path(path)
     if path.is_symlink() or (path.exists() and not path.is_file()):
         what = "a folder" if path.is_dir() and not path.is_symlink() else \
             "a link" if path.is_symlink() else "not a regular file"
         raise UsageError(f"{flag} {path} is {what}; give the name of a regular file, such as "
-                         "tuned.toml")
+                         f"{kind.example if kind else 'tuned.toml'}")
+    if not path.exists():
+        return path
+    for given in inputs:
+        if given is not None and Path(given).exists() and os.path.samefile(path, given):
+            raise UsageError(f"{flag} {path} is {given}, which this command reads; give a new "
+                             f"file name, such as {kind.example if kind else 'out'}")
+    if kind is not None and not kind.holds(path):
+        raise UsageError(f"{flag} {path} is not {kind.words}, which this command writes, and "
+                         f"would be lost; give a new file name, such as {kind.example}")
     return path
+
+
+class FileKind:
+    """The kind of file a command writes, so that it replaces only a file of that kind:
+    `words` names it, `example` is a file name to suggest, `holds(path)` tells one."""
+
+    def __init__(self, words: str, example: str, holds):
+        self.words, self.example, self._holds = words, example, holds
+
+    def holds(self, path: Path) -> bool:
+        try:
+            return bool(self._holds(path))
+        except (OSError, ValueError, UnicodeDecodeError):
+            return False
+
+
+def _toml_with(*keys):
+    def holds(path: Path) -> bool:
+        from stepzoo.safe_parse import toml_loads
+        table = toml_loads(path.read_text())
+        return all(k in table for k in keys)
+    return holds
+
+
+def _csv_headed(*columns):
+    def holds(path: Path) -> bool:
+        with open(path, encoding="utf-8") as fh:
+            return fh.readline().rstrip("\r\n").split(",")[:len(columns)] == list(columns)
+    return holds
+
+
+# What `stepzoo tune` writes (a planner config: method and h), and `verdict --csv`.
+TUNED_FILE = FileKind("a tuned config (a TOML file with method and h)", "tuned.toml",
+                      _toml_with("method", "h"))
+VERDICT_CSV = FileKind("a verdict table (a CSV file of columns method, h, point, ...)",
+                       "verdict.csv", _csv_headed("method", "h", "point"))

@@ -211,6 +211,35 @@ def test_tune_finding_nothing_is_exit_1_and_keeps_the_old_file(finished, tmp_pat
     assert tuned.read_bytes() == before
 
 
+def test_an_output_that_is_an_input_or_not_of_its_kind_is_refused_and_kept(finished, tmp_path,
+                                                                           capsys):
+    """The third battery's data lost: `verdict --csv` naming the config file itself, and
+    `tune --out` naming the user's model module (springs.py for springs.toml), replaced them.
+    A file output replaces only a file of the kind its command writes, never one it reads."""
+    from stepzoo.results_folder import TUNED_FILE, VERDICT_CSV
+    config, sweep, tuned = finished
+    mine = Path(shutil.copy(config, tmp_path / "tiny.toml"))
+    module = Path(shutil.copy(ROOT / "tests" / "user_model" / "springs.py", tmp_path))
+    before = digest(tmp_path)
+    verdict = ["verdict", mine, "--method", "euler", "--h", "0.05", "--pos-tol", "10"]
+    assert refused(capsys, *verdict, "--csv", mine) == (
+        f"stepzoo verdict: error: --csv {mine} is {mine}, which this command reads; give a new "
+        "file name, such as verdict.csv")
+    assert refused(capsys, *verdict, "--csv", module) == (
+        f"stepzoo verdict: error: --csv {module} is not a verdict table (a CSV file of columns "
+        "method, h, point, ...), which this command writes, and would be lost; give a new "
+        "file name, such as verdict.csv")
+    for target in (module, mine):
+        assert refused(capsys, "tune", sweep, "--pos-tol", "10", "--out", target) == (
+            f"stepzoo tune: error: --out {target} is not a tuned config (a TOML file with "
+            "method and h), which this command writes, and would be lost; give a new file "
+            "name, such as tuned.toml")
+    assert digest(tmp_path) == before
+    assert TUNED_FILE.holds(tuned)                 # what they write, they may write again
+    assert stepzoo([*map(str, verdict), "--csv", str(tmp_path / "v.csv")]) == 0
+    assert VERDICT_CSV.holds(tmp_path / "v.csv")
+
+
 # ---- files the operating system refuses ---------------------------------------------------
 
 # Several commands in one new process, each through main(), the entry point of the `stepzoo`
