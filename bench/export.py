@@ -206,11 +206,12 @@ def schedule(tuned: dict, sweep: Path, method: str | None = None):
     import pandas as pd
 
     from stepzoo.bench.tune import candidates as qualify
-    from stepzoo.bench.tune import load_results
+    from stepzoo.bench.tune import check_error_column, load_results
     runs, limits, manifest = load_results(sweep)
     method, margin = method or tuned["method"], float(tuned["margin"])
     col, tol = (("err_pos", tuned["pos_tol_m"]) if "pos_tol_m" in tuned
                 else ("err", tuned["tol"]))
+    check_error_column(sweep, runs, manifest, col)
     runs, limits = runs[runs["method"] == method], limits[limits["method"] == method]
     variables = (manifest.get("model_spec") or {}).get("variables", [])
     rows = []

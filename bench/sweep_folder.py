@@ -10,6 +10,7 @@ from pathlib import Path
 
 import pandas as pd
 
+from stepzoo.bench.schema import REQUIRED, SORT
 from stepzoo.errors import UsageError
 from stepzoo.safe_parse import json_loads
 
@@ -78,9 +79,36 @@ def table_problem(cfg, runs: pd.DataFrame, limits: pd.DataFrame) -> str | None:
     return None
 
 
+def check_columns(folder, tables: dict[str, pd.DataFrame], wanted: dict[str, list[str]]):
+    """UsageError naming the first of `tables` (by file name: "runs.parquet", "summary.csv")
+    of the sweep folder `folder` that lacks a column of `wanted` (by file name): a table of
+    another command (without the sweep's key columns, schema.SORT), or of another version."""
+    for name, columns in wanted.items():
+        have = list(tables[name].columns)
+        lacking = [c for c in columns if c not in have]
+        if not lacking:
+            continue
+        table, path = name.split(".")[0], Path(folder) / name
+        if not set(SORT.get(table, ())) <= set(have):      # not even keyed as the sweep's
+            raise UsageError(f"{path} is not a sweep's {table} table (it lacks "
+                             f"{_listing(c for c in SORT[table] if c not in have)}; its columns "
+                             f"are {_listing(have)}): another command's table? give a folder "
+                             "written by `stepzoo sweep`")
+        raise UsageError(f"{path} lacks column(s) {_listing(lacking)}: it was written by "
+                         "another version of `stepzoo sweep`, or changed since; rerun "
+                         "`stepzoo sweep` into a new folder")
+
+
+def _listing(names, shown: int = 4) -> str:
+    names = list(names)
+    return ", ".join(map(str, names[:shown])) + (f" and {len(names) - shown} more"
+                                                 if len(names) > shown else "")
+
+
 def check_finished(folder, manifest: dict, runs: pd.DataFrame, limits: pd.DataFrame):
     """UsageError unless `folder` holds a finished sweep whose tables are whole: marked
-    complete, its config.toml the one the manifest names, every implied row there once."""
+    complete, its config.toml the one the manifest names, the columns every reader needs
+    (schema.REQUIRED and the model's envelope variables) there, every implied row once."""
     from stepzoo.bench.sweep_config import load
     folder = Path(folder)
     again = f"rerun `stepzoo sweep {folder / 'config.toml'} --out {folder} --resume`"
@@ -98,6 +126,10 @@ def check_finished(folder, manifest: dict, runs: pd.DataFrame, limits: pd.DataFr
     if cfg.sha256 != manifest.get("config_sha256"):
         raise UsageError(f"{folder}: config.toml is not the config the manifest names; rerun "
                          "`stepzoo sweep CONFIG --out` into a new folder")
+    variables = list(cfg.spec.variables)
+    check_columns(folder, {"runs.parquet": runs, "limits.parquet": limits},
+                  {"runs.parquet": [*REQUIRED["runs"], *variables],
+                   "limits.parquet": [*REQUIRED["limits"], *variables]})
     problem = table_problem(cfg, runs, limits)
     if problem:
         raise UsageError(f"{folder} holds an incomplete or inconsistent sweep: {problem}; "
