@@ -5,6 +5,7 @@ again before they read, so a folder that lost chunks is refused, never read as a
 from __future__ import annotations
 
 import json
+import os
 import shutil
 from pathlib import Path
 
@@ -54,6 +55,29 @@ def check_start(cfg, out: Path, resume: bool, overwrite: bool, discard=None) -> 
 def missing_chunks(ids: list[str], chunks: Path) -> list[str]:
     """The chunks of `ids` that `chunks` does not hold."""
     return [c for c in ids if not (chunks / c).is_dir()]
+
+
+def set_aside_damaged(ids: list[str], chunks: Path) -> dict[str, str]:
+    """Move each chunk of `ids` in `chunks` with a table that cannot be read (a file cut
+    short by a full disk or a copy, emptied) to the hidden `.ID.damaged` beside it, so that
+    the sweep computes it again and a reader finds the bytes it had; {chunk id: what is
+    wrong}. A chunk is written whole or not at all (sweep._write_chunk), so a damaged one
+    was damaged after, by something else."""
+    damaged = {}
+    for cid in ids:
+        for path in sorted((chunks / cid).glob("*.parquet")):
+            try:
+                pd.read_parquet(path)
+            except OSError:
+                raise                     # unreadable, not damaged: the command says which
+            except Exception as err:  # damaged bytes raise many types from pyarrow
+                damaged[cid] = f"{path.name}: {type(err).__name__}"
+                break
+    for cid in damaged:
+        aside = chunks / f".{cid}.damaged"
+        shutil.rmtree(aside, ignore_errors=True)
+        os.replace(chunks / cid, aside)
+    return damaged
 
 
 def table_problem(cfg, runs: pd.DataFrame, limits: pd.DataFrame) -> str | None:
