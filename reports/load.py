@@ -152,9 +152,10 @@ def load_sweep(folder) -> Sweep:
     return Sweep(folder, manifest, **tables)
 
 
-def load_tuned(path) -> dict:
+def load_tuned(path, sweep: Sweep | None = None) -> dict:
     """The TOML written by `stepzoo tune`, checked as the tuned kind (stepzoo.tuned_file),
-    with a tolerance to draw."""
+    with a tolerance to draw, and (given `sweep`) of the sweep's model, whose runs have the
+    error its tolerance bounds."""
     from stepzoo.config_schema import check
     from stepzoo.tuned_file import TunedFile
     path = Path(path)
@@ -170,6 +171,16 @@ def load_tuned(path) -> dict:
     if not any(k in data for k in TOLERANCES):
         raise UsageError(f"tuned config {path} lacks {' or '.join(TOLERANCES)}; rerun "
                          "`stepzoo tune`")
+    if sweep is not None:
+        model = sweep.manifest.get("model", sweep.view.model)
+        if data.get("model", model) != model:
+            raise UsageError(f"tuned config {path} is of the model {data['model']}, the sweep "
+                             f"{sweep.folder} of {model}; give the tuned config of that sweep")
+        column = sweep.view.with_tolerance(data).error
+        if column not in sweep.runs:
+            raise UsageError(f"tuned config {path} bounds the {TOLERANCES['pos_tol_m'][2]} "
+                             f"(pos_tol_m), which the sweep {sweep.folder} of {model} has not "
+                             "(no X, Y); give the tuned config of that sweep")
     return data
 
 
