@@ -204,6 +204,18 @@ def test_run_refuses_bad_arguments_before_it_starts(tmp_path, capsys, args, word
     assert not out.exists()
 
 
+def test_run_of_a_model_without_a_position_is_refused_before_its_sweep(tmp_path, capsys):
+    """The third battery's case: `run` tunes to a position tolerance, and with the chain of
+    springs (no X, Y) it failed at the tune stage, after the sweep had run."""
+    config = ROOT / "tests" / "user_model" / "chain.toml"
+    out = tmp_path / "results"
+    assert refused(capsys, "run", "--config", config, "--out", out) == (
+        f"stepzoo run: error: {config}: its model springs:chain has no position (X, Y), and "
+        "`stepzoo run` tunes to a position tolerance (--pos-tol) for the planner's car; run "
+        f"`stepzoo sweep {config} --out DIR`, then `stepzoo tune DIR --tol E --out tuned.toml`")
+    assert not out.exists()
+
+
 def test_tune_finding_nothing_is_exit_1_and_keeps_the_old_file(finished, tmp_path, capsys):
     _, sweep, tuned = finished
     before = tuned.read_bytes()
