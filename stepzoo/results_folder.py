@@ -271,9 +271,11 @@ class FileKind:
         self.words, self.example, self._holds = words, example, holds
 
     def holds(self, path: Path) -> bool:
+        """Whether the file `path` is of this kind (an unreadable one: OSError, which the
+        command names as it does every file it cannot read)."""
         try:
             return bool(self._holds(path))
-        except (OSError, ValueError, UnicodeDecodeError):
+        except ValueError:                  # not TOML, not text: another kind of file
             return False
 
 
