@@ -94,12 +94,14 @@ def mistakes(model_cls: type[Schema], err: pydantic.ValidationError) -> list[str
         place = _type_mistake(model_cls, e)
         if place is None:
             lines.append(_line(model_cls, e))
-        elif place[0] in expected:           # another member of the same union
-            expected[place[0]][1].append(place[1])
+            continue
+        key, words, got = place
+        if (key, got) in expected:           # another member of the same union
+            expected[key, got][1].append(words)
         else:
-            expected[place[0]] = (len(lines), [place[1]], place[2])
+            expected[key, got] = (len(lines), [words])
             lines.append(None)
-    for key, (at, words, got) in expected.items():
+    for (key, got), (at, words) in expected.items():
         lines[at] = f"{key} must be {' or '.join(dict.fromkeys(words))}, got {got}"
     return lines
 
