@@ -13,7 +13,7 @@ import pandas as pd
 
 from stepzoo.bench.sweep import tables as schema
 from stepzoo.bench.sweep.config import ESTIMATES
-from stepzoo.bench.sweep.folder import check_finished
+from stepzoo.bench.sweep.folder import check_columns, check_finished
 from stepzoo.errors import UsageError
 from stepzoo.safe_parse import json_loads, toml_loads
 
@@ -132,27 +132,17 @@ def load_sweep(folder) -> Sweep:
     except (UnicodeDecodeError, json.JSONDecodeError) as err:
         raise UsageError(f"{folder / 'manifest.json'} is damaged ({err}); rerun "
                          "`stepzoo sweep`") from None
-    tables = {}
-    for name, columns in SWEEP_TABLES.items():
-        table = _read_table(folder / name)
-        lacking = [c for c in columns if c not in table.columns]
-        if lacking:
-            raise UsageError(f"{folder / name} lacks column(s) {', '.join(lacking)}; it was "
-                             "not written by this version of `stepzoo sweep`, rerun it")
-        tables[name.split(".")[0]] = table
+    files = {name: _read_table(folder / name) for name in SWEEP_TABLES}
+    check_columns(folder, files, SWEEP_TABLES)
+    tables = {name.split(".")[0]: table for name, table in files.items()}
     runs = tables["runs"]
     if "model_spec" not in manifest and "err" not in runs and {"err_vy", "err_r"} <= set(runs):
         # A bicycle sweep from before models were data: its error norm is max(|vy|, |r|).
         runs["err"] = runs[["err_vy", "err_r"]].max(axis=1)
     view = View.of(manifest, runs)
-    wanted = {"runs.parquet": [*view.variables, view.error, "err"],
-              "limits.parquet": list(view.variables),
-              "trajectories.parquet": list(view.states)}
-    for name, columns in wanted.items():
-        lacking = [c for c in columns if c not in tables[name.split(".")[0]].columns]
-        if lacking:
-            raise UsageError(f"{folder / name} lacks column(s) {', '.join(lacking)} that its "
-                             "manifest's model names; rerun `stepzoo sweep`")
+    check_columns(folder, files, {"runs.parquet": [*view.variables, view.error, "err"],
+                                  "limits.parquet": list(view.variables),
+                                  "trajectories.parquet": list(view.states)})
     check_finished(folder, manifest, tables["runs"], tables["limits"])
     if tables["runs"].empty:
         raise UsageError(f"{folder / 'runs.parquet'} has no rows; rerun `stepzoo sweep`")
@@ -162,9 +152,10 @@ def load_sweep(folder) -> Sweep:
     return Sweep(folder, manifest, **tables)
 
 
-def load_tuned(path) -> dict:
+def load_tuned(path, sweep: Sweep | None = None) -> dict:
     """The TOML written by `stepzoo tune`, checked as the tuned kind (stepzoo.tuned_file),
-    with a tolerance to draw."""
+    with a tolerance to draw, and (given `sweep`) of the sweep's model, whose runs have the
+    error its tolerance bounds."""
     from stepzoo.config_schema import check
     from stepzoo.tuned_file import TunedFile
     path = Path(path)
@@ -180,6 +171,16 @@ def load_tuned(path) -> dict:
     if not any(k in data for k in TOLERANCES):
         raise UsageError(f"tuned config {path} lacks {' or '.join(TOLERANCES)}; rerun "
                          "`stepzoo tune`")
+    if sweep is not None:
+        model = sweep.manifest.get("model", sweep.view.model)
+        if data.get("model", model) != model:
+            raise UsageError(f"tuned config {path} is of the model {data['model']}, the sweep "
+                             f"{sweep.folder} of {model}; give the tuned config of that sweep")
+        column = sweep.view.with_tolerance(data).error
+        if column not in sweep.runs:
+            raise UsageError(f"tuned config {path} bounds the {TOLERANCES['pos_tol_m'][2]} "
+                             f"(pos_tol_m), which the sweep {sweep.folder} of {model} has not "
+                             "(no X, Y); give the tuned config of that sweep")
     return data
 
 

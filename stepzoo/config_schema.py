@@ -75,17 +75,58 @@ def _shape(value) -> str:
 
 def check(model_cls: type[Schema], data: dict, where: str) -> Schema:
     """`data` (a file's table) as a `model_cls`; UsageError with one line per mistake, each
-    starting with `where` (the file, or the table in it)."""
+    starting with `where` (the file, or the table in it). A file that is one mistake whole
+    (empty, or a config of another kind) is one line, not one per key it lacks."""
     try:
         return model_cls.model_validate(_tuples(data))
     except pydantic.ValidationError as err:
-        raise UsageError("\n".join(f"{where}: {line}"
-                                    for line in mistakes(model_cls, err))) from None
+        lines = mistakes(model_cls, err)
+        if len(lines) > 1 and isinstance(data, dict):
+            lines = _whole_file(model_cls, data) or lines
+        raise UsageError("\n".join(f"{where}: {line}" for line in lines)) from None
 
 
 def mistakes(model_cls: type[Schema], err: pydantic.ValidationError) -> list[str]:
-    """One line per error of a validation of `model_cls`, in the house's words."""
-    return [_line(model_cls, e) for e in err.errors(include_url=False)]
+    """One line per error of a validation of `model_cls`, in the house's words; a value that
+    fits none of a union's types (a number, a whole number or true or false) is one line."""
+    lines, expected = [], {}
+    for e in err.errors(include_url=False):
+        place = _type_mistake(model_cls, e)
+        if place is None:
+            lines.append(_line(model_cls, e))
+            continue
+        key, words, got = place
+        if (key, got) in expected:           # another member of the same union
+            expected[key, got][1].append(words)
+        else:
+            expected[key, got] = (len(lines), [words])
+            lines.append(None)
+    for (key, got), (at, words) in expected.items():
+        lines[at] = f"{key} must be {' or '.join(dict.fromkeys(words))}, got {got}"
+    return lines
+
+
+def _whole_file(model_cls: type[Schema], data: dict) -> list[str] | None:
+    """The one line for a table that is wrong as a whole: empty, or with only the keys of
+    another config kind (a sweep config given where a tuned config belongs); else None."""
+    mine = next((k for k in KINDS if kind_model(k) is model_cls), None)
+    what = f"a {mine} config" if mine else "this table"
+    required = [k for k, info in model_cls.model_fields.items() if info.is_required()]
+    if not data:
+        return [f"is empty; {what} needs at least {' and '.join(required)}"]
+    if set(data) <= set(model_cls.model_fields):
+        return None
+    other = next((k for k in KINDS if k != mine and set(data) <= set(kind_model(k).model_fields)),
+                 None)
+    if other is None:
+        return None
+    return [f"is a {other} config, not {what} (it has {_listing(sorted(data))} and lacks "
+            f"{', '.join(k for k in required if k not in data) or 'none'}); give {what}"]
+
+
+def _listing(names: list[str], shown: int = 3) -> str:
+    return ", ".join(names[:shown]) + (f" and {len(names) - shown} more keys"
+                                       if len(names) > shown else "")
 
 
 def differing(instance) -> dict:
@@ -166,6 +207,7 @@ def _lists(value):
 
 
 def _line(model_cls, e: dict) -> str:
+    """The line of a mistake that is not a value's type or range (_type_mistake's)."""
     info, annotation, names, every = _walk(model_cls, e["loc"])
     key = ".".join(names)
     if e["type"] == "extra_forbidden":
@@ -184,11 +226,18 @@ def _line(model_cls, e: dict) -> str:
         info, annotation, names, _ = _walk(model_cls, e["loc"][:-1])    # a list too short
         words = describe(info, annotation) if info is not None else "longer"
         return f"{'.'.join(names)} must be {words}, got {_lists(e['input'])!r}"
-    if e["type"] == "missing":
-        doc = f" ({info.description})" if info is not None and info.description else ""
-        return f"lacks {key}{doc}"
+    doc = f" ({info.description})" if info is not None and info.description else ""
+    return f"lacks {key}{doc}"
+
+
+def _type_mistake(model_cls, e: dict) -> tuple[str, str, str] | None:
+    """(the key, what it must be, what it got) of a value of the wrong type or range; None
+    for another mistake (a missing or unknown key, a validator's own message)."""
+    if e["type"] in ("extra_forbidden", "value_error", "assertion_error", "missing"):
+        return None
+    info, annotation, names, every = _walk(model_cls, e["loc"])
     words = describe(info, annotation) if info is not None else _error_words(e)
-    return f"{'every ' if every else ''}{key} must be {words}, got {_lists(e['input'])!r}"
+    return f"{'every ' if every else ''}{'.'.join(names)}", words, repr(_lists(e["input"]))
 
 
 def _error_words(e: dict) -> str:

@@ -2,9 +2,10 @@
 kind)` checks the folder, creates it if needed and holds its lock file while a command writes
 there: a second writer is refused in one line, and since the operating system drops the lock
 (flock) of a process that dies, a killed writer never leaves a stale lock behind. A folder is
-written only where the user meant it and only over what stepzoo wrote: an empty name, a path
-through a symbolic link, a folder of another command's results or of anything stepzoo did
-not write is refused, in one line, before anything is written (docs/folders-and-server.md).
+written only where the user meant it and only over what stepzoo wrote: an empty name, a
+folder of another command's results or of anything stepzoo did not write (also where a link
+as the folder's own name leads) is refused, in one line, before anything is written
+(docs/folders-and-server.md).
 `replacing(folder, kind)` writes a folder's results anew beside it and swaps them in whole."""
 from __future__ import annotations
 
@@ -78,29 +79,34 @@ def _listing(names) -> str:
 
 
 def check_path(folder, flag: str = "--out") -> Path:
-    """`folder` as a Path if a command may write there: a name is given, and no symbolic
-    link lies on its way (the resolved path is the given one), so results land exactly where
-    the user named, never where a link someone planted leads. Else UsageError."""
+    """`folder` as a Path if a command may write there: a name is given, of a folder or of
+    nothing yet. Links among its parents are the user's own layout (macOS's /tmp is one) and
+    followed; a name that is itself a link is followed to the folder it leads to, which is
+    returned (check_kind then checks what it holds), and refused where it leads to no folder.
+    Else UsageError."""
     if not str(folder).strip():
         raise UsageError(f"{flag} is empty; give the name of a folder, such as {flag} results")
-    given = os.path.abspath(folder)
-    real = os.path.realpath(folder)
-    if given != real:
-        raise UsageError(f"{flag} {folder} leads through a symbolic link to {real}; stepzoo "
-                         f"writes only to a path without links: give {flag} {real} if that "
-                         "is the folder meant")
     folder = Path(folder)
+    if folder.is_symlink():
+        real = Path(os.path.realpath(folder))
+        if not real.is_dir():
+            raise UsageError(f"{flag} {folder} is a symbolic link to {real}, which is not a "
+                             f"folder; give a folder, such as {flag} results")
+        return real
     if folder.exists() and not folder.is_dir():
         raise UsageError(f"{flag} {folder} exists and is not a folder; give a folder")
     return folder
 
 
 def check_kind(folder, kind: str, flag: str = "--out", *, overwrite: bool | None = None) -> Path:
-    """`folder` if `kind` may write its results there (check_path, then what it holds):
-    nothing, or what `kind` itself wrote (its manifest says so; without one, its lock file
-    or its result files, MARKS). A folder of another command's results is refused; one of
-    anything else too, unless `overwrite` is True. `overwrite` None: the command has no
-    --overwrite flag."""
+    """`folder` (where a link as its name leads: check_path) if `kind` may write its results
+    there: nothing, or what `kind` itself wrote (its manifest says so; without one, its lock
+    file or its result files, MARKS). A folder of another command's results is refused; one
+    of anything else too, unless `overwrite` is True and `folder` is no link (a link could
+    expose any folder of other files). `overwrite` None: the command has no --overwrite
+    flag."""
+    given = folder
+    linked = Path(folder).is_symlink()
     folder = check_path(folder, flag)
     if not folder.is_dir():
         return folder
@@ -112,17 +118,18 @@ def check_kind(folder, kind: str, flag: str = "--out", *, overwrite: bool | None
     writer = written_by(folder) or kind_of(folder)
     if writer == kind:
         return folder
+    name = f"{flag} {given}" + (f" (a symbolic link to {folder})" if linked else "")
     if writer is not None:
         found = next((m for m in (*MARKS.get(writer, ()), MANIFEST) if (folder / m).exists()),
                      LOCK)
-        raise UsageError(f"{flag} {folder} holds the results of `stepzoo {writer}` ({found}), "
+        raise UsageError(f"{name} holds the results of `stepzoo {writer}` ({found}), "
                          f"not of `stepzoo {kind}`; give another {flag} (or remove that folder "
                          "first)")
-    if overwrite:
+    if overwrite and not linked:
         return folder
     how = (f"give an empty or new {flag}, or pass --overwrite to write into it anyway"
-           if overwrite is False else f"give an empty or new {flag}")
-    raise UsageError(f"{flag} {folder} holds files that `stepzoo {kind}` did not write "
+           if overwrite is False and not linked else f"give an empty or new {flag}")
+    raise UsageError(f"{name} holds files that `stepzoo {kind}` did not write "
                      f"({_listing(entries)}); {how}")
 
 
@@ -231,13 +238,64 @@ def _exchange(a: Path, b: Path):
     os.rename(old, a)
 
 
-def check_file_target(path, flag: str = "--out") -> Path:
+def check_file_target(path, flag: str = "--out", *, kind: FileKind | None = None,
+                      inputs=()) -> Path:
     """`path` if a command may write a file there: nothing there yet, or a regular file (a
-    folder, a device such as /dev/null, a link or a pipe is refused, never replaced)."""
+    folder, a device such as /dev/null, a link or a pipe is refused, never replaced) that is
+    none of the run's `inputs` (paths it reads) and, where `kind` is given, of the kind the
+    command writes (a user's model module or config given by mistake is refused, never
+    replaced)."""
     path = Path(path)
     if path.is_symlink() or (path.exists() and not path.is_file()):
         what = "a folder" if path.is_dir() and not path.is_symlink() else \
             "a link" if path.is_symlink() else "not a regular file"
         raise UsageError(f"{flag} {path} is {what}; give the name of a regular file, such as "
-                         "tuned.toml")
+                         f"{kind.example if kind else 'tuned.toml'}")
+    if not path.exists():
+        return path
+    for given in inputs:
+        if given is not None and Path(given).exists() and os.path.samefile(path, given):
+            raise UsageError(f"{flag} {path} is {given}, which this command reads; give a new "
+                             f"file name, such as {kind.example if kind else 'out'}")
+    if kind is not None and not kind.holds(path):
+        raise UsageError(f"{flag} {path} is not {kind.words}, which this command writes, and "
+                         f"would be lost; give a new file name, such as {kind.example}")
     return path
+
+
+class FileKind:
+    """The kind of file a command writes, so that it replaces only a file of that kind:
+    `words` names it, `example` is a file name to suggest, `holds(path)` tells one."""
+
+    def __init__(self, words: str, example: str, holds):
+        self.words, self.example, self._holds = words, example, holds
+
+    def holds(self, path: Path) -> bool:
+        """Whether the file `path` is of this kind (an unreadable one: OSError, which the
+        command names as it does every file it cannot read)."""
+        try:
+            return bool(self._holds(path))
+        except ValueError:                  # not TOML, not text: another kind of file
+            return False
+
+
+def _toml_with(*keys):
+    def holds(path: Path) -> bool:
+        from stepzoo.safe_parse import toml_loads
+        table = toml_loads(path.read_text())
+        return all(k in table for k in keys)
+    return holds
+
+
+def _csv_headed(*columns):
+    def holds(path: Path) -> bool:
+        with open(path, encoding="utf-8") as fh:
+            return fh.readline().rstrip("\r\n").split(",")[:len(columns)] == list(columns)
+    return holds
+
+
+# What `stepzoo tune` writes (a planner config: method and h), and `verdict --csv`.
+TUNED_FILE = FileKind("a tuned config (a TOML file with method and h)", "tuned.toml",
+                      _toml_with("method", "h"))
+VERDICT_CSV = FileKind("a verdict table (a CSV file of columns method, h, point, ...)",
+                       "verdict.csv", _csv_headed("method", "h", "point"))

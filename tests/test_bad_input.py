@@ -13,6 +13,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
+import pandas as pd
 import pytest
 
 from stepzoo.cli import main as stepzoo
@@ -203,12 +204,89 @@ def test_run_refuses_bad_arguments_before_it_starts(tmp_path, capsys, args, word
     assert not out.exists()
 
 
+def test_run_of_a_model_without_a_position_is_refused_before_its_sweep(tmp_path, capsys):
+    """The third battery's case: `run` tunes to a position tolerance, and with the chain of
+    springs (no X, Y) it failed at the tune stage, after the sweep had run."""
+    config = ROOT / "tests" / "user_model" / "chain.toml"
+    out = tmp_path / "results"
+    assert refused(capsys, "run", "--config", config, "--out", out) == (
+        f"stepzoo run: error: {config}: its model springs:chain has no position (X, Y), and "
+        "`stepzoo run` tunes to a position tolerance (--pos-tol) for the planner's car; run "
+        f"`stepzoo sweep {config} --out DIR`, then `stepzoo tune DIR --tol E --out tuned.toml`")
+    assert not out.exists()
+
+
 def test_tune_finding_nothing_is_exit_1_and_keeps_the_old_file(finished, tmp_path, capsys):
     _, sweep, tuned = finished
     before = tuned.read_bytes()
     assert stepzoo(["tune", str(sweep), "--pos-tol", "1e-12", "--out", str(tuned)]) == 1
     assert "no answer" in one_line(capsys.readouterr().err)
     assert tuned.read_bytes() == before
+
+
+def test_an_output_that_is_an_input_or_not_of_its_kind_is_refused_and_kept(finished, tmp_path,
+                                                                           capsys):
+    """The third battery's data lost: `verdict --csv` naming the config file itself, and
+    `tune --out` naming the user's model module (springs.py for springs.toml), replaced them.
+    A file output replaces only a file of the kind its command writes, never one it reads."""
+    from stepzoo.results_folder import TUNED_FILE, VERDICT_CSV
+    config, sweep, tuned = finished
+    mine = Path(shutil.copy(config, tmp_path / "tiny.toml"))
+    module = Path(shutil.copy(ROOT / "tests" / "user_model" / "springs.py", tmp_path))
+    before = digest(tmp_path)
+    verdict = ["verdict", mine, "--method", "euler", "--h", "0.05", "--pos-tol", "10"]
+    assert refused(capsys, *verdict, "--csv", mine) == (
+        f"stepzoo verdict: error: --csv {mine} is {mine}, which this command reads; give a new "
+        "file name, such as verdict.csv")
+    assert refused(capsys, *verdict, "--csv", module) == (
+        f"stepzoo verdict: error: --csv {module} is not a verdict table (a CSV file of columns "
+        "method, h, point, ...), which this command writes, and would be lost; give a new "
+        "file name, such as verdict.csv")
+    for target in (module, mine):
+        assert refused(capsys, "tune", sweep, "--pos-tol", "10", "--out", target) == (
+            f"stepzoo tune: error: --out {target} is not a tuned config (a TOML file with "
+            "method and h), which this command writes, and would be lost; give a new file "
+            "name, such as tuned.toml")
+    assert digest(tmp_path) == before
+    assert TUNED_FILE.holds(tuned)                 # what they write, they may write again
+    assert stepzoo([*map(str, verdict), "--csv", str(tmp_path / "v.csv")]) == 0
+    assert VERDICT_CSV.holds(tmp_path / "v.csv")
+
+
+@pytest.mark.parametrize("table, change, words", [
+    ("runs", "plan-bench", "runs.parquet is not a sweep's runs table (it lacks point; its "
+     "columns are query, map, cell_size, run and 35 more): another command's table?"),
+    ("runs", "stable", "runs.parquet lacks column(s) stable: it was written by another "
+     "version of `stepzoo sweep`, or changed since"),
+    ("runs", "vx", "runs.parquet lacks column(s) vx: it was written by another version"),
+    ("runs", "err_pos", "runs.parquet lacks column(s) err_pos: it was written by another "
+     "version"),
+    ("limits", "h_meas", "limits.parquet lacks column(s) h_meas: it was written by another "
+     "version"),
+    ("limits", "method", "limits.parquet is not a sweep's limits table (it lacks method"),
+])
+def test_a_sweep_table_of_another_command_or_version_is_one_line(finished, tmp_path, capsys,
+                                                                 table, change, words):
+    """The second battery's plan-bench runs.parquet in a sweep folder (tune tuned anyway),
+    and the third's tables lacking a column (tune, export: KeyError tracebacks): tune, export
+    and report check a sweep's tables by one contract before they read them."""
+    from stepzoo.search.plans.schema import RUN_COLUMNS
+    _, sweep, tuned = finished
+    folder = tmp_path / "sweep"
+    shutil.copytree(sweep, folder)
+    path = folder / f"{table}.parquet"
+    if change == "plan-bench":
+        pd.DataFrame([dict.fromkeys(RUN_COLUMNS, 1.0)]).to_parquet(path)
+    else:
+        pd.read_parquet(path).drop(columns=[change]).to_parquet(path)
+    out = tmp_path / "out"
+    for argv in (["tune", folder, "--pos-tol", "10", "--out", tmp_path / "t.toml"],
+                 ["export", tuned, "--to", "json", "--sweep", folder, "--out", out],
+                 ["report", folder, "--out", out, "-q"]):
+        if argv[0] == "report" and change == "err_pos":
+            continue                                # the report draws the --tol error then
+        assert words in refused(capsys, *argv), argv
+    assert not out.exists() and not (tmp_path / "t.toml").exists()
 
 
 # ---- files the operating system refuses ---------------------------------------------------
@@ -456,21 +534,40 @@ def test_an_empty_out_is_refused_and_nothing_is_written_here(finished, tmp_path,
     assert list(tmp_path.iterdir()) == []
 
 
-def test_an_out_through_a_symbolic_link_is_refused_unless_the_resolved_path_is_given(
+def test_an_out_through_a_linked_parent_is_taken_and_a_link_exposing_other_files_refused(
         finished, tmp_path, capsys):
-    """A link as --out, or on its way, could lead anywhere (as root, into a system folder):
-    refused, naming where it leads, so the user who means it can give that path."""
+    """Links among --out's parents are the user's layout (macOS's /tmp and /var are links):
+    the second battery's case, refused before, now writes there. A link as --out itself is
+    followed only to a folder it may write (empty, or its own results): one of other files,
+    or no folder, is refused even with --overwrite, naming where the link leads."""
+    config, _, _ = finished
     elsewhere = tmp_path / "elsewhere"
     elsewhere.mkdir()
     (tmp_path / "link").symlink_to(elsewhere)
-    for argv, _ in _folder_commands(finished):
-        for out, real in ((tmp_path / "link", elsewhere),
-                          (tmp_path / "link" / "sub", elsewhere / "sub")):
-            assert refused(capsys, *argv, "--out", out) == (
-                f"stepzoo {argv[0]}: error: --out {out} leads through a symbolic link to "
-                f"{real}; stepzoo writes only to a path without links: give --out {real} if "
-                "that is the folder meant")
-    assert list(elsewhere.iterdir()) == []
+    assert stepzoo(["sweep", str(config), "--out", str(tmp_path / "link" / "sub"),
+                    "--no-progress"]) == 0
+    assert (elsewhere / "sub" / "runs.parquet").is_file()
+    theirs = tmp_path / "theirs"
+    theirs.mkdir()
+    (theirs / "notes.txt").write_text("kept")
+    (tmp_path / "to_theirs").symlink_to(theirs)
+    (tmp_path / "to_file").symlink_to(theirs / "notes.txt")
+    (tmp_path / "dangling").symlink_to(tmp_path / "nowhere")
+    capsys.readouterr()
+    for argv, overwrite in _folder_commands(finished):
+        extra = ["--overwrite"] if overwrite and "--resume" not in argv else []
+        assert refused(capsys, *argv, "--out", tmp_path / "to_theirs", *extra) == (
+            f"stepzoo {argv[0]}: error: --out {tmp_path / 'to_theirs'} (a symbolic link to "
+            f"{theirs}) holds files that `stepzoo {argv[0]}` did not write (notes.txt); give "
+            "an empty or new --out")
+        for link, real in (("to_file", theirs / "notes.txt"), ("dangling", tmp_path / "nowhere")):
+            assert refused(capsys, *argv, "--out", tmp_path / link) == (
+                f"stepzoo {argv[0]}: error: --out {tmp_path / link} is a symbolic link to "
+                f"{real}, which is not a folder; give a folder, such as --out results")
+    assert digest(theirs) == {"notes.txt": digest(theirs)["notes.txt"]}
+    assert not (tmp_path / "nowhere").exists()
     from stepzoo.results_folder import claim
-    with claim(elsewhere / "sub", "plan") as folder:       # the resolved path is taken
-        assert folder == elsewhere / "sub" and folder.is_dir()
+    (tmp_path / "empty").mkdir()
+    (tmp_path / "to_empty").symlink_to(tmp_path / "empty")
+    with claim(tmp_path / "to_empty", "plan") as folder:   # an empty folder, through its link
+        assert folder == tmp_path / "empty" and (tmp_path / "to_empty").is_symlink()

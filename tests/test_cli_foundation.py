@@ -8,6 +8,7 @@ import sys
 import numpy as np
 import pytest
 
+from stepzoo import dynamics
 from stepzoo.cli import main as stepzoo
 
 
@@ -32,6 +33,55 @@ def test_simulate_csv_matches_the_driver(capsys):
     assert len(rows) == 102
     assert float(rows[-1][0]) == pytest.approx(1.0)
     assert float(rows[2][4]) != 0.0        # the steer excites the lateral motion
+
+
+class _Writes:
+    """A stdout that keeps what each write() was given."""
+
+    def __init__(self):
+        self.writes = []
+
+    def write(self, text):
+        self.writes.append(text)
+
+    def flush(self):
+        pass
+
+
+def test_simulate_csv_is_written_in_blocks_never_whole(monkeypatch):
+    """The third battery's case: 6e6 steps as CSV under a memory limit ended in a traceback:
+    the text, several times the trajectory's memory, was built whole. Now at most
+    CSV_BLOCK_ROWS rows are formatted at a time, and the rows are those of the driver."""
+    from stepzoo.cli import simulate
+    from stepzoo.integrators import integrate, method
+    monkeypatch.setattr(simulate, "CSV_BLOCK_ROWS", 40)
+    out = _Writes()
+    monkeypatch.setattr(sys, "stdout", out)
+    assert stepzoo(["simulate", "--method", "rk4", "--h", "0.01", "--T", "1", "--vx", "15",
+                    "--delta", "0.3"]) == 0
+    text = "".join(out.writes)
+    assert max(w.count("\n") for w in out.writes) == 40 and len(out.writes) == 1 + 3
+    rows = list(csv.reader(io.StringIO(text)))
+    m = dynamics.model("dynamic5")
+    x0, u = m.from_rest(15.0, 0.3)
+    tr = integrate(method("rk4"), m.rhs, x0, u, m.params(None, 15.0), 0.01, 100)
+    assert rows[0] == ["t", *m.states] and len(rows) == 102
+    assert [[float(v) for v in r] for r in rows[1:]] == \
+        np.column_stack([np.asarray(tr.t), np.asarray(tr.x)]).tolist()
+
+
+def test_running_out_of_memory_is_one_line(monkeypatch, capsys):
+    """Past the process's own memory limit, which no estimate saw, a command says so in one
+    line and exit 2 (a MemoryError traceback before)."""
+    from stepzoo.cli import simulate
+
+    def too_much(*args):
+        raise MemoryError
+    monkeypatch.setattr(simulate, "write_csv", too_much)
+    assert stepzoo(["simulate", "--method", "rk4", "--h", "0.01", "--T", "1", "--vx", "15",
+                    "--delta", "0.3"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("stepzoo simulate: error: ran out of memory;") and err.count("\n") == 1
 
 
 def test_simulate_reference_json_carries_the_vehicle(capsys):

@@ -99,3 +99,42 @@ def test_a_default_written_out_keeps_the_sweep_sha256_and_a_change_moves_it(tmp_
     assert spelled.sha256 == plain.sha256 and spelled == plain
     raw["timing"]["rounds"] = 4
     assert load(written(tmp_path / "other.toml", tomli_w.dumps(raw))).sha256 != plain.sha256
+
+
+def test_an_empty_file_is_one_line_naming_what_its_kind_needs(tmp_path, capsys):
+    """The second battery's case: an empty config named two missing keys on two lines; the
+    file is one mistake."""
+    empty = written(tmp_path / "empty.toml", "")
+    out = tmp_path / "out"
+    for argv, words in ((["sweep", empty, "--out", out], "a sweep config needs at least "
+                         "horizon and steps"),
+                        (["plan", "street", "--config", empty, "--out", out],
+                         "a tuned config needs at least method and h")):
+        lines = refused(capsys, argv, out)
+        assert lines == [f"stepzoo {argv[0]}: error: {empty}: is empty; {words}"]
+
+
+def test_a_planner_value_of_no_accepted_type_is_one_line(tmp_path, capsys):
+    """A [planner] value may be a number, a whole number or a switch: a string fits none,
+    which was one line per type it might have been."""
+    config = written(tmp_path / "planner.toml",
+                     'method = "rk4"\nh = 0.02\n[planner]\nmax_seconds = "ten"\n')
+    lines = refused(capsys, ["plan", "street", "--config", config, "--out", tmp_path / "out"],
+                    tmp_path / "out")
+    assert lines == [f"stepzoo plan: error: {config}: planner.max_seconds must be a number or "
+                     "a whole number or true or false, got 'ten'"]
+
+
+def test_a_config_of_another_kind_is_one_line_naming_its_kind(tmp_path, capsys, tiny_sweep):
+    """A sweep config given where a tuned config belongs (--tuned, --integrators-from,
+    --config) lacked method and h and had eleven unknown keys: fourteen lines."""
+    queries = ROOT / "search" / "queries" / "streets.json"
+    out = tmp_path / "out"
+    for argv in (["plan", "street", "--config", SMALL, "--out", out],
+                 ["plan-bench", queries, "--integrators-from", SMALL, "--out", out],
+                 ["report", tiny_sweep[1], "--tuned", SMALL, "--out", out]):
+        lines = refused(capsys, argv, out)
+        assert len(lines) == 1, lines
+        assert (f"{SMALL}: is a sweep config, not a tuned config (it has chunks, envelope, "
+                "horizon and 8 more keys and lacks method, h); give a tuned config") \
+            in lines[0]

@@ -23,10 +23,13 @@ POS_TOL = 1.0       # [m] loose: on the tiny sweep, euler qualifies (the choice)
 
 @pytest.fixture(scope="module")
 def tuned(tiny_sweep, tmp_path_factory):
-    """(tuned file, its content, the sweep folder) of the tiny sweep, tuned in time."""
+    """(tuned file, its content, the sweep folder) of the tiny sweep, tuned in RHS
+    evaluations: in time, heun's measured cost on a loaded machine beat euler's at times,
+    and the tests below, which need euler as the choice, failed on the load."""
     _, sweep = tiny_sweep
     out = tmp_path_factory.mktemp("export") / "tuned.toml"
-    assert stepzoo(["tune", str(sweep), "--pos-tol", str(POS_TOL), "--out", str(out)]) == 0
+    assert stepzoo(["tune", str(sweep), "--pos-tol", str(POS_TOL), "--cost", "evals", "--out",
+                    str(out)]) == 0
     return out, tomllib.loads(out.read_text()), sweep
 
 
@@ -212,3 +215,64 @@ def test_a_tuned_config_without_its_sweep_needs_sweep_and_says_so(tuned, tmp_pat
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "--sweep DIR" in err
     assert stepzoo(["export", str(old), "--to", "json", "--sweep", str(sweep)]) == 0
+
+
+def _method_gone(t):
+    t["method"] = "nosuch"
+
+
+def _runner_gone(t):
+    t["runners_up"][0]["method"] = "nosuch"
+
+
+def _runner_stepless(t):
+    t["runners_up"][0].pop("h")
+
+
+@pytest.mark.parametrize("change, to, words", [
+    (_method_gone, "json", "names method 'nosuch', which is not in the zoo"),
+    (_runner_gone, "acados", "names method 'nosuch', which is not in the zoo"),
+    (_runner_stepless, "json", "runner-up heun qualifies but has no h"),
+    (lambda t: t.update(horizon_s=float("nan")), "diffrax", "records no sweep horizon "
+     "(horizon_s absent or NaN, as tune writes for a sweep without one); give --interval S"),
+    (lambda t: t.pop("margin"), "json", "lacks margin, which the step schedule needs"),
+    (lambda t: t.pop("pos_tol_m"), "diffrax", "lacks pos_tol_m or tol"),
+    (lambda t: t.pop("sweep_config_sha256"), "json", "lacks sweep_config_sha256"),
+], ids=["method", "runner-up", "runner-up's h", "horizon", "margin", "tolerance", "sha256"])
+def test_a_tuned_config_export_cannot_use_is_one_line(tuned, tmp_path, capsys, change, to,
+                                                      words):
+    """The third battery's tracebacks (KeyError, ValueError): a tuned file whose method is not
+    in the zoo, whose runner-up is unknown or has no h, with horizon_s = nan or a removed
+    key. And NaN horizon (tune's record of a sweep without one) is no error for --to json."""
+    import tomli_w
+    _, t, _ = tuned
+    t = json.loads(json.dumps(t))
+    change(t)
+    path = tmp_path / "changed.toml"
+    path.write_text(tomli_w.dumps(t))
+    interval = ["--interval", "0.1"] if to == "acados" else []
+    assert stepzoo(["export", str(path), "--to", to, *interval]) == 2
+    captured = capsys.readouterr()
+    assert captured.out == "" and captured.err.count("\n") == 1 and words in captured.err
+    if "horizon" in words:
+        with contextlib.redirect_stdout(io.StringIO()) as out:
+            assert stepzoo(["export", str(path), "--to", "json"]) == 0
+        assert "give --interval S" in json.loads(out.getvalue())["diffrax"]["error"]
+
+
+def test_a_sweep_of_an_older_version_is_one_line(tuned, tmp_path, capsys):
+    """A --sweep folder whose manifest predates models as data (no model_spec, no
+    trajectory_point): the schedule had no variables and ended in a KeyError."""
+    import shutil
+    path, _, sweep = tuned
+    old = tmp_path / "old"
+    shutil.copytree(sweep, old)
+    manifest = json.loads((old / "manifest.json").read_text())
+    for key in ("model_spec", "trajectory_point"):
+        manifest.pop(key)
+    (old / "manifest.json").write_text(json.dumps(manifest))
+    for to in ("json", "diffrax"):
+        assert stepzoo(["export", str(path), "--to", to, "--sweep", str(old)]) == 2
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and "lacks model_spec, trajectory_point: the sweep was " \
+            "written by an older `stepzoo sweep`" in err

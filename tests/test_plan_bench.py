@@ -354,6 +354,27 @@ def test_a_damaged_saved_run_or_summary_is_one_line(folder, benched, tiny_sweep,
     assert not (tmp_path / "r").exists()
 
 
+@pytest.mark.parametrize("change, words", [
+    (lambda row: {}, "(it lacks query, map, cell_size and more)"),
+    (lambda row: {**row, "time_s": "fast"}, "(its time_s must be a number, got 'fast')"),
+    (lambda row: {**row, "solved": 1}, "(its solved must be true or false, got 1)"),
+    (lambda row: {**row, "query": 3}, "(its query must be a string, got 3)"),
+], ids=["empty object", "string for a number", "number for a flag", "number for a string"])
+def test_a_saved_run_of_other_columns_or_kinds_stops_resume_in_one_line(folder, benched,
+                                                                        tmp_path, capsys,
+                                                                        change, words):
+    """The third battery's tracebacks: a part file that is an empty object, or holds a
+    string where a number belongs, passed as a run and failed in the tables."""
+    out = tmp_path / "o"
+    shutil.copytree(benched, out)
+    part = out / "parts" / "000-00000-0000.json"
+    part.write_text(json.dumps(change(json.loads(part.read_text()))))
+    assert bench(folder, out, "--runs", "2", "--resume") == 2
+    assert one_line(capsys).strip() == (
+        f"stepzoo plan-bench: error: --resume: {part} is not a run plan-bench saved {words}; "
+        "remove it to plan that run again")
+
+
 _THREADS = []                     # the thread each task of the Dask test ran on
 _ON_WORKER = bench_plans._plan_on_worker
 

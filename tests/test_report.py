@@ -121,7 +121,23 @@ def _damage_tuned(res):
     (res / "tuned.toml").write_text('method = "rk4"\nh = 0.02\n')
 
 
+def _damage_tuned_model(res):
+    """A run folder mixing models: the tuned config of a user's model beside a bicycle's
+    sweep (the third battery's case: drawn silently)."""
+    path = res / "tuned.toml"
+    path.write_text('model = "springs:chain"\n' + path.read_text())
+
+
+def _damage_tuned_error(res):
+    """The sweep of a model without a position, a tuned config bounding the position error
+    (the third battery's case: a KeyError on err_pos)."""
+    path = res / "sweep" / "runs.parquet"
+    pd.read_parquet(path).drop(columns=["err_pos"]).to_parquet(path)
+
+
 @pytest.mark.parametrize("damage, named", [
+    (_damage_tuned_model, "is of the model springs:chain, the sweep"),
+    (_damage_tuned_error, "bounds the position error (pos_tol_m), which the sweep"),
     (_damage_missing_runs, "runs.parquet"),
     (_damage_corrupt_limits, "limits.parquet"),
     (_damage_plan_key, "tree"),

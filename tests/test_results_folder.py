@@ -177,6 +177,29 @@ def test_a_sweep_that_lost_a_chunk_writes_no_tables(tiny_sweep, tmp_path):
     assert (out / "chunks" / lost[0]).is_dir() and (out / "runs.parquet").is_file()
 
 
+def test_a_chunk_cut_short_is_set_aside_and_computed_again_on_resume(tiny_sweep, tmp_path,
+                                                                    capsys):
+    """The second battery's case: a chunk file truncated in a finished sweep, then --resume,
+    ended in a pyarrow traceback. The damaged chunk is named, kept aside as it was, computed
+    again, and the tables are the whole sweep's."""
+    import shutil
+    path, whole = tiny_sweep
+    out = tmp_path / "out"
+    shutil.copytree(whole, out)
+    cut = out / "chunks" / "euler-b000" / "runs.parquet"
+    data = cut.read_bytes()[:-100]
+    cut.write_bytes(data)
+    assert stepzoo(["sweep", str(path), "--out", str(out), "--resume", "--no-progress"]) == 0
+    err = capsys.readouterr().err
+    aside = out / "chunks" / ".euler-b000.damaged"
+    assert f"sweep: chunk euler-b000 is damaged (runs.parquet: ArrowInvalid); set aside as " \
+        f"{aside}, computing it again" in err.splitlines()
+    assert (aside / "runs.parquet").read_bytes() == data
+    for name, df in read_tables(out).items():
+        pd.testing.assert_frame_equal(df, read_tables(whole)[name], check_exact=False, rtol=1e-12,
+                                      atol=1e-15)
+
+
 @pytest.mark.parametrize("command", ["tune", "report"])
 def test_tune_and_report_refuse_a_sweep_whose_tables_lack_rows(tiny_sweep, tmp_path, capsys,
                                                                command):
@@ -315,3 +338,18 @@ def test_every_column_of_a_finished_sweeps_tables_has_a_documented_meaning(tiny_
     assert {"runs", "limits", "summary"} <= {p.stem for p in folder.glob("*.parquet")}
     undocumented = sorted(c for c in seen if not schema.COLUMN_DOC.get(c, "").strip())
     assert not undocumented, f"columns without a line in schema.COLUMN_DOC: {undocumented}"
+
+
+def test_a_report_replaced_through_a_link_keeps_the_link(tmp_path):
+    """A folder named by a link to the user's own empty folder: the results are swapped in
+    whole where the link leads, and the link stays a link to them (the exchange is made on
+    the folder, not on the link)."""
+    (tmp_path / "real").mkdir()
+    (tmp_path / "link").symlink_to(tmp_path / "real")
+    for text in ("first", "second"):
+        with replacing(tmp_path / "link", "report") as into:
+            (into / "index.html").write_text(text)
+            (into / "manifest.json").write_text(json.dumps(
+                {"written_by": "report", "files": ["index.html"]}))
+        assert (tmp_path / "link").is_symlink()
+        assert (tmp_path / "real" / "index.html").read_text() == text

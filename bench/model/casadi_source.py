@@ -23,6 +23,7 @@ def casadi_function(ref: str, folder: Path, source: str):
         if not path.is_file():
             raise UsageError(f"{source}: model.casadi names no file {path} (give a file "
                              "written by casadi.Function.save, or \"module:function\")")
+        _check_loads(path, source)
         try:
             return ca.Function.load(str(path))
         except RuntimeError as err:
@@ -43,6 +44,40 @@ def casadi_function(ref: str, folder: Path, source: str):
         raise UsageError(f"{source}: {ref}() returned a {type(fn).__name__}, not a "
                          "casadi.Function (of x, u and optionally p, t)")
     return fn
+
+
+# [s] CasADi loads a saved function of thousands of instructions in well under a second.
+LOAD_TIMEOUT_S = 30.0
+_LOADABLE: set = set()    # (path, size, mtime) of the files a child process loaded whole
+_CHILD_LOAD = "import sys, casadi\ntry:\n    casadi.Function.load(sys.argv[1])\n" \
+    "except RuntimeError:\n    sys.exit(1)\n"
+
+
+def _check_loads(path: Path, source: str):
+    """UsageError if CasADi's loader crashes or hangs on the file `path`, tried first in a
+    child process: its deserializer checks some bytes only, and a file with one byte changed
+    may kill the process (SIGSEGV) or loop. A loader's own error (exit 1) is left to the
+    load here, which says it."""
+    import signal
+    import subprocess
+    import sys
+    stat = path.stat()
+    key = (str(path.resolve()), stat.st_size, stat.st_mtime_ns)
+    if key in _LOADABLE:
+        return
+    try:
+        child = subprocess.run([sys.executable, "-c", _CHILD_LOAD, str(path)],
+                               capture_output=True, timeout=LOAD_TIMEOUT_S)
+    except subprocess.TimeoutExpired:
+        raise UsageError(f"{source}: model.casadi: CasADi did not finish loading {path} in "
+                         f"{LOAD_TIMEOUT_S:g} s: the file is damaged; save the function again "
+                         "(casadi.Function.save)") from None
+    if child.returncode < 0:
+        raise UsageError(f"{source}: model.casadi: CasADi's loader crashed on {path} "
+                         f"({signal.Signals(-child.returncode).name}): the file is damaged; "
+                         "save the function again (casadi.Function.save)")
+    if child.returncode == 0:
+        _LOADABLE.add(key)
 
 
 def load(ref, folder: Path, states, inputs, p_names, source: str):

@@ -89,6 +89,9 @@ def _fill(cfg, out: Path, resume, overwrite, progress, on_chunk, runner) -> dict
         timespec="seconds")
     created = (created, environment.now())      # the first call's start, and this call's
     ids = chunk_ids(cfg)
+    for cid, why in sweep_folder.set_aside_damaged(ids, chunks).items():
+        sys.stderr.write(f"sweep: chunk {cid} is damaged ({why}); set aside as "
+                         f"{chunks / f'.{cid}.damaged'}, computing it again\n")
     done = [c for c in ids if (chunks / c).is_dir()]
     _write_manifest(cfg, out, created, done, None, complete=False)
     ref_cache: dict = {}

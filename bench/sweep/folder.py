@@ -5,11 +5,13 @@ again before they read, so a folder that lost chunks is refused, never read as a
 from __future__ import annotations
 
 import json
+import os
 import shutil
 from pathlib import Path
 
 import pandas as pd
 
+from stepzoo.bench.sweep.tables import REQUIRED, SORT
 from stepzoo.errors import UsageError
 from stepzoo.safe_parse import json_loads
 
@@ -55,6 +57,29 @@ def missing_chunks(ids: list[str], chunks: Path) -> list[str]:
     return [c for c in ids if not (chunks / c).is_dir()]
 
 
+def set_aside_damaged(ids: list[str], chunks: Path) -> dict[str, str]:
+    """Move each chunk of `ids` in `chunks` with a table that cannot be read (a file cut
+    short by a full disk or a copy, emptied) to the hidden `.ID.damaged` beside it, so that
+    the sweep computes it again and a reader finds the bytes it had; {chunk id: what is
+    wrong}. A chunk is written whole or not at all (sweep._write_chunk), so a damaged one
+    was damaged after, by something else."""
+    damaged = {}
+    for cid in ids:
+        for path in sorted((chunks / cid).glob("*.parquet")):
+            try:
+                pd.read_parquet(path)
+            except OSError:
+                raise                     # unreadable, not damaged: the command says which
+            except Exception as err:  # damaged bytes raise many types from pyarrow
+                damaged[cid] = f"{path.name}: {type(err).__name__}"
+                break
+    for cid in damaged:
+        aside = chunks / f".{cid}.damaged"
+        shutil.rmtree(aside, ignore_errors=True)
+        os.replace(chunks / cid, aside)
+    return damaged
+
+
 def table_problem(cfg, runs: pd.DataFrame, limits: pd.DataFrame) -> str | None:
     """What is wrong with the tables of a sweep of `cfg` (None: nothing): `runs` must hold
     each (method, h, point) once, `limits` each (method, point) once, for exactly the config's
@@ -78,9 +103,36 @@ def table_problem(cfg, runs: pd.DataFrame, limits: pd.DataFrame) -> str | None:
     return None
 
 
+def check_columns(folder, tables: dict[str, pd.DataFrame], wanted: dict[str, list[str]]):
+    """UsageError naming the first of `tables` (by file name: "runs.parquet", "summary.csv")
+    of the sweep folder `folder` that lacks a column of `wanted` (by file name): a table of
+    another command (without the sweep's key columns, schema.SORT), or of another version."""
+    for name, columns in wanted.items():
+        have = list(tables[name].columns)
+        lacking = [c for c in columns if c not in have]
+        if not lacking:
+            continue
+        table, path = name.split(".")[0], Path(folder) / name
+        if not set(SORT.get(table, ())) <= set(have):      # not even keyed as the sweep's
+            raise UsageError(f"{path} is not a sweep's {table} table (it lacks "
+                             f"{_listing(c for c in SORT[table] if c not in have)}; its columns "
+                             f"are {_listing(have)}): another command's table? give a folder "
+                             "written by `stepzoo sweep`")
+        raise UsageError(f"{path} lacks column(s) {_listing(lacking)}: it was written by "
+                         "another version of `stepzoo sweep`, or changed since; rerun "
+                         "`stepzoo sweep` into a new folder")
+
+
+def _listing(names, shown: int = 4) -> str:
+    names = list(names)
+    return ", ".join(map(str, names[:shown])) + (f" and {len(names) - shown} more"
+                                                 if len(names) > shown else "")
+
+
 def check_finished(folder, manifest: dict, runs: pd.DataFrame, limits: pd.DataFrame):
     """UsageError unless `folder` holds a finished sweep whose tables are whole: marked
-    complete, its config.toml the one the manifest names, every implied row there once."""
+    complete, its config.toml the one the manifest names, the columns every reader needs
+    (schema.REQUIRED and the model's envelope variables) there, every implied row once."""
     from stepzoo.bench.sweep.config import load
     folder = Path(folder)
     again = f"rerun `stepzoo sweep {folder / 'config.toml'} --out {folder} --resume`"
@@ -98,6 +150,10 @@ def check_finished(folder, manifest: dict, runs: pd.DataFrame, limits: pd.DataFr
     if cfg.sha256 != manifest.get("config_sha256"):
         raise UsageError(f"{folder}: config.toml is not the config the manifest names; rerun "
                          "`stepzoo sweep CONFIG --out` into a new folder")
+    variables = list(cfg.spec.variables)
+    check_columns(folder, {"runs.parquet": runs, "limits.parquet": limits},
+                  {"runs.parquet": [*REQUIRED["runs"], *variables],
+                   "limits.parquet": [*REQUIRED["limits"], *variables]})
     problem = table_problem(cfg, runs, limits)
     if problem:
         raise UsageError(f"{folder} holds an incomplete or inconsistent sweep: {problem}; "

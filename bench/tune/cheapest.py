@@ -24,7 +24,7 @@ import pandas as pd
 from stepzoo.bench.timing.calibrate import PLANNER_BATCH, PLANNER_INTERVAL_S, ROUNDS, calibrate
 from stepzoo.bench.model import stiffness
 from stepzoo.bench.tune.margin import BEYOND_PREDICTED, beyond, limit, stable_with_margin
-from stepzoo.bench.sweep.folder import check_finished
+from stepzoo.bench.sweep.folder import check_columns, check_finished
 from stepzoo.errors import NoAnswer, UsageError
 from stepzoo.validate import check
 
@@ -54,6 +54,18 @@ def load_results(folder) -> tuple[pd.DataFrame, pd.DataFrame, dict]:
                          "`stepzoo sweep`") from None
     check_finished(folder, manifest, runs, limits)
     return runs, limits, manifest
+
+
+def check_error_column(folder, runs: pd.DataFrame, manifest: dict, column: str):
+    """UsageError unless `runs` of the sweep `folder` has the error `column` a tolerance
+    bounds: err_pos exists for vehicle models only, err for every model since models are
+    data."""
+    if column in runs:
+        return
+    if column == "err_pos" and not (manifest.get("model_spec") or {}).get("vehicle", True):
+        raise UsageError(f"{folder} has no {column} column: its model has no position (X, Y); "
+                         "tune it with --tol E, the config's error norm")
+    check_columns(folder, {"runs.parquet": runs}, {"runs.parquet": [column]})
 
 
 @dataclass(frozen=True)
@@ -139,9 +151,7 @@ def tune(folder, pos_tol, margin: float, tol=None, *, batch: int = PLANNER_BATCH
     crit = check_arguments(pos_tol, margin, tol, cost, rounds)
     runs, limits, manifest = load_results(folder)
     col = crit.column
-    if col not in runs:
-        raise UsageError(f"{folder} has no {col} column: its model has no position (X, Y); "
-                         "tune it with --tol E, the config's error norm")
+    check_error_column(folder, runs, manifest, col)
     table = candidates(runs, limits, crit.tol, margin, col, beyond_predicted)
     cfg = _config(folder)
     variables = (manifest.get("model_spec") or {}).get("variables", ["vx", "delta"])
@@ -325,8 +335,8 @@ def write(tuned: dict, out) -> Path:
     import tomli_w
 
     from stepzoo.output import atomic_write
-    from stepzoo.results_folder import check_file_target
-    check_file_target(out)
+    from stepzoo.results_folder import TUNED_FILE, check_file_target
+    check_file_target(out, kind=TUNED_FILE)
     header = ("# Planner config written by `stepzoo tune`: `method` and `h` [s] are what the "
               "planner reads.\n")
     return atomic_write(out, header + tomli_w.dumps(tuned))

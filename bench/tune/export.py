@@ -45,6 +45,23 @@ def load_tuned(path) -> dict:
         raise UsageError(f"{path} is not a tuned config (it lacks method, h or runners_up); "
                          "give a file written by `stepzoo tune`")
     check(TunedFile, tuned, str(path))
+    from stepzoo.integrators import METHODS
+    unknown = [m for m in [tuned["method"], *(r["method"] for r in tuned["runners_up"])]
+               if m not in METHODS]
+    if unknown:
+        raise UsageError(f"{path} names method {unknown[0]!r}, which is not in the zoo (known: "
+                         f"{', '.join(METHODS)}); give a file written by `stepzoo tune`")
+    stepless = [r["method"] for r in tuned["runners_up"] if r.get("qualifies", True)
+                and "h" not in r]
+    if stepless:
+        raise UsageError(f"{path}: runner-up {stepless[0]} qualifies but has no h; give a file "
+                         "written by `stepzoo tune`, or set its qualifies = false")
+    lacking = [k for k in ("margin",) if k not in tuned]
+    if "pos_tol_m" not in tuned and "tol" not in tuned:
+        lacking.append("pos_tol_m or tol")
+    if lacking:
+        raise UsageError(f"{path} lacks {' and '.join(lacking)}, which the step schedule needs; "
+                         "give a file written by `stepzoo tune`")
     return tuned
 
 
@@ -108,7 +125,10 @@ def diffrax_settings(tuned: dict, interval_s: float | None = None) -> dict:
     """Solver, step controller and dt0 [s] for diffrax; t1 [s] is interval_s (default: the
     sweep's horizon), split into equal steps no longer than h."""
     c, why = pick(tuned, _diffrax_usable, "diffrax")
-    t1 = float(interval_s if interval_s is not None else tuned["horizon_s"])
+    t1 = float(interval_s if interval_s is not None else tuned.get("horizon_s", math.nan))
+    if not math.isfinite(t1):
+        raise UsageError("the tuned config records no sweep horizon (horizon_s absent or NaN, "
+                         "as tune writes for a sweep without one); give --interval S")
     n = steps_for(t1, c["h"])
     solver = DIFFRAX_NAMED.get(c["method"], _class_name(c["method"]))
     return {"solver": f"diffrax.{solver}" if c["method"] in DIFFRAX_NAMED else solver,
@@ -191,9 +211,18 @@ def sweep_of(tuned: dict, given=None) -> Path:
                          "stepzoo recorded it); give it with --sweep DIR")
     folder = Path(folder)
     _, _, manifest = load_results(folder)
-    if manifest.get("config_sha256") != tuned.get("sweep_config_sha256"):
+    if "sweep_config_sha256" not in tuned:
+        raise UsageError("the tuned config lacks sweep_config_sha256, so the sweep it came from "
+                         "cannot be told; give a file written by `stepzoo tune`")
+    if manifest.get("config_sha256") != tuned["sweep_config_sha256"]:
         raise UsageError(f"{folder} holds another sweep than the one the tuned config was made "
                          "from (its config sha256 differs); give that sweep with --sweep DIR")
+    lacking = [k for k in ("model_spec", "trajectory_point") if not isinstance(manifest.get(k),
+                                                                              dict)]
+    if lacking:
+        raise UsageError(f"{folder / 'manifest.json'} lacks {', '.join(lacking)}: the sweep was "
+                         "written by an older `stepzoo sweep`; sweep its config again into a "
+                         "new folder and tune that")
     return folder
 
 
@@ -206,11 +235,12 @@ def schedule(tuned: dict, sweep: Path, method: str | None = None):
     import pandas as pd
 
     from stepzoo.bench.tune.cheapest import candidates as qualify
-    from stepzoo.bench.tune.cheapest import load_results
+    from stepzoo.bench.tune.cheapest import check_error_column, load_results
     runs, limits, manifest = load_results(sweep)
     method, margin = method or tuned["method"], float(tuned["margin"])
     col, tol = (("err_pos", tuned["pos_tol_m"]) if "pos_tol_m" in tuned
                 else ("err", tuned["tol"]))
+    check_error_column(sweep, runs, manifest, col)
     runs, limits = runs[runs["method"] == method], limits[limits["method"] == method]
     variables = (manifest.get("model_spec") or {}).get("variables", [])
     rows = []
@@ -251,7 +281,7 @@ def as_json(tuned: dict, path, sweep: Path, table,
         out["acados"] = {"error": str(err)}
     try:
         out["diffrax"] = diffrax_settings(tuned, interval_s)
-    except NoAnswer as err:
+    except (NoAnswer, UsageError) as err:       # no such method, or no horizon to span
         out["diffrax"] = {"error": str(err)}
     # A tool that runs another method than the tuned one (acados has no Heun) gets that
     # method's schedule with its settings, as `--to acados` and `--to diffrax` print it.

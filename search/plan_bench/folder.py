@@ -13,6 +13,7 @@ from stepzoo.errors import UsageError
 from stepzoo.output import atomic_write, to_json
 from stepzoo.results_folder import MANIFEST, check_kind
 from stepzoo.safe_parse import json_loads
+from stepzoo.search.plans.schema import run_row_problem
 
 PARTS = "parts"                       # one JSON row per finished (integrator, query, run)
 OWN = (MANIFEST, "runs.parquet", "runs.csv", "summary.parquet", "summary.csv", "ompl", PARTS)
@@ -63,9 +64,10 @@ def finished(out: Path) -> dict[str, dict]:
         except (OSError, ValueError) as err:
             raise UsageError(f"--resume: {path} is not a run plan-bench saved ({err}); remove "
                              "it to plan that run again") from None
-        if not isinstance(row, dict):
-            raise UsageError(f"--resume: {path} is not a run plan-bench saved (not a JSON "
-                             "object); remove it to plan that run again")
+        problem = run_row_problem(row)
+        if problem:
+            raise UsageError(f"--resume: {path} is not a run plan-bench saved ({problem}); "
+                             "remove it to plan that run again")
         rows[path.stem] = row
     return rows
 

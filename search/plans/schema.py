@@ -165,6 +165,30 @@ INTEGRATOR_COLUMNS = {
     "replay_collisions": "exact plans whose replay collides",
 }
 
+# The runs table's columns that are not numbers (each number may be null: no path, no
+# solution): strings (budget_bound null when no budget cut the search) and true/false.
+RUN_TEXT = ("query", "map", "status", "cause", "budget_bound", "method", "integrator", "role",
+            "progress")
+RUN_FLAGS = ("solved", "approximate", "widened", "collides")
+
+
+def run_row_problem(row) -> str | None:
+    """What makes `row` no row of the runs table (None: it is one): another set of columns,
+    or a value of another kind than its column's (RUN_TEXT, RUN_FLAGS, else a number)."""
+    if not isinstance(row, dict):
+        return "not a JSON object"
+    if set(row) != set(RUN_COLUMNS):
+        lacking = [k for k in RUN_COLUMNS if k not in row]
+        return (f"it lacks {', '.join(lacking[:3])}{' and more' if len(lacking) > 3 else ''}"
+                if lacking else f"it has {sorted(set(row) - set(RUN_COLUMNS))[0]!r}, no column")
+    for key, value in row.items():
+        kind = str if key in RUN_TEXT else bool if key in RUN_FLAGS else (int, float)
+        if value is not None and (not isinstance(value, kind) or
+                                  (kind is not bool and isinstance(value, bool))):
+            words = "a string" if kind is str else "true or false" if kind is bool else "a number"
+            return f"its {key} must be {words}, got {value!r}"
+    return None
+
 
 def ordered(row: dict, keys: dict, what: str) -> dict:
     """`row` with its entries in the order of `keys` (one of the declarations above);

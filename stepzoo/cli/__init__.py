@@ -199,6 +199,10 @@ def dispatch(args, argv=None) -> int:
         return _fail(args.command, str(err))
     except OSError as err:
         return _fail(args.command, os_message(err))
+    except MemoryError:     # past the process's own limit (ulimit -v), which no estimate saw
+        return _fail(args.command, "ran out of memory; use a larger step, a shorter horizon "
+                     "or fewer points (--max-memory GIB says what the estimates may take), or "
+                     "give the process more memory")
     except KeyboardInterrupt:
         hint = RESUME.get(args.command)
         sys.stderr.write(f"stepzoo {args.command}: interrupted{'; ' + hint if hint else ''}\n")

@@ -83,10 +83,22 @@ def main(args) -> int:
                                      "tyre": _tyre(args.model, args.tyre), "vehicle": vehicle})
                          + "\n")
     else:
+        write_csv(cols, t, x)
+    return 0
+
+
+# Rows formatted per write: the text of a run of millions of steps is never held whole (it
+# is several times the trajectory's own memory), so a run that fits in memory prints.
+CSV_BLOCK_ROWS = 10_000
+
+
+def write_csv(cols, t, x) -> None:
+    """The header and one row per time, each float as repr writes it, to stdout in blocks of
+    CSV_BLOCK_ROWS rows."""
+    sys.stdout.write(",".join(cols) + "\n")
+    for start in range(0, len(t), CSV_BLOCK_ROWS):
         buf = io.StringIO()
         w = csv.writer(buf, lineterminator="\n")
-        w.writerow(cols)
-        for ti, row in zip(t, x):
+        for ti, row in zip(t[start:start + CSV_BLOCK_ROWS], x[start:start + CSV_BLOCK_ROWS]):
             w.writerow([repr(float(ti))] + [repr(float(v)) for v in row])
         sys.stdout.write(buf.getvalue())
-    return 0

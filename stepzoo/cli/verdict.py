@@ -32,13 +32,13 @@ def add_arguments(p):
     p.add_argument("--format", choices=["text", "json"], default="text")
 
 
-def _csv(path, cfg, results) -> None:
+def _csv(path, cfg, results, config) -> None:
     import pandas as pd
 
     from stepzoo.bench.tune.verdict import POINT_FIELDS
     from stepzoo.output import atomic_write
-    from stepzoo.results_folder import check_file_target
-    check_file_target(path, "--csv")
+    from stepzoo.results_folder import VERDICT_CSV, check_file_target
+    check_file_target(path, "--csv", kind=VERDICT_CSV, inputs=[config])
     variables = list(cfg.spec.variables)
     frames = [t.assign(method=v["method"], h=v["h"])[["method", "h", "point", *variables,
                                                        *POINT_FIELDS]] for v, t in results]
@@ -62,8 +62,9 @@ def main(args) -> int:
     column, tol = ("err_pos", check("pos_tol", "--pos-tol", args.pos_tol)) \
         if args.pos_tol is not None else ("err", check("tol", "--tol", args.tol or 0.01))
     if args.csv is not None:
-        from stepzoo.results_folder import check_file_target
-        check_file_target(args.csv, "--csv")          # refused before the work, not after
+        from stepzoo.results_folder import VERDICT_CSV, check_file_target
+        # refused before the work, not after
+        check_file_target(args.csv, "--csv", kind=VERDICT_CSV, inputs=[args.config])
     cfg = load(args.config)
     if column == "err_pos" and not cfg.spec.vehicle:
         raise UsageError(f"{cfg.model} has no position (X, Y); use --tol E")
@@ -71,7 +72,7 @@ def main(args) -> int:
     results = verdicts(cfg, list(zip(args.method, hs)), column, tol, margin, unit,
                        args.allow_beyond_predicted_limit)
     if args.csv is not None:
-        _csv(args.csv, cfg, results)
+        _csv(args.csv, cfg, results, args.config)
     if args.format == "json":
         out = []
         for v, _ in results:

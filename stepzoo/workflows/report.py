@@ -129,7 +129,7 @@ def build(results, out, tuned_path=None, plans_dir=None, progress=False, verdict
     if missing:
         raise UsageError(f"--verdict {missing[0]}: not a method of the sweep "
                          f"{sweep_dir}; it has {', '.join(sorted(set(sweep.runs['method'])))}")
-    tuned = load_tuned(tuned_path) if tuned_path is not None else None
+    tuned = load_tuned(tuned_path, sweep) if tuned_path is not None else None
     plan_list = load_plans(plans_dir) if plans_dir is not None else []
     bench = load_bench_summary(bench_dir) if bench_dir is not None else None
     say(f"read the sweep ({len(sweep.runs)} runs), "

@@ -48,7 +48,8 @@ def _serve(conn, settings: dict) -> None:
                 cfg = load_config(args[0])
                 answer = [(cid, compute_chunk(cfg, cid, cache)) for cid in args[1]]
             elif kind == "figures":
-                sweep, tuned = load.load_sweep(args[0]), load.load_tuned(args[1])
+                sweep = load.load_sweep(args[0])
+                tuned = load.load_tuned(args[1], sweep)
                 drawn = drawing.draw_apart(report.sweep_figures(sweep, tuned,
                                                                 lambda line: None))
                 continue

@@ -5,7 +5,7 @@ import sys
 from stepzoo.workflows import tune_for_plans as tune_plans
 from stepzoo.bench.timing.calibrate import ROUNDS
 from stepzoo.output import text_table, to_json
-from stepzoo.results_folder import check_file_target
+from stepzoo.results_folder import TUNED_FILE, check_file_target
 
 
 def planner_call() -> tuple[int, float]:
@@ -27,7 +27,7 @@ def tune(results, pos_tol, margin: float, out, tol=None, cost: str = "time",
     call it."""
     from stepzoo.bench.tune.cheapest import tune as choose
     from stepzoo.bench.tune.cheapest import write
-    out = check_file_target(out)          # before the work, not only when writing
+    out = check_file_target(out, kind=TUNED_FILE)     # before the work, not only when writing
     batch, interval = planner_call()
     tuned = choose(results, pos_tol, margin, tol, batch=batch, interval_s=interval, cost=cost,
                    rounds=ROUNDS if rounds is None else rounds,
