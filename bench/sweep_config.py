@@ -575,9 +575,10 @@ def model_spec(f: SweepFile, source: str, bad: list) -> tuple[ModelSpec | None, 
                      f.tyre, sha, folder), vehicle
 
 
-def check_workload(cfg: SweepConfig):
-    """UsageError (the estimate and the limit) if the sweep would hold more trajectory memory
-    or integrate more steps than allowed ([limits], --max-memory, --max-steps)."""
+def check_workload(cfg: SweepConfig, what: str | None = None):
+    """UsageError (the estimate and the limit) if the sweep (or `what`, a run of the sweep's
+    kind on `cfg`) would hold more trajectory memory or integrate more steps than allowed
+    ([limits], --max-memory, --max-steps)."""
     from stepzoo.validate import GIB, check_budget
     lanes = min(cfg.points_per_chunk, len(cfg.points))
     steps = max(round(cfg.horizon / cfg.hs[0]), cfg.stab_steps) + 1   # every call's length
@@ -589,7 +590,7 @@ def check_workload(cfg: SweepConfig):
     rounds = math.ceil(math.log2(math.log(1.3) / math.log1p(cfg.rel_tol))) + 1
     calls = len(cfg.hs) + 2 * (len(cfg.hs) + 10 + rounds)
     memory = cfg.max_memory_gib and cfg.max_memory_gib * GIB
-    check_budget(f"the sweep {cfg.name!r}", steps, 2 * lanes, len(cfg.spec.states),
+    check_budget(what or f"the sweep {cfg.name!r}", steps, 2 * lanes, len(cfg.spec.states),
                  calls=len(cfg.methods) * blocks * calls / 2,
                  memory=memory, max_steps=cfg.max_steps)
 

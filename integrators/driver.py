@@ -357,4 +357,5 @@ def _arguments(method, f, x0, h, n_steps, t0, max_steps, batched):
     arguments.check_step(h, x0.shape[0] if batched else None)
     arguments.check_steps(n_steps, max_steps)
     arguments.check_time("t0", t0)
+    arguments.check_output(x0, n_steps, max_steps)
     return method, arguments.scalar_rhs(f) if scalar else f, x0, scalar

@@ -174,11 +174,12 @@ def dispatch(args, argv=None) -> int:
     served = getattr(args, "server", None)
     if args.command in LONG:
         args.progress = not (args.no_progress or args.quiet)
-    if not served:
-        configure_jax(args.platform)
     stdout, budget = sys.stdout, validate.BUDGET
     sys.stdout = _Stdout(stdout)
     try:
+        if not served:
+            validate.check_address_space()
+            configure_jax(args.platform)
         if served:
             from stepzoo.search.plan_request import request
             code = request(served, argv, args.platform)

@@ -54,7 +54,7 @@ def main(args) -> int:
         raise UsageError("give --tol or --pos-tol, not both")
     margin = check("margin", "--margin", args.margin)
     column, tol = ("err_pos", check("pos_tol", "--pos-tol", args.pos_tol)) \
-        if args.pos_tol is not None else ("err", check("tol", "--tol", args.tol or 0.01))
+        if args.pos_tol is not None else ("err", check("tol", "--tol", 0.01 if args.tol is None else args.tol))
     if args.csv is not None:
         from stepzoo.results_folder import check_file_target
         check_file_target(args.csv, "--csv")          # refused before the work, not after
