@@ -99,12 +99,12 @@ def write_logs(out, queries, rows, configs, seed):
         atomic_write(target, text)
 
 
-def _estimate(n_queries, integrators, runs, config, max_hours) -> str:
+def estimate(n_queries: int, n_integrators: int, runs: int, config, max_hours) -> str:
     """The bench's size and its longest planning time, as a line; UsageError past
     `max_hours`. Each plan stops at the budget max_seconds, so that bounds its time."""
-    plans = n_queries * len(integrators) * runs
+    plans = n_queries * n_integrators * runs
     hours = plans * config.params.max_seconds / 3600
-    line = (f"{plans} plans ({n_queries} queries x {len(integrators)} integrators x {runs} "
+    line = (f"{plans} plans ({n_queries} queries x {n_integrators} integrators x {runs} "
             f"runs) of at most {config.params.max_seconds:g} s each: at most {hours:.3g} h "
             "of planning")
     if hours > max_hours:
@@ -139,7 +139,7 @@ def main(args) -> int:
     integrators = choose(args.integrator, args.integrators_from, args.runners_up, config)
     configs = [configured(config, item) for item in integrators]
     queries = load(args.queries, config, vx)
-    estimate = _estimate(len(queries), integrators, args.runs, config, args.max_hours)
+    line = estimate(len(queries), len(integrators), args.runs, config, args.max_hours)
     tasks = [Task(i, k, r, args.seed + r, c, item.role, q, vx)
              for i, (item, c) in enumerate(zip(integrators, configs))
              for k, q in enumerate(queries) for r in range(args.runs)]
@@ -158,7 +158,7 @@ def main(args) -> int:
         todo = sorted((t for t in tasks if t.name not in done),
                       key=lambda t: (t.query, t.run, t.integrator))
         if args.progress:
-            sys.stderr.write(f"stepzoo plan-bench: {estimate}; {len(done)} already done\n")
+            sys.stderr.write(f"stepzoo plan-bench: {line}; {len(done)} already done\n")
         for count, (name, row) in enumerate(run_tasks(todo, args.scheduler), 1):
             bench_folder.save(out, name, row)
             if args.progress:

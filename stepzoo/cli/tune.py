@@ -51,6 +51,8 @@ def tune(results, pos_tol, margin: float, out, tol=None, cost: str = "time",
     from stepzoo.bench.tune import tune as choose
     from stepzoo.bench.tune import write
     out = check_file_target(out)          # before the work, not only when writing
+    if plans is not None:
+        plans.check_sweep(results)
     batch, interval = planner_call()
     tuned = choose(results, pos_tol, margin, tol, batch=batch, interval_s=interval, cost=cost,
                    rounds=ROUNDS if rounds is None else rounds)

@@ -1,0 +1,79 @@
+"""Faults from outside: a process short of memory (ulimit -v), SIGINT and SIGKILL at seeded
+random moments of the newer commands, truncated and corrupted files, read-only and full disks,
+two writers at once. Each refusal is one line and exit status 2, and nothing already written
+is lost."""
+import json
+import os
+import random
+import resource
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+GIB = 2 ** 30
+
+
+def limited(gib: float):
+    """preexec_fn: the child's address space limited to `gib` GiB (ulimit -v)."""
+    def apply():
+        resource.setrlimit(resource.RLIMIT_AS, (int(gib * GIB), int(gib * GIB)))
+    return apply
+
+
+def stepzoo(*argv, gib=None, timeout=300, **kw) -> subprocess.CompletedProcess:
+    """`python -m stepzoo ARGV` in a new process, under an address-space limit of `gib`."""
+    return subprocess.run([sys.executable, "-m", "stepzoo", *map(str, argv)],
+                          capture_output=True, text=True, cwd=ROOT, timeout=timeout,
+                          preexec_fn=limited(gib) if gib else None, **kw)
+
+
+def one_line(proc) -> str:
+    """The one line of a refusal (exit status 2)."""
+    lines = proc.stderr.strip().splitlines()
+    assert proc.returncode == 2 and len(lines) == 1, (proc.returncode, proc.stderr[-2000:])
+    return lines[0]
+
+
+def test_an_address_space_too_small_for_jax_is_one_line_not_an_abort():
+    # JAX's CPU runtime aborts in C++ (std::bad_alloc) under 1 GiB: refused before it starts.
+    said = one_line(stepzoo("stability", "--vx", "10", "--delta", "0.05", gib=1))
+    assert "address-space limit of 1 GiB (ulimit -v)" in said and "raise it" in said
+
+
+def test_a_run_past_the_address_space_left_is_refused_not_a_deadlock():
+    # 1e8 steps x 5 states of float64 are 3.7 GiB, under half this machine's memory, past
+    # the 3 GiB the process may map: XLA's allocation would wait forever at 0% CPU.
+    said = one_line(stepzoo("simulate", "--method", "rk4", "--h", "1e-6", "--T", "100",
+                            "--vx", "10", "--delta", "0.05", gib=3))
+    assert "a run of 1e+08 steps would hold 3.73 GiB" in said and "ulimit -v" in said
+
+
+LIBRARY_BATCH = """
+import numpy as np
+from stepzoo.integrators import integrate_batch
+try:
+    integrate_batch("rk4", lambda t, x, u, p: -x, np.ones((1000, 2), np.float32), h=1e-3,
+                    n_steps=int(__import__("sys").argv[1]))
+except MemoryError as err:
+    print("MemoryError:", err)
+else:
+    print("ran")
+"""
+
+
+def test_a_library_batch_past_the_address_space_left_is_a_memory_error():
+    """integrate_batch raises MemoryError, naming the limit, for an output that cannot be
+    held under ulimit -v (it waited forever without), and runs one that can."""
+    run = lambda n: subprocess.run([sys.executable, "-c", LIBRARY_BATCH, str(n)],
+                                   capture_output=True, text=True, timeout=300,
+                                   preexec_fn=limited(3))
+    big = run(200_000)              # 1.5 GiB of float32 trajectories
+    assert big.returncode == 0 and big.stdout.startswith("MemoryError:"), big.stderr[-2000:]
+    assert "ulimit -v" in big.stdout and "200001 rows" in big.stdout
+    small = run(20_000)
+    assert small.returncode == 0 and small.stdout.strip() == "ran", small.stderr[-2000:]
