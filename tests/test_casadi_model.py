@@ -182,3 +182,20 @@ def test_a_casadi_module_that_exits_or_prints_at_import_is_told_as_an_rhs_module
     captured = capsys.readouterr()
     assert captured.out == "" and "exited during import (SystemExit 0)" in captured.err
     assert not (tmp_path / "o").exists()
+
+
+def test_what_a_casadi_factory_prints_goes_to_stderr_not_into_the_json(tmp_path, capsys):
+    (tmp_path / "chatty_casadi.py").write_text(
+        "from casadi_bicycle import bicycle\n\n\ndef chatty():\n"
+        "    print('building the bicycle')\n    return bicycle()\n")
+    config = casadi_config(tmp_path, "chatty_casadi:chatty").read_text().replace(
+        f'path = "{USER}"', f'path = "{tmp_path}"')
+    (tmp_path / "chatty.toml").write_text(config)
+    sys.path.insert(0, str(USER))         # where the factory finds casadi_bicycle
+    try:
+        assert stepzoo(["stability", str(tmp_path / "chatty.toml"), "--format", "json"]) == 0
+    finally:
+        sys.path.remove(str(USER))
+    captured = capsys.readouterr()
+    assert "euler" in json.loads(captured.out)["methods"]
+    assert "building the bicycle" in captured.err
