@@ -147,7 +147,9 @@ def main(args) -> int:
                             for q in queries],
                 "integrators": [[i.method, i.h, i.role] for i in integrators],
                 "runs": args.runs, "seed": args.seed, "speed": vx,
-                "params": config.params.model_dump()}
+                "params": config.params.model_dump(),
+                # A map file replaced by another under the same name is another bench.
+                "map_sha256": {q.map: bench_folder.sha256(q.map_path) for q in queries}}
     with claim(args.out, "plan-bench", overwrite=args.overwrite) as out:
         done = bench_folder.start(out, settings, args.resume, args.overwrite)
         if not done:
