@@ -182,7 +182,7 @@ def dispatch(args, argv=None) -> int:
             configure_jax(args.platform)
         if served:
             from stepzoo.search.plan_request import request
-            code = request(served, argv, args.platform)
+            code = request(served, argv, args.platform, args.server_timeout)
         else:
             if args.command in INTEGRATE:
                 _set_budget(args.max_memory, args.max_steps)

@@ -15,7 +15,7 @@ from pathlib import Path
 from stepzoo import environment
 from stepzoo.errors import UsageError
 from stepzoo.output import atomic_write, text_table, to_json
-from stepzoo.search.plan_request import ENV
+from stepzoo.search.plan_request import ENV, SERVER_WAIT_S
 from stepzoo.validate import check
 
 SUMMARY_COLUMNS = ["scenario", "status", "expansions", "nodes", "search_s", "connect_s",
@@ -76,6 +76,10 @@ def add_arguments(p):
                    "SOCKET, which has JAX, the compiled programs and the solvers warm: the same "
                    f"files, output and exit status, without the start-up (default: ${ENV}; "
                    "unset or empty: plan in this process)")
+    p.add_argument("--server-timeout", type=float, default=SERVER_WAIT_S, metavar="S",
+                   help="with --server: how long to wait for the server to take the plan "
+                   "(it plans one request at a time) before giving up [s] (default "
+                   f"{SERVER_WAIT_S:g}); the plan itself is bounded by its own budget")
 
 
 def _numbers(text, flag):
