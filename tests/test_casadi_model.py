@@ -199,3 +199,41 @@ def test_what_a_casadi_factory_prints_goes_to_stderr_not_into_the_json(tmp_path,
     captured = capsys.readouterr()
     assert "euler" in json.loads(captured.out)["methods"]
     assert "building the bicycle" in captured.err
+
+
+CHAIN = '''import casadi as ca
+
+
+def chain():
+    """x' = (x1, -x0 + 1e-6 e): e a chain of {n} sin-and-affine steps of x0 (4 each)."""
+    x, u = ca.SX.sym("x", 2), ca.SX.sym("u", 1)
+    e = x[0]
+    for _ in range({n}):
+        e = ca.sin(e) * 0.999 + 0.001 * x[1]
+    return ca.Function("chain", [x, u], [ca.vertcat(x[1], -x[0] + 1e-6 * e)])
+'''
+
+
+def test_a_casadi_model_past_the_instruction_limit_is_one_line_not_a_crash(tmp_path, capsys,
+                                                                          monkeypatch):
+    """A long expression chain (the issue's had about 9000 instructions) compiled for tens of
+    minutes, then crashed XLA's compiler (SIGSEGV): refused in one line before any compile."""
+    from stepzoo.dynamics.casadi_model import MAX_INSTRUCTIONS
+    monkeypatch.delitem(sys.modules, "long_chain", raising=False)
+    (tmp_path / "long_chain.py").write_text(CHAIN.format(n=MAX_INSTRUCTIONS // 4 + 10))
+    (tmp_path / "chain.toml").write_text(f"""name = "chain"
+horizon = 1.0
+methods = ["euler"]
+[model]
+casadi = "long_chain:chain"
+path = "{tmp_path}"
+states = ["a", "b"]
+inputs = ["w"]
+[envelope]
+w = [0.0]
+[steps]
+h = [0.1]
+""")
+    assert stepzoo(["stability", str(tmp_path / "chain.toml")]) == 2
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert len(lines) == 1 and f"more than the {MAX_INSTRUCTIONS}" in lines[0], lines
