@@ -144,3 +144,80 @@ def test_run_interrupted_at_each_stage_keeps_what_it_wrote_and_the_same_command_
     now = files(out / "sweep")
     for name in ("runs.parquet", "limits.parquet", "config.toml"):
         assert now[Path(name)] == sweep_before[Path(name)], name
+
+
+# --- truncated and corrupted files ----------------------------------------------------------
+
+@pytest.fixture(scope="module")
+def tuned(tiny_sweep, tmp_path_factory):
+    """(the tiny sweep's config, a copy of its folder, a tuned config of it)."""
+    import shutil
+    from stepzoo.cli import main
+    config, whole = tiny_sweep
+    folder = tmp_path_factory.mktemp("faults")
+    shutil.copytree(whole, folder / "sweep")
+    assert main(["tune", str(folder / "sweep"), "--pos-tol", "1", "--rounds", "1", "--out",
+                 str(folder / "tuned.toml")]) == 0
+    return config, folder / "sweep", folder / "tuned.toml"
+
+
+def refused_in_process(capsys, *argv) -> str:
+    from stepzoo.cli import main
+    capsys.readouterr()
+    code = main([str(a) for a in argv])
+    err = capsys.readouterr().err
+    lines = err.strip().splitlines()
+    assert code == 2 and len(lines) == 1 and "Traceback" not in err, (argv, code, err)
+    return lines[0]
+
+
+def test_truncated_or_corrupted_inputs_of_the_newer_commands_are_one_line(tuned, tmp_path,
+                                                                          capsys):
+    """Each input cut at seeded random lengths (a TOML file also with a seeded byte replaced
+    by a NUL): the tuned file of export, the config of verdict, the sweep tables report
+    --verdict reads, a saved CasADi function. One line each, exit 2, and nothing written."""
+    import casadi as ca
+    import shutil
+    config, sweep, tuned_file = tuned
+    rng = random.Random(36)
+    x, u = ca.SX.sym("x", 2), ca.SX.sym("u", 1)
+    ca.Function("f", [x, u], [ca.vertcat(x[1], -x[0] + u)]).save(str(tmp_path / "f.casadi"))
+    (tmp_path / "casadi.toml").write_text(f"""name = "f"
+horizon = 1.0
+methods = ["euler"]
+[model]
+casadi = "{tmp_path / 'f.casadi'}"
+states = ["a", "b"]
+inputs = ["w"]
+[envelope]
+w = [0.0]
+[steps]
+h = [0.1]
+""")
+    whole = {name: path.read_bytes() for name, path in (
+        ("tuned", tuned_file), ("config", config), ("limits", sweep / "limits.parquet"),
+        ("runs", sweep / "runs.parquet"), ("casadi", tmp_path / "f.casadi"))}
+    for trial in range(3):
+        damaged = {}
+        for name, data in whole.items():
+            if trial < 2 or name not in ("tuned", "config"):       # cut short
+                damaged[name] = data[:rng.randrange(1, len(data) - 1)]
+            else:               # a byte replaced by a NUL, which no TOML text may hold
+                k = rng.randrange(len(data))
+                damaged[name] = data[:k] + b"\0" + data[k + 1:]
+        (tmp_path / "tuned.toml").write_bytes(damaged["tuned"])
+        refused_in_process(capsys, "export", tmp_path / "tuned.toml", "--to", "json",
+                           "--sweep", sweep, "--out", tmp_path / "export")
+        (tmp_path / "config.toml").write_bytes(damaged["config"])
+        refused_in_process(capsys, "verdict", tmp_path / "config.toml", "--method", "euler",
+                           "--h", "0.05", "--csv", tmp_path / "v.csv")
+        for table in ("limits", "runs"):
+            shutil.rmtree(tmp_path / "sweep", ignore_errors=True)
+            shutil.copytree(sweep, tmp_path / "sweep")
+            (tmp_path / "sweep" / f"{table}.parquet").write_bytes(damaged[table])
+            refused_in_process(capsys, "report", tmp_path / "sweep", "--verdict",
+                               "euler:0.05", "--out", tmp_path / "report", "-q")
+        (tmp_path / "f.casadi").write_bytes(damaged["casadi"])
+        refused_in_process(capsys, "stability", tmp_path / "casadi.toml")
+        for made in ("export", "v.csv", "report"):
+            assert not (tmp_path / made).exists(), (trial, made)

@@ -55,6 +55,7 @@ OS_HINTS = {errno.EACCES: "check its permissions", errno.EPERM: "check its permi
             errno.EROFS: "the file system is read-only; give another --out",
             errno.ENOSPC: "the disk is full; free space or give another --out",
             errno.EDQUOT: "the disk quota is used up; free space or give another --out",
+            errno.EFBIG: "the file would pass the file-size limit (ulimit -f); raise it",
             errno.ENOENT: "check the path", errno.EISDIR: "give a file, not a folder",
             errno.ENOTDIR: "a part of the path is a file, not a folder"}
 
