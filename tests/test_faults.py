@@ -6,6 +6,7 @@ import json
 import os
 import random
 import resource
+import shlex
 import signal
 import subprocess
 import sys
@@ -226,3 +227,73 @@ h = [0.1]
         refused_in_process(capsys, "stability", tmp_path / "casadi.toml")
         for made in ("export", "v.csv", "report"):
             assert not (tmp_path / made).exists(), (trial, made)
+
+
+# --- read-only and full disks ---------------------------------------------------------------
+
+from test_bad_input import _private_tmpfs, as_user, each_command, needs_modes  # noqa: E402
+
+
+@needs_modes
+def test_a_read_only_folder_is_one_line_and_keeps_what_it_holds(tuned, tmp_path):
+    """export --out and verdict --csv into a folder no one may write: one line each naming
+    the permission, and the files already there unchanged."""
+    config, sweep, tuned_file = tuned
+    ro = tmp_path / "ro"
+    (ro / "export").mkdir(parents=True)
+    (ro / "export" / "schedule.csv").write_text("an older export\n")
+    (ro / "v.csv").write_text("an older verdict\n")
+    before = files(ro)
+    for folder in (ro / "export", ro):
+        folder.chmod(0o555)
+    try:
+        said = as_user(["export", tuned_file, "--to", "json", "--sweep", sweep, "--out",
+                        ro / "export"],
+                       ["verdict", config, "--method", "euler", "--h", "0.05", "--csv",
+                        ro / "v.csv"])
+    finally:
+        for folder in (ro / "export", ro):
+            folder.chmod(0o755)
+    for code, err in said:
+        assert code == 2 and len(err.strip().splitlines()) == 1, err
+        assert "Permission denied" in err, err
+    assert files(ro) == before
+
+
+def test_a_full_disk_is_one_line_and_keeps_what_it_holds(tuned, tmp_path):
+    """export --out and verdict --csv onto a 64 kB tmpfs filled to its last byte (a private
+    mount) or, where none can be mounted, under a file-size limit of 256 bytes: one line each
+    saying so, and the files already there unchanged."""
+    config, sweep, tuned_file = tuned
+    disk = tmp_path / "disk"
+    disk.mkdir()
+    argvs = [["export", tuned_file, "--to", "json", "--sweep", sweep, "--out", disk / "export"],
+             ["verdict", config, "--method", "euler", "--h", "0.05", "--csv", disk / "v.csv"]]
+    env = dict(os.environ, STEPZOO_CACHE_DIR="")      # JAX's cache writes nothing there
+    if _private_tmpfs() is None:
+        script = f"""set -eu
+mount -t tmpfs -o size=64k tmpfs {disk}
+printf 'an older verdict\\n' > {disk}/v.csv
+dd if=/dev/zero of={disk}/fill bs=4096 2>/dev/null || true
+sha256sum {disk}/v.csv > {tmp_path}/before
+{shlex.join(map(str, each_command(*argvs)))} > {tmp_path}/said.json
+sha256sum {disk}/v.csv > {tmp_path}/after
+"""
+        subprocess.run(["unshare", "-m", "--propagation", "private", "sh", "-c", script],
+                       cwd=ROOT, timeout=600, check=True, env=env)
+        said = json.loads((tmp_path / "said.json").read_text())
+        assert (tmp_path / "before").read_text() == (tmp_path / "after").read_text()
+        words = "No space left on device"
+    else:
+        (disk / "v.csv").write_text("an older verdict\n")
+        def small_files():
+            resource.setrlimit(resource.RLIMIT_FSIZE, (256, 256))
+        proc = subprocess.run(each_command(*argvs), capture_output=True, text=True, cwd=ROOT,
+                              timeout=600, env=env, preexec_fn=small_files)
+        assert proc.returncode == 0, proc.stderr[-2000:]
+        said = json.loads(proc.stdout)
+        assert (disk / "v.csv").read_text() == "an older verdict\n"
+        words = "ulimit -f"
+    for code, err in said:
+        assert code == 2 and len(err.strip().splitlines()) == 1 and words in err, err
+    assert not any(p.name.endswith(".tmp") for p in disk.rglob("*"))
