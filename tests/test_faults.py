@@ -297,3 +297,115 @@ sha256sum {disk}/v.csv > {tmp_path}/after
     for code, err in said:
         assert code == 2 and len(err.strip().splitlines()) == 1 and words in err, err
     assert not any(p.name.endswith(".tmp") for p in disk.rglob("*"))
+
+
+# --- killed, interrupted and concurrent writers ---------------------------------------------
+
+BUDGETED = 'method = "rk4"\nh = 0.05\n[planner]\nmax_expansions = 60\n'
+
+
+@pytest.fixture(scope="module")
+def queries(tmp_path_factory):
+    """A folder with a 40 x 20 m map (a 4 x 10 m block between start and goal), one query
+    around it, and a planner config whose budget is expansions, not seconds."""
+    import numpy as np
+    folder = tmp_path_factory.mktemp("queries")
+    occupied = np.zeros((40, 80), bool)
+    occupied[10:30, 36:44] = True
+    np.save(folder / "grid.npy", occupied)
+    (folder / "q.json").write_text(json.dumps([{"id": "around", "map": "grid.npy",
+                                                "cell_size": 0.5, "start": [4, 10, 0],
+                                                "goal": [36, 10, 0]}]))
+    (folder / "planner.toml").write_text(BUDGETED)
+    return folder
+
+
+def test_plan_bench_killed_after_a_seeded_number_of_runs_resumes_and_keeps_them(queries,
+                                                                               tmp_path):
+    """SIGKILL once k runs are saved (k seeded): --resume keeps those k parts byte for byte
+    and ends with every run in the table."""
+    from stepzoo.cli import main
+    out = tmp_path / "bench"
+    argv = ["plan-bench", str(queries / "q.json"), "--config", str(queries / "planner.toml"),
+            "--integrator", "rk4:0.05", "--integrator", "euler:0.02", "--runs", "2",
+            "--out", str(out), "--no-progress"]
+    k = random.Random(36).randint(1, 3)
+    proc = subprocess.Popen([sys.executable, "-m", "stepzoo", *argv], cwd=ROOT,
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        end = time.monotonic() + 300
+        while len(list(out.glob("parts/*.json"))) < k and time.monotonic() < end:
+            assert proc.poll() is None, "plan-bench ended before it was killed"
+            time.sleep(0.02)
+        proc.send_signal(signal.SIGKILL)
+        proc.wait(timeout=60)
+    finally:
+        proc.kill()
+    saved = {p.name: p.read_bytes() for p in out.glob("parts/*.json")}
+    assert len(saved) >= k and not (out / "runs.parquet").exists()
+    assert main([*argv, "--resume"]) == 0
+    import pandas as pd
+    assert len(pd.read_parquet(out / "runs.parquet")) == 4
+    assert {p.name: p.read_bytes() for p in out.glob("parts/*.json")
+            if p.name in saved} == saved
+
+
+def test_tune_for_plans_interrupted_while_planning_keeps_the_old_tuned_file(tuned, queries,
+                                                                           tmp_path):
+    _, sweep, tuned_file = tuned
+    out = tmp_path / "tuned.toml"
+    out.write_bytes(tuned_file.read_bytes())
+    proc = subprocess.Popen([*CTRL_C_REACHES, "tune", str(sweep), "--pos-tol", "1", "--cost",
+                             "evals", "--for-plans", str(queries / "q.json"), "--runs", "3",
+                             "--planner-config", str(queries / "planner.toml"), "--out",
+                             str(out)], cwd=ROOT, stdout=subprocess.DEVNULL,
+                            stderr=subprocess.PIPE, text=True)
+    try:
+        until_line(proc, "stepzoo tune: plan [1/")
+        proc.send_signal(signal.SIGINT)
+        _, err = proc.communicate(timeout=300)
+    finally:
+        proc.kill()
+    assert proc.returncode == 130 and err.strip() == "stepzoo tune: interrupted", err[-2000:]
+    assert out.read_bytes() == tuned_file.read_bytes()
+
+
+def test_verdict_killed_at_a_seeded_moment_leaves_the_old_csv_or_the_whole_new_one(tuned,
+                                                                                 tmp_path):
+    import pandas as pd
+    config, _, _ = tuned
+    csv = tmp_path / "v.csv"
+    csv.write_text("an older verdict\n")
+    argv = [sys.executable, "-m", "stepzoo", "verdict", str(config), "--method", "euler",
+            "--h", "0.05", "--csv", str(csv)]
+    for delay in random.Random(36).sample([0.5, 2.0, 4.0, 6.0, 8.0], 2):
+        proc = subprocess.Popen(argv, cwd=ROOT, stdout=subprocess.DEVNULL,
+                                stderr=subprocess.DEVNULL)
+        time.sleep(delay)
+        proc.send_signal(signal.SIGKILL)
+        proc.wait(timeout=60)
+        text = csv.read_text()
+        if text != "an older verdict\n":
+            assert len(pd.read_csv(csv)) == 2, text      # the tiny sweep's two points
+        assert not [p for p in tmp_path.iterdir() if p.name != "v.csv"]
+
+
+def test_two_exports_into_one_folder_at_once_leave_one_whole_export(tuned, tmp_path):
+    """Started together: each writes the export or is refused in one line (the folder is
+    busy), and the folder ends with one writer's export.json and schedule.csv, whole."""
+    _, sweep, tuned_file = tuned
+    argv = [sys.executable, "-m", "stepzoo", "export", str(tuned_file), "--to", "json",
+            "--sweep", str(sweep), "--out", str(tmp_path / "export")]
+    procs = [subprocess.Popen(argv, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                              text=True) for _ in range(2)]
+    done = [(p.wait(timeout=300), *p.communicate()) for p in procs]
+    printed = []
+    for code, stdout, stderr in done:
+        if code == 2:
+            assert len(stderr.strip().splitlines()) == 1, stderr
+        else:
+            assert code == 0, stderr
+            printed.append(json.loads(stdout))
+    assert printed
+    assert json.loads((tmp_path / "export" / "export.json").read_text()) in printed
+    assert (tmp_path / "export" / "schedule.csv").read_text().count("\n") > 1
