@@ -214,19 +214,16 @@ def chain():
 '''
 
 
-def test_a_casadi_model_past_the_instruction_limit_is_one_line_not_a_crash(tmp_path, capsys,
-                                                                          monkeypatch):
-    """A long expression chain (the issue's had about 9000 instructions) compiled for tens of
-    minutes, then crashed XLA's compiler (SIGSEGV): refused in one line before any compile."""
-    from stepzoo.dynamics.casadi_model import MAX_INSTRUCTIONS
-    monkeypatch.delitem(sys.modules, "long_chain", raising=False)
-    (tmp_path / "long_chain.py").write_text(CHAIN.format(n=MAX_INSTRUCTIONS // 4 + 10))
-    (tmp_path / "chain.toml").write_text(f"""name = "chain"
+def two_state_config(folder: Path, casadi: str, path: Path) -> Path:
+    """folder/two_states.toml: a one-step euler sweep of the CasADi model `casadi` (module
+    or saved file in `path`) of states a, b and input w, at w = 0."""
+    config = folder / "two_states.toml"
+    config.write_text(f"""name = "two_states"
 horizon = 1.0
 methods = ["euler"]
 [model]
-casadi = "long_chain:chain"
-path = "{tmp_path}"
+casadi = "{casadi}"
+path = "{path}"
 states = ["a", "b"]
 inputs = ["w"]
 [envelope]
@@ -234,6 +231,17 @@ w = [0.0]
 [steps]
 h = [0.1]
 """)
-    assert stepzoo(["stability", str(tmp_path / "chain.toml")]) == 2
+    return config
+
+
+def test_a_casadi_model_past_the_instruction_limit_is_one_line_not_a_crash(tmp_path, capsys,
+                                                                          monkeypatch):
+    """A long expression chain (the issue's had about 9000 instructions) compiled for tens of
+    minutes, then crashed XLA's compiler (SIGSEGV): refused in one line before any compile."""
+    from stepzoo.dynamics.casadi_model import MAX_INSTRUCTIONS
+    monkeypatch.delitem(sys.modules, "long_chain", raising=False)
+    (tmp_path / "long_chain.py").write_text(CHAIN.format(n=MAX_INSTRUCTIONS // 4 + 10))
+    config = two_state_config(tmp_path, "long_chain:chain", tmp_path)
+    assert stepzoo(["stability", str(config)]) == 2
     lines = capsys.readouterr().err.strip().splitlines()
     assert len(lines) == 1 and f"more than the {MAX_INSTRUCTIONS}" in lines[0], lines

@@ -15,6 +15,10 @@ from pathlib import Path
 
 import pytest
 
+from test_bad_input import _private_tmpfs, as_user, each_command, needs_modes
+from test_casadi_model import two_state_config
+from test_tune_for_plans import block_query
+
 ROOT = Path(__file__).resolve().parents[1]
 GIB = 2 ** 30
 
@@ -184,18 +188,7 @@ def test_truncated_or_corrupted_inputs_of_the_newer_commands_are_one_line(tuned,
     rng = random.Random(36)
     x, u = ca.SX.sym("x", 2), ca.SX.sym("u", 1)
     ca.Function("f", [x, u], [ca.vertcat(x[1], -x[0] + u)]).save(str(tmp_path / "f.casadi"))
-    (tmp_path / "casadi.toml").write_text(f"""name = "f"
-horizon = 1.0
-methods = ["euler"]
-[model]
-casadi = "{tmp_path / 'f.casadi'}"
-states = ["a", "b"]
-inputs = ["w"]
-[envelope]
-w = [0.0]
-[steps]
-h = [0.1]
-""")
+    casadi_config = two_state_config(tmp_path, "f.casadi", tmp_path)
     whole = {name: path.read_bytes() for name, path in (
         ("tuned", tuned_file), ("config", config), ("limits", sweep / "limits.parquet"),
         ("runs", sweep / "runs.parquet"), ("casadi", tmp_path / "f.casadi"))}
@@ -224,15 +217,12 @@ h = [0.1]
             refused_in_process(capsys, "report", tmp_path / "sweep", "--verdict",
                                "euler:0.05", "--out", tmp_path / "report", "-q")
         (tmp_path / "f.casadi").write_bytes(damaged["casadi"])
-        refused_in_process(capsys, "stability", tmp_path / "casadi.toml")
+        refused_in_process(capsys, "stability", casadi_config)
         for made in ("export", "v.csv", "report"):
             assert not (tmp_path / made).exists(), (trial, made)
 
 
 # --- read-only and full disks ---------------------------------------------------------------
-
-from test_bad_input import _private_tmpfs, as_user, each_command, needs_modes  # noqa: E402
-
 
 @needs_modes
 def test_a_read_only_folder_is_one_line_and_keeps_what_it_holds(tuned, tmp_path):
@@ -308,14 +298,8 @@ BUDGETED = 'method = "rk4"\nh = 0.05\n[planner]\nmax_expansions = 60\n'
 def queries(tmp_path_factory):
     """A folder with a 40 x 20 m map (a 4 x 10 m block between start and goal), one query
     around it, and a planner config whose budget is expansions, not seconds."""
-    import numpy as np
     folder = tmp_path_factory.mktemp("queries")
-    occupied = np.zeros((40, 80), bool)
-    occupied[10:30, 36:44] = True
-    np.save(folder / "grid.npy", occupied)
-    (folder / "q.json").write_text(json.dumps([{"id": "around", "map": "grid.npy",
-                                                "cell_size": 0.5, "start": [4, 10, 0],
-                                                "goal": [36, 10, 0]}]))
+    block_query(folder)
     (folder / "planner.toml").write_text(BUDGETED)
     return folder
 

@@ -30,14 +30,20 @@ def setup(tiny_sweep, tmp_path_factory):
     on a 40 x 20 m map, at cell 0.5 m."""
     folder = tmp_path_factory.mktemp("for_plans")
     shutil.copytree(tiny_sweep[1], folder / "sweep")
+    block_query(folder)
+    (folder / "planner.toml").write_text(PLANNER)
+    return folder
+
+
+def block_query(folder) -> None:
+    """folder/grid.npy, a 40 x 20 m map at cell 0.5 m with a 4 x 10 m block, and folder/q.json,
+    one query around the block."""
     occupied = np.zeros((40, 80), bool)
     occupied[10:30, 36:44] = True
     np.save(folder / "grid.npy", occupied)
     (folder / "q.json").write_text(json.dumps([{"id": "around", "map": "grid.npy",
                                                 "cell_size": 0.5, "start": [4, 10, 0],
                                                 "goal": [36, 10, 0]}]))
-    (folder / "planner.toml").write_text(PLANNER)
-    return folder
 
 
 def tune(folder, out, *flags) -> int:
