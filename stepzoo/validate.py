@@ -166,13 +166,12 @@ def _mapped() -> float:
 
 
 def memory_room() -> tuple[float, str]:
-    """(what this process can still allocate [bytes], what bounds it): the least of the
-    physical memory, its control group's room (a container's limit) and the address-space
-    limit (RLIMIT_AS, `ulimit -v`) less what it maps already; inf where none can be read. An
-    allocation past the two limits fails inside XLA, which then waits forever, so work is
-    checked against them before it starts."""
-    found = [(_physical_memory(), "this machine's physical memory"),
-             (_cgroup_room(), "the room left in this process's control group (its "
+    """(what this process may still allocate before a hard limit [bytes], what bounds it):
+    the lesser of its control group's room (a container's limit) and the address space left
+    under its limit (RLIMIT_AS, `ulimit -v`); inf without either. An allocation past them
+    fails inside XLA, which then waits forever, so work is checked against them before it
+    starts. (The physical memory is no hard limit: past it the system swaps.)"""
+    found = [(_cgroup_room(), "the room left in this process's control group (its "
               "container's memory limit)")]
     soft, _ = resource.getrlimit(resource.RLIMIT_AS)
     if soft != resource.RLIM_INFINITY:
@@ -182,9 +181,9 @@ def memory_room() -> tuple[float, str]:
 
 
 def _half_the_memory() -> float:
-    """Half of memory_room's (8 GiB where nothing can be read): room for the copies the
-    work makes beside the trajectories it keeps."""
-    room = memory_room()[0]
+    """Half of the lesser of the physical memory and memory_room's (8 GiB where neither can
+    be read): room for the copies the work makes beside the trajectories it keeps."""
+    room = min(_physical_memory(), memory_room()[0])
     return room / 2 if math.isfinite(room) else 8.0 * GIB
 
 
