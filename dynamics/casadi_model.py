@@ -60,10 +60,23 @@ def scalar_form(fn):
                          f"operations (SX): {first}") from None
 
 
+# The most scalar instructions translated: each becomes one jnp operation, and XLA's time to
+# compile the resulting graph grows faster than its size (a stiff model's Jacobian and every
+# stage of a method multiply it), so that a long chain took tens of minutes or crashed its
+# compiler (SIGSEGV) with no word; docs/studies/hostile-limits-2026-11-28.md.
+MAX_INSTRUCTIONS = 2000
+
+
 def program(fn) -> tuple[list, list]:
     """(instructions [(code, outputs, inputs, constant)], dense positions of every output's
-    nonzeros) of an SX function; ValueError naming an operation JAX has no counterpart of."""
+    nonzeros) of an SX function; ValueError naming an operation JAX has no counterpart of, or
+    a function of more than MAX_INSTRUCTIONS instructions."""
     import casadi as ca
+    if fn.n_instructions() > MAX_INSTRUCTIONS:
+        raise ValueError(f"CasADi function {fn.name()!r} has {fn.n_instructions()} scalar "
+                         f"instructions, more than the {MAX_INSTRUCTIONS} whose JAX "
+                         "translation compiles in reasonable time; shorten it (common "
+                         "subexpressions: casadi.cse), or write the model in JAX")
     ops = _ops()
     steps = []
     for k in range(fn.n_instructions()):

@@ -10,6 +10,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from stepzoo.validate import GIB, memory_room
+
 X64_HINT = "enable float64 first with jax.config.update('jax_enable_x64', True)"
 
 
@@ -109,6 +111,21 @@ def check_steps(n_steps, max_steps):
     if n.shape != () or n.dtype.kind not in "iu" or not 0 <= n <= max_steps:
         raise ValueError(f"n_steps must be a whole number in [0, max_steps={max_steps}], got "
                          f"{n_steps!r}")
+
+
+def check_output(x0, n_steps, max_steps):
+    """MemoryError, before any work, if the trajectories (x0's shape and dtype, over
+    `max_steps` or `n_steps` steps) cannot be held three times (the output, the loop's own
+    buffer of it, and the runtime's and compiler's growth after this check) in what the
+    process can still allocate (validate.memory_room: physical memory, a container's limit,
+    ulimit -v): past a hard limit XLA's allocation waits forever instead of failing."""
+    rows = (n_steps if max_steps is None else max_steps) + 1
+    need = 3.0 * rows * math.prod(x0.shape) * x0.dtype.itemsize
+    room, bound = memory_room()
+    if need > room:
+        raise MemoryError(f"the trajectories ({rows} rows of x0's shape {tuple(x0.shape)}, "
+                          f"{x0.dtype}, held three times) need {need / GIB:.3g} GiB, past {bound}, "
+                          f"{room / GIB:.3g} GiB; take fewer steps or a smaller batch")
 
 
 def check_time(name: str, value):

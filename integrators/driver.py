@@ -300,7 +300,8 @@ def integrate(method, f, x0, u=None, p=None, h=None, n_steps=None, t0=0.0,
     in x0's float dtype. `u` (inputs) and `p` (parameters, any pytree) are passed to f
     unchanged (default None). `n_steps` is a Python int (compiled in), or, with
     `max_steps` a Python int bound, a run-time integer: then one compilation serves every
-    step count up to max_steps. Bad arguments raise ValueError or TypeError naming them.
+    step count up to max_steps. Bad arguments raise ValueError or TypeError naming them, and
+    trajectories the process cannot allocate (arguments.check_output) raise MemoryError.
 
     >>> import jax.numpy as jnp
     >>> vdp = lambda t, x, u, p: jnp.stack([x[1], p * (1 - x[0] ** 2) * x[1] - x[0]])
@@ -357,4 +358,5 @@ def _arguments(method, f, x0, h, n_steps, t0, max_steps, batched):
     arguments.check_step(h, x0.shape[0] if batched else None)
     arguments.check_steps(n_steps, max_steps)
     arguments.check_time("t0", t0)
+    arguments.check_output(x0, n_steps, max_steps)
     return method, arguments.scalar_rhs(f) if scalar else f, x0, scalar

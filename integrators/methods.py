@@ -257,6 +257,10 @@ def method(name: str, newton: NewtonOptions | None = None) -> Method:
     (name, options) in a process, so each compiles once however often it is asked for."""
     if name not in METHODS:
         raise KeyError(f"unknown method {name!r}; known: {', '.join(METHODS)}")
+    if newton is not None and not isinstance(newton, NewtonOptions):
+        raise TypeError(f"newton must be a NewtonOptions (stepzoo.integrators.newton), got "
+                        f"{type(newton).__name__} {newton!r}; e.g. method({name!r}, "
+                        "NewtonOptions(max_iter=20))")
     return METHODS[name] if newton is None else _with_options(name, newton)
 
 

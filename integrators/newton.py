@@ -6,6 +6,7 @@ theta/(1 - theta) |dz_k|; the solve stops when that estimate and the residual ar
 tolerance, and gives up early when the iteration diverges (theta >= 1) or cannot reach the
 tolerance within the iteration limit at its current rate."""
 from dataclasses import dataclass
+from numbers import Real
 from typing import NamedTuple
 
 import jax
@@ -29,6 +30,10 @@ class NewtonOptions:
     max_iter_full: int = 40
 
     def __post_init__(self):
+        for name in ("rtol", "atol", "res_tol", "max_iter", "max_iter_full"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, Real):
+                raise TypeError(f"NewtonOptions.{name} must be a number, got {value!r}")
         if not (self.rtol >= 0 and self.atol >= 0 and self.rtol + self.atol > 0):
             raise ValueError(f"Newton tolerances must be >= 0, not both 0: rtol={self.rtol!r}, "
                              f"atol={self.atol!r}")

@@ -3,6 +3,7 @@ of physical and numerical ranges (RANGES) that every command and config file che
 numbers against."""
 import math
 import os
+import resource
 import tomllib
 from dataclasses import dataclass
 from pathlib import Path
@@ -116,12 +117,90 @@ GIB = 2**30
 DEFAULT_MAX_STEPS = 1e11
 
 
-def _half_the_memory() -> float:
-    """Half this machine's physical memory [bytes] (8 GiB where it cannot be read)."""
+def _physical_memory() -> float:
+    """This machine's physical memory [bytes] (inf where it cannot be read)."""
     try:
-        return os.sysconf("SC_PHYS_PAGES") * os.sysconf("SC_PAGE_SIZE") / 2
+        return float(os.sysconf("SC_PHYS_PAGES") * os.sysconf("SC_PAGE_SIZE"))
     except (ValueError, OSError, AttributeError):
-        return 8.0 * GIB
+        return math.inf
+
+
+def _cgroup_room() -> float:
+    """What this process's control group may still take [bytes]: cgroup v2's memory.max less
+    memory.current, or v1's limit less its usage (inf without a limit, or off Linux)."""
+    try:
+        own = Path("/proc/self/cgroup").read_text().splitlines()
+    except OSError:
+        return math.inf
+    places = []
+    for line in own:
+        _, controllers, path = line.split(":", 2)
+        if controllers == "":
+            base = Path("/sys/fs/cgroup") / path.lstrip("/")
+            places += [(base / "memory.max", base / "memory.current")]
+        elif "memory" in controllers.split(","):
+            base = Path("/sys/fs/cgroup/memory") / path.lstrip("/")
+            places += [(base / "memory.limit_in_bytes", base / "memory.usage_in_bytes")]
+    # Inside a container the process's own group is often mounted as the root.
+    places += [(Path("/sys/fs/cgroup/memory.max"), Path("/sys/fs/cgroup/memory.current")),
+               (Path("/sys/fs/cgroup/memory/memory.limit_in_bytes"),
+                Path("/sys/fs/cgroup/memory/memory.usage_in_bytes"))]
+    for limit, used in places:
+        try:
+            text = limit.read_text().strip()
+            if text == "max":
+                return math.inf
+            return max(0.0, float(text) - float(used.read_text()))
+        except (OSError, ValueError):
+            continue
+    return math.inf
+
+
+def _mapped() -> float:
+    """The address space this process maps now [bytes] (0 where it cannot be read)."""
+    try:
+        return float(Path("/proc/self/statm").read_text().split()[0]) * os.sysconf(
+            "SC_PAGE_SIZE")
+    except (OSError, ValueError, IndexError, AttributeError):
+        return 0.0
+
+
+def memory_room() -> tuple[float, str]:
+    """(what this process may still allocate before a hard limit [bytes], what bounds it):
+    the lesser of its control group's room (a container's limit) and the address space left
+    under its limit (RLIMIT_AS, `ulimit -v`); inf without either. An allocation past them
+    fails inside XLA, which then waits forever, so work is checked against them before it
+    starts. (The physical memory is no hard limit: past it the system swaps.)"""
+    found = [(_cgroup_room(), "the room left in this process's control group (its "
+              "container's memory limit)")]
+    soft, _ = resource.getrlimit(resource.RLIMIT_AS)
+    if soft != resource.RLIM_INFINITY:
+        found.append((max(0.0, soft - _mapped()), f"the address space left under this "
+                      f"process's limit of {soft / GIB:.3g} GiB (ulimit -v)"))
+    return min(found, key=lambda f: f[0])
+
+
+def _half_the_memory() -> float:
+    """Half of the lesser of the physical memory and memory_room's (8 GiB where neither can
+    be read): room for the copies the work makes beside the trajectories it keeps."""
+    room = min(_physical_memory(), memory_room()[0])
+    return room / 2 if math.isfinite(room) else 8.0 * GIB
+
+
+# The address space JAX's CPU runtime maps when it starts, and a first compilation with it
+# (thread stacks, arenas, the compiler): below it JAX aborts in C++ (std::bad_alloc) with no
+# word the command could catch.
+JAX_ADDRESS_SPACE = 2 * GIB
+
+
+def check_address_space() -> None:
+    """UsageError if this process's address-space limit (ulimit -v) leaves JAX too little
+    to start; called by the command before JAX's first computation."""
+    soft, _ = resource.getrlimit(resource.RLIMIT_AS)
+    if soft != resource.RLIM_INFINITY and soft - _mapped() < JAX_ADDRESS_SPACE:
+        raise UsageError(f"the address-space limit of {soft / GIB:.3g} GiB (ulimit -v) leaves "
+                         f"less than the {JAX_ADDRESS_SPACE / GIB:g} GiB JAX needs to start "
+                         "and compile; raise it (ulimit -v unlimited)")
 
 
 @dataclass
@@ -155,8 +234,12 @@ def check_budget(what: str, steps: float, batch: float, states: int, calls: floa
 def check_memory(what: str, need: float, made_of: str, instead: str,
                  memory: float | None = None):
     """UsageError if `what` would allocate more than `need` bytes (`made_of` says of what)
-    past the limit (BUDGET, else `memory`, else half the machine's); `instead` says what to
-    change."""
+    past the limit (BUDGET, else `memory`, else half of memory_room's), or past what this
+    process can allocate at all; `instead` says what to change."""
+    room, bound = memory_room()
+    if need > room:
+        raise UsageError(f"{what} would hold {need / GIB:.3g} GiB ({made_of}), past "
+                         f"{bound}, {room / GIB:.3g} GiB; {instead}")
     limit = BUDGET.memory or memory or _half_the_memory()
     if need > limit:
         raise UsageError(f"{what} would hold {need / GIB:.3g} GiB ({made_of}), past the limit "

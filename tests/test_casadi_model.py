@@ -203,3 +203,66 @@ def test_a_saved_function_with_one_byte_changed_is_one_line_and_exit_2(tmp_path,
     assert proc.returncode in (0, 2), proc.stderr[-2000:]
     if proc.returncode == 2:
         assert len(lines) == 1 and "model.casadi" in lines[0], proc.stderr
+
+
+def test_what_a_casadi_factory_prints_goes_to_stderr_not_into_the_json(tmp_path, capsys):
+    (tmp_path / "chatty_casadi.py").write_text(
+        "from casadi_bicycle import bicycle\n\n\ndef chatty():\n"
+        "    print('building the bicycle')\n    return bicycle()\n")
+    config = casadi_config(tmp_path, "chatty_casadi:chatty").read_text().replace(
+        f'path = "{USER}"', f'path = "{tmp_path}"')
+    (tmp_path / "chatty.toml").write_text(config)
+    sys.path.insert(0, str(USER))         # where the factory finds casadi_bicycle
+    try:
+        assert stepzoo(["stability", str(tmp_path / "chatty.toml"), "--format", "json"]) == 0
+    finally:
+        sys.path.remove(str(USER))
+    captured = capsys.readouterr()
+    assert "euler" in json.loads(captured.out)["methods"]
+    assert "building the bicycle" in captured.err
+
+
+CHAIN = '''import casadi as ca
+
+
+def chain():
+    """x' = (x1, -x0 + 1e-6 e): e a chain of {n} sin-and-affine steps of x0 (4 each)."""
+    x, u = ca.SX.sym("x", 2), ca.SX.sym("u", 1)
+    e = x[0]
+    for _ in range({n}):
+        e = ca.sin(e) * 0.999 + 0.001 * x[1]
+    return ca.Function("chain", [x, u], [ca.vertcat(x[1], -x[0] + 1e-6 * e)])
+'''
+
+
+def two_state_config(folder: Path, casadi: str, path: Path) -> Path:
+    """folder/two_states.toml: a one-step euler sweep of the CasADi model `casadi` (module
+    or saved file in `path`) of states a, b and input w, at w = 0."""
+    config = folder / "two_states.toml"
+    config.write_text(f"""name = "two_states"
+horizon = 1.0
+methods = ["euler"]
+[model]
+casadi = "{casadi}"
+path = "{path}"
+states = ["a", "b"]
+inputs = ["w"]
+[envelope]
+w = [0.0]
+[steps]
+h = [0.1]
+""")
+    return config
+
+
+def test_a_casadi_model_past_the_instruction_limit_is_one_line_not_a_crash(tmp_path, capsys,
+                                                                          monkeypatch):
+    """A long expression chain (the issue's had about 9000 instructions) compiled for tens of
+    minutes, then crashed XLA's compiler (SIGSEGV): refused in one line before any compile."""
+    from stepzoo.dynamics.casadi_model import MAX_INSTRUCTIONS
+    monkeypatch.delitem(sys.modules, "long_chain", raising=False)
+    (tmp_path / "long_chain.py").write_text(CHAIN.format(n=MAX_INSTRUCTIONS // 4 + 10))
+    config = two_state_config(tmp_path, "long_chain:chain", tmp_path)
+    assert stepzoo(["stability", str(config)]) == 2
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert len(lines) == 1 and f"more than the {MAX_INSTRUCTIONS}" in lines[0], lines

@@ -2,6 +2,7 @@
 tuned step with acados' own tableau of the same method, the diffrax snippet runs and equals
 stepzoo's fixed step, the step schedule is the largest step that qualifies per envelope value;
 mistakes are one line and exit 2."""
+import ast
 import contextlib
 import importlib.util
 import io
@@ -147,6 +148,22 @@ def test_diffrax_snippet_runs_and_equals_stepzoos_fixed_step(tuned, method):
     ours = integrate(t["method"], spec.rhs, x0[0], u[0], {k: v[0] for k, v in p.items()},
                      d["dt0"], d["n_steps"])
     np.testing.assert_allclose(scope["x_end"], np.asarray(ours.x[-1]), rtol=1e-12, atol=1e-12)
+
+
+@pytest.mark.parametrize("name", ['C:\\New', 'quote"""s', "it's"])
+def test_the_diffrax_snippet_of_a_sweep_folder_with_backslashes_or_quotes_is_python(
+        tuned, tmp_path, name):
+    """The folder's name holds what a string literal escapes: the snippet still compiles,
+    and names the folder exactly."""
+    _, t, sweep = tuned
+    odd = tmp_path / name
+    odd.mkdir()
+    (odd / "manifest.json").write_text((sweep / "manifest.json").read_text())
+    code = export.diffrax_snippet(t, odd, 0.3)
+    tree = compile(code, "diffrax_snippet.py", "exec", flags=ast.PyCF_ONLY_AST)
+    named = [n.value.value for n in tree.body if isinstance(n, ast.Assign)
+             and getattr(n.targets[0], "id", None) == "SWEEP"]
+    assert named == [str(odd)]
 
 
 def test_step_schedule_is_the_largest_qualifying_step_per_envelope_value(tuned, exported):

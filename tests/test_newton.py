@@ -8,6 +8,7 @@ from scipy.integrate import solve_ivp
 
 from stepzoo.dynamics.problems import detest
 from stepzoo.integrators import integrate, integrate_batch, method
+from stepzoo.integrators.newton import NewtonOptions
 
 
 def robertson(t, y, u, p):
@@ -104,6 +105,22 @@ def test_newton_options_are_checked():
         method("trapezoidal").with_newton(max_iter=0)
     with pytest.raises(ValueError, match="tolerances"):
         method("trapezoidal").with_newton(rtol=0.0, atol=0.0)
+
+
+@pytest.mark.parametrize("newton, words", [
+    ({"max_iter": 20}, "newton must be a NewtonOptions (stepzoo.integrators.newton), got dict"),
+    (20, "newton must be a NewtonOptions"),
+])
+def test_newton_options_of_the_wrong_type_are_one_clear_type_error(newton, words):
+    """A dict or a number where NewtonOptions belongs is named as such (it failed in
+    asdict(), or as an unhashable cache key), and so is an option of the wrong type."""
+    with pytest.raises(TypeError) as err:
+        method("trapezoidal", newton)
+    assert words in str(err.value)
+    with pytest.raises(TypeError, match="NewtonOptions.max_iter must be a number, got '5'"):
+        NewtonOptions(max_iter="5")
+    with pytest.raises(TypeError, match="NewtonOptions.rtol must be a number, got True"):
+        NewtonOptions(rtol=True)
 
 
 @pytest.mark.parametrize("name", ["radau_iia5", "kvaerno3", "bdf3", "bdf4", "bdf5"])

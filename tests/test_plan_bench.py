@@ -208,7 +208,7 @@ def one_line(capsys) -> str:
 
 
 @pytest.mark.parametrize("qid", ["../../x/pwned", "/tmp/stepzoo-pwned", "a\u0000b", "..",
-                                 ".hidden", "a\\b", ""])
+                                 ".hidden", "a\\b", "", "a\u0085b", "a\u2028b"])
 def test_a_query_id_that_cannot_name_a_file_inside_out_is_refused_before_planning(
         folder, tmp_path, capsys, qid):
     (tmp_path / "grid.npy").write_bytes((folder / "grid.npy").read_bytes())
@@ -282,6 +282,24 @@ def test_a_finished_bench_is_kept_unless_resumed_or_overwritten(folder, benched,
     assert bench(folder, benched, "--runs", "3", "--resume") == 2
     assert "other queries, integrators, runs" in one_line(capsys)
     assert files() == before
+
+
+def test_resuming_after_the_map_file_was_replaced_is_refused(folder, benched, tmp_path,
+                                                              capsys):
+    """The same queries file naming a map file of other obstacles is another bench: --resume
+    names the map in one line and touches nothing."""
+    for name in ("q.json", "tuned.toml"):
+        (tmp_path / name).write_bytes((folder / name).read_bytes())
+    occupied = np.load(folder / "grid.npy")
+    occupied[0:4, 60:64] = True             # a post in a corner, away from every pose
+    np.save(tmp_path / "grid.npy", occupied)
+    shutil.copytree(benched, tmp_path / "out")
+    before = sorted((p.relative_to(tmp_path), p.read_bytes()) for p in
+                    (tmp_path / "out").rglob("*") if p.is_file() and p.name != LOCK)
+    assert bench(tmp_path, tmp_path / "out", "--runs", "2", "--resume") == 2
+    assert "the map file grid.npy is not the one" in one_line(capsys)
+    assert before == sorted((p.relative_to(tmp_path), p.read_bytes()) for p in
+                            (tmp_path / "out").rglob("*") if p.is_file() and p.name != LOCK)
 
 
 def test_a_second_bench_into_a_folder_in_use_is_refused(folder, tmp_path, capsys):

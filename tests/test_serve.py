@@ -354,3 +354,46 @@ def test_a_request_timeout_out_of_range_is_refused(capsys):
         assert main(["serve", "--request-timeout", value, "--warm-up", "nosuch"]) == 2
         assert capsys.readouterr().err.startswith(
             "stepzoo serve: error: --request-timeout must be a number of seconds in (0, 3600]")
+
+
+def _fake_server(path: Path, answer: bytes | None):
+    """A socket at `path` that accepts one connection, reads its request line and sends
+    `answer` (None: nothing, ever, until the test ends); returns (thread, listening socket)."""
+    listening = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+    listening.bind(str(path))
+    listening.listen()
+
+    def serve():
+        conn, _ = listening.accept()
+        with conn:
+            conn.settimeout(60)
+            Messages(conn).next()
+            if answer is not None:
+                conn.sendall(answer)
+            else:
+                conn.recv(1)                    # the asker giving up closes its side
+    import threading
+    thread = threading.Thread(target=serve, daemon=True)
+    thread.start()
+    return thread, listening
+
+
+@pytest.mark.parametrize("answer, said", [
+    (None, "has not taken the plan in 1 s"),
+    (b'{"exit": 1000}\n', "not a stepzoo server's answer"),
+    (b'{"exit": -1}\n', "not a stepzoo server's answer"),
+    (b'{"exit": true}\n', "not a stepzoo server's answer")])
+def test_a_socket_that_never_answers_or_answers_no_exit_status_is_one_line(tmp_path, answer,
+                                                                           said):
+    """The asker has its own deadline for the server to take the plan, and takes as an exit
+    status only a byte's worth (1000 used to end it with status 232, -1 with 255)."""
+    thread, listening = _fake_server(tmp_path / "fake.sock", answer)
+    with listening:
+        proc = subprocess.run([sys.executable, "-m", "stepzoo", "plan", "street", "--out",
+                               str(tmp_path / "x"), "--server", str(tmp_path / "fake.sock"),
+                               "--server-timeout", "1"], capture_output=True, text=True,
+                              timeout=120)
+        thread.join(60)
+    lines = proc.stderr.strip().splitlines()
+    assert proc.returncode == 2 and len(lines) == 1 and said in lines[0], proc.stderr
+    assert not (tmp_path / "x").exists()

@@ -88,7 +88,7 @@ def test_the_sweep_summary_names_the_binding_mode(wheel, capsys):
     has it as `stiffness`."""
     import json
 
-    from stepzoo.cli.sweep import show
+    from stepzoo.workflows.sweep import show
     folder, _ = wheel
     manifest = json.loads((folder / "manifest.json").read_text())
     show(manifest, folder)

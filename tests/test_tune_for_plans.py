@@ -30,14 +30,20 @@ def setup(tiny_sweep, tmp_path_factory):
     on a 40 x 20 m map, at cell 0.5 m."""
     folder = tmp_path_factory.mktemp("for_plans")
     shutil.copytree(tiny_sweep[1], folder / "sweep")
+    block_query(folder)
+    (folder / "planner.toml").write_text(PLANNER)
+    return folder
+
+
+def block_query(folder) -> None:
+    """folder/grid.npy, a 40 x 20 m map at cell 0.5 m with a 4 x 10 m block, and folder/q.json,
+    one query around the block."""
     occupied = np.zeros((40, 80), bool)
     occupied[10:30, 36:44] = True
     np.save(folder / "grid.npy", occupied)
     (folder / "q.json").write_text(json.dumps([{"id": "around", "map": "grid.npy",
                                                 "cell_size": 0.5, "start": [4, 10, 0],
                                                 "goal": [36, 10, 0]}]))
-    (folder / "planner.toml").write_text(PLANNER)
-    return folder
 
 
 def tune(folder, out, *flags) -> int:
@@ -106,6 +112,10 @@ def test_a_tolerance_below_a_candidates_deviation_excludes_it(setup, tuned, caps
     (["--for-plans", "q.json", "--replay-tol", "-0.1"], "--replay-tol must be"),
     (["--for-plans", "q.json", "--runs", "0"], "--runs must be >= 1"),
     (["--replay-tol", "0.1"], "--replay-tol only work with --for-plans"),
+    # 1e5 runs of planning at the shipped budget: refused with its estimate before tuning.
+    (["--for-plans", "q.json", "--runs", "100000"], "100000 plans (1 queries x 1 "
+     "integrators x 100000 runs)"),
+    (["--for-plans", "q.json", "--max-hours", "0"], "--max-hours must be a number > 0"),
 ])
 def test_bad_for_plans_input_is_one_line_exit_2_and_nothing_written(setup, tmp_path, capsys,
                                                                     monkeypatch, flags, message):
@@ -114,3 +124,18 @@ def test_bad_for_plans_input_is_one_line_exit_2_and_nothing_written(setup, tmp_p
     assert stepzoo(["tune", "sweep", "--pos-tol", POS_TOL, "--out", str(out), *flags]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and message in err and not out.exists()
+
+
+def test_for_plans_refuses_a_sweep_of_another_model_than_the_planner_s_car(setup, tmp_path,
+                                                                           capsys):
+    """The planner plans with the dynamic bicycle: a (method, h) tuned on another model's
+    sweep is refused in one line, before tuning, and nothing is written."""
+    shutil.copytree(setup / "sweep", tmp_path / "sweep")
+    manifest = json.loads((tmp_path / "sweep" / "manifest.json").read_text())
+    (tmp_path / "sweep" / "manifest.json").write_text(json.dumps(dict(manifest,
+                                                                      model="kinematic")))
+    out = tmp_path / "t.toml"
+    assert stepzoo(["tune", str(tmp_path / "sweep"), "--pos-tol", POS_TOL, "--for-plans",
+                    str(setup / "q.json"), "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "a sweep of 'kinematic'" in err and not out.exists()

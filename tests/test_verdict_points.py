@@ -268,3 +268,25 @@ def test_a_step_beyond_its_predicted_limit_is_never_stable_with_margin():
     risky = next(p for p in got[True]["points"] if p["vx"] == 10.0)
     assert risky["verdict"].startswith("stable with margin, beyond the predicted limit")
     assert got[True]["stable_with_margin"] == 2 and got[True]["allow_beyond_predicted_limit"]
+
+
+def test_a_verdict_past_the_budget_is_refused_with_its_estimate_before_any_run(
+        tiny_sweep, tmp_path, capsys):
+    """h = 1e-9 s over the tiny sweep's 0.5 s horizon is 5e8 steps a point: `verdict` and
+    `report --verdict` say so in one line (exit 2) instead of integrating for hours; the
+    report, refused before it draws, leaves no folder; --tol 0 is refused, not taken as the
+    default."""
+    config, folder = tiny_sweep
+    assert stepzoo(["verdict", str(config), "--method", "heun", "--h", "1e-9"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "the verdict on heun at h = 1e-09 s" in err[0] \
+        and "5e+08 steps" in err[0], err
+    assert stepzoo(["report", str(folder), "--verdict", "heun:1e-9",
+                    "--out", str(tmp_path / "r")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "5e+08 steps" in err[0], err
+    assert not (tmp_path / "r").exists()
+    assert stepzoo(["verdict", str(config), "--method", "heun", "--h", "0.01", "--tol",
+                    "0"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--tol must be" in err[0] and "got 0.0" in err[0], err

@@ -3,8 +3,10 @@ returns a casadi.Function) or a file written by casadi.Function.save, made a JAX
 side (dynamics.casadi_model) that the sweep uses as any JAX model."""
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import re
+import sys
 from pathlib import Path
 
 from stepzoo.bench.model.spec import import_user_module
@@ -36,7 +38,10 @@ def casadi_function(ref: str, folder: Path, source: str):
         raise UsageError(f"{source}: {module_name!r} has no function {func_name!r} (model.casadi "
                          "names a function returning a casadi.Function)")
     try:
-        fn = make()
+        # What the factory prints goes to stderr: stdout carries the command's output
+        # (--format json).
+        with contextlib.redirect_stdout(sys.stderr):
+            fn = make()
     except Exception as err:   # the user's code failing: one line
         raise UsageError(f"{source}: calling {ref}() failed: {type(err).__name__}: "
                          f"{_last_line(err)}") from None

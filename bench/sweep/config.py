@@ -700,9 +700,10 @@ def _check_derived(spec: ModelSpec, bad: list) -> ModelSpec | None:
     return spec
 
 
-def check_workload(cfg: SweepConfig):
-    """UsageError (the estimate and the limit) if the sweep would hold more trajectory memory
-    or integrate more steps than allowed ([limits], --max-memory, --max-steps)."""
+def check_workload(cfg: SweepConfig, what: str | None = None):
+    """UsageError (the estimate and the limit) if the sweep (or `what`, a run of the sweep's
+    kind on `cfg`) would hold more trajectory memory or integrate more steps than allowed
+    ([limits], --max-memory, --max-steps)."""
     from stepzoo.validate import GIB, check_budget
     lanes = min(cfg.points_per_chunk, len(cfg.points))
     steps = run_steps(cfg) + 1                                           # every call's length
@@ -720,7 +721,7 @@ def check_workload(cfg: SweepConfig):
         (MODES + len(cfg.spec.states) + 1, len(PRED_LADDER))
     calls = len(cfg.hs) + per * (len(cfg.hs) + 10 + rounds + probes)
     memory = cfg.max_memory_gib and cfg.max_memory_gib * GIB
-    check_budget(f"the sweep {cfg.name!r}", steps, 2 * lanes, len(cfg.spec.states),
+    check_budget(what or f"the sweep {cfg.name!r}", steps, 2 * lanes, len(cfg.spec.states),
                  calls=len(cfg.methods) * blocks * calls / 2,
                  memory=memory, max_steps=cfg.max_steps)
 

@@ -172,9 +172,13 @@ def diffrax_snippet(tuned: dict, sweep: Path, interval_s: float | None = None) -
     custom = "" if d["method"] in DIFFRAX_NAMED else _tableau_class(d["method"])
     names = ", ".join(point)
     values = tuple(float(v) for v in point.values())
+    # The sweep's path only as a string literal (repr): a folder name may hold a backslash
+    # or quotes, which in the docstring would end it or start an escape.
     return f'''"""diffrax with a constant step: {d['why']}.
-Integrates the model of the sweep {sweep} at its operating point ({names}) = {values}
-over {d['t1']:g} s in {d['n_steps']} steps of dt0 [s], and prints the final state."""
+Integrates the model of the sweep SWEEP (its config.toml) at its operating point ({names}) =
+{values} over {d['t1']:g} s in {d['n_steps']} steps of dt0 [s], and prints the final state."""
+import os
+
 import diffrax
 import jax
 import jax.numpy as jnp
@@ -189,7 +193,8 @@ stepsize_controller = diffrax.ConstantStepSize()
 dt0 = {d['dt0']!r}  # [s]
 t1 = {d['t1']!r}  # [s], {d['n_steps']} steps of dt0
 
-spec = load({str(sweep / "config.toml")!r}).spec
+SWEEP = {str(sweep)!r}
+spec = load(os.path.join(SWEEP, "config.toml")).spec
 x0, u, p = spec.arrays([{values!r}])
 args = (jnp.asarray(u[0]), {{k: jnp.asarray(v[0]) for k, v in p.items()}})
 term = diffrax.ODETerm(lambda t, x, args: spec.rhs(t, x, *args))

@@ -46,9 +46,7 @@ def _verdict(cfg, method_name: str, h: float) -> tuple[pd.DataFrame, pd.DataFram
     point with where it binds, for bench/stiffness.explicit_limit)."""
     meth = cfg.method(method_name)
     n = max(1, round(cfg.horizon / h))
-    # The accuracy runs take n steps of h, as the sweep's; the limit search brackets from h,
-    # and probes above it even when h is past the config's largest probe.
-    cfg = dataclasses.replace(cfg, hs=(h,), h_probe_max=max(cfg.h_probe_max, 2.0 * h))
+    cfg = at_step(cfg, h)
     cache, rows, explicit = {}, [], []
     for block in range(n_blocks(cfg)):
         work = Block(cfg, block, cache, max_steps=max(n, run_steps(cfg)))
@@ -104,12 +102,30 @@ def _explicit_limits(work: Block) -> list[dict]:
     return rows
 
 
+def at_step(cfg, h: float):
+    """The sweep config `cfg` as a verdict at the step h [s] runs it: the accuracy runs take
+    the horizon in steps of h, as the sweep's; the limit search brackets from h, and probes
+    above it even when h is past the config's largest probe."""
+    return dataclasses.replace(cfg, hs=(h,), h_probe_max=max(cfg.h_probe_max, 2.0 * h))
+
+
+def check_workload(cfg, pairs) -> None:
+    """UsageError, before any work, with the estimate and the limit, if the verdict on any
+    (method, h [s]) of `pairs` would hold more trajectory memory or integrate more steps
+    than allowed (the sweep's estimate at that one step)."""
+    from stepzoo.bench.sweep.config import check_workload as check
+    for name, h in pairs:
+        check(dataclasses.replace(at_step(cfg, h), methods=(name,)),
+              f"the verdict on {name} at h = {h:g} s")
+
+
 def verdicts(cfg, pairs, column: str, tol: float, margin: float, unit: str = "",
              beyond_predicted: bool = False):
     """[(summary dict, judged per-point table)] per (method, h [s]) of `pairs` on the sweep
     config `cfg`: judged on `column` against `tol`, with `margin` (a fraction), below the
     smaller of the predicted and measured limits (the measured alone with
     `beyond_predicted`)."""
+    check_workload(cfg, pairs)
     variables = list(cfg.spec.variables)
     out = []
     for name, h in pairs:

@@ -5,6 +5,7 @@ for every command); each finished (integrator, query, run) is a file of its own,
 atomically, so a killed plan-bench loses no finished run."""
 from __future__ import annotations
 
+import hashlib
 import json
 import shutil
 from pathlib import Path
@@ -46,12 +47,29 @@ def start(out: Path, settings: dict, resume: bool, overwrite: bool) -> dict[str,
         manifest = json_loads((out / MANIFEST).read_text())
     except (OSError, ValueError):
         manifest = {}
-    if not isinstance(manifest, dict) or manifest.get("settings") != \
-            json.loads(to_json(settings)):
+    held = manifest.get("settings") if isinstance(manifest, dict) else None
+    now = json.loads(to_json(settings))
+    if isinstance(held, dict) and isinstance(held.get("map_sha256"), dict) and \
+            {**held, "map_sha256": None} == {**now, "map_sha256": None}:
+        changed = [m for m, sha in now["map_sha256"].items() if held["map_sha256"].get(m) != sha]
+        if changed:
+            raise UsageError(f"--resume: the map file {changed[0]} is not the one the "
+                             f"plan-bench in {out} began with (its sha256 differs); restore "
+                             "it, or give a new --out")
+    if held != now:
         raise UsageError(f"--resume: {out} holds a plan-bench of other queries, integrators, "
                          "runs or planner settings; resume with the same command, or give a "
                          "new --out")
     return finished(out)
+
+
+def sha256(path) -> str:
+    """The hex sha256 of the file at `path` (a map: what --resume checks is unchanged)."""
+    digest = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            digest.update(block)
+    return digest.hexdigest()
 
 
 def finished(out: Path) -> dict[str, dict]:

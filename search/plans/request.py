@@ -22,6 +22,10 @@ MAX_LINE = 1 << 20           # [bytes] longest message line read (a request is a
 # Writes to a peer that has gone raise an OSError instead of killing the writer with SIGPIPE
 # (the `stepzoo` command restores SIGPIPE's default action for `stepzoo ... | head`).
 NO_SIGPIPE = getattr(socket, "MSG_NOSIGNAL", 0)
+# [s] the asker waits this long for the server to take its plan (its first message): a
+# socket that accepts and never answers, or a server stuck, is then said, not waited on.
+SERVER_WAIT_S = 300.0
+MAX_WAIT_S = 86400.0
 
 
 def default_socket() -> Path:
@@ -127,16 +131,22 @@ class Messages:
         return json_loads(self.lines.pop(0))
 
 
-def request(path, argv: list[str], platform: str | None = None) -> int:
+def request(path, argv: list[str], platform: str | None = None,
+            wait_s: float = SERVER_WAIT_S) -> int:
     """Run `stepzoo` with the arguments `argv` (a plan) in the server listening at `path`,
     in this process's folder and with its command line: its stdout and stderr are written
     here as they come, and its exit status is returned; a missing server is a UsageError.
     Ctrl-C cancels the plan on the server and waits for it to stop; a second Ctrl-C stops
-    waiting. `platform` (the --platform flag) is refused: the server has its own. E.g.
+    waiting. A server that sends nothing for `wait_s` seconds [s] after the request (its
+    first message says it took the plan) is a UsageError. `platform` (the --platform flag)
+    is refused: the server has its own. E.g.
     `request("/tmp/plan.sock", ["plan", "street", "--out", "plan"])`."""
     if platform:
         raise UsageError("--platform does not go with --server: the server computes on the "
                          "platform it was started with (`stepzoo serve --platform NAME`)")
+    if not 0 < wait_s <= MAX_WAIT_S:
+        raise UsageError(f"--server-timeout must be a number of seconds in (0, "
+                         f"{MAX_WAIT_S:g}], got {wait_s!r}")
     path = str(path)
     sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
     with sock:
@@ -159,12 +169,22 @@ def request(path, argv: list[str], platform: str | None = None) -> int:
         send(sock, {"argv": list(argv), "cwd": os.getcwd(), "command_line": list(sys.argv),
                     "stepzoo": identity()})
         answers, cancelled = Messages(sock), False
+        deadline = time.monotonic() + wait_s
         while True:
             try:
-                answer = answers.next()
+                answer = answers.next(deadline)
+                # An exit status is one a stepzoo command gives: a byte's worth at most.
                 if not (answer is None or isinstance(answer, dict) and
-                        isinstance(answer.get("exit", 0), int)):
+                        type(answer.get("exit", 0)) is int and 0 <= answer.get("exit", 0)
+                        <= 255):
                     raise ValueError("not an answer")
+                if deadline is not None:      # the server has the plan: its budget
+                    deadline = None           # bounds it
+                    sock.settimeout(None)
+            except TimeoutError:
+                raise UsageError(f"the stepzoo server at {path} has not taken the plan in "
+                                 f"{wait_s:g} s (busy, stuck, or not a stepzoo server); see "
+                                 "its output, or wait longer with --server-timeout S") from None
             except (ValueError, RecursionError):
                 raise UsageError(f"{path} answered something that is not a stepzoo server's "
                                  "answer; check that it is a `stepzoo serve` socket") from None

@@ -7,6 +7,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import unicodedata
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -82,7 +83,9 @@ def id_problem(qid: str) -> str | None:
     control character is refused by the file system or by a terminal."""
     if not qid:
         return "is empty"
-    if any(ord(c) < 32 or ord(c) == 127 for c in qid):
+    # Unicode's control characters (C0, DEL and C1, such as U+0085, a line break to some
+    # readers), surrogates, and the line and paragraph separators.
+    if any(unicodedata.category(c) in ("Cc", "Cs", "Zl", "Zp") for c in qid):
         return "holds a NUL or control character"
     if "/" in qid or "\\" in qid:
         return "holds a path separator"

@@ -55,6 +55,7 @@ OS_HINTS = {errno.EACCES: "check its permissions", errno.EPERM: "check its permi
             errno.EROFS: "the file system is read-only; give another --out",
             errno.ENOSPC: "the disk is full; free space or give another --out",
             errno.EDQUOT: "the disk quota is used up; free space or give another --out",
+            errno.EFBIG: "the file would pass the file-size limit (ulimit -f); raise it",
             errno.ENOENT: "check the path", errno.EISDIR: "give a file, not a folder",
             errno.ENOTDIR: "a part of the path is a file, not a folder"}
 
@@ -175,14 +176,15 @@ def dispatch(args, argv=None) -> int:
     served = getattr(args, "server", None)
     if args.command in LONG:
         args.progress = not (args.no_progress or args.quiet)
-    if not served:
-        configure_jax(args.platform)
     stdout, budget = sys.stdout, validate.BUDGET
     sys.stdout = _Stdout(stdout)
     try:
+        if not served:
+            validate.check_address_space()
+            configure_jax(args.platform)
         if served:
             from stepzoo.search.plans.request import request
-            code = request(served, argv, args.platform)
+            code = request(served, argv, args.platform, args.server_timeout)
         else:
             if args.command in INTEGRATE:
                 _set_budget(args.max_memory, args.max_steps)

@@ -6,7 +6,7 @@ import os
 from dataclasses import replace
 
 from stepzoo.errors import UsageError
-from stepzoo.search.plans.request import ENV
+from stepzoo.search.plans.request import ENV, SERVER_WAIT_S
 from stepzoo.workflows.plan import REVERSE_HELP, plan, settings_help, show, status
 
 
@@ -48,6 +48,10 @@ def add_arguments(p):
                    "SOCKET, which has JAX, the compiled programs and the solvers warm: the same "
                    f"files, output and exit status, without the start-up (default: ${ENV}; "
                    "unset or empty: plan in this process)")
+    p.add_argument("--server-timeout", type=float, default=SERVER_WAIT_S, metavar="S",
+                   help="with --server: how long to wait for the server to take the plan "
+                   "(it plans one request at a time) before giving up [s] (default "
+                   f"{SERVER_WAIT_S:g}); the plan itself is bounded by its own budget")
 
 
 def _numbers(text, flag):

@@ -209,6 +209,7 @@ def _answer(connection: socket.socket, request_s: float) -> None:
         _send(connection, {"refused": f"the server cannot enter {asked['cwd']}: "
                                       f"{err.strerror}; plan from a folder it can read"})
         return
+    _send(connection, {"stderr": ""})     # the plan is taken: the asker stops its clock
     saved = sys.stdout, sys.stderr, sys.argv
     sys.stdout, sys.stderr = _Forward(connection, "stdout"), _Forward(connection, "stderr")
     sys.argv = asked.get("command_line") or ["stepzoo"]

@@ -57,3 +57,6 @@ def _for_plans_arguments(p):
                    help="with --for-plans: runs per query, seeds SEED.. (default 1)")
     p.add_argument("--seed", type=int, metavar="SEED",
                    help="with --for-plans: seed of the first run (default 0)")
+    p.add_argument("--max-hours", type=float, metavar="H", help="with --for-plans: refuse "
+                   "planning that could take longer, as `stepzoo plan-bench` does (default "
+                   "24)")

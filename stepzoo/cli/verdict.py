@@ -59,8 +59,10 @@ def main(args) -> int:
     if args.pos_tol is not None and args.tol is not None:
         raise UsageError("give --tol or --pos-tol, not both")
     margin = check("margin", "--margin", args.margin)
+    # --tol 0 is checked (and refused), not taken for the default.
+    tol_given = 0.01 if args.tol is None else args.tol
     column, tol = ("err_pos", check("pos_tol", "--pos-tol", args.pos_tol)) \
-        if args.pos_tol is not None else ("err", check("tol", "--tol", args.tol or 0.01))
+        if args.pos_tol is not None else ("err", check("tol", "--tol", tol_given))
     if args.csv is not None:
         from stepzoo.results_folder import VERDICT_CSV, check_file_target
         # refused before the work, not after

@@ -58,12 +58,12 @@ def write_logs(out, queries, rows, configs, seed):
         atomic_write(target, text)
 
 
-def _estimate(n_queries, integrators, runs, config, max_hours) -> str:
+def estimate(n_queries: int, n_integrators: int, runs: int, config, max_hours) -> str:
     """The bench's size and its longest planning time, as a line; UsageError past
     `max_hours`. Each plan stops at the budget max_seconds, so that bounds its time."""
-    plans = n_queries * len(integrators) * runs
+    plans = n_queries * n_integrators * runs
     hours = plans * config.params.max_seconds / 3600
-    line = (f"{plans} plans ({n_queries} queries x {len(integrators)} integrators x {runs} "
+    line = (f"{plans} plans ({n_queries} queries x {n_integrators} integrators x {runs} "
             f"runs) of at most {config.params.max_seconds:g} s each: at most {hours:.3g} h "
             "of planning")
     if hours > max_hours:
@@ -108,7 +108,7 @@ def plan_bench(query_file, out_dir, *, runs: int = 1, seed: int = 0, speed_mps: 
     integrators = choose(integrator, integrators_from, runners_up, config)
     configs = [configured(config, item) for item in integrators]
     queries = load(query_file, config, vx)
-    estimate = _estimate(len(queries), integrators, runs, config, max_hours)
+    line = estimate(len(queries), len(integrators), runs, config, max_hours)
     tasks = [Task(i, k, r, seed + r, c, item.role, q, vx)
              for i, (item, c) in enumerate(zip(integrators, configs))
              for k, q in enumerate(queries) for r in range(runs)]
@@ -116,7 +116,9 @@ def plan_bench(query_file, out_dir, *, runs: int = 1, seed: int = 0, speed_mps: 
                             for q in queries],
                 "integrators": [[i.method, i.h, i.role] for i in integrators],
                 "runs": runs, "seed": seed, "speed": vx,
-                "params": config.params.model_dump()}
+                "params": config.params.model_dump(),
+                # A map file replaced by another under the same name is another bench.
+                "map_sha256": {q.map: bench_folder.sha256(q.map_path) for q in queries}}
     with claim(out_dir, "plan-bench", overwrite=overwrite) as out:
         done = bench_folder.start(out, settings, resume, overwrite)
         if not done:
@@ -127,7 +129,7 @@ def plan_bench(query_file, out_dir, *, runs: int = 1, seed: int = 0, speed_mps: 
         todo = sorted((t for t in tasks if t.name not in done),
                       key=lambda t: (t.query, t.run, t.integrator))
         if progress:
-            sys.stderr.write(f"stepzoo plan-bench: {estimate}; {len(done)} already done\n")
+            sys.stderr.write(f"stepzoo plan-bench: {line}; {len(done)} already done\n")
         for count, (name, row) in enumerate(run_tasks(todo, scheduler), 1):
             bench_folder.save(out, name, row)
             if progress:

@@ -129,6 +129,10 @@ def build(results, out, tuned_path=None, plans_dir=None, progress=False, verdict
     if missing:
         raise UsageError(f"--verdict {missing[0]}: not a method of the sweep "
                          f"{sweep_dir}; it has {', '.join(sorted(set(sweep.runs['method'])))}")
+    if verdicts:        # refused now, not after the figures are drawn
+        from stepzoo.bench.sweep.config import load as load_config
+        from stepzoo.bench.tune.verdict import check_workload
+        check_workload(load_config(sweep_dir / "config.toml"), verdicts)
     tuned = load_tuned(tuned_path, sweep) if tuned_path is not None else None
     plan_list = load_plans(plans_dir) if plans_dir is not None else []
     bench = load_bench_summary(bench_dir) if bench_dir is not None else None

@@ -28,6 +28,8 @@ def tune(results, pos_tol, margin: float, out, tol=None, cost: str = "time",
     from stepzoo.bench.tune.cheapest import tune as choose
     from stepzoo.bench.tune.cheapest import write
     out = check_file_target(out, kind=TUNED_FILE)     # before the work, not only when writing
+    if plans is not None:
+        plans.check_sweep(results)
     batch, interval = planner_call()
     tuned = choose(results, pos_tol, margin, tol, batch=batch, interval_s=interval, cost=cost,
                    rounds=ROUNDS if rounds is None else rounds,

@@ -13,7 +13,9 @@ from pathlib import Path
 
 from stepzoo.errors import UsageError
 
-FLAGS = ("--replay-tol", "--runs", "--seed", "--planner-config")
+FLAGS = ("--replay-tol", "--runs", "--seed", "--planner-config", "--max-hours")
+# The car the planner plans with (search.planner.shooting): the dynamic bicycle.
+PLANNER_MODEL = "dynamic5"
 
 
 @dataclass(frozen=True)
@@ -29,15 +31,28 @@ class Trial:
     seed: int
     vx: float
     progress: bool
+    max_hours: float
+
+    def check_sweep(self, results) -> None:
+        """UsageError, before tuning, if the sweep folder `results` is not of the car the
+        planner plans with: its (method, h) would be chosen for another model."""
+        from stepzoo.bench.tune.cheapest import load_results
+        model = load_results(results)[2].get("model")
+        if model != PLANNER_MODEL:
+            raise UsageError(f"--for-plans plans with the planner's car, the {PLANNER_MODEL} "
+                             f"bicycle, but {results} is a sweep of {model!r}; give a sweep of "
+                             f"model = \"{PLANNER_MODEL}\", or tune without --for-plans")
 
     def choose(self, tuned: dict, results) -> dict:
         """`tuned` (bench.tune's dict, from the sweep folder `results`) with the candidate
         that plans best as its choice, the others as runners-up, and the [plans] table."""
+        from stepzoo.workflows.plan_bench import estimate
         from stepzoo.search.plan_bench.integrators import Integrator
         from stepzoo.search.plan_bench.engine import plan_all
         from stepzoo.search.plan_bench.choice import choose
         qualified = [r for r in tuned["runners_up"] if "h" in r and r.get("qualifies", True)]
         entries = [tuned, *qualified]
+        estimate(len(self.queries), len(entries), self.runs, self.config, self.max_hours)
         integrators = [Integrator(e["method"], float(e["h"]), "tuned" if k == 0 else
                                   "runner-up") for k, e in enumerate(entries)]
         _, summaries = plan_all(self.queries, integrators, self.config, runs=self.runs,
@@ -97,6 +112,7 @@ class Trial:
 def trial(args) -> Trial | None:
     """The --for-plans work of the command's flags, its queries read and checked now, before
     the sweep is tuned; None without --for-plans. Every mistake is a UsageError."""
+    from stepzoo.workflows.plan_bench import DEFAULT_MAX_HOURS, estimate
     from stepzoo.search.plan_bench.engine import load
     from stepzoo.search.planner.config import load_config
     from stepzoo.search.world.scenarios import DEFAULT_SPEED
@@ -119,9 +135,14 @@ def trial(args) -> Trial | None:
         tol, tol_from = config.params.margin, "the planner's collision margin, parameter margin"
     else:
         tol, tol_from = check("pos_tol", "--replay-tol", args.replay_tol), "--replay-tol"
+    max_hours = DEFAULT_MAX_HOURS if args.max_hours is None else args.max_hours
+    if not max_hours > 0:
+        raise UsageError(f"--max-hours must be a number > 0, got {max_hours!r}")
     queries = load(args.for_plans, config, DEFAULT_SPEED)
+    # The tune choice plans at least: refused now, before the sweep is tuned.
+    estimate(len(queries), 1, runs, config, max_hours)
     return Trial(str(args.for_plans), queries, config, float(tol), tol_from, runs, seed,
-                 DEFAULT_SPEED, bool(getattr(args, "progress", False)))
+                 DEFAULT_SPEED, bool(getattr(args, "progress", False)), max_hours)
 
 
 def show(tuned: dict) -> None:
