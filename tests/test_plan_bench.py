@@ -29,7 +29,7 @@ COLUMNS = {"query", "run", "seed", "status", "time_s", "first_solution_s", "solu
            "length_m", "cusps", "clearance_min_m", "clearance_mean_m", "curvature_max",
            "curvature_mean", "smoothness", "expansions", "method", "h", "integrator", "role"}
 # Wall-clock measurements: they differ between any two runs of the same plan.
-TIMED = ["time_s", "first_solution_s", "solution_s", "replay_s", "progress"]
+TIMED = ["time_s", "first_solution_s", "solution_s", "replay_s", "tracking_s", "progress"]
 TUNED = """method = "rk4"
 h = 0.05
 [[runners_up]]
@@ -101,6 +101,10 @@ def test_the_table_has_a_row_per_integrator_query_and_run_with_every_measure(ben
     assert (around["final_deviation_m"] <= around["max_deviation_m"]).all()
     assert (around["max_heading_deviation_rad"] > 0).all() and not around["collides"].any()
     assert (around["goal_distance_m"] < 0.1).all() and (around["replay_s"] > 0).all()
+    # ... and tracked by the controller on the richer car, as plan.json's tracking block.
+    assert (around["tracking_controller"] == "stanley").all()
+    assert (around["tracking_max_deviation_m"] >= around["tracking_final_deviation_m"]).all()
+    assert (around["tracking_s"] > 0).all() and around["tracking_collides"].notna().all()
     walled = table[table["query"] == "walled"]
     assert (walled["status"] == "no_path").all() and (walled["cause"] == "walled_off").all()
     assert walled["length_m"].isna().all() and walled["max_deviation_m"].isna().all()
