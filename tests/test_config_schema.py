@@ -1,12 +1,15 @@
 """The generic config schema: every mistake of a table named at once in the house's words, and
 a fingerprint that only what differs from the defaults decides."""
+from typing import Annotated
+
 import pytest
 
 from stepzoo.config_schema import Field, Schema, check, quantity, sha256
 from stepzoo.errors import UsageError
 
-Step = quantity("a step size", "s", "round-off below, the horizon above", gt=0.0, le=100.0)
-Count = quantity("a number of steps", "", "at least one", whole=True, ge=1)
+Step = Annotated[float, quantity("a step size", "s", "round-off below, the horizon above",
+                                 gt=0.0, le=100.0)]
+Count = Annotated[int, quantity("a number of steps", "", "at least one", ge=1)]
 
 
 class Inner(Schema):
