@@ -35,7 +35,8 @@ def verdict(cfg, method_name: str, h: float) -> pd.DataFrame:
     # The accuracy runs take n steps of h, as the sweep's; the limit search brackets from h,
     # and probes above it even when h is past the config's largest probe.
     cfg = dataclasses.replace(cfg, hs=(h,), h_probe_max=max(cfg.h_probe_max, 2.0 * h))
-    cache, rows = {}, []
+    cache: dict = {}
+    rows: list[dict] = []
     for block in range(n_blocks(cfg)):
         work = Block(cfg, block, cache, max_steps=max(n, cfg.stab_steps))
         pts = work.points
