@@ -40,13 +40,13 @@ class Expander:
         if s.f.back_shooter is not None:
             gears.append((-1, s.f.back_shooter))
         for direction, shooter in gears:
-            points = []
+            aims = []
             for node, random in zip(rows, self.filled(randoms)):
                 state = tree.states[node]
                 ahead = np.r_[state[:2], state[2] + (0.0 if direction > 0 else math.pi)]
-                points += [point_selector(ahead, prm.arc_radius, prm.n_arc, prm.delta_max),
-                           random]
-            new += self.add_all(nodes, direction, shooter.shoot(states, np.vstack(points),
+                aims += [point_selector(ahead, prm.arc_radius, prm.n_arc, prm.delta_max),
+                         random]
+            new += self.add_all(nodes, direction, shooter.shoot(states, np.vstack(aims),
                                                                 s.goal))
         # Tight moves leave the region the tree exhausted: from its nodes and along chains of
         # tight moves; once a node is reached by the tree's own move, the tree goes on alone.

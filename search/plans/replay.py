@@ -232,12 +232,12 @@ def path_nodes(result: PlanResult) -> np.ndarray:
 def _path_nodes(path: np.ndarray, segs: list[dict]) -> np.ndarray:
     """(K, 4) the rows of plan.json's path (K', 4) [t s, X, Y, psi] at the segments' steps
     (the rows filled in between them are linear interpolation, not the planner's)."""
-    times = [np.zeros(1)]
+    pieces = [np.zeros(1)]
     for seg in segs:
         n = int(seg["steps"])
         span = float(seg["duration"] if seg["model"] == "dynamic5" else seg["dt"] * n)
-        times.append(float(seg["t0"]) + span * np.arange(1, n + 1) / n)
-    times = np.concatenate(times)
+        pieces.append(float(seg["t0"]) + span * np.arange(1, n + 1) / n)
+    times = np.concatenate(pieces)
     k = np.clip(np.searchsorted(path[:, 0], times), 1, len(path) - 1)
     k = np.where(np.abs(path[k - 1, 0] - times) < np.abs(path[k, 0] - times), k - 1, k)
     off = np.abs(path[k, 0] - times).max()
