@@ -31,7 +31,7 @@ def settings_help() -> str:
     for name, info in PlannerParams.model_fields.items():
         lines += textwrap.wrap(f"{name} = {info.default:g}: {describe(info)}", 84,
                                initial_indent="  ", subsequent_indent="      ")
-        lines += [f"      {line}" for line in textwrap.wrap(info.description, 80)]
+        lines += [f"      {line}" for line in textwrap.wrap(info.description or "", 80)]
     return "\n".join(lines)
 
 
