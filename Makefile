@@ -20,9 +20,9 @@ setup: $(STAMP)
 run: $(STAMP)
 	$(BIN)/stepzoo run --out results
 
-# Lint first (seconds), then the suite: one worker per core; a file's tests stay
-# on one worker, so its module fixtures run once.
-test: lint
+# Lint and type-check first (they stop a broken tree before the long part), then the suite:
+# one worker per core; a file's tests stay on one worker, so its module fixtures run once.
+test: lint typecheck
 	$(BIN)/python -m pytest -n auto --dist loadfile
 
 lint: $(STAMP)

@@ -48,7 +48,7 @@ def state(x0, batched: bool):
             raise TypeError("x0 must be a number, a list of numbers or an array, got "
                             f"{type(x0).__name__}") from None
     dtype = np.dtype(x0.dtype)
-    if dtype == np.float64 and not jax.config.jax_enable_x64:
+    if dtype == np.float64 and not jax.config.read("jax_enable_x64"):
         raise TypeError(f"x0 is float64 but JAX computes in float32; {X64_HINT}, or give x0 "
                         "as float32")
     # dtype kinds, not np.issubdtype: this runs on every call, and issubdtype costs ~10 us.

@@ -30,7 +30,7 @@ class Method:
     name: str
     family: str
     order: int
-    scheme: object
+    scheme: ButcherTableau | Rosenbrock | LinearMultistep
     reference: str
     starter: "Method | None" = None
     newton: NewtonOptions = NewtonOptions()
@@ -67,12 +67,12 @@ class Method:
 
     @property
     def stages(self) -> int:
-        return 1 if self.is_multistep else self.scheme.stages
+        return 1 if isinstance(self.scheme, LinearMultistep) else self.scheme.stages
 
     @property
     def steps(self) -> int:
         """Step count k of a multistep method (1 for one-step methods)."""
-        return self.scheme.steps if self.is_multistep else 1
+        return self.scheme.steps if isinstance(self.scheme, LinearMultistep) else 1
 
     @property
     def n_start(self) -> int:
@@ -84,9 +84,9 @@ class Method:
         """Explicit: exact. Rosenbrock: evaluations of f in one step, without the d + 1 of
         its derivatives. Implicit: evaluations of one Newton iteration without the Jacobian
         (the measured count, with Newton iterations, comes from the driver)."""
-        if self.is_multistep:
+        if isinstance(self.scheme, LinearMultistep):
             return 1
-        if self.is_rosenbrock or self.scheme.explicit:
+        if isinstance(self.scheme, Rosenbrock) or self.scheme.explicit:
             return self.scheme.evals_per_step
         return self.scheme.stages
 
@@ -135,6 +135,12 @@ def _rk(a, b, c=None, b_hat=None):
     a, b = np.array(a, dtype=float), np.array(b, dtype=float)
     return ButcherTableau(a, b, a.sum(axis=1) if c is None else np.array(c),
                           None if b_hat is None else b - np.array(b_hat, dtype=float))
+
+
+def _ros(alpha, gamma, b, b_hat=None) -> Rosenbrock:
+    """A Rosenbrock method from its coefficients' rows."""
+    return Rosenbrock(np.array(alpha), np.array(gamma), np.array(b),
+                      None if b_hat is None else np.array(b_hat))
 
 
 TABLEAUS = {
@@ -186,15 +192,14 @@ TABLEAUS = {
 G2 = 1 + 1 / np.sqrt(2.0)
 G3P = 1 / 2 + S3 / 6
 ROSENBROCK = {
-    "ros2": Rosenbrock([[0, 0], [1, 0]], [[G2, 0], [-2 * G2, G2]], [1 / 2, 1 / 2],
-                       b_hat=[1, 0]),
-    "ros3p": Rosenbrock([[0, 0, 0], [1, 0, 0], [1, 0, 0]],
-                        [[G3P, 0, 0], [-1, G3P, 0], [-G3P, -1 / 2 - S3 / 3, G3P]],
-                        [2 / 3, 0, 1 / 3], b_hat=[1 / 3, 1 / 3, 1 / 3]),
-    "rodas3": Rosenbrock([[0, 0, 0, 0], [0, 0, 0, 0], [1, 0, 0, 0], [3 / 4, -1 / 4, 1 / 2, 0]],
-                         [[1 / 2, 0, 0, 0], [1, 1 / 2, 0, 0], [-1 / 4, -1 / 4, 1 / 2, 0],
-                          [1 / 12, 1 / 12, -2 / 3, 1 / 2]],
-                         [5 / 6, -1 / 6, -1 / 6, 1 / 2], b_hat=[3 / 4, -1 / 4, 1 / 2, 0]),
+    "ros2": _ros([[0, 0], [1, 0]], [[G2, 0], [-2 * G2, G2]], [1 / 2, 1 / 2], b_hat=[1, 0]),
+    "ros3p": _ros([[0, 0, 0], [1, 0, 0], [1, 0, 0]],
+                  [[G3P, 0, 0], [-1, G3P, 0], [-G3P, -1 / 2 - S3 / 3, G3P]],
+                  [2 / 3, 0, 1 / 3], b_hat=[1 / 3, 1 / 3, 1 / 3]),
+    "rodas3": _ros([[0, 0, 0, 0], [0, 0, 0, 0], [1, 0, 0, 0], [3 / 4, -1 / 4, 1 / 2, 0]],
+                   [[1 / 2, 0, 0, 0], [1, 1 / 2, 0, 0], [-1 / 4, -1 / 4, 1 / 2, 0],
+                    [1 / 12, 1 / 12, -2 / 3, 1 / 2]],
+                   [5 / 6, -1 / 6, -1 / 6, 1 / 2], b_hat=[3 / 4, -1 / 4, 1 / 2, 0]),
 }
 
 METHODS: dict[str, Method] = {}

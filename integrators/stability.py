@@ -16,6 +16,9 @@ import numpy as np
 from numpy.polynomial import polynomial as P
 
 from stepzoo.integrators.methods import Method
+from stepzoo.integrators.multistep import LinearMultistep
+from stepzoo.integrators.rosenbrock import Rosenbrock
+from stepzoo.integrators.tableau import ButcherTableau
 
 TOL = 1e-12            # |amplification| <= 1 + TOL counts as stable (round-off of |R| = 1)
 MEASURABLE = 1e-10     # |amplification| below 1 - MEASURABLE is inside beyond doubt
@@ -86,10 +89,12 @@ def multistep_amplification_bound(lmm, z) -> np.ndarray:
     return out
 
 
-def tableau(m: Method):
+def tableau(m: Method) -> ButcherTableau:
     """The Butcher tableau whose R(z) is the one-step method's: its own, or a Rosenbrock
     method's underlying DIRK (alpha + Gamma, b)."""
-    return m.scheme.tableau if m.is_rosenbrock else m.scheme
+    if isinstance(m.scheme, LinearMultistep):
+        raise TypeError(f"{m.name} is a multistep method: it has no Butcher tableau")
+    return m.scheme.tableau if isinstance(m.scheme, Rosenbrock) else m.scheme
 
 
 def amplification_theory(m: Method, z):
@@ -208,7 +213,7 @@ def stiff_decay(m: Method) -> float:
     multistep method the largest root of sigma. inf for explicit methods."""
     if not m.implicit:
         return float("inf")
-    if m.is_multistep:
+    if isinstance(m.scheme, LinearMultistep):
         roots = np.roots(m.scheme.beta[::-1])
         return float(np.abs(roots).max()) if roots.size else 0.0
     tab = tableau(m)
@@ -272,7 +277,9 @@ def a_alpha(m: Method) -> float | None:
     return float(lo)
 
 
-def region_grid(m: Method, re=(-6.0, 2.0), im=(-4.0, 4.0), n=401, route="theory"):
+def region_grid(m: Method, re: tuple[float, float] = (-6.0, 2.0),
+                im: tuple[float, float] = (-4.0, 4.0), n: int = 401,
+                route: str = "theory") -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(re axis, im axis, amplification on the grid) for plots; stable where <= 1."""
     x, y = np.linspace(*re, n), np.linspace(*im, n)
     z = x[None, :] + 1j * y[:, None]

@@ -18,7 +18,7 @@ def rk_slopes(a, c, fun, t, y, h, needed=None, k0=None) -> list:
     plain arithmetic with Python-float coefficients, so that JAX arrays of any float dtype
     and CasADi symbols alike go through. Stages not `needed` are None; `k0` is a known first
     slope (first same as last)."""
-    k = []
+    k: list = []
     for i in range(len(c)):
         if needed is not None and not needed[i]:
             k.append(None)

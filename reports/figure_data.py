@@ -76,7 +76,7 @@ def _sample_runs(traj: pd.DataFrame):
     ref = traj[traj["method"] == "reference"].sort_values("t")
     states = [c for c in traj.columns if c not in ("method", "h", "t", "past_limit")]
     bound = {c: BLOWUP_FACTOR * max(np.abs(ref[c]).max(), 1e-9) for c in states}
-    runs = {}
+    runs: dict[str, list] = {}
     for (name, h), run in traj[traj["method"] != "reference"].groupby(["method", "h"]):
         run = run.sort_values("t")
         # The sweep marks the run it placed past the predicted limit; without the mark, a
@@ -217,7 +217,9 @@ def _boundary(x, y, amp) -> tuple[np.ndarray, np.ndarray]:
     lines = contourpy.contour_generator(x, y, amp).lines(1.0)
     if not lines:
         return np.zeros(0), np.zeros(0)
-    joined = np.vstack([np.vstack([piece, [np.nan, np.nan]]) for piece in lines])
+    # contourpy's stub types lines() for every line type; the default gives (n, 2) arrays
+    joined = np.vstack([np.vstack([piece, [np.nan, np.nan]])  # type: ignore[list-item]
+                        for piece in lines])
     return joined[:, 0], joined[:, 1]
 
 

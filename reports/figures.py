@@ -9,6 +9,7 @@ import logging
 import math
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Callable
 
 import numpy as np
 from matplotlib import colormaps
@@ -310,7 +311,9 @@ def tradeoff(data: ft.Tradeoff, out_dir: Path) -> Shown:
     return _one(data)
 
 
-RENDER = {ft.Trajectories: trajectories, ft.Regions: regions, ft.ErrorVsStep: error_vs_step,
+# The renderer of each figure record's type.
+RENDER: dict[type, Callable[..., Shown]] = {
+          ft.Trajectories: trajectories, ft.Regions: regions, ft.ErrorVsStep: error_vs_step,
           ft.WorkPrecision: work_precision, ft.StableStep: stable_step, ft.Plans: plans,
           ft.Tradeoff: tradeoff}
 

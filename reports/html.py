@@ -5,6 +5,7 @@ come packed (interactive.pack); the page's one script unpacks them and draws the
 from __future__ import annotations
 
 import html
+from collections.abc import Sequence
 from pathlib import Path
 
 from stepzoo.output import write_file
@@ -89,7 +90,7 @@ def _table_html(t) -> str:
 
 def index_html(title: str, facts: list, tables: list, figures: list,
                interactive: dict | None = None, plotly_js: str = "",
-               appendix: list = ()) -> str:
+               appendix: Sequence = ()) -> str:
     """The page: facts (label, value) about the inputs, the tables, the figures, then the
     appendix tables. `interactive` maps a figure's number to its plots' HTML fragments, which
     need `plotly_js` (the library, packed, inlined once in the head)."""
@@ -127,7 +128,7 @@ def _table_md(t) -> list:
 
 
 def summary_md(title: str, facts: list, tables: list, figures: list,
-               appendix: list = ()) -> str:
+               appendix: Sequence = ()) -> str:
     lines = [f"# {title}", ""]
     lines += [f"- **{k}**: {v}" for k, v in facts]
     for t in tables:
@@ -142,7 +143,7 @@ def summary_md(title: str, facts: list, tables: list, figures: list,
 
 
 def write_report(out_dir, title: str, facts: list, tables: list, figures: list,
-                 interactive: dict | None = None, plotly_js: str = "", appendix: list = ()):
+                 interactive: dict | None = None, plotly_js: str = "", appendix: Sequence = ()):
     """Write index.html and summary.md into out_dir, a new folder that is renamed into
     place whole once written (results_folder.replacing); returns their paths."""
     out_dir = Path(out_dir)

@@ -10,6 +10,7 @@ import base64
 import gzip
 import io
 from functools import cache
+from typing import Callable
 
 import numpy as np
 import plotly.graph_objects as go
@@ -339,7 +340,9 @@ def tradeoff(data: ft.Tradeoff) -> list:
     return [_layout(fig, data.axes[0])]
 
 
-RENDER = {ft.Trajectories: trajectories, ft.Regions: regions, ft.ErrorVsStep: error_vs_step,
+# The renderer of each figure record's type.
+RENDER: dict[type, Callable[..., list]] = {
+          ft.Trajectories: trajectories, ft.Regions: regions, ft.ErrorVsStep: error_vs_step,
           ft.WorkPrecision: work_precision, ft.StableStep: stable_step, ft.Plans: plans,
           ft.Tradeoff: tradeoff}
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import tomllib
+import dataclasses
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -49,7 +50,7 @@ class View:
 
     @staticmethod
     def of(manifest: dict, runs: pd.DataFrame) -> "View":
-        spec = manifest.get("model_spec") or BICYCLE
+        spec: dict = manifest.get("model_spec") or BICYCLE
         states, errs = tuple(spec["states"]), tuple(spec["error_states"])
         vehicle = bool(spec.get("vehicle")) and "err_pos" in runs
         plot = "r" if vehicle and "r" in states else errs[0]
@@ -65,9 +66,8 @@ class View:
         """The view whose error axis is the one the tuned config's tolerance bounds."""
         for key, (column, unit, label) in TOLERANCES.items():
             if tuned and key in tuned:
-                return View(*[getattr(self, f) for f in ("model", "vehicle", "states",
-                              "variables", "error_states", "plot_state", "plane")],
-                            column, unit, label)
+                return dataclasses.replace(self, error=column, error_unit=unit,
+                                           error_label=label)
         return self
 
 

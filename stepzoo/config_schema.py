@@ -11,11 +11,13 @@ import importlib
 import json
 import types
 import typing
-from typing import Annotated, Literal, Union
+from typing import Annotated, Any, Literal, TypeVar
 
 import pydantic
 from pydantic import ConfigDict, Discriminator, Field, Tag
+from pydantic_core import ErrorDetails
 from pydantic.fields import FieldInfo
+from pydantic.json_schema import JsonDict
 
 from stepzoo.errors import UsageError
 from stepzoo.ranges import BOUNDS, Range
@@ -27,44 +29,45 @@ class Schema(pydantic.BaseModel):
     model_config = ConfigDict(frozen=True, extra="forbid", strict=True, allow_inf_nan=False)
 
 
-def quantity(what: str, unit: str, reason: str, *, whole: bool = False, **bounds):
-    """A number type with its range: `what` names it in messages ("a step size"; "": the
-    number alone), `bounds` are pydantic's ge/gt/le/lt in `unit`, `reason` says why they are
-    where they are. Declare a field as `h: Step = Field(0.1, description="...")`."""
-    return of_range(Range(what, unit, reason, whole, **bounds))
+S = TypeVar("S", bound=Schema)
 
 
-def of_range(r: Range):
-    """The pydantic type of the Range `r`."""
-    extra = {"what": r.what, "unit": r.unit, "reason": r.reason}
-    return Annotated[int if r.whole else float, Field(json_schema_extra=extra, **r.bounds())]
+def quantity(what: str, unit: str, reason: str, *, ge: float | None = None,
+             gt: float | None = None, le: float | None = None,
+             lt: float | None = None) -> FieldInfo:
+    """The range of a number type: `what` names it in messages ("a step size"; "": the number
+    alone), the bounds are pydantic's ge/gt/le/lt in `unit`, `reason` says why they are where
+    they are. Declare the type as `Step = Annotated[float, quantity(...)]` (int: a whole
+    number) and a field as `h: Step = Field(0.1, description="...")`."""
+    return of_range(Range(what, unit, reason, ge=ge, gt=gt, le=le, lt=lt))
+
+
+def of_range(r: Range) -> FieldInfo:
+    """The pydantic Field of the Range `r`, to annotate a number type with (its `whole` is the
+    type's: int or float)."""
+    extra: JsonDict = {"what": r.what, "unit": r.unit, "reason": r.reason}
+    return Field(json_schema_extra=extra, **r.bounds())
 
 
 @functools.cache
-def ranged(kind: str):
-    """The pydantic type of validate.RANGES[kind]: a config file's field checked against the
-    same range, in the same words, as the command line's flag."""
+def ranged(kind: str) -> FieldInfo:
+    """The Field of validate.RANGES[kind], to annotate a number type with (int where the range
+    is whole, else float): a config file's field checked against the same range, in the same
+    words, as the command line's flag."""
     from stepzoo.validate import RANGES
     return of_range(RANGES[kind])
 
 
-def optional(model: type[Schema], name: str, doc: str, **more) -> type[Schema]:
+def optional(model: type[Schema], name: str, doc: str, **more: Any) -> type[Schema]:
     """A table of `model`'s keys, each optional (a required one None when not given), plus
     the fields `more` (name=(type, Field)): a table whose keys fill in or replace another's,
     as a suite's top level and problems do a sweep config's."""
-    fields = {key: (typing.Optional[info.annotation], FieldInfo.merge_field_infos(
-        info, default=None)) if info.is_required() else (info.annotation, info)
+    fields: dict[str, Any] = {
+        key: (typing.Optional[info.annotation], FieldInfo.merge_field_infos(info, default=None))
+        if info.is_required() else (info.annotation, info)
         for key, info in model.model_fields.items()}
     return pydantic.create_model(name, __base__=Schema, __doc__=doc, __module__=model.__module__,
                                  **fields, **more)
-
-
-def by_shape(**members):
-    """A key a file may write in several shapes, `value` (a number or a string), `list` or
-    `table`, each its own type: the shape written picks the one that validates it, so that
-    one mistake is one line (not one per shape it might have been)."""
-    union = Union[tuple(Annotated[t, Tag(shape)] for shape, t in members.items())]
-    return Annotated[union, Discriminator(_shape)]
 
 
 def _shape(value) -> str:
@@ -73,7 +76,14 @@ def _shape(value) -> str:
     return "list" if isinstance(value, (list, tuple)) else "value"
 
 
-def check(model_cls: type[Schema], data: dict, where: str) -> Schema:
+# A key a file may write in several shapes, `value` (a number or a string), `list` or `table`,
+# each its own type tagged with its shape (`Annotated[X, Tag("list")]`): the shape written
+# picks the one that validates it, so that one mistake is one line (not one per shape it might
+# have been). Declare it as `Annotated[Annotated[A, Tag("value")] | ..., BY_SHAPE]`.
+BY_SHAPE = Discriminator(_shape)
+
+
+def check(model_cls: type[S], data: dict, where: str) -> S:
     """`data` (a file's table) as a `model_cls`; UsageError with one line per mistake, each
     starting with `where` (the file, or the table in it). A file that is one mistake whole
     (empty, or a config of another kind) is one line, not one per key it lacks."""
@@ -129,19 +139,20 @@ def _listing(names: list[str], shown: int = 3) -> str:
                                        if len(names) > shown else "")
 
 
-def differing(instance) -> dict:
+def differing(instance: object) -> dict:
     """The values of a Schema (or pydantic dataclass) `instance` that differ from their
     defaults, nested tables alike, as JSON-ready data; fields declared `exclude=True` (those
     that decide no result, such as a file's path) are left out."""
-    return _adapter(type(instance)).dump_python(instance, mode="json", exclude_defaults=True)
+    kind: type = type(instance)       # as `type`, which mypy reads as hashable
+    return _adapter(kind).dump_python(instance, mode="json", exclude_defaults=True)
 
 
 @functools.cache
-def _adapter(cls) -> pydantic.TypeAdapter:
+def _adapter(cls: type) -> pydantic.TypeAdapter:
     return pydantic.TypeAdapter(cls)
 
 
-def sha256(instance) -> str:
+def sha256(instance: object) -> str:
     """The hex sha256 of differing(instance) as canonical JSON (sorted keys, no spaces):
     writing a default out keeps a config's fingerprint."""
     text = json.dumps(differing(instance), sort_keys=True, separators=(",", ":"))
@@ -170,7 +181,7 @@ def kind_model(kind: str) -> type[Schema]:
     return getattr(importlib.import_module(module), name)
 
 
-def describe(info: FieldInfo, annotation=None) -> str:
+def describe(info: FieldInfo, annotation: Any = None) -> str:
     """What a field takes, in words: "a step size: a number in (0, 100] s (why)" for a
     quantity, else from its type ("a whole number", "one of 'max', 'final'")."""
     annotation = annotation if annotation is not None else info.annotation
@@ -182,8 +193,8 @@ def describe(info: FieldInfo, annotation=None) -> str:
         return _kind_words(annotation)
     bounds = {name: getattr(m, name) for m in info.metadata for name in BOUNDS
               if getattr(m, name, None) is not None}
-    return Range(extra["what"], extra["unit"], extra["reason"], _bare(annotation) is int,
-                 **bounds).words()
+    return Range(str(extra["what"]), str(extra["unit"]), str(extra["reason"]),
+                 _bare(annotation) is int, **bounds).words()
 
 
 # ---------------------------------------------------------------- the words of the messages
@@ -206,7 +217,7 @@ def _lists(value):
     return value
 
 
-def _line(model_cls, e: dict) -> str:
+def _line(model_cls: type[Schema], e: ErrorDetails) -> str:
     """The line of a mistake that is not a value's type or range (_type_mistake's)."""
     info, annotation, names, every = _walk(model_cls, e["loc"])
     key = ".".join(names)
@@ -240,7 +251,7 @@ def _type_mistake(model_cls, e: dict) -> tuple[str, str, str] | None:
     return f"{'every ' if every else ''}{'.'.join(names)}", words, repr(_lists(e["input"]))
 
 
-def _error_words(e: dict) -> str:
+def _error_words(e: ErrorDetails) -> str:
     """A field's expectation from the error alone (no declaration found for its place)."""
     return {"float_type": "a number", "int_type": "a whole number", "int_from_float":
             "a whole number", "bool_type": "true or false", "string_type": "a string",

@@ -79,7 +79,7 @@ def machine() -> dict:
 
 def packages() -> dict:
     """Installed versions of PACKAGES (None where one is not installed)."""
-    out = {}
+    out: dict[str, str | None] = {}
     for name in PACKAGES:
         try:
             out[name] = version(name)
@@ -95,7 +95,7 @@ def jax_runtime() -> dict:
     return {"backend": jax.default_backend(),
             "devices": [f"{d.platform}:{d.id} {d.device_kind}" for d in devices],
             "device_count": len(devices),
-            "float": "float64" if jax.config.jax_enable_x64 else "float32"}
+            "float": "float64" if jax.config.read("jax_enable_x64") else "float32"}
 
 
 @cache
@@ -103,7 +103,8 @@ def source() -> dict:
     """stepzoo's version, and its git commit when it runs from a git checkout (an editable
     install): the commit id, branch and whether tracked files differ from it."""
     from stepzoo import __version__
-    info = {"version": __version__, "commit": None, "branch": None, "dirty": None}
+    info: dict[str, str | bool | None] = {"version": __version__, "commit": None,
+                                          "branch": None, "dirty": None}
     here = Path(__file__).resolve().parent
 
     def git(*args):

@@ -10,12 +10,16 @@ from pydantic import ConfigDict, Field
 from stepzoo.config_schema import Schema, quantity, ranged
 
 # The shared ranges of validate.RANGES, as field types.
-Margin, PosTol, Rounds, Step, Tol = map(ranged, ("margin", "pos_tol", "rounds", "step", "tol"))
+Margin = Annotated[float, ranged("margin")]
+PosTol = Annotated[float, ranged("pos_tol")]
+Rounds = Annotated[int, ranged("rounds")]
+Step = Annotated[float, ranged("step")]
+Tol = Annotated[float, ranged("tol")]
 
-Count = quantity("", "", "a count", whole=True, ge=0)
+Count = Annotated[int, quantity("", "", "a count", ge=0)]
 # A measurement tune recorded: NaN where it could not be taken is a record, not a mistake.
 Measured = Annotated[float, Field(allow_inf_nan=True)]
-Rate = quantity("", "", "a fraction of the runs", ge=0.0, le=1.0)
+Rate = Annotated[float, quantity("", "", "a fraction of the runs", ge=0.0, le=1.0)]
 # Planner parameters by name; their types and ranges are the planner's (the planner kind).
 PlannerValues = dict[str, float | int | bool | str]
 

@@ -1,12 +1,15 @@
 """The generic config schema: every mistake of a table named at once in the house's words, and
 a fingerprint that only what differs from the defaults decides."""
+from typing import Annotated
+
 import pytest
 
 from stepzoo.config_schema import Field, Schema, check, quantity, sha256
 from stepzoo.errors import UsageError
 
-Step = quantity("a step size", "s", "round-off below, the horizon above", gt=0.0, le=100.0)
-Count = quantity("a number of steps", "", "at least one", whole=True, ge=1)
+Step = Annotated[float, quantity("a step size", "s", "round-off below, the horizon above",
+                                 gt=0.0, le=100.0)]
+Count = Annotated[int, quantity("a number of steps", "", "at least one", ge=1)]
 
 
 class Inner(Schema):
@@ -96,3 +99,40 @@ def test_every_key_of_every_kind_has_a_doc_line_and_every_range_a_reason():
     # The keys a newcomer had to find in the tests and envelope.toml are declared.
     assert {"Stability.h_probe_max", "Chunks.points", "Stability.growth",
             "Trajectories.fractions", "Trajectories.past_limit"} <= found
+
+
+def _ranged_bases(annotation, tables):
+    """(base type, kind) of every Annotated[base, ranged(kind)] inside `annotation`; the
+    tables met on the way go into `tables`."""
+    import typing
+    from stepzoo.config_schema import ranged
+    from stepzoo.validate import RANGES
+    if typing.get_origin(annotation) is Annotated:
+        base, *meta = typing.get_args(annotation)
+        yield from ((base, kind) for kind in RANGES if any(m is ranged(kind) for m in meta))
+        yield from _ranged_bases(base, tables)
+    elif isinstance(annotation, type) and issubclass(annotation, Schema):
+        tables.append(annotation)
+    else:
+        for arg in typing.get_args(annotation):
+            yield from _ranged_bases(arg, tables)
+
+
+def test_a_field_of_a_shared_range_is_whole_exactly_where_the_range_is():
+    # The shared ranges (validate.RANGES) are declared as Annotated[int or float, ranged(k)]:
+    # an int base where the range is whole, so the file refuses 2.5 where the flag does.
+    import typing
+    from stepzoo.config_schema import KINDS, kind_model
+    from stepzoo.validate import RANGES
+    tables = [kind_model(kind) for kind in KINDS if kind != "suite"]   # suite: sweep's keys
+    seen, found = set(), []
+    while tables:
+        table = tables.pop()
+        if table in seen:
+            continue
+        seen.add(table)
+        for hint in typing.get_type_hints(table, include_extras=True).values():
+            found += _ranged_bases(hint, tables)
+    assert {"step", "rounds", "cell"} <= {kind for _, kind in found}
+    wrong = [(base, kind) for base, kind in found if (base is int) != RANGES[kind].whole]
+    assert not wrong, wrong

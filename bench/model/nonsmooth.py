@@ -61,7 +61,7 @@ def _program(f):
     return jax.jit(jax.vmap(at, in_axes=(0, 0, None, None)))
 
 
-def _along(f, ts, xs, u, p) -> tuple:
+def _along(f, ts, xs, u, p) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(f, df/dx, df/du) at the samples ts (T,), xs (T, n), in calls of CHUNK samples (the
     last one padded): one compiled program per model, whatever the sweep's steps."""
     import jax.numpy as jnp
@@ -71,8 +71,9 @@ def _along(f, ts, xs, u, p) -> tuple:
     xs = np.concatenate([xs, np.repeat(xs[-1:], pad, axis=0)])
     parts = [_program(f)(jnp.asarray(ts[i: i + CHUNK]), jnp.asarray(xs[i: i + CHUNK]), u, p)
              for i in range(0, len(ts), CHUNK)]
-    return tuple(np.concatenate([np.asarray(part[k]) for part in parts])[:T]
-                 for k in range(3))
+    fx, jx, ju = (np.concatenate([np.asarray(part[k]) for part in parts])[:T]
+                  for k in range(3))
+    return fx, jx, ju
 
 
 def detect(f, ts, xs, u, p, states, inputs, rtol: float, atol: float) -> list[Event]:
@@ -90,7 +91,7 @@ def detect(f, ts, xs, u, p, states, inputs, rtol: float, atol: float) -> list[Ev
             continue
         ub, pb = jnp.asarray(u[b]), {k: jnp.asarray(v[b]) for k, v in p.items()}
         table = _Entries(*_along(f, ts, np.asarray(xs[b]), ub, pb), states, inputs, rtol)
-        found = []
+        found: list[tuple[float, str, str]] = []
         for lo, hi in table.candidates()[:MAX_CHECKS]:
             hit = _confirm(f, ts[lo], ts[hi], xs[b, lo], ub, pb, table, rtol, atol)
             if hit is not None:
@@ -159,7 +160,7 @@ class _Entries:
                              padded[k + 3 + width]], axis=0)
             fire = (change > JUMP_FACTOR * around) & (change > self.floor)
             spans += [(i, i + width) for i in np.where(fire.any(axis=1))[0]]
-        merged = []
+        merged: list[tuple[int, int]] = []
         for lo, hi in sorted(spans):
             if merged and lo <= merged[-1][1]:
                 merged[-1] = (merged[-1][0], max(hi, merged[-1][1]))

@@ -7,39 +7,53 @@ from __future__ import annotations
 import dataclasses
 import math
 import re
+import typing
 from pathlib import Path
 from typing import Annotated, Literal
 
 import numpy as np
-from pydantic import AfterValidator, ConfigDict, Field, PlainSerializer, model_validator
+from pydantic import AfterValidator, ConfigDict, Field, PlainSerializer, Tag, model_validator
 from pydantic.dataclasses import dataclass
 
 from stepzoo import config_schema
 from stepzoo.bench.model import casadi_source as casadi_model
 from stepzoo.bench.model.spec import (BICYCLE_ERROR_STATES, Expression, Hook, ModelSpec,
                                       Nested, builtin, check_rhs, flatten, load_function)
-from stepzoo.config_schema import Schema, by_shape, quantity, ranged
+from stepzoo.config_schema import BY_SHAPE, Schema, quantity, ranged
 from stepzoo.errors import UsageError
 from stepzoo.validate import problem, read_toml
 
 # The shared ranges of validate.RANGES, as field types.
-Atol, Growth, Horizon, Perturbation, RelTol, Rounds, Rtol, Step = map(ranged, (
-    "atol", "growth", "horizon", "perturbation", "rel_tol", "rounds", "rtol", "step"))
-NewtonAtol, NewtonMaxIter, NewtonMaxIterFull, NewtonResTol, NewtonRtol = map(ranged, (
-    "newton_atol", "newton_max_iter", "newton_max_iter_full", "newton_res_tol", "newton_rtol"))
+Atol = Annotated[float, ranged("atol")]
+Growth = Annotated[float, ranged("growth")]
+Horizon = Annotated[float, ranged("horizon")]
+Perturbation = Annotated[float, ranged("perturbation")]
+RelTol = Annotated[float, ranged("rel_tol")]
+Rounds = Annotated[int, ranged("rounds")]
+Rtol = Annotated[float, ranged("rtol")]
+Step = Annotated[float, ranged("step")]
+NewtonAtol = Annotated[float, ranged("newton_atol")]
+NewtonMaxIter = Annotated[int, ranged("newton_max_iter")]
+NewtonMaxIterFull = Annotated[int, ranged("newton_max_iter_full")]
+NewtonResTol = Annotated[float, ranged("newton_res_tol")]
+NewtonRtol = Annotated[float, ranged("newton_rtol")]
 
 MAX_GRID = 10_000       # values of one grid, or points of an envelope: more is a typo, and
                         # would be allocated before any estimate of the work
 # `methods = "..."`: the zoo's methods of one kind. bounded: a finite real stability
 # interval (explicit methods, Adams-Moulton), the methods a stiff problem's fast modes bind;
 # unbounded: the rest (A- and A(alpha)-stable).
-SELECTORS = ("all", "explicit", "implicit", "bounded", "unbounded")
+Selector = Literal["all", "explicit", "implicit", "bounded", "unbounded"]
+SELECTORS: tuple[str, ...] = typing.get_args(Selector)
 # [reference] solver: what computes a reference (the default: dopri5, JAX's adaptive
 # Dormand-Prince, for every model but the stiff test problems, which take LSODA); the others
 # are SciPy's solve_ivp methods, per distinct lane. Radau IIA (order 5) reaches further
 # below LSODA's floor on the stiff problems.
-REF_SOLVERS = ("", "dopri5", "LSODA", "Radau", "BDF", "DOP853")
-ESTIMATES = {          # [error] estimate: which times of a run its error `err` is taken over
+RefSolver = Literal["", "dopri5", "LSODA", "Radau", "BDF", "DOP853"]
+REF_SOLVERS: tuple[str, ...] = typing.get_args(RefSolver)
+# [error] estimate: which times of a run its error `err` is taken over
+Estimate = Literal["max", "final"]
+ESTIMATES: dict[Estimate, str] = {
     "max": "the largest scaled error over every step of the run",
     "final": "the scaled error at the end of the horizon (as the Test Set for IVP Solvers "
              "and DiffEqDevTools' error_estimate = :final)"}
@@ -52,18 +66,20 @@ DEFAULT_PERTURBATION = 1e-6
 # [stability] rule: bench.sweep.runs.stability_runs.MODES_RULE, or metrics.BLOWUP_RULE.
 STABILITY_RULES = ("modes", "blowup")
 
-GridSize = quantity("a number of grid values", "", "more is a typo, and would be allocated "
-                    "before any estimate of the work", whole=True, ge=1, le=MAX_GRID)
-StabSteps = quantity("", "", "enough steps for a deviation to grow past `growth`; more is "
-                     "minutes per rung of the limit search", whole=True, ge=50, le=100_000)
-Fraction = quantity("a fraction of the predicted largest stable step", "", "a sample below "
-                    "the limit", gt=0.0, le=1.0)
-PastLimit = quantity("a multiple of the predicted largest stable step", "", "the sample that "
-                     "blows up lies past the limit", gt=1.0)
-Scale = quantity("an error scale", "", "the error norm divides by it", gt=0.0)
-Gib = quantity("", "GiB", "a limit of memory", gt=0.0)
-Work = quantity("", "", "a limit of work", gt=0.0)
-Lanes = quantity("", "", "at least one operating point per batch", whole=True, ge=1)
+GridSize = Annotated[int, quantity(
+    "a number of grid values", "", "more is a typo, and would be allocated before any estimate "
+    "of the work", ge=1, le=MAX_GRID)]
+StabSteps = Annotated[int, quantity(
+    "", "", "enough steps for a deviation to grow past `growth`; more is minutes per rung of "
+    "the limit search", ge=50, le=100_000)]
+Fraction = Annotated[float, quantity("a fraction of the predicted largest stable step", "",
+                                     "a sample below the limit", gt=0.0, le=1.0)]
+PastLimit = Annotated[float, quantity("a multiple of the predicted largest stable step", "",
+                                      "the sample that blows up lies past the limit", gt=1.0)]
+Scale = Annotated[float, quantity("an error scale", "", "the error norm divides by it", gt=0.0)]
+Gib = Annotated[float, quantity("", "GiB", "a limit of memory", gt=0.0)]
+Work = Annotated[float, quantity("", "", "a limit of work", gt=0.0)]
+Lanes = Annotated[int, quantity("", "", "at least one operating point per batch", ge=1)]
 
 
 def _distinct(values: tuple) -> tuple:
@@ -105,6 +121,7 @@ class Span(Schema):
     def grid(self) -> list[float]:
         if self.values is not None:
             return [float(v) for v in self.values]
+        assert self.min is not None and self.max is not None and self.num is not None
         spaced = np.geomspace if self.log else np.linspace
         return [float(v) for v in spaced(self.min, self.max, self.num)]
 
@@ -117,9 +134,10 @@ class StepSpan(Span):
     log: bool = Field(True, description="log-spaced rather than evenly")
 
 
-Grid = by_shape(list=Annotated[tuple[float, ...], AfterValidator(_distinct)], table=Span)
-StepGrid = by_shape(list=Annotated[tuple[Step, ...], AfterValidator(_distinct)],
-                    table=StepSpan)
+Grid = Annotated[Annotated[tuple[float, ...], AfterValidator(_distinct), Tag("list")]
+                 | Annotated[Span, Tag("table")], BY_SHAPE]
+StepGrid = Annotated[Annotated[tuple[Step, ...], AfterValidator(_distinct), Tag("list")]
+                     | Annotated[StepSpan, Tag("table")], BY_SHAPE]
 
 
 def grid_values(grid) -> list[float]:
@@ -193,7 +211,7 @@ class Reference(Schema):
     atol: Atol = Field(1e-12, description="absolute tolerance of the adaptive reference")
     exact: bool = Field(False, description="the model's closed form as the reference (a "
                         "built-in test problem that has one, at its own published problem)")
-    solver: Literal[REF_SOLVERS] = Field(
+    solver: RefSolver = Field(
         "", description='the reference\'s solver: "" the model\'s default (dopri5, LSODA for '
         "a stiff test problem), or one of SciPy's solve_ivp methods")
 
@@ -230,7 +248,7 @@ class ErrorNorm(Schema):
                                  "built-in bicycle's vy and r, else every state)")
     scales: tuple[Scale, ...] | None = Field(None, description="one scale per error state, "
                                              "the norm's divisor (default 1)")
-    estimate: Literal[tuple(ESTIMATES)] = Field(
+    estimate: Estimate = Field(
         "max", description="max: the largest scaled error over every step; final: at the "
         "horizon")
 
@@ -313,14 +331,16 @@ class Newton(Schema):
 class SweepFile(Schema):
     """A sweep config file: one model, its operating envelope, the methods and steps."""
     name: str | None = Field(None, description="the sweep's name (default: the file's stem)")
-    model: by_shape(value=str, table=ModelTable) = Field(
+    model: Annotated[Annotated[str, Tag("value")] | Annotated[ModelTable, Tag("table")],
+                     BY_SHAPE] = Field(
         "dynamic5", description="a built-in model by name, or a [model] table of your own")
     tyre: str | None = Field(None, description="the tyre law of a built-in dynamic bicycle")
     vehicle: str | None = Field(None, description="a vehicle set of dynamics/vehicles.toml "
                                 "(default: the default vehicle)")
     horizon: Horizon = Field(description="length of the accuracy runs [s]")
-    methods: by_shape(value=Literal[SELECTORS],
-                      list=Annotated[tuple[str, ...], AfterValidator(_known_methods)]) = Field(
+    methods: Annotated[Annotated[Selector, Tag("value")]
+                       | Annotated[tuple[str, ...], AfterValidator(_known_methods), Tag("list")],
+                       BY_SHAPE] = Field(
         "all", description="the zoo's method names, or a kind: " + ", ".join(SELECTORS))
     params: dict[str, float | ParamTable] = Field({}, description="parameter values by "
                                                   "name, over the model's own; a nested "
@@ -380,8 +400,8 @@ class SweepConfig:
     traj_past_limit: float = _default(Trajectories, "past_limit")
     timing_rounds: int = _default(Timing, "rounds")     # timed repeats of each accuracy run
     exact_reference: bool = _default(Reference, "exact")
-    error_estimate: str = _default(ErrorNorm, "estimate")    # a key of ESTIMATES
-    ref_solver: str = _default(Reference, "solver")     # "": the model's default (REF_SOLVERS)
+    error_estimate: Estimate = _default(ErrorNorm, "estimate")    # a key of ESTIMATES
+    ref_solver: RefSolver = _default(Reference, "solver")     # "": the model's default
     newton: Newton = Newton()      # the implicit methods' solve options ([newton])
     # What decides no result: the file's path and [limits] (what the sweep may allocate
     # [GiB] and integrate) are not part of the config's identity.
@@ -473,7 +493,7 @@ def validate(raw: dict, source: str = "config") -> SweepConfig:
                    "[trajectories] at the envelope's values")
     if not bad and spec is not None:
         check_rhs(spec, source)
-    if bad:
+    if bad or spec is None:               # no spec: model_spec said why in bad
         raise UsageError("\n".join(f"{source}: {line}" for line in bad))
     return SweepConfig(
         name=f.name if f.name is not None else Path(source).stem, model=spec.name,
@@ -553,7 +573,9 @@ def model_spec(f: SweepFile, source: str, bad: list) -> tuple[ModelSpec | None, 
             bad.append("tyre is an option of the built-in dynamic bicycles; your own model "
                        "sets its tyres itself")
             return None, vehicle
-        name = model.casadi if model.casadi is not None else model.rhs
+        function = model.casadi if model.casadi is not None else model.rhs
+        assert function is not None       # ModelTable._one_way: one of the two is given
+        name = function
         states, inputs = model.states, model.inputs
         folder = str((Path(source).resolve().parent / model.path).resolve())
         try:

@@ -151,10 +151,10 @@ def _parquet(df: pd.DataFrame) -> bytes:
 
 def assemble(cfg: SweepConfig, chunks: Path) -> dict:
     """The final tables: the chunks' tables concatenated and sorted, plus the summary."""
-    parts = {name: [] for name in schema.CHUNK_TABLES}
+    parts: dict[str, list[pd.DataFrame]] = {name: [] for name in schema.CHUNK_TABLES}
     # A table no chunk has a row of keeps its columns (DETEST A5's Jacobian is 0 at t = 0:
     # no chunk lists an eigenvalue), so that readers find the columns they check.
-    empty = {}
+    empty: dict[str, pd.DataFrame] = {}
     for cid in chunk_ids(cfg):
         for name in schema.CHUNK_TABLES:
             path = chunks / cid / f"{name}.parquet"
@@ -217,15 +217,16 @@ def most_common(notes: pd.Series) -> str:
 def _timing(per_chunk: pd.DataFrame, assemble_s: float, wall_s: float) -> dict:
     # JAX's compiling [s] per method; "reference": the references' and the Jacobians'.
     compile_s = per_chunk.groupby("method")["compile_s"].sum()
-    out = {"compile_s": {k: round(float(v), 3) for k, v in compile_s.items() if k != "reference"}}
-    out["compile_s"]["reference"] = round(float(per_chunk["ref_compile_s"].sum()
-                                                + compile_s.get("reference", 0.0)), 3)
-    for key in ("reference_s", "integration_s", "stability_s", "metrics_s"):
-        out[key] = round(float(per_chunk[key].sum()), 3)
-    out["metrics_s"] = round(out["metrics_s"] + assemble_s, 3)
-    out["total_s"] = round(float(per_chunk["total_s"].sum()) + assemble_s, 3)
-    out["wall_s"] = round(wall_s, 3)
-    return out
+    compile_by: dict[str, float] = {k: round(float(v), 3) for k, v in compile_s.items()
+                                    if k != "reference"}
+    compile_by["reference"] = round(float(per_chunk["ref_compile_s"].sum()
+                                          + compile_s.get("reference", 0.0)), 3)
+    seconds = {key: round(float(per_chunk[key].sum()), 3)
+               for key in ("reference_s", "integration_s", "stability_s", "metrics_s")}
+    seconds["metrics_s"] = round(seconds["metrics_s"] + assemble_s, 3)
+    seconds["total_s"] = round(float(per_chunk["total_s"].sum()) + assemble_s, 3)
+    seconds["wall_s"] = round(wall_s, 3)
+    return {"compile_s": compile_by, **seconds}
 
 
 def _write_manifest(cfg, out: Path, created, done, timing, complete) -> dict:

@@ -5,11 +5,14 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from functools import cache
-from typing import NamedTuple, Protocol
+from typing import TYPE_CHECKING, NamedTuple, Protocol
 
 import numpy as np
 
 from stepzoo.bench.sweep.config import SweepConfig, default_solver
+
+if TYPE_CHECKING:
+    from stepzoo.bench.model.spec import ModelSpec
 
 REF_WINDOW = 64        # output times per adaptive call: its cost per step grows with them
 
@@ -22,7 +25,9 @@ class Solution(NamedTuple):
 
 
 class Reference(Protocol):
-    description: str        # the manifest's "reference"
+    @property
+    def description(self) -> str:
+        """The manifest's "reference"."""
 
     def solve(self, points, h: float, n: int, watch) -> Solution:
         """The reference of every lane of `points` (bench.sweep.points.Points) at t = k h [s],
@@ -39,7 +44,9 @@ class Exact:
     def solve(self, points, h, n, watch) -> Solution:
         from stepzoo import dynamics
         with watch.clock("reference_s"):
-            x = dynamics.MODELS[self.model].exact(h * np.arange(n + 1))
+            exact = dynamics.MODELS[self.model].exact
+            assert exact is not None      # config.closed_form_problem: the model has one
+            x = exact(h * np.arange(n + 1))
         x = np.broadcast_to(np.asarray(x, float), (len(points), n + 1, len(x[0]))).copy()
         return Solution(x, np.ones(len(points), bool))
 
@@ -48,7 +55,7 @@ class Exact:
 class SciPy:
     """SciPy's solve_ivp (`dynamics.solutions.solve`) with `solver`, once per distinct lane;
     a lane it fails on is NaN and not ok."""
-    spec: object
+    spec: ModelSpec
     solver: str
     rtol: float
     atol: float
@@ -83,7 +90,7 @@ class SciPy:
 class Dopri5:
     """The adaptive Dormand-Prince 5(4) of integrators.reference, jitted over the lanes,
     restarted every REF_WINDOW output times from where the last window ended."""
-    spec: object
+    spec: ModelSpec
     rtol: float
     atol: float
     description: str = ("adaptive Dormand-Prince 5(4) at reference.rtol/atol, restarted every "

@@ -18,6 +18,7 @@ import json
 import re
 import shutil
 import time
+import types
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -56,8 +57,10 @@ SuiteFile = config_schema.optional(
     "into one results folder. Its top-level keys are a sweep config's, every problem's "
     "defaults; a problem without a horizon runs over its built-in model's published "
     "interval, one without an envelope its model's default problem.",
-    problem=(tuple[ProblemTable, ...], Field(min_length=1, description="the problems, "
-                                            "[[problem]] tables, in the order they are swept")))
+    # tuple[ProblemTable, ...] made at run time, as ProblemTable is
+    problem=(types.GenericAlias(tuple, (ProblemTable, ...)), Field(
+        min_length=1, description="the problems, [[problem]] tables, in the order they are "
+        "swept")))
 
 
 @dataclass(frozen=True)

@@ -74,7 +74,7 @@ def calibrate(methods: Mapping[str, float], model, batch: int, interval_s: float
         repeat = max(1, int(np.ceil(SAMPLE_S / _wall(run, 1))))
         calls[name] = (run, float(h), n, repeat)
     names = list(calls)
-    walls = {name: [] for name in names}
+    walls: dict[str, list[float]] = {name: [] for name in names}
     for r in range(rounds):
         for name in names[r % len(names):] + names[:r % len(names)]:
             run, _, _, repeat = calls[name]

@@ -143,8 +143,9 @@ def _class_name(method: str) -> str:
 def _tableau_class(method: str) -> str:
     """Python source of a diffrax solver class with stepzoo's tableau of `method`."""
     from stepzoo.integrators import METHODS
+    from stepzoo.integrators.stability import tableau
     m = METHODS[method]
-    t = m.scheme
+    t = tableau(m)
     rows = ", ".join(f"np.array({list(map(float, t.a[i, :i]))!r})" for i in range(1, t.stages))
     return f'''
 

@@ -47,7 +47,9 @@ def _verdict(cfg, method_name: str, h: float) -> tuple[pd.DataFrame, pd.DataFram
     meth = cfg.method(method_name)
     n = max(1, round(cfg.horizon / h))
     cfg = at_step(cfg, h)
-    cache, rows, explicit = {}, [], []
+    cache: dict = {}
+    rows: list[dict] = []
+    explicit: list[dict] = []
     for block in range(n_blocks(cfg)):
         work = Block(cfg, block, cache, max_steps=max(n, run_steps(cfg)))
         pts = work.points

@@ -10,6 +10,8 @@ satisfies its ODE and its initial value): A5 (a logarithmic spiral), B3 (a Ricca
 solved by modified Bessel functions), B4 (polar coordinates), B5 (Jacobi elliptic
 functions), D1-D5 (Kepler's equation), E1 (Bessel J_1/2), E4 and E5 (quadratures). B1, C5,
 E2 and E3 have none; their truth is a tight reference solution."""
+from typing import Any
+
 import jax.numpy as jnp
 import numpy as np
 
@@ -256,4 +258,5 @@ E = {
                x0=(0.0, 0.0), exact=_e5_exact, description="E5: linear pursuit"),
 }
 
-PROBLEMS = {f"detest_{k}": v for group in (A, B, C, D, E) for k, v in group.items()}
+PROBLEMS: dict[str, dict[str, Any]] = {f"detest_{k}": v for group in (A, B, C, D, E)
+                                       for k, v in group.items()}

@@ -2,6 +2,8 @@
 mu = 1000, HIRES, and a stiff linear system with a closed-form solution. Where the Test Set
 for IVP Solvers (Mazzia and Magherini, release 2.4, 2008) publishes the solution at the end
 of the interval, it is in `PUBLISHED_END`."""
+from typing import Any
+
 import jax.numpy as jnp
 import numpy as np
 
@@ -43,7 +45,7 @@ def _stiff_linear_exact(ts):
 
 TEST_SET = "Test Set for IVP Solvers, release 2.4 (Mazzia, Magherini, Univ. Bari, 2008)"
 
-PROBLEMS = {
+PROBLEMS: dict[str, dict[str, Any]] = {
     "robertson": dict(
         rhs=_robertson, x0=(1.0, 0.0, 0.0), t_span=(0.0, 40.0), exact=None,
         params={"k1": 0.04, "k2": 3e7, "k3": 1e4},

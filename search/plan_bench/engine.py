@@ -7,12 +7,17 @@ from __future__ import annotations
 import json
 import threading
 from dataclasses import dataclass
-from typing import NamedTuple
+from typing import TYPE_CHECKING, NamedTuple
 from time import perf_counter
 
 from stepzoo.errors import UsageError
 from stepzoo.search.plans import schema as plan_schema
 from stepzoo.search.plans.schema import DRIVABILITY_COLUMNS, REPLAY_COLUMNS, RUN_COLUMNS, ordered
+
+if TYPE_CHECKING:
+    from stepzoo.search.planner.config import PlannerConfig, PlannerParams
+    from stepzoo.search.planner.pathfinder import PathFinder
+    from stepzoo.search.world.queries import Query
 
 # The tables' columns in their order (documented in plan_schema).
 SUMMARY_COLUMNS = list(plan_schema.SUMMARY_COLUMNS)
@@ -30,9 +35,9 @@ class Task:
     query: int
     run: int
     seed: int
-    config: object             # PlannerConfig of this integrator
+    config: PlannerConfig      # of this integrator
     role: str
-    q: object                  # the Query
+    q: Query
     vx: float
 
     @property
@@ -45,10 +50,10 @@ class FinderKey(NamedTuple):
     """What a warmed-up planner is for: a map (file, cell size [m]), an integrator (method,
     h [s]), the planner parameters and the speed vx [m/s]."""
     map_file: str
-    cell_size: float
+    cell_size: float | None   # None: the map file gives it
     method: str
     h: float
-    params: object
+    params: PlannerParams
     vx: float
 
 
@@ -65,7 +70,7 @@ def plan_run(task: Task, finders: dict) -> dict:
     tracked (tracking_*, tracking_s likewise, search/plans/tracking.py); its
     `progress` a JSON list of the (time [s], length [m]) of each shorter path."""
     from stepzoo.search.plan_bench.ompl_log import STATUS_OF_CAUSE
-    from stepzoo.search.plans.path_metrics import path_metrics
+    from stepzoo.search.plans.path_metrics import PATH_METRICS, path_metrics
     from stepzoo.search.planner.pathfinder import PathFinder
     from stepzoo.search.plans.files import path_rows, plan_drivability
     from stepzoo.search.plans.replay import replay
@@ -89,7 +94,7 @@ def plan_run(task: Task, finders: dict) -> dict:
     exact = result.status == "exact"
     rows = path_rows(result, finder.vehicle) if exact else []
     metrics = path_metrics(rows, finder.omap, finder.vehicle_footprint) \
-        if exact else path_metrics([], None, None)
+        if exact else dict.fromkeys(PATH_METRICS)
     drivable = plan_drivability(rows, finder.vehicle, config.params)
     return ordered({
         "query": q.id, "map": q.map, "cell_size": q.cell_size, "run": task.run,
@@ -142,7 +147,7 @@ def run_tasks(todo: list[Task], scheduler=None):
     """(task name, row) of each task as it finishes: here, or on the Dask cluster at
     `scheduler`, one task per (integrator, query, run) as `sweep --scheduler` sends chunks."""
     if scheduler is None:
-        finders = {}
+        finders: dict[FinderKey, PathFinder] = {}
         for task in todo:
             yield task.name, _jsonable(plan_run(task, finders))
         return

@@ -48,18 +48,20 @@ def from_tuned(path, runners_up: int | None = None) -> list[Integrator]:
     The file is checked as the tuned kind (stepzoo.tuned_file), as `plan` checks it."""
     from stepzoo.config_schema import check
     from stepzoo.integrators import METHODS
-    from stepzoo.tuned_file import TunedFile
+    from stepzoo.tuned_file import RunnerUp, TunedFile
     from stepzoo.validate import read_toml
     where = f"--integrators-from {path}"
     tuned = check(TunedFile, read_toml(path, "--integrators-from", "give a TOML file written "
                                        "by `stepzoo tune`"), where)
     qualified = [r for r in tuned.runners_up if r.h is not None and r.qualifies]
-    out = []
-    for k, row in enumerate([tuned, *qualified[:runners_up]]):
+    out: list[Integrator] = []
+    rows: list[TunedFile | RunnerUp] = [tuned, *qualified[:runners_up]]
+    for k, row in enumerate(rows):
         if row.method not in METHODS:
             raise UsageError(f"{where}: " + ("the choice" if k == 0 else f"runner-up {k}")
                              + f" names {row.method!r}, not a method of the zoo "
                              "(`stepzoo methods` lists them)")
+        assert row.h is not None          # qualified: the runners-up that have an h
         out.append(Integrator(row.method, row.h, "tuned" if k == 0 else "runner-up"))
     return out
 
@@ -71,7 +73,8 @@ def choose(specs, tuned_path, runners_up, config) -> list[Integrator]:
         + [parse_spec(s) for s in specs or []]
     if not chosen:
         return [Integrator(config.method, config.h, "given")]
-    out, labels = [], {}
+    out: list[Integrator] = []
+    labels: dict[str, float] = {}
     for item in chosen:
         if (item.method, item.h) in {(i.method, i.h) for i in out}:
             continue

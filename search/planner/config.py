@@ -8,7 +8,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Literal
+from typing import Annotated, Literal
 
 from pydantic import Field, field_validator
 
@@ -19,13 +19,13 @@ from stepzoo.validate import check_budget, read_toml
 
 DEFAULT_CONFIG = Path(__file__).with_name("tuned_default.toml")
 
-Steer = quantity("a steer limit", "rad", "above 0.05 the arc holds distinct points; below "
-                 "1.5 (86 degrees) tan(delta) and the turning radius stay finite", ge=0.05,
-                 le=1.5)
-Count = quantity("a count", "", "at least one; the upper bound keeps one expansion's batch "
-                 "within memory", whole=True, ge=1, le=64)
-Switch = quantity("a switch", "", "0 off, 1 on (true and false read as 1 and 0)", whole=True,
-                  ge=0, le=1)
+Steer = Annotated[float, quantity(
+    "a steer limit", "rad", "above 0.05 the arc holds distinct points; below 1.5 (86 degrees) "
+    "tan(delta) and the turning radius stay finite", ge=0.05, le=1.5)]
+Count = Annotated[int, quantity("a count", "", "at least one; the upper bound keeps one "
+                                "expansion's batch within memory", ge=1, le=64)]
+Switch = Annotated[int, quantity("a switch", "", "0 off, 1 on (true and false read as 1 and 0)",
+                                 ge=0, le=1)]
 
 
 class PlannerParams(Schema):
@@ -33,57 +33,65 @@ class PlannerParams(Schema):
     reads them as attributes and logs them whole."""
     delta_max: Steer = Field(math.pi / 4, description=(
         "steer limit; the point-selector arc spans psi +- delta_max [rad]"))
-    arc_radius: quantity("a radius", "m", "from about a car's width to a block's length: "
-                         "shorter arcs stall, longer ones jump walls", ge=0.5, le=50.0) = Field(
+    arc_radius: Annotated[float, quantity(
+        "a radius", "m", "from about a car's width to a block's length: shorter arcs stall, "
+        "longer ones jump walls", ge=0.5, le=50.0)] = Field(
         4.0, description="radius of the point-selector arc ahead of a node [m]")
     n_arc: Count = Field(7, description="equally spaced points on the arc [1]")
-    n_random: quantity("a count", "", "0 turns the random points off; the upper bound keeps "
-                       "one expansion's batch within memory", whole=True, ge=0, le=64) = Field(
+    n_random: Annotated[int, quantity(
+        "a count", "", "0 turns the random points off; the upper bound keeps one expansion's "
+        "batch within memory", ge=0, le=64)] = Field(
         3, description="seeded random points around the destination, per expansion [1]")
-    random_spread: quantity("a radius", "m", "0 puts every random point on the goal; beyond "
-                            "100 m they no longer lead towards it", ge=0.0, le=100.0) = Field(
+    random_spread: Annotated[float, quantity(
+        "a radius", "m", "0 puts every random point on the goal; beyond 100 m they no longer "
+        "lead towards it", ge=0.0, le=100.0)] = Field(
         3.0, description="radius of the disc the random points fill [m]")
-    horizon: quantity("a duration", "s", "at least one short step; beyond 10 s a shooting "
-                      "crosses a map without branching", ge=0.01, le=10.0) = Field(
+    horizon: Annotated[float, quantity(
+        "a duration", "s", "at least one short step; beyond 10 s a shooting crosses a map "
+        "without branching", ge=0.01, le=10.0)] = Field(
         0.8, description="duration of one shooting (rounded to whole steps) [s]")
-    mindist: quantity("a distance", "m", "within the reach of the connection OCP, which "
-                      "ignores obstacles", ge=0.5, le=100.0) = Field(
+    mindist: Annotated[float, quantity(
+        "a distance", "m", "within the reach of the connection OCP, which ignores obstacles",
+        ge=0.5, le=100.0)] = Field(
         6.0, description="a node this close to the goal triggers a connection [m]")
-    connect_radius: quantity("a distance", "m", "from the car's size to a long street: the "
-                             "OCP ignores obstacles, so far candidates rarely connect",
-                             ge=0.5, le=200.0) = Field(12.0, description=(
-                                 "tree nodes this close to the goal are connection candidates, "
-                                 "shortest Dubins first [m]"))
-    h_weight: quantity("a weight", "", "1 is the paper's sum; above 10 the search ignores "
-                       "the distance travelled", ge=1.0, le=10.0) = Field(2.0, description=(
-                           "w in the search order f = g + w H (1: the paper's sum; above 1 "
-                           "finds a first path sooner, which the improvement then shortens) [1]"))
-    cell_xy: quantity("a cell size", "m", "finer than integration noise prunes nothing; "
-                      "coarser than a street merges its lanes", ge=0.05, le=20.0) = Field(
+    connect_radius: Annotated[float, quantity(
+        "a distance", "m", "from the car's size to a long street: the OCP ignores obstacles, "
+        "so far candidates rarely connect", ge=0.5, le=200.0)] = Field(12.0, description=(
+            "tree nodes this close to the goal are connection candidates, shortest Dubins "
+            "first [m]"))
+    h_weight: Annotated[float, quantity(
+        "a weight", "", "1 is the paper's sum; above 10 the search ignores the distance "
+        "travelled", ge=1.0, le=10.0)] = Field(2.0, description=(
+            "w in the search order f = g + w H (1: the paper's sum; above 1 finds a first path "
+            "sooner, which the improvement then shortens) [1]"))
+    cell_xy: Annotated[float, quantity(
+        "a cell size", "m", "finer than integration noise prunes nothing; coarser than a "
+        "street merges its lanes", ge=0.05, le=20.0)] = Field(
         1.0, description="position cell of duplicate pruning [m]")
-    cell_heading: quantity("a cell size", "rad", "up to a half turn; below 0.01 rad "
-                           "headings that differ by noise count as new", ge=0.01,
-                           le=math.pi) = Field(math.pi / 8, description=(
-                               "heading cell of duplicate pruning [rad]"))
-    margin: quantity("a margin", "m", "0 trusts the integration exactly; beyond 5 m no "
-                     "street is wide enough", ge=0.0, le=5.0) = Field(0.1, description=(
-                         "footprint inflation on every side: covers integration error and cell "
-                         "rounding [m]"))
-    max_expansions: quantity("a budget", "", "at least one expansion; the upper bound keeps "
-                             "the tree within memory", whole=True, ge=1, le=10_000_000) = Field(
+    cell_heading: Annotated[float, quantity(
+        "a cell size", "rad", "up to a half turn; below 0.01 rad headings that differ by noise "
+        "count as new", ge=0.01, le=math.pi)] = Field(math.pi / 8, description=(
+            "heading cell of duplicate pruning [rad]"))
+    margin: Annotated[float, quantity(
+        "a margin", "m", "0 trusts the integration exactly; beyond 5 m no street is wide "
+        "enough", ge=0.0, le=5.0)] = Field(0.1, description=(
+            "footprint inflation on every side: covers integration error and cell rounding "
+            "[m]"))
+    max_expansions: Annotated[int, quantity(
+        "a budget", "", "at least one expansion; the upper bound keeps the tree within memory",
+        ge=1, le=10_000_000)] = Field(
         1_000_000, description=("budget of expansions (the default is far beyond what "
                                 "max_seconds allows: the time bounds the plan) [1]"))
-    max_seconds: quantity("a budget", "s", "from a millisecond to an hour", ge=0.001,
-                          le=3600.0) = Field(20.0, description=(
-                              "budget of wall time, search and connections [s]"))
-    connect_tries: quantity("a count", "", "at least one OCP; each costs a solve",
-                            whole=True, ge=1, le=10_000) = Field(64, description=(
-                                "connection attempts before giving up [1]"))
-    improve_expansions: quantity("a count", "", "0 stops at the first path", whole=True,
-                                 ge=0, le=10_000_000) = Field(300, description=(
-                                     "after the first exact path, expansions without a shorter "
-                                     "one before the plan ends (0: stop at the first, as the "
-                                     "paper) [1]"))
+    max_seconds: Annotated[float, quantity(
+        "a budget", "s", "from a millisecond to an hour", ge=0.001, le=3600.0)] = Field(
+        20.0, description="budget of wall time, search and connections [s]")
+    connect_tries: Annotated[int, quantity(
+        "a count", "", "at least one OCP; each costs a solve", ge=1, le=10_000)] = Field(
+        64, description="connection attempts before giving up [1]")
+    improve_expansions: Annotated[int, quantity(
+        "a count", "", "0 stops at the first path", ge=0, le=10_000_000)] = Field(
+        300, description=("after the first exact path, expansions without a shorter one before "
+                          "the plan ends (0: stop at the first, as the paper) [1]"))
     reverse: Switch = Field(0, description=(
         "1: reverse gear (expansions backwards too, the connection may reverse); 0: forward "
         "only, as the paper [1]"))
@@ -96,19 +104,19 @@ class PlannerParams(Schema):
         "max_steer_rate (tree edges are steer ramps, the connection's control is the steer "
         "rate) and the curvature by its max_lateral_acceleration at the planned speed; "
         "instant: each edge at one constant steer set at once, as the paper [1]"))
-    reverse_penalty: quantity("a factor", "", "1 makes a metre backwards cost what one "
-                              "forwards does; beyond 10 reversing is all but forbidden",
-                              ge=1.0, le=10.0) = Field(2.0, description=(
-                                  "a metre driven backwards costs this many metres in g (with "
-                                  "reverse = 1), as Nav2 Smac Hybrid-A*'s reverse_penalty "
-                                  "(default 2.0) and Kurzer's Hybrid A* penaltyReversing "
-                                  "(2.0) [1]"))
-    cusp_cost: quantity("a length", "m", "0 makes cusps free; beyond 1 km one forbids them",
-                        ge=0.0, le=1000.0) = Field(5.0, description=(
-                            "added to the cost g at each change of direction (with reverse = "
-                            "1) [m]"))
-    connect_N: quantity("a count", "", "at least five intervals resolve a turn; the upper "
-                        "bound keeps one OCP solve short", whole=True, ge=5, le=1000) = Field(
+    reverse_penalty: Annotated[float, quantity(
+        "a factor", "", "1 makes a metre backwards cost what one forwards does; beyond 10 "
+        "reversing is all but forbidden", ge=1.0, le=10.0)] = Field(2.0, description=(
+            "a metre driven backwards costs this many metres in g (with reverse = 1), as Nav2 "
+            "Smac Hybrid-A*'s reverse_penalty (default 2.0) and Kurzer's Hybrid A* "
+            "penaltyReversing (2.0) [1]"))
+    cusp_cost: Annotated[float, quantity(
+        "a length", "m", "0 makes cusps free; beyond 1 km one forbids them", ge=0.0,
+        le=1000.0)] = Field(5.0, description=(
+            "added to the cost g at each change of direction (with reverse = 1) [m]"))
+    connect_N: Annotated[int, quantity(
+        "a count", "", "at least five intervals resolve a turn; the upper bound keeps one OCP "
+        "solve short", ge=5, le=1000)] = Field(
         50, description="input intervals of the connection OCP [1]")
     batch_nodes: Count = Field(4, description=(
         "nodes expanded together, best f first, their shootings integrated in one call (1: one "

@@ -6,11 +6,15 @@ from __future__ import annotations
 
 import math
 from time import perf_counter
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from stepzoo.search.planner.connection_ocp import dubins_paths, guess_paths, path_poses
 from stepzoo.search.planner.status import Cause
+
+if TYPE_CHECKING:
+    from stepzoo.search.planner.pathfinder import Search
 
 IMPROVE_TOL = 1e-3      # a path counts as shorter when it is shorter by this fraction
 DUBINS_SPACING = 0.5    # [m] between the poses of a Dubins path checked before an OCP
@@ -20,7 +24,7 @@ class Connector:
     """Connection attempts of one search (`search`: pathfinder.Search, whose tree, best path
     and result they read and improve)."""
 
-    def __init__(self, search):
+    def __init__(self, search: Search) -> None:
         self.s = search
         self.tried: set[int] = set()
         self.cheap: set[int] = set()  # tried nodes whose every Dubins path collides: no OCP

@@ -222,7 +222,7 @@ def _fastest_profile(s_total, v0, a_max, v_max, v_goal):
 
 def _runs(segs) -> list:
     """The path `segs` as runs driven one way: [(direction +1 or -1, [(turn, length [m])])]."""
-    runs = []
+    runs: list[tuple[int, list[tuple[int, float]]]] = []
     for sign, length in segs:
         if length == 0:
             continue
@@ -325,8 +325,10 @@ class _Problem:
 # faster at the same solved count on the scenario connections and seeded problems; the
 # options that were not (spral, limited-memory Hessians, mu-based bound multipliers) are left
 # out. The study: docs/studies/measurements-behind-defaults-2026-11.md.
-IPOPT_OPTIONS = {"print_level": 0, "sb": "yes", "max_iter": 100, "fast_step_computation": "yes"}
-ADAPTIVE_MU = {"mu_strategy": "adaptive", "adaptive_mu_globalization": "kkt-error"}
+IPOPT_OPTIONS: dict[str, int | str] = {"print_level": 0, "sb": "yes", "max_iter": 100,
+                                       "fast_step_computation": "yes"}
+ADAPTIVE_MU: dict[str, int | str] = {"mu_strategy": "adaptive",
+                                     "adaptive_mu_globalization": "kkt-error"}
 
 
 @cache
@@ -362,7 +364,8 @@ def _problem(N: int, shooting: str, method: str, bounded: bool, speed_fixed: boo
         g.append(ca.vec(states[3, 1:] ** 2 * ca.tan(states[4, 1:]) / (L * p[k + 1])))
     ipopt = {**IPOPT_OPTIONS, **ADAPTIVE_MU} if shooting == "multiple" else IPOPT_OPTIONS
     solver = ca.nlpsol(f"connect_{shooting}{N}{'_steered' * steered}", "ipopt",
-                       {"x": x, "p": p, "f": T, "g": ca.vertcat(*g)},
+                       # casadi's stub takes SX alone; nlpsol takes MX as well
+                       {"x": x, "p": p, "f": T, "g": ca.vertcat(*g)},  # type: ignore[dict-item]
                        {"expand": True, "print_time": False, "ipopt": ipopt})
     return _Problem(solver, ca.Function("rollout", [T, U, p], [rollout]),
                     ca.Function("path", [x, p], [states, inputs]), shooting, 3 + speed_fixed,

@@ -42,12 +42,12 @@ class Expander:
         if s.f.back_shooter is not None:
             gears.append((-1, s.f.back_shooter))
         for direction, shooter in gears:
-            points = []
+            aims = []
             for node, random in zip(rows, self.filled(randoms)):
                 state = tree.states[node]
                 ahead = np.r_[state[:2], state[2] + (0.0 if direction > 0 else math.pi)]
-                points += [point_selector(ahead, prm.arc_radius, prm.n_arc, s.f.delta_max),
-                           random]
+                aims += [point_selector(ahead, prm.arc_radius, prm.n_arc, s.f.delta_max),
+                         random]
             # From the start or at a cusp the car stands: it turns the wheel before moving off.
             standing = (ways == 0) | (ways == -direction)
             # Rate-limited, a dynamic edge after a standstill or a kinematic edge sets off at
@@ -57,7 +57,7 @@ class Expander:
             if s.f.rate_limited and direction > 0:
                 settle = standing | (ways < 0) | np.repeat(tree.tight[rows], self.per)
             new += self.add_all(nodes, direction, shooter.shoot(
-                states, np.vstack(points), s.goal, np.where(standing, np.nan, steers), settle))
+                states, np.vstack(aims), s.goal, np.where(standing, np.nan, steers), settle))
         # Tight moves leave the region the tree exhausted: from its nodes and along chains of
         # tight moves; once a node is reached by the tree's own move, the tree goes on alone.
         tight = [i for i in nodes if i < s.widened_at or tree.tight[i]]

@@ -123,9 +123,9 @@ class Guide:
         (steepest descent), or where the descent stops."""
         omap = self.omap
         step = omap.resolution / SUBDIV
-        col, row = omap.nearest_lattice((state[0] - omap.origin[0]) / step,
-                                        (state[1] - omap.origin[1]) / step)
-        row, col = int(row), int(col)
+        cols, rows = omap.nearest_lattice((state[0] - omap.origin[0]) / step,
+                                          (state[1] - omap.origin[1]) / step)
+        row, col = int(rows), int(cols)
         field = self.field
         for _ in range(max(1, round(distance / step))):
             r0, c0 = max(row - 1, 0), max(col - 1, 0)

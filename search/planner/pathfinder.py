@@ -61,7 +61,7 @@ class PathFinder:
             self.vehicle["length"], self.vehicle["width"], len(self.footprint.offsets))
         self.checker = checker or FootprintChecker(omap, self.footprint)
         self.wheelbase = self.vehicle["Lf"] + self.vehicle["Lr"]
-        self._components = None
+        self._components: np.ndarray | None = None
         self.limits = vehicle_limits(self.vehicle["name"])
         # Rate-limited, the car's limits bound every move: the steer rate, and the steer
         # (so the curvature tan(delta) / L) where v^2 kappa would exceed the lateral limit.
@@ -201,7 +201,8 @@ class Search:
                  until: Termination):
         self.f, self.goal, self.goal_speed, self.rng, self.result = (
             finder, goal, goal_speed, rng, result)
-        self.until, self.stopped = until, None
+        self.until = until
+        self.stopped: Termination | None = None
         self.prm = prm = finder.config.params
         self.cell_xy, self.cell_heading, self.level = prm.cell_xy, prm.cell_heading, 0
         self.radius = finder.turn_radius()
@@ -272,6 +273,7 @@ class Search:
                          "improvement off (improve_expansions = 0)")
                 break
             if not self.budget_left():
+                assert self.stopped is not None   # budget_left: the condition that said stop
                 res.cause = res.cause or Cause.BUDGET
                 ended = (f"budget ended after {res.expansions} expansions and "
                          f"{perf_counter() - self.t0:.2f} s" if self.stopped.budget else
@@ -368,7 +370,7 @@ class Search:
     def pop(self, heap, most) -> list[int]:
         """Up to `most` nodes off the heap, best f first, skipping those that cannot beat the
         best path."""
-        nodes = []
+        nodes: list[int] = []
         while heap and len(nodes) < most:
             _, _, node = heapq.heappop(heap)
             if self.bound(node) < self.best * (1 - IMPROVE_TOL):

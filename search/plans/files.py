@@ -45,6 +45,7 @@ def plan_record(result: PlanResult, scenario: Scenario, config, vehicle: dict, s
     """The plan.json content, its `replay` block measured on the scenario's map."""
     rows = path_rows(result, vehicle)
     conn = result.connection
+    assert result.cause is not None      # a finished plan says why it ended
     record = {
         "scenario": scenario.name,
         "description": scenario.description,

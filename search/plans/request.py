@@ -111,7 +111,8 @@ class Messages:
     stops sending. A read interrupted by Ctrl-C loses nothing: reading again goes on."""
 
     def __init__(self, sock: socket.socket):
-        self.sock, self.buffer, self.lines = sock, b"", []
+        self.sock, self.buffer = sock, b""
+        self.lines: list[bytes] = []
 
     def next(self, deadline: float | None = None) -> dict | None:
         """The next message; `deadline` (time.monotonic() [s]): TimeoutError once it

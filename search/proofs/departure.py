@@ -49,11 +49,11 @@ def unavoidable_points(footprint: Footprint, pose, radius, spacing) -> tuple[np.
             far = X + math.sqrt(max(r * r - (abs(y) + Y) ** 2, 0.0))
             for t in np.r_[np.arange(a, far, spacing), far]:
                 local.append((t, y))
-    local = np.array(local).reshape(-1, 2)
+    ahead = np.array(local).reshape(-1, 2)
     x, y, psi = (float(v) for v in pose[:3])
     c, s = math.cos(psi), math.sin(psi)
-    world = np.column_stack([x + c * local[:, 0] - s * local[:, 1],
-                             y + s * local[:, 0] + c * local[:, 1]])
+    world = np.column_stack([x + c * ahead[:, 0] - s * ahead[:, 1],
+                             y + s * ahead[:, 0] + c * ahead[:, 1]])
     return world, longest
 
 

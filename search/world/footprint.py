@@ -103,7 +103,7 @@ def discs_collide(omap: OccupancyMap, footprint: Footprint, x, y, psi) -> np.nda
     doubt = hit & (clearance > footprint.radius - math.sqrt(2) * omap.resolution / SUBDIV)
     if doubt.any():
         hit[doubt] = omap.disc_hits(cx[doubt], cy[doubt], footprint.radius)
-    return hit.any(axis=0)
+    return hit.any(axis=0)  # type: ignore[return-value]  # numpy's stub: any(axis) of 2-D is 1-D
 
 
 def roomy(omap: OccupancyMap, footprint: Footprint, x, y, psi) -> np.ndarray:

@@ -114,7 +114,7 @@ def random_queries(map_path, cell_size, n, seed, *, vehicle=None, margin=0.1, ne
     points, region = _roomy_points(omap, room, spec["width"] / 2 + margin)
     name = Path(map_path).stem
     rel = Path(map_path) if rel_to is None else Path(_relative(map_path, rel_to))
-    out = []
+    out: list[dict] = []
     while len(out) < n:
         i = rng.integers(len(points))
         a, mates = points[i], points[region == region[i]]

@@ -14,7 +14,7 @@ import numpy as np
 from pydantic import Discriminator, Field, Tag
 
 from stepzoo import config_schema, dynamics
-from stepzoo.config_schema import Schema, by_shape, quantity, ranged
+from stepzoo.config_schema import BY_SHAPE, Schema, quantity, ranged
 from stepzoo.errors import UsageError
 from stepzoo.safe_parse import toml_loads
 from stepzoo.validate import check, check_memory
@@ -22,13 +22,16 @@ from stepzoo.search.world.maps import (MAP_BYTES_PER_CELL, OccupancyMap, from_ar
                                  load_map)
 
 # The shared ranges of validate.RANGES, as field types.
-Cell, GoalSpeed, Heading, Position, Speed = map(ranged, (
-    "cell", "goal_speed", "heading", "position", "speed"))
+Cell = Annotated[float, ranged("cell")]
+GoalSpeed = Annotated[float, ranged("goal_speed")]
+Heading = Annotated[float, ranged("heading")]
+Position = Annotated[float, ranged("position")]
+Speed = Annotated[float, ranged("speed")]
 
 SCENARIO_DIR = Path(__file__).with_name("scenarios")
 DEFAULT_SPEED = 5.0  # [m/s] when a query names none
 
-MapSide = quantity("a map side", "m", "a map holds at least one cell", gt=0.0)
+MapSide = Annotated[float, quantity("a map side", "m", "a map holds at least one cell", gt=0.0)]
 Pose = tuple[Position, Position, Heading]
 PoseSpeed = tuple[Position, Position, Heading, GoalSpeed]
 
@@ -45,7 +48,8 @@ class RectanglesMap(Schema):
 class ScenarioFile(Schema):
     """A planning scenario: a map, a start, a goal, a vehicle and the tree's speed."""
     description: str = Field("", description="one line on what the scenario tests")
-    map: by_shape(value=str, table=RectanglesMap) = Field(
+    map: Annotated[Annotated[str, Tag("value")] | Annotated[RectanglesMap, Tag("table")],
+                   BY_SHAPE] = Field(
         description="a map file (relative to the scenario file: an image, .npy or a ROS map "
         "YAML), or a [map] table of rectangles")
     cell_size: Cell | None = Field(None, description="cell size of a map file [m/cell] (a ROS "

@@ -51,7 +51,8 @@ EXIT_STATUSES = """exit status:
        full, busy with another stepzoo command); one line on stderr says which
   130  interrupted (Ctrl-C); a sweep resumes with --resume"""
 # Hints for the operating-system errors a user can fix, by errno.
-OS_HINTS = {errno.EACCES: "check its permissions", errno.EPERM: "check its permissions",
+OS_HINTS: dict[int | None, str] = {
+            errno.EACCES: "check its permissions", errno.EPERM: "check its permissions",
             errno.EROFS: "the file system is read-only; give another --out",
             errno.ENOSPC: "the disk is full; free space or give another --out",
             errno.EDQUOT: "the disk quota is used up; free space or give another --out",
@@ -138,7 +139,8 @@ def build_parser(only: str | None = None) -> argparse.ArgumentParser:
         parents = [common] + [long] * (name in LONG) + [budget] * (name in INTEGRATE)
         p = sub.add_parser(name, help=helptext, description=helptext, epilog=EXIT_STATUSES,
                            formatter_class=argparse.RawDescriptionHelpFormatter,
-                           parents=parents)
+                           parents=parents)  # type: ignore[arg-type]  # typeshed: parents
+        # of the subparsers' class; argparse takes any ArgumentParser
         if name == only:      # the other commands' modules (and JAX) stay unimported
             importlib.import_module(module).add_arguments(p)
     return parser

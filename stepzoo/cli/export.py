@@ -31,6 +31,7 @@ def main(args) -> int:
     tuned = export.load_tuned(args.tuned)
     sweep = export.sweep_of(tuned, args.sweep)
     if args.to == "acados":
+        assert interval is not None       # checked above
         settings = export.acados(tuned, interval)
         text, name = export.acados_text(settings), "acados.py"
         table = export.schedule(tuned, sweep, settings["method"])

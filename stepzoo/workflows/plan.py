@@ -33,7 +33,7 @@ def settings_help() -> str:
         default = info.default if isinstance(info.default, str) else f"{info.default:g}"
         lines += textwrap.wrap(f"{name} = {default}: {describe(info)}", 84,
                                initial_indent="  ", subsequent_indent="      ")
-        lines += [f"      {line}" for line in textwrap.wrap(info.description, 80)]
+        lines += [f"      {line}" for line in textwrap.wrap(info.description or "", 80)]
     return "\n".join(lines)
 
 

@@ -35,7 +35,8 @@ def _serve(conn, settings: dict) -> None:
         jax.config.update(name, value)
     from stepzoo.workflows import report
     from stepzoo.reports import drawing, load
-    drawn, cache = None, {}
+    drawn = None
+    cache: dict = {}
     while True:
         try:
             kind, args = conn.recv()
@@ -43,10 +44,11 @@ def _serve(conn, settings: dict) -> None:
             return
         try:
             if kind == "chunks":
-                from stepzoo.bench.sweep.suite import load as load_config
+                from stepzoo.bench.sweep.config import load as load_config
                 from stepzoo.bench.sweep.engine import compute_chunk
                 cfg = load_config(args[0])
-                answer = [(cid, compute_chunk(cfg, cid, cache)) for cid in args[1]]
+                answer: list | str | None = [(cid, compute_chunk(cfg, cid, cache))
+                                             for cid in args[1]]
             elif kind == "figures":
                 sweep = load.load_sweep(args[0])
                 tuned = load.load_tuned(args[1], sweep)
@@ -54,7 +56,9 @@ def _serve(conn, settings: dict) -> None:
                                                                 lambda line: None))
                 continue
             else:
-                answer = str(report.build(*args, ahead=drawn)[0])
+                results, out, tuned_path, plans_dir, progress = args
+                answer = str(report.build(results, out, tuned_path, plans_dir, progress,
+                                          ahead=drawn)[0])
         except Exception:               # the parent, building the report itself, says why
             drawn, answer = None, None
             if kind == "figures":
@@ -119,8 +123,9 @@ class Ahead:
     def figures(self, sweep, tuned) -> None:
         self._send(("figures", (str(sweep), str(tuned))))
 
-    def report(self, *args):
-        if not self._send(("report", args)):
+    def report(self, results: Path, out: Path, tuned_path: Path, plans_dir: Path,
+               progress: bool) -> Path | None:
+        if not self._send(("report", (results, out, tuned_path, plans_dir, progress))):
             return None
         index = self._answer()
         self._done = True

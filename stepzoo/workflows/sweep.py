@@ -1,6 +1,7 @@
 """A sweep as the commands run it: a config file (one model or a suite) swept into a results
 folder, here or on a Dask cluster, and its summary printed."""
 import sys
+from typing import Callable
 
 from stepzoo.bench.model import nonfinite as model_nan
 from stepzoo.output import text_table, to_json
@@ -14,7 +15,7 @@ def sweep(config, out, *, resume=False, overwrite=False, progress=True,
     from stepzoo.bench.sweep.suite import SuiteConfig, load, run_suite
     from stepzoo.bench.sweep.engine import run_sweep
     cfg = load(config)
-    run = run_suite if isinstance(cfg, SuiteConfig) else run_sweep
+    run: Callable[..., dict] = run_suite if isinstance(cfg, SuiteConfig) else run_sweep
     if scheduler is None:
         return run(cfg, out, resume=resume, overwrite=overwrite, progress=progress,
                    runner=runner)

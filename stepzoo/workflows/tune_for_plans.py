@@ -10,8 +10,12 @@ import sys
 from dataclasses import dataclass
 from datetime import datetime, timezone
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from stepzoo.errors import UsageError
+
+if TYPE_CHECKING:
+    from stepzoo.search.planner.config import PlannerConfig
 
 FLAGS = ("--replay-tol", "--runs", "--seed", "--planner-config", "--max-hours")
 # The car the planner plans with (search.planner.shooting): the dynamic bicycle.
@@ -24,7 +28,7 @@ class Trial:
     `vx` [m/s] with `config`'s planner parameters, a replay tolerance `tol_m` [m]."""
     path: str
     queries: list
-    config: object
+    config: PlannerConfig
     tol_m: float
     tol_from: str
     runs: int

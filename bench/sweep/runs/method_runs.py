@@ -3,11 +3,15 @@ an accuracy run's errors against the reference."""
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import NamedTuple
+from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
 
 from stepzoo.bench.sweep import metrics
+
+if TYPE_CHECKING:
+    from stepzoo.bench.model.spec import ModelSpec
+    from stepzoo.bench.timing.chunk_stopwatch import Stopwatch
 
 
 class Run(NamedTuple):
@@ -33,9 +37,9 @@ class Runner:
     """Runs a method on a model's lanes; every call of a block pads its runs to max_steps
     steps, so that one compiled program serves them all. Compiling goes to watch's
     compile_s; the caller charges the run."""
-    spec: object
+    spec: ModelSpec
     max_steps: int
-    watch: object
+    watch: Stopwatch
 
     def __call__(self, meth, x0, u, p, h, n: int) -> Run:
         """n steps of h [s] (one, or (B,) per lane) from x0 (B, d) with inputs u, params p."""

@@ -9,12 +9,16 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass
 from functools import partial
-from typing import NamedTuple
+from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
 
 from stepzoo.bench.model import frozen_jacobian as frozen
 from stepzoo.bench.sweep.limit_search import Outcome, Probe
+
+if TYPE_CHECKING:
+    from stepzoo.bench.sweep.points import Points
+    from stepzoo.bench.sweep.runs.method_runs import Runner
 
 
 def perturbation(spec, jac0: np.ndarray, size: float) -> np.ndarray:
@@ -45,8 +49,8 @@ def perturbation(spec, jac0: np.ndarray, size: float) -> np.ndarray:
 class StabilityRuns:
     """The stability test of a block's lanes (bench.sweep.points.Points) with the perturbations
     delta (B, d), runs of `steps` steps by `runner` (bench.sweep.runs.method_runs.Runner)."""
-    runner: object
-    points: object
+    runner: Runner
+    points: Points
     delta: np.ndarray
     steps: int
     growth: float
