@@ -23,6 +23,8 @@ Parameters: a 1600 kg passenger car's quarter (m = 400 kg, Fz = m g), a 16-inch 
 tyre and brake disc (J = 1.2 kg m^2, R = 0.31 m), and the magic formula's longitudinal
 coefficients for dry tarmac (B = 10, C = 1.9, D = 1, E = 0.97; Pacejka 2012, as tabulated
 by MathWorks for its Tire-Road Interaction (Magic Formula) block)."""
+from typing import Any
+
 import jax.numpy as jnp
 
 G = 9.81                 # [m/s^2]
@@ -85,7 +87,7 @@ def quarter_car_relax(t, x, u, p):
     return jnp.stack([*_motion(v, v_slip, fx, u[0], p), dkappa])
 
 
-PROBLEMS = {
+PROBLEMS: dict[str, dict[str, Any]] = {
     "quarter_car": dict(
         rhs=quarter_car, states=("s", "v", "v_slip"), inputs=("T",), x0=(0.0, 20.0, 0.0),
         u0=(-800.0,), t_span=(0.0, 0.5),

@@ -99,7 +99,8 @@ def check(model_cls: type[S], data: dict, where: str) -> S:
 def mistakes(model_cls: type[Schema], err: pydantic.ValidationError) -> list[str]:
     """One line per error of a validation of `model_cls`, in the house's words; a value that
     fits none of a union's types (a number, a whole number or true or false) is one line."""
-    lines, expected = [], {}
+    lines: list[str | None] = []
+    expected: dict[tuple[str, str], tuple[int, list[str]]] = {}
     for e in err.errors(include_url=False):
         place = _type_mistake(model_cls, e)
         if place is None:
@@ -111,9 +112,9 @@ def mistakes(model_cls: type[Schema], err: pydantic.ValidationError) -> list[str
         else:
             expected[key, got] = (len(lines), [words])
             lines.append(None)
-    for (key, got), (at, words) in expected.items():
-        lines[at] = f"{key} must be {' or '.join(dict.fromkeys(words))}, got {got}"
-    return lines
+    for (key, got), (at, alternatives) in expected.items():
+        lines[at] = f"{key} must be {' or '.join(dict.fromkeys(alternatives))}, got {got}"
+    return [line for line in lines if line is not None]
 
 
 def _whole_file(model_cls: type[Schema], data: dict) -> list[str] | None:
@@ -241,7 +242,7 @@ def _line(model_cls: type[Schema], e: ErrorDetails) -> str:
     return f"lacks {key}{doc}"
 
 
-def _type_mistake(model_cls, e: dict) -> tuple[str, str, str] | None:
+def _type_mistake(model_cls: type[Schema], e: ErrorDetails) -> tuple[str, str, str] | None:
     """(the key, what it must be, what it got) of a value of the wrong type or range; None
     for another mistake (a missing or unknown key, a validator's own message)."""
     if e["type"] in ("extra_forbidden", "value_error", "assertion_error", "missing"):

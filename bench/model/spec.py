@@ -139,7 +139,7 @@ class Expression:
             self.tree = ast.parse(text, mode="eval").body
         except SyntaxError as err:
             raise ValueError(f"is not an expression ({err.msg})") from None
-        self.names = set()
+        self.names: set[str] = set()
         self._check(self.tree)
 
     def _check(self, node):

@@ -64,7 +64,8 @@ ESTIMATES: dict[Estimate, str] = {
 # Newton solves' default tolerances, so their noise is no growth.
 DEFAULT_PERTURBATION = 1e-6
 # [stability] rule: bench.sweep.runs.stability_runs.MODES_RULE, or metrics.BLOWUP_RULE.
-STABILITY_RULES = ("modes", "blowup")
+StabilityRule = Literal["modes", "blowup"]
+STABILITY_RULES = typing.get_args(StabilityRule)
 
 GridSize = Annotated[int, quantity(
     "a number of grid values", "", "more is a typo, and would be allocated before any estimate "
@@ -227,7 +228,7 @@ class Stability(Schema):
                               "least the largest of steps.h")
     rel_tol: RelTol = Field(1e-3, description="the bisection of the largest stable step stops "
                             "when h_hi / h_lo - 1 <= rel_tol")
-    rule: Literal[STABILITY_RULES] = Field(
+    rule: StabilityRule = Field(
         "blowup", description="modes: every state, each eigenmode alone, against the "
         "reference's own growth, within the stability horizon (for stiff, saturating "
         "models); blowup: the error states, the modes summed, `steps` steps")
@@ -664,7 +665,8 @@ def _derive(derived: dict, known: set, folder: str, source: str, bad: list) -> l
     in order; each may read the states, inputs and parameters, but no state computed after
     it (nor itself). Appends to `bad` when one cannot be had."""
     from stepzoo.bench.model.spec import import_user_module
-    out, later = [], set(derived)
+    out: list[Hook | Expression] = []
+    later = set(derived)
     for key, text in derived.items():
         later.discard(key)
         if HOOK.match(text):

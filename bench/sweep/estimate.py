@@ -145,11 +145,13 @@ def _probe_work(cfg, max_steps: int, B: int, hs: np.ndarray) -> tuple[int, int, 
     "blowup" rule runs each candidate twice for `stability.steps`, in calls of B; the
     "modes" rule runs each with its directions, to the stability horizon, in calls of B
     runs, each call as long as its longest run."""
-    from stepzoo.bench.sweep.runs.stability_runs import DIRECTIONS
+    from stepzoo.bench.sweep.runs.stability_runs import MODES
     if cfg.stab_rule == "blowup":
         calls = 2 * math.ceil(len(hs) / B)
         return calls, calls * cfg.stab_steps, 2 * len(hs) * cfg.stab_steps
     n = np.minimum(np.ceil(cfg.stability_horizon / hs - 1e-9), max_steps).astype(int)
-    runs = np.repeat(n, DIRECTIONS + 1)
+    # Each of the MODES modes and each state alone (stability_runs.directions), and the
+    # unperturbed run.
+    runs = np.repeat(n, MODES + len(cfg.spec.states) + 1)
     longest = [int(runs[i: i + B].max()) for i in range(0, len(runs), B)]
     return len(longest), sum(longest), int(runs.sum())

@@ -15,6 +15,7 @@ from stepzoo.search.plans import schema as plan_schema
 from stepzoo.search.plans.schema import DRIVABILITY_COLUMNS, REPLAY_COLUMNS, RUN_COLUMNS, ordered
 
 if TYPE_CHECKING:
+    import numpy as np
     from stepzoo.search.planner.config import PlannerConfig, PlannerParams
     from stepzoo.search.planner.pathfinder import PathFinder
     from stepzoo.search.world.queries import Query
@@ -92,7 +93,7 @@ def plan_run(task: Task, finders: dict) -> dict:
                        margin=finder.config.params.margin)
     tracking_s = perf_counter() - t0
     exact = result.status == "exact"
-    rows = path_rows(result, finder.vehicle) if exact else []
+    rows: np.ndarray | list = path_rows(result, finder.vehicle) if exact else []
     metrics = path_metrics(rows, finder.omap, finder.vehicle_footprint) \
         if exact else dict.fromkeys(PATH_METRICS)
     drivable = plan_drivability(rows, finder.vehicle, config.params)

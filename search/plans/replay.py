@@ -50,7 +50,7 @@ def controls(result: PlanResult, method: str | None = None) -> list[dict]:
                                              result.path_tight, result.path_directions, rates):
         n = len(edge) - 1
         start = float(steer) if rate is None else float(steer - rate * n * result.h)
-        ramp = {} if rate is None else {"delta_rate": float(rate)}
+        ramp: dict[str, float | list] = {} if rate is None else {"delta_rate": float(rate)}
         if tight or way < 0:
             ramp = {k: [v] * n for k, v in ramp.items()}
             delta = ([start] * n if rate is None
@@ -215,17 +215,17 @@ def drive(segs: list[dict], start, vehicle: dict, times=None) -> tuple[np.ndarra
         elif seg["model"] == "kinematic":
             p = _params("kinematic", vehicle)
             x = np.r_[state[:3], float(seg["v0"])]
-            u = np.column_stack([inputs["delta_rate" if steered else "delta"],
-                                 inputs["F"]]).astype(float)
+            uk = np.column_stack([inputs["delta_rate" if steered else "delta"],
+                                  inputs["F"]]).astype(float)
             if steered:
                 x = np.r_[x, float(inputs["delta"][0])]
             dt = float(seg["dt"])
             # Runs of equal inputs are one smooth problem: solved in one call.
-            breaks = np.r_[0, 1 + np.flatnonzero((np.diff(u, axis=0) != 0).any(axis=1)), len(u)]
+            breaks = np.r_[0, 1 + np.flatnonzero((np.diff(uk, axis=0) != 0).any(axis=1)), len(uk)]
             for a, b in zip(breaks[:-1], breaks[1:]):
-                speed = abs(x[3]) + abs(u[a, 1]) / p["m"] * dt * (b - a)
-                x = solve("kinematic", x, u[a], p, float(seg["t0"]) + a * dt, dt * (b - a),
-                          speed, steered, last and b == len(u))
+                speed = abs(x[3]) + abs(uk[a, 1]) / p["m"] * dt * (b - a)
+                x = solve("kinematic", x, uk[a], p, float(seg["t0"]) + a * dt, dt * (b - a),
+                          speed, steered, last and b == len(uk))
             # The kinematic bicycle has no lateral motion: a tree edge after it starts at rest
             # laterally, as the planner starts it.
             state = np.r_[x[:3], 0.0, 0.0]

@@ -170,7 +170,7 @@ def request(path, argv: list[str], platform: str | None = None,
         send(sock, {"argv": list(argv), "cwd": os.getcwd(), "command_line": list(sys.argv),
                     "stepzoo": identity()})
         answers, cancelled = Messages(sock), False
-        deadline = time.monotonic() + wait_s
+        deadline: float | None = time.monotonic() + wait_s
         while True:
             try:
                 answer = answers.next(deadline)

@@ -98,8 +98,8 @@ def reference(rows, p: dict, kinematic=None) -> dict:
     L, Lr, Lf = p["Lf"] + p["Lr"], p["Lr"], p["Lf"]
     # The kinematic car's slip angle at full lock bounds the one the path asks for.
     sin_beta_max = math.sin(math.atan(Lr * math.tan(p["delta_max"]) / L))
-    out = {k: [] for k in ("P", "C", "course", "psi_body", "steer_ff", "speed", "accel",
-                           "left")}
+    out: dict[str, list] = {k: [] for k in ("P", "C", "course", "psi_body", "steer_ff", "speed",
+                                            "accel", "left")}
     first, last, ways = [], [], []
     for a, b, way in pieces(rows):
         # Resampled evenly along the path: rows closer than their rounding would make the
@@ -195,11 +195,8 @@ def track(rows, start, vehicle: dict, kinematic=None) -> dict:
         else ref["steer_ff"][0], p["delta_min"], p["delta_max"]))
     x0 = np.r_[start, v0, *kinematic_lateral(v0, delta0, p), delta0]
     with jax.enable_x64(True):
-        global DBG
-        DBG = _scan(n_steps)(x0, arrays, n_pieces, p)
-        poses, dev, done = DBG[0][:, :3], DBG[1], DBG[2]
-        DBG = [np.asarray(a) for a in DBG] + [arrays]
-        poses, dev, done = np.asarray(poses), np.asarray(dev), np.asarray(done)
+        out = _scan(n_steps)(x0, arrays, n_pieces, p)
+        poses, dev, done = (np.asarray(a) for a in (out[0][:, :3], out[1], out[2]))
     # Up to the step it finished (and one more: the stopped pose).
     n = int(np.argmax(done)) + 1 if done.any() else len(done)
     return {"poses": poses[:n], "deviation": dev[:n], "done": bool(done.any()),
@@ -313,6 +310,8 @@ def tracking(plan, omap, footprint=None, vehicle: dict | None = None,
     from stepzoo.search.planner.pathfinder import PlanResult
     from stepzoo.search.plans.replay import car_footprint, safety
     if isinstance(plan, PlanResult):
+        if vehicle is None:
+            raise ValueError("tracking a PlanResult needs the planner's vehicle set")
         from stepzoo.search.plans.files import path_rows
         from stepzoo.search.plans.replay import controls
         rows, start, segs = path_rows(plan, vehicle), plan.start, controls(plan)

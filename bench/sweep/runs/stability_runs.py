@@ -183,8 +183,8 @@ class ModalRuns:
     d), state scales (B, d), the reference's running-largest growth ref_growth (B, K, T) of
     each direction at the times ts (T,) [s] up to the stability horizon [s]; runs by
     `runner` (bench.sweep.runs.method_runs.Runner)."""
-    runner: object
-    points: object
+    runner: Runner
+    points: Points
     delta: np.ndarray
     scales: np.ndarray
     ts: np.ndarray
@@ -210,7 +210,7 @@ class ModalRuns:
         horizon (n_own (N,) steps), and whether their solves converged there."""
         K, B = self.delta.shape[1], len(self.points)
         runs = [(i, k) for i in range(len(h)) for k in range(-1, K)]   # k = -1: unperturbed
-        x = [None] * len(runs)
+        x: list = [None] * len(runs)
         conv = np.zeros(len(runs), bool)
         for start in range(0, len(runs), B):
             part = runs[start: start + B]
