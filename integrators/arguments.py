@@ -113,6 +113,11 @@ def check_steps(n_steps, max_steps):
                          f"{n_steps!r}")
 
 
+# Below this [bytes] the trajectories are not priced: reading the limits takes a fraction of a
+# millisecond, as long as a small batch's whole integration.
+UNCHECKED_BYTES = 2 ** 26
+
+
 def check_output(x0, n_steps, max_steps):
     """MemoryError, before any work, if the trajectories (x0's shape and dtype, over
     `max_steps` or `n_steps` steps) cannot be held three times (the output, the loop's own
@@ -121,6 +126,8 @@ def check_output(x0, n_steps, max_steps):
     ulimit -v): past a hard limit XLA's allocation waits forever instead of failing."""
     rows = (n_steps if max_steps is None else max_steps) + 1
     need = 3.0 * rows * math.prod(x0.shape) * x0.dtype.itemsize
+    if need < UNCHECKED_BYTES:          # the planner's and the timer's calls, unslowed
+        return
     room, bound = memory_room()
     if need > room:
         raise MemoryError(f"the trajectories ({rows} rows of x0's shape {tuple(x0.shape)}, "

@@ -1,6 +1,7 @@
 """Checks of user input shared by the commands, each failure one UsageError line: one table
 of physical and numerical ranges (RANGES) that every command and config file checks its
 numbers against."""
+import functools
 import math
 import os
 import resource
@@ -125,13 +126,15 @@ def _physical_memory() -> float:
         return math.inf
 
 
-def _cgroup_room() -> float:
-    """What this process's control group may still take [bytes]: cgroup v2's memory.max less
-    memory.current, or v1's limit less its usage (inf without a limit, or off Linux)."""
+@functools.cache
+def _cgroup_limit() -> tuple[float, Path | None]:
+    """(this process's control group memory limit [bytes], the file of its usage): cgroup
+    v2's memory.max and memory.current, or v1's limit and usage; (inf, None) without a
+    limit, or off Linux. Read once: a process does not change group."""
     try:
         own = Path("/proc/self/cgroup").read_text().splitlines()
     except OSError:
-        return math.inf
+        return math.inf, None
     places = []
     for line in own:
         _, controllers, path = line.split(":", 2)
@@ -148,12 +151,23 @@ def _cgroup_room() -> float:
     for limit, used in places:
         try:
             text = limit.read_text().strip()
-            if text == "max":
-                return math.inf
-            return max(0.0, float(text) - float(used.read_text()))
+            value = math.inf if text == "max" else float(text)
         except (OSError, ValueError):
             continue
-    return math.inf
+        # cgroup v1 writes no limit as a number near 2**63.
+        return (math.inf, None) if value >= 2.0 ** 60 else (value, used)
+    return math.inf, None
+
+
+def _cgroup_room() -> float:
+    """What this process's control group may still take [bytes] (inf without a limit)."""
+    limit, used = _cgroup_limit()
+    if used is None or not math.isfinite(limit):
+        return limit
+    try:
+        return max(0.0, limit - float(used.read_text()))
+    except (OSError, ValueError):
+        return limit
 
 
 def _mapped() -> float:
