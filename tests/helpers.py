@@ -2,6 +2,10 @@
 contracts (and the checks of a report built from them), a results folder's tables read back,
 the provenance every manifest records, and the small configs several modules sweep."""
 import base64
+import os
+import shutil
+import subprocess
+import sys
 import gzip
 import json
 import re
@@ -10,6 +14,8 @@ from importlib.metadata import version
 from html.parser import HTMLParser
 from pathlib import Path
 
+import pytest
+
 import jax
 import numpy as np
 import pandas as pd
@@ -17,6 +23,8 @@ from plotly.offline import get_plotlyjs
 
 from stepzoo.bench.sweep.config import load
 from stepzoo.bench.sweep import tables as schema
+
+ROOT = Path(__file__).resolve().parents[1]
 
 
 PNG = b"\x89PNG\r\n\x1a\n"
@@ -262,3 +270,98 @@ points = 1
 vx = 20.0
 delta = 0.3
 """
+
+
+# Several commands in one new process, each through main(), the entry point of the `stepzoo`
+# command and of `python -m stepzoo` (test_a_full_stdout_is_one_line runs that one itself):
+# one start-up instead of one a command. Prints [[status, stderr], ...] as JSON, each
+# command's stdout kept apart.
+EACH = """import contextlib, io, json, sys
+from stepzoo.cli import main
+done = []
+for argv in json.loads(sys.argv[1]):
+    err = io.StringIO()
+    with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(err):
+        done.append((main(argv), err.getvalue()))
+print(json.dumps(done))
+"""
+
+
+def each_command(*argvs) -> list:
+    """The stepzoo argument lists `argvs` as a command line of one process that runs EACH."""
+    return [sys.executable, "-c", EACH, json.dumps([list(map(str, a)) for a in argvs])]
+
+
+def as_user(*argvs):
+    """[(status, stderr)] of `stepzoo ARGV` for each ARGV, run one after the other in one new
+    process with file modes enforced: as root, without the capabilities that let root ignore
+    them (setpriv)."""
+    cmd = each_command(*argvs)
+    if os.geteuid() == 0:
+        cmd = ["setpriv", "--bounding-set", "-dac_override,-dac_read_search", "--", *cmd]
+    proc = subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT, timeout=600)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert proc.stderr == ""            # nothing past the commands' own captured lines
+    return json.loads(proc.stdout)
+
+
+def modes_enforced() -> str | None:
+    """Why file modes cannot be enforced on a command here, or None."""
+    if os.geteuid() != 0:
+        return None
+    if shutil.which("setpriv") is None:
+        return "running as root without setpriv, which drops root's override of file modes"
+    import tempfile
+    with tempfile.NamedTemporaryFile() as closed:
+        os.chmod(closed.name, 0)
+        probe = subprocess.run(["setpriv", "--bounding-set", "-dac_override,-dac_read_search",
+                                "--", "test", "-r", closed.name], capture_output=True)
+    if probe.returncode == 0 or probe.stderr:
+        return "setpriv cannot drop root's override of file modes in this container"
+    return None
+
+
+needs_modes = pytest.mark.skipif(modes_enforced() is not None,
+                                 reason=str(modes_enforced()))
+
+
+def private_tmpfs() -> str | None:
+    """Why a small file system cannot be made here, or None."""
+    if shutil.which("unshare") is None:
+        return "no unshare to make a private mount namespace"
+    probe = subprocess.run(["unshare", "-m", "--propagation", "private", "sh", "-c",
+                            "mount -t tmpfs -o size=64k tmpfs /mnt"], capture_output=True)
+    if probe.returncode:
+        return f"cannot mount a small tmpfs here ({probe.stderr.decode().strip()})"
+    return None
+
+
+def two_state_config(folder: Path, casadi: str, path: Path) -> Path:
+    """folder/two_states.toml: a one-step euler sweep of the CasADi model `casadi` (module
+    or saved file in `path`) of states a, b and input w, at w = 0."""
+    config = folder / "two_states.toml"
+    config.write_text(f"""name = "two_states"
+horizon = 1.0
+methods = ["euler"]
+[model]
+casadi = "{casadi}"
+path = "{path}"
+states = ["a", "b"]
+inputs = ["w"]
+[envelope]
+w = [0.0]
+[steps]
+h = [0.1]
+""")
+    return config
+
+
+def block_query(folder) -> None:
+    """folder/grid.npy, a 40 x 20 m map at cell 0.5 m with a 4 x 10 m block, and folder/q.json,
+    one query around the block."""
+    occupied = np.zeros((40, 80), bool)
+    occupied[10:30, 36:44] = True
+    np.save(folder / "grid.npy", occupied)
+    (folder / "q.json").write_text(json.dumps([{"id": "around", "map": "grid.npy",
+                                                "cell_size": 0.5, "start": [4, 10, 0],
+                                                "goal": [36, 10, 0]}]))

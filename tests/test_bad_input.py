@@ -4,7 +4,6 @@ stdout) is one line on stderr with exit status 2, never a traceback or a hang, a
 what was already written as it was. Exit status 1 means a correct run found no answer."""
 import hashlib
 import json
-import os
 import shlex
 import shutil
 import socket
@@ -18,6 +17,7 @@ import pytest
 
 from stepzoo.cli import main as stepzoo
 from stepzoo.validate import describe
+from helpers import as_user, each_command, needs_modes, private_tmpfs
 
 ROOT = Path(__file__).resolve().parents[1]
 SMALL = ROOT / "bench" / "configs" / "small.toml"
@@ -291,57 +291,6 @@ def test_a_sweep_table_of_another_command_or_version_is_one_line(finished, tmp_p
 
 # ---- files the operating system refuses ---------------------------------------------------
 
-# Several commands in one new process, each through main(), the entry point of the `stepzoo`
-# command and of `python -m stepzoo` (test_a_full_stdout_is_one_line runs that one itself):
-# one start-up instead of one a command. Prints [[status, stderr], ...] as JSON, each
-# command's stdout kept apart.
-EACH = """import contextlib, io, json, sys
-from stepzoo.cli import main
-done = []
-for argv in json.loads(sys.argv[1]):
-    err = io.StringIO()
-    with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(err):
-        done.append((main(argv), err.getvalue()))
-print(json.dumps(done))
-"""
-
-
-def each_command(*argvs) -> list:
-    """The stepzoo argument lists `argvs` as a command line of one process that runs EACH."""
-    return [sys.executable, "-c", EACH, json.dumps([list(map(str, a)) for a in argvs])]
-
-
-def as_user(*argvs):
-    """[(status, stderr)] of `stepzoo ARGV` for each ARGV, run one after the other in one new
-    process with file modes enforced: as root, without the capabilities that let root ignore
-    them (setpriv)."""
-    cmd = each_command(*argvs)
-    if os.geteuid() == 0:
-        cmd = ["setpriv", "--bounding-set", "-dac_override,-dac_read_search", "--", *cmd]
-    proc = subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT, timeout=600)
-    assert proc.returncode == 0, proc.stderr[-2000:]
-    assert proc.stderr == ""            # nothing past the commands' own captured lines
-    return json.loads(proc.stdout)
-
-
-def _modes_enforced() -> str | None:
-    """Why file modes cannot be enforced on a command here, or None."""
-    if os.geteuid() != 0:
-        return None
-    if shutil.which("setpriv") is None:
-        return "running as root without setpriv, which drops root's override of file modes"
-    import tempfile
-    with tempfile.NamedTemporaryFile() as closed:
-        os.chmod(closed.name, 0)
-        probe = subprocess.run(["setpriv", "--bounding-set", "-dac_override,-dac_read_search",
-                                "--", "test", "-r", closed.name], capture_output=True)
-    if probe.returncode == 0 or probe.stderr:
-        return "setpriv cannot drop root's override of file modes in this container"
-    return None
-
-
-needs_modes = pytest.mark.skipif(_modes_enforced() is not None,
-                                 reason=str(_modes_enforced()))
 
 
 @needs_modes
@@ -397,18 +346,7 @@ def test_a_read_only_output_folder_is_one_line_and_keeps_what_it_holds(finished,
     assert digest(tmp_path) == before
 
 
-def _private_tmpfs() -> str | None:
-    """Why a small file system cannot be made here, or None."""
-    if shutil.which("unshare") is None:
-        return "no unshare to make a private mount namespace"
-    probe = subprocess.run(["unshare", "-m", "--propagation", "private", "sh", "-c",
-                            "mount -t tmpfs -o size=64k tmpfs /mnt"], capture_output=True)
-    if probe.returncode:
-        return f"cannot mount a small tmpfs here ({probe.stderr.decode().strip()})"
-    return None
-
-
-@pytest.mark.skipif(_private_tmpfs() is not None, reason=str(_private_tmpfs()))
+@pytest.mark.skipif(private_tmpfs() is not None, reason=str(private_tmpfs()))
 def test_a_full_disk_is_one_line_and_keeps_what_it_holds(finished, tmp_path):
     """On a tmpfs filled to the last byte (in a private mount namespace), sweep, tune,
     report and plan each say the disk is full, and the files there are unchanged."""

@@ -17,7 +17,7 @@ from stepzoo.cli import main as stepzoo
 from stepzoo.bench.sweep.engine import run_sweep
 from stepzoo.bench.sweep.config import load
 from stepzoo.dynamics.casadi_model import rhs, to_jax
-from helpers import TINY_SWEEP
+from helpers import TINY_SWEEP, two_state_config
 
 USER = Path(__file__).resolve().parent / "user_model"
 sys.path.insert(0, str(USER))
@@ -233,26 +233,6 @@ def chain():
         e = ca.sin(e) * 0.999 + 0.001 * x[1]
     return ca.Function("chain", [x, u], [ca.vertcat(x[1], -x[0] + 1e-6 * e)])
 '''
-
-
-def two_state_config(folder: Path, casadi: str, path: Path) -> Path:
-    """folder/two_states.toml: a one-step euler sweep of the CasADi model `casadi` (module
-    or saved file in `path`) of states a, b and input w, at w = 0."""
-    config = folder / "two_states.toml"
-    config.write_text(f"""name = "two_states"
-horizon = 1.0
-methods = ["euler"]
-[model]
-casadi = "{casadi}"
-path = "{path}"
-states = ["a", "b"]
-inputs = ["w"]
-[envelope]
-w = [0.0]
-[steps]
-h = [0.1]
-""")
-    return config
 
 
 def test_a_casadi_model_past_the_instruction_limit_is_one_line_not_a_crash(tmp_path, capsys,

@@ -15,9 +15,7 @@ from pathlib import Path
 
 import pytest
 
-from test_bad_input import _private_tmpfs, as_user, each_command, needs_modes
-from test_casadi_model import two_state_config
-from test_tune_for_plans import block_query
+from helpers import as_user, block_query, each_command, needs_modes, private_tmpfs, two_state_config
 
 ROOT = Path(__file__).resolve().parents[1]
 GIB = 2 ** 30
@@ -260,7 +258,7 @@ def test_a_full_disk_is_one_line_and_keeps_what_it_holds(tuned, tmp_path):
     argvs = [["export", tuned_file, "--to", "json", "--sweep", sweep, "--out", disk / "export"],
              ["verdict", config, "--method", "euler", "--h", "0.05", "--csv", disk / "v.csv"]]
     env = dict(os.environ, STEPZOO_CACHE_DIR="")      # JAX's cache writes nothing there
-    if _private_tmpfs() is None:
+    if private_tmpfs() is None:
         script = f"""set -eu
 mount -t tmpfs -o size=64k tmpfs {disk}
 printf 'an older verdict\\n' > {disk}/v.csv

@@ -177,3 +177,17 @@ def test_plan_imports_before_its_search_only_what_it_searches_with():
             "from stepzoo.search.world import scenarios\n"
             f"print(json.dumps(sorted({{m.split('.')[0] for m in sys.modules}} & set({HEAVY!r}))))")
     assert _heavy_imported(code) == ["casadi", "jax", "scipy"]
+
+
+def test_test_modules_share_helpers_through_one_module_only():
+    """What several test modules use lives in tests/helpers.py: no test module imports
+    another test module (nor conftest)."""
+    tests = ROOT / "tests"
+    modules = {p.stem for p in tests.glob("test_*.py")} | {"conftest"}
+    wrong = []
+    for path in sorted(tests.glob("*.py")):
+        for node in ast.walk(ast.parse(path.read_text())):
+            names = [a.name for a in node.names] if isinstance(node, ast.Import) else \
+                [node.module or ""] if isinstance(node, ast.ImportFrom) else []
+            wrong += [f"{path.name} imports {n}" for n in names if n.split(".")[0] in modules]
+    assert not wrong, "\n".join(wrong)

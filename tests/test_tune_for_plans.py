@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 
 from stepzoo.cli import main as stepzoo
+from helpers import block_query
 
 POS_TOL, MARGIN = "1", "0.2"      # on the tiny sweep: euler and heun qualify at h = 0.01 s
 # A collision margin that is no parameter's default, so the test sees where the tol comes from.
@@ -33,17 +34,6 @@ def setup(tiny_sweep, tmp_path_factory):
     block_query(folder)
     (folder / "planner.toml").write_text(PLANNER)
     return folder
-
-
-def block_query(folder) -> None:
-    """folder/grid.npy, a 40 x 20 m map at cell 0.5 m with a 4 x 10 m block, and folder/q.json,
-    one query around the block."""
-    occupied = np.zeros((40, 80), bool)
-    occupied[10:30, 36:44] = True
-    np.save(folder / "grid.npy", occupied)
-    (folder / "q.json").write_text(json.dumps([{"id": "around", "map": "grid.npy",
-                                                "cell_size": 0.5, "start": [4, 10, 0],
-                                                "goal": [36, 10, 0]}]))
 
 
 def tune(folder, out, *flags) -> int:
