@@ -53,11 +53,17 @@ def test_a_killed_run_resumes_to_the_tables_of_an_undisturbed_sweep(ran, tiny_sw
     a, b = read_tables(whole), read_tables(out / "sweep")
     for name in TABLES:
         pd.testing.assert_frame_equal(a[name], b[name], check_exact=True, obj=name)
-    assert stepzoo(["tune", str(whole), "--pos-tol", POS_TOL, "--out",
-                    str(tmp_path / "t.toml")]) == 0
-    mine, theirs = (tomllib.loads(p.read_text()) for p in (out / "tuned.toml",
-                                                          tmp_path / "t.toml"))
-    assert (mine["method"], mine["h"]) == (theirs["method"], theirs["h"])
+    # Ranked by evaluations, both choices are the tables' alone: in time (run's ranking),
+    # two calibrations on a loaded machine chose euler once and heun the other time.
+    chosen = []
+    for sweep in (out / "sweep", whole):
+        target = tmp_path / f"{len(chosen)}.toml"
+        assert stepzoo(["tune", str(sweep), "--pos-tol", POS_TOL, "--cost", "evals",
+                        "--rounds", "1", "--out", str(target)]) == 0
+        t = tomllib.loads(target.read_text())
+        chosen.append([(t["method"], t["h"])]
+                      + [(r["method"], r.get("h")) for r in t["runners_up"]])
+    assert chosen[0] == chosen[1]
 
 
 def test_run_ends_by_printing_the_report_path(ran):
