@@ -24,32 +24,29 @@ from jax.sharding import Mesh, PartitionSpec
 from stepzoo.integrators import arguments
 from stepzoo.integrators.fast_trig import flagged_trig
 
-# Trajectories per chunk. Measured at batch 4000 on one core, with each loop compiled whole
-# (see dynamics/__init__.py), in trajectory-steps/s: rk4 with fast_trig 1.4e7 / 1.8e7 /
-# 1.7e7 / 1.6e7 / 1.3e7 for chunks of 4 / 8 / 16 / 32 / 256; dopri5 1.1e7 / 1.2e7 / 1.3e7
-# for 4 / 8 / 16; ab4 1.6e7 for 4 and 8, 1.2e7 for 16.
+# The constants below were chosen by measurement; the numbers are in
+# docs/studies/driver-constants-2026-11.md. Rerun them before changing one.
+# Trajectories per chunk: small enough to stay in cache with each loop compiled whole, large
+# enough to fill the vector lanes (the explicit methods' rates peak here).
 CHUNK = 8
 # XLA:CPU compiles a chunk's step loop into one native function only when the loop touches
 # fewer bytes than its xla_cpu_small_while_loop_byte_threshold (1 kB unless XLA_FLAGS raise
 # it, as the `stepzoo` command does); otherwise every operation of every step is a runtime
-# call, whose cost a bigger chunk spreads over more trajectories. This many trajectories
-# per chunk then: rk4 at batch 1e4 ran about as fast as with the option and chunks of CHUNK.
+# call, whose cost a bigger chunk spreads over more trajectories: this many per chunk then.
 CHUNK_CALLS = 128
 # Implicit methods run Newton's while loop inside every step, which XLA does not compile into
 # the native step loop, so they favour larger chunks than explicit ones; but a chunk's loop
-# runs until its slowest trajectory converges. At batch 1e4 on two devices, interleaved with
-# rk4: trapezoidal 1.4x and BDF3 1.35x faster with chunks of 64 than of 256, 32 slower.
+# runs until its slowest trajectory converges, which smaller chunks bound.
 CHUNK_IMPLICIT = 64
-# ... except that up to this many per device run as one chunk: at batch 100, two chunks of 64
-# took longer to compile and to run than one of 100 (trapezoidal, backward Euler).
+# ... except that up to this many per device run as one chunk: two small chunks cost a second
+# compile and run no faster.
 ONE_CHUNK_IMPLICIT = 256
-# Below this many trajectories a plain vmap of the one-trajectory loop beats the chunks (at 64
-# steps: rk4 1.2x at batch 10 and 20, dopri5 1.5x at 10; chunks win from 40). A single
-# trajectory runs without a batch axis, since a vmap of one still cost 1.2x.
+# Below this many trajectories a plain vmap of the one-trajectory loop beats the chunks (their
+# bookkeeping is not repaid). A single trajectory runs without a batch axis: a vmap of one
+# still costs more than the plain loop.
 SMALL_BATCH = 32
-# Trajectories per device below which sharing a batch among devices costs more than it saves
-# (rk4 with fast_trig, 500 steps, 2 devices against 1: 2x slower at batch 40, 1.6x slower at
-# 100, 1.4x faster at 400 and 1.5x at 2000).
+# Trajectories per device below which sharing a batch among devices costs more (the
+# devices' start-up and gathering) than it saves.
 SHARE = 128
 
 
@@ -200,7 +197,7 @@ def _batch(method, f, x0, u, p, h, n_steps, t0, max_steps, libm):
     batch = x0.shape[0]
     one = lambda x, uu, pp, hh: _integrate(method, f, x, uu, pp, hh, n_steps, t0, max_steps)
     h_axis = 0 if jnp.ndim(h) else None
-    if batch == 1:      # a vmap of one still cost 1.2x (rk4, 500 steps)
+    if batch == 1:      # a vmap of one costs more than the plain loop
         first = jax.tree.map(lambda a: jnp.asarray(a)[0], (x0, u, p))
         tr = jax.tree.map(lambda a: a[None], one(*first, h if h_axis is None else h[0]))
         return tr, jnp.asarray(False)
@@ -226,8 +223,8 @@ def _batch(method, f, x0, u, p, h, n_steps, t0, max_steps, libm):
         run = jax.shard_map(run, mesh=mesh, in_specs=PartitionSpec("chunks"),
                             out_specs=PartitionSpec("chunks"))
     xs, evals, converged, far = run(args, h_chunks)
-    # (chunks, C, N+1, d) -> (B, N+1, d): no copy, where one transpose of the whole output
-    # cost 13% of the time at batch 2e4 (rk4, fast_trig, 500 steps).
+    # (chunks, C, N+1, d) -> (B, N+1, d): a reshape, no copy; a transpose of the whole output
+    # would copy every state once more.
     xs = xs.reshape((n_chunks * size,) + xs.shape[2:])[:batch]
     ts = _times(t0, h, xs.shape[:2])
     return (Trajectory(ts, xs, evals.reshape(-1)[:batch], converged.reshape(-1)[:batch]),

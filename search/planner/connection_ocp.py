@@ -22,8 +22,8 @@ from stepzoo.integrators.methods import TABLEAUS
 from stepzoo.integrators.steps import rk_slopes, weighted
 from stepzoo.search.proofs.car_bounds import reeds_shepp_words
 
-# Multiple shooting solved as many seeded problems as single shooting, several times faster
-# and without retries (docs/studies/measurements-behind-defaults-2026-11.md has the study).
+# Multiple shooting solved as many seeded problems as single shooting, faster and without
+# retries (docs/studies/measurements-behind-defaults-2026-11.md has the numbers).
 DEFAULT_SHOOTING = "multiple"
 # rk4 costs what Euler costs here (the NLP dominates) but is faithful: a re-simulation 10
 # times finer ends micrometres from the goal, against decimetres for the paper's Euler.
