@@ -8,8 +8,9 @@ utils/, parameters/parameters_vehicle2.yaml and parameters_tire.yaml), branches 
 selections. Right-hand sides f(t, x, u, p) with u = (steering angle velocity [rad/s],
 longitudinal acceleration [m/s^2]) and p = `BMW_320I` (or a copy with other values).
 
-The wheel speeds make both stiff: a wheel's slip stiffness over its inertia puts modes of
--1e3 to -1e4 1/s next to the body's few 1/s."""
+The wheel speeds make both stiff: a wheel's slip stiffness over its inertia and the car's
+speed puts fast-decaying modes (the faster, the slower the car) beside the body's slow ones
+(their values: docs/studies/implicit-speed-2026-11-28.md)."""
 import jax.numpy as jnp
 
 G = 9.81    # [m/s^2], as the published models
