@@ -154,32 +154,52 @@ def lu_solve(factors, r):
     return jnp.stack(x)
 
 
-def factors(mat):
-    """(lu, 1 + |mat - I|_inf): the LU factors of an iteration matrix, and the size against
-    which a residual is judged; data, so that a step can carry them to the next."""
-    size = 1.0 + jnp.max(jnp.sum(jnp.abs(mat - jnp.eye(mat.shape[0], dtype=mat.dtype)), axis=1))
-    return lu_factor(mat), size
-
-
-def solver(fac):
-    """(solve, size) of `factors`' result: solve(r) = mat^-1 r."""
-    lu, size = fac
-    return (lambda r: lu_solve(lu, r)), size
+def _size(mat):
+    """1 + |mat - I|_inf: the size against which a residual is judged."""
+    return 1.0 + jnp.max(jnp.sum(jnp.abs(mat - jnp.eye(mat.shape[0], dtype=mat.dtype)), axis=1))
 
 
 def factorised(mat):
     """(solve, 1 + |mat - I|_inf): the LU factors of an iteration matrix, applied by `solve`,
     and the size against which a residual is judged."""
-    return solver(factors(mat))
+    lu = lu_factor(mat)
+    return (lambda r: lu_solve(lu, r)), _size(mat)
+
+
+def factors(mat):
+    """(factors, 1 + |mat - I|_inf) of an iteration matrix that steps may keep, as data:
+    `lu_factor`'s up to order SMALL, above it the inverse. A kept matrix is applied far more
+    often than it is made, and a product with the inverse is one vectorised operation where
+    the looped substitution is a loop over the rows."""
+    return (lu_factor(mat) if mat.shape[0] <= SMALL else inverse(mat)), _size(mat)
+
+
+def solver(fac):
+    """(solve, size) of `factors`' result: solve(r) = mat^-1 r."""
+    f, size = fac
+    return (lambda r: apply(f, r)), size
+
+
+def inverse(mat):
+    """mat^-1 by the looped elimination, the columns of I substituted together."""
+    lu = _lu_factor_loop(mat)
+    # I like mat, so that under shard_map the substitution's carry varies as mat does.
+    eye = jnp.zeros_like(mat) + jnp.eye(mat.shape[0], dtype=mat.dtype)
+    return jax.vmap(lambda e: _lu_solve_loop(lu, e), in_axes=1, out_axes=1)(eye)
+
+
+def apply(f, r):
+    """mat^-1 r from `lu_factor(mat)` (a tuple) or from mat's `inverse`."""
+    return lu_solve(f, r) if isinstance(f, tuple) else f @ r
 
 
 class Stages(NamedTuple):
     """I - h A (x) J for a diagonalisable A = V diag(mu) V^-1, transformed as RADAU5 does
     (HW IV.8): one d x d system I - h mu J per real eigenvalue mu and one per complex pair,
     written as the real 2d x 2d system [[I - h Re mu J, h Im mu J], [-h Im mu J,
-    I - h Re mu J]] on (Re x, Im x), instead of the s d x s d system. Each is eliminated in
-    the loop: the unrolled elimination of the real block alone took longer to compile than
-    the whole method had. `mu` are the eigenvalues solved for (of a pair, the one with
+    I - h Re mu J]] on (Re x, Im x), instead of the s d x s d system. Each is inverted by the
+    looped elimination (the unrolled elimination of the real block alone took longer to
+    compile than the whole method had), and the inverses kept: see `factors`. `mu` are the eigenvalues solved for (of a pair, the one with
     Im mu > 0), `twice` says which stand for a pair; `v` their columns of V, `v_inv` their
     rows of V^-1 (NumPy constants)."""
     v: np.ndarray
@@ -210,7 +230,7 @@ class Stages(NamedTuple):
             if pair:
                 im = (h * float(mu.imag)) * jac
                 re = jnp.block([[re, im], [-im, re]])
-            blocks.append(_lu_factor_loop(re))
+            blocks.append(inverse(re))
         return blocks, 1.0 + h * a_norm * jnp.max(jnp.sum(jnp.abs(jac), axis=1))
 
     def solver(self, fac):
@@ -222,15 +242,15 @@ class Stages(NamedTuple):
             rr = r.reshape(s, -1)
             d = rr.shape[1]
             out = 0.0
-            for i, (lu, pair) in enumerate(zip(blocks, self.twice)):
+            for i, (inv, pair) in enumerate(zip(blocks, self.twice)):
                 w = _combine(self.v_inv[i].real, rr)
                 if pair:
-                    x = lu_solve(lu, jnp.concatenate([w, _combine(self.v_inv[i].imag, rr)]))
+                    x = apply(inv, jnp.concatenate([w, _combine(self.v_inv[i].imag, rr)]))
                     # V's column i times x plus its conjugate's: twice the real part.
                     part = [float(2 * c.real) * x[:d] - float(2 * c.imag) * x[d:]
                             for c in self.v[:, i]]
                 else:
-                    x = lu_solve(lu, w)
+                    x = apply(inv, w)
                     part = [float(c.real) * x for c in self.v[:, i]]
                 out = out + jnp.stack(part)
             return out.reshape(-1)
