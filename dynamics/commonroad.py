@@ -13,7 +13,7 @@ speed puts fast-decaying modes (the faster, the slower the car) beside the body'
 (their values: docs/studies/implicit-speed-2026-11-28.md)."""
 import jax.numpy as jnp
 
-G = 9.81    # [m/s^2], as the published models
+from stepzoo.dynamics.single_track import G, _kinematic, constrained_inputs
 
 # parameters_tire.yaml (the same tyre for every CommonRoad vehicle)
 TIRE = dict(p_cx1=1.6411, p_dx1=1.1739, p_dx3=0.0, p_ex1=0.46403, p_kx1=22.303,
@@ -26,9 +26,10 @@ TIRE = dict(p_cx1=1.6411, p_dx1=1.1739, p_dx3=0.0, p_ex1=0.46403, p_kx1=22.303,
 
 # parameters_vehicle2.yaml: BMW 320i. Masses [kg], lengths [m], inertias [kg m^2],
 # stiffnesses [N/m], [N m/rad], dampings [N s/m], K_lt [m/N].
+# The steering and acceleration limits under single_track's names (constrained_inputs).
 BMW_320I = dict(
-    steering=dict(min=-1.066, max=1.066, v_min=-0.4, v_max=0.4),
-    longitudinal=dict(a_max=11.5, v_max=50.8, v_min=-13.9, v_switch=7.319),
+    delta_min=-1.066, delta_max=1.066, ddelta_min=-0.4, ddelta_max=0.4,
+    a_max=11.5, v_max=50.8, v_min=-13.9, v_switch=7.319,
     m=1093.2952334674046, m_s=965.7108098804363, m_uf=63.7921826056784,
     m_ur=63.7921826056784, a=1.1561957064, b=1.4227170936, I_Phi_s=207.26524557936952,
     I_y_s=1565.8178787125541, I_z=1791.5995300122856, I_xz_s=0.0, K_sf=24453.137879749014,
@@ -51,23 +52,6 @@ class _Params:
 
 def _sign(x):
     return jnp.sign(x)
-
-
-def steering_constraints(steering_angle, steering_velocity, p):
-    """utils/steering_constraints.py."""
-    stop = (((steering_angle <= p.min) & (steering_velocity <= 0))
-            | ((steering_angle >= p.max) & (steering_velocity >= 0)))
-    return jnp.where(stop, 0.0, jnp.clip(steering_velocity, p.v_min, p.v_max))
-
-
-def acceleration_constraints(velocity, acceleration, p):
-    """utils/acceleration_constraints.py."""
-    pos_limit = jnp.where(velocity > p.v_switch, p.a_max * p.v_switch / velocity, p.a_max)
-    stop = (((velocity <= p.v_min) & (acceleration <= 0))
-            | ((velocity >= p.v_max) & (acceleration >= 0)))
-    return jnp.where(stop, 0.0, jnp.where(acceleration <= -p.a_max, -p.a_max,
-                                          jnp.where(acceleration >= pos_limit, pos_limit,
-                                                    acceleration)))
 
 
 def _magic(b, c, e, x):
@@ -110,23 +94,12 @@ def formula_lateral_comb(kappa, alpha, gamma, mu_y, f_z, f0_y, p):
             + d_v * jnp.sin(p.r_vy5 * jnp.arctan(p.r_vy6 * kappa)))
 
 
-def _ks_cog(x, u, p):
-    """utils/vehicle_dynamics_ks_cog.py (u already constrained)."""
-    lwb = p.a + p.b
-    beta = jnp.arctan(jnp.tan(x[2]) * p.b / lwb)
-    return [x[3] * jnp.cos(beta + x[4]), x[3] * jnp.sin(beta + x[4]), u[0], u[1],
-            x[3] * jnp.cos(beta) * jnp.tan(x[2]) / lwb]
-
-
-def _kinematic_rates(x, u, p):
-    """(d beta, dd psi) of the kinematic model, as both published models blend them in."""
-    lwb = p.a + p.b
-    d_beta = (p.b * u[0]) / (lwb * jnp.cos(x[2]) ** 2
-                             * (1 + (jnp.tan(x[2]) ** 2 * p.b / lwb) ** 2))
-    dd_psi = 1 / lwb * (u[1] * jnp.cos(x[6]) * jnp.tan(x[2])
-                        - x[3] * jnp.sin(x[6]) * d_beta * jnp.tan(x[2])
-                        + x[3] * jnp.cos(x[6]) * u[0] / jnp.cos(x[2]) ** 2)
-    return d_beta, dd_psi
+def _inputs_and_kinematic(x, u, p):
+    """(constrained u, the kinematic single track's rates about the centre of gravity at
+    x[:7] (single_track's, with p's a and b as Lf and Lr): x, y, delta, v, psi, dd psi,
+    d beta), as both published models blend or switch to them at low speed."""
+    u = constrained_inputs(x[2], x[3], u[0], u[1], p)
+    return u, _kinematic(x[:7], *u, dict(p, Lf=p["a"], Lr=p["b"]))
 
 
 def _torques(m, r_w, accel):
@@ -138,12 +111,11 @@ def std_rhs(t, x, u, p):
     """Single-track drift model, vehicle_dynamics_std.py. x: position (x, y) [m], steering
     angle [rad], speed at the centre of gravity [m/s], yaw [rad], yaw rate [rad/s], slip
     angle at the centre [rad], front and rear wheel speeds [rad/s]."""
+    u, f_ks = _inputs_and_kinematic(x, u, p)
     p = _Params(p)
     lf, lr, m, inertia = p.a, p.b, p.m, p.I_z
     v_s, v_b = 0.2, 0.05
     v_min = v_s / 2
-    u = [steering_constraints(x[2], u[0], p.steering),
-         acceleration_constraints(x[3], u[1], p.longitudinal)]
     moving = x[3] > v_min
     vc = jnp.where(moving, x[3], 1.0)      # no division by a speed the selection drops
     alpha_f = jnp.where(moving, jnp.arctan((vc * jnp.sin(x[6]) + x[5] * lf)
@@ -180,15 +152,13 @@ def std_rhs(t, x, u, p):
     # The published function clips the wheel speeds to >= 0 in place before the kinematic
     # blend reads them.
     omega_f, omega_r = jnp.maximum(0.0, x[7]), jnp.maximum(0.0, x[8])
-    f_ks = _ks_cog(x, u, p)
-    d_beta_ks, dd_psi_ks = _kinematic_rates(x, u, p)
     d_omega_f_ks = (1 / 0.02) * (u_wf / p.R_w - omega_f)
     d_omega_r_ks = (1 / 0.02) * (u_wr / p.R_w - omega_r)
     w_std = 0.5 * (jnp.tanh((x[3] - v_s) / v_b) + 1)
     w_ks = 1 - w_std
     return jnp.stack([x[3] * jnp.cos(x[6] + x[4]), x[3] * jnp.sin(x[6] + x[4]), u[0],
                       w_std * d_v + w_ks * f_ks[3], w_std * x[5] + w_ks * f_ks[4],
-                      w_std * dd_psi + w_ks * dd_psi_ks, w_std * d_beta + w_ks * d_beta_ks,
+                      w_std * dd_psi + w_ks * f_ks[5], w_std * d_beta + w_ks * f_ks[6],
                       w_std * d_omega_f + w_ks * d_omega_f_ks,
                       w_std * d_omega_r + w_ks * d_omega_r_ks])
 
@@ -206,10 +176,9 @@ def mb_rhs(t, x, u, p):
     masses (roll, lateral velocity, height, with rates), the four wheel speeds [rad/s] and the
     compliant joints' lateral deflections delta_y_f, delta_y_r [m]; x[2] is the steering
     angle, x[3] the longitudinal velocity [m/s]."""
+    u, f_ks = _inputs_and_kinematic(x, u, p)
     p = _Params(p)
     tire = p.tire
-    u = [steering_constraints(x[2], u[0], p.steering),
-         acceleration_constraints(x[3], u[1], p.longitudinal)]
     slow = jnp.abs(x[3]) < 0.1
     vx = jnp.where(slow, 1.0, x[3])        # no division by a speed the selection drops
     beta = jnp.where(slow, 0.0, jnp.arctan(x[10] / vx))
@@ -330,13 +299,10 @@ def mb_rhs(t, x, u, p):
                 - f_raf * cos(x[6]) - (f_slf + f_srf) * sin(x[6]))
     sum_y_ur = (f_y_lr + f_y_rr) - f_rar * cos(x[6]) - (f_slr + f_srr) * sin(x[6])
     # the single-track part: kinematic below 0.1 m/s
-    f_ks = _ks_cog(x, u, p)
-    _, dd_psi_ks = _kinematic_rates(x, u, p)
     dynamic = [cos(beta + x[4]) * vel, sin(beta + x[4]) * vel, u[0],
                1 / p.m * sum_x + x[5] * x[10], x[5],
                1 / (p.I_z - p.I_xz_s ** 2 / p.I_Phi_s) * (sum_n + p.I_xz_s / p.I_Phi_s * sum_l)]
-    kinematic = [*f_ks, dd_psi_ks]
-    f = [jnp.where(slow, k, d) for k, d in zip(kinematic, dynamic)]
+    f = [jnp.where(slow, f_ks[i], d) for i, d in enumerate(dynamic)]
     f += [x[7], 1 / (p.I_Phi_s - p.I_xz_s ** 2 / p.I_z) * (p.I_xz_s / p.I_z * sum_n + sum_l),
           x[9], 1 / p.I_y_s * sum_m_s, 1 / p.m_s * sum_y_s - x[5] * x[3], x[12],
           G - 1 / p.m_s * sum_z_s,
