@@ -91,10 +91,14 @@ class Method:
         return self.scheme.stages
 
     def init_state(self, y0):
-        """Evaluations spent, and whether every nonlinear solve so far converged."""
+        """Evaluations spent, whether every nonlinear solve so far converged, and, where a
+        step solves by Newton's method, the factors it carries to the next (steps.held_state)."""
         # Like y0, so that under shard_map they vary across devices as the steps' counts do.
-        return {"evals": jnp.zeros_like(y0, shape=()),
-                "converged": jnp.ones_like(y0, bool, shape=())}
+        state = {"evals": jnp.zeros_like(y0, shape=()),
+                 "converged": jnp.ones_like(y0, bool, shape=())}
+        if self.implicit and not self.is_rosenbrock:
+            state["held"] = steps.held_state(self.scheme, y0)
+        return state
 
     def step(self, fun, t, y, h, state):
         """One step from (t, y): returns (y_next, state)."""

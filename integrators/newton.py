@@ -4,7 +4,12 @@ per step and every iteration reuses it. A solve reports whether it converged: th
 convergence theta_k = |dz_k| / |dz_{k-1}| estimates the error left after an increment as
 theta/(1 - theta) |dz_k|; the solve stops when that estimate and the residual are both within
 tolerance, and gives up early when the iteration diverges (theta >= 1) or cannot reach the
-tolerance within the iteration limit at its current rate."""
+tolerance within the iteration limit at its current rate.
+
+The factorised iteration matrix may be an earlier step's (`Held`): a step keeps it while the
+last solve contracted fast, and takes its own where a kept one fails. That choice is made per
+chunk of a batch (`any_lane`): a new Jacobian costs the chunk's lanes the same whether one or
+all of them need it, so all take it."""
 from dataclasses import dataclass
 from numbers import Real
 from typing import NamedTuple
@@ -13,6 +18,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 from jax import lax
+from jax.custom_batching import custom_vmap
 
 
 @dataclass(frozen=True)
@@ -153,23 +159,54 @@ def lu_solve(factors, r):
     return jnp.stack(x)
 
 
+def _size(mat):
+    """1 + |mat - I|_inf: the size against which a residual is judged."""
+    return 1.0 + jnp.max(jnp.sum(jnp.abs(mat - jnp.eye(mat.shape[0], dtype=mat.dtype)), axis=1))
+
+
 def factorised(mat):
     """(solve, 1 + |mat - I|_inf): the LU factors of an iteration matrix, applied by `solve`,
     and the size against which a residual is judged."""
     lu = lu_factor(mat)
-    size = 1.0 + jnp.max(jnp.sum(jnp.abs(mat - jnp.eye(mat.shape[0], dtype=mat.dtype)), axis=1))
-    return (lambda r: lu_solve(lu, r)), size
+    return (lambda r: lu_solve(lu, r)), _size(mat)
+
+
+def factors(mat):
+    """(factors, 1 + |mat - I|_inf) of an iteration matrix that steps may keep, as data:
+    `lu_factor`'s up to order SMALL, above it the inverse. A kept matrix is applied far more
+    often than it is made, and a product with the inverse is one vectorised operation where
+    the looped substitution is a loop over the rows."""
+    return (lu_factor(mat) if mat.shape[0] <= SMALL else inverse(mat)), _size(mat)
+
+
+def solver(fac):
+    """(solve, size) of `factors`' result: solve(r) = mat^-1 r."""
+    f, size = fac
+    return (lambda r: apply(f, r)), size
+
+
+def inverse(mat):
+    """mat^-1 by the looped elimination, the columns of I substituted together."""
+    lu = _lu_factor_loop(mat)
+    # I like mat, so that under shard_map the substitution's carry varies as mat does.
+    eye = jnp.zeros_like(mat) + jnp.eye(mat.shape[0], dtype=mat.dtype)
+    return jax.vmap(lambda e: _lu_solve_loop(lu, e), in_axes=1, out_axes=1)(eye)
+
+
+def apply(f, r):
+    """mat^-1 r from `lu_factor(mat)` (a tuple) or from mat's `inverse`."""
+    return lu_solve(f, r) if isinstance(f, tuple) else f @ r
 
 
 class Stages(NamedTuple):
     """I - h A (x) J for a diagonalisable A = V diag(mu) V^-1, transformed as RADAU5 does
     (HW IV.8): one d x d system I - h mu J per real eigenvalue mu and one per complex pair,
     written as the real 2d x 2d system [[I - h Re mu J, h Im mu J], [-h Im mu J,
-    I - h Re mu J]] on (Re x, Im x), instead of the s d x s d system. Each is eliminated in
-    the loop: the unrolled elimination of the real block alone took longer to compile than
-    the whole method had. `mu` are the eigenvalues solved for (of a pair, the one with
-    Im mu > 0), `twice` says which stand for a pair; `v` their columns of V, `v_inv` their
-    rows of V^-1 (NumPy constants)."""
+    I - h Re mu J]] on (Re x, Im x), instead of the s d x s d system. Each is inverted by the
+    looped elimination (the unrolled elimination of the real block alone took longer to
+    compile than the whole method had), and the inverses kept: see `factors`. `mu` are the
+    eigenvalues solved for (of a pair, the one with Im mu > 0), `twice` says which stand for a
+    pair; `v` their columns of V, `v_inv` their rows of V^-1 (NumPy constants)."""
     v: np.ndarray
     v_inv: np.ndarray
     mu: np.ndarray
@@ -187,9 +224,9 @@ class Stages(NamedTuple):
         twice = tuple(bool(mu[i].imag > 0) for i in pick)
         return Stages(v[:, pick], np.linalg.inv(v)[pick], mu[pick], twice)
 
-    def factorised(self, h, jac, a_norm):
-        """(solve, 1 + |h A (x) J|_inf) as `factorised` gives them for the whole system,
-        |h A (x) J|_inf being h |A|_inf |J|_inf; a_norm is |A|_inf."""
+    def factors(self, h, jac, a_norm):
+        """(factors of every block, 1 + |h A (x) J|_inf), |h A (x) J|_inf being
+        h |A|_inf |J|_inf; a_norm is |A|_inf."""
         d = jac.shape[0]
         eye = jnp.eye(d, dtype=jac.dtype)
         blocks = []
@@ -198,25 +235,35 @@ class Stages(NamedTuple):
             if pair:
                 im = (h * float(mu.imag)) * jac
                 re = jnp.block([[re, im], [-im, re]])
-            blocks.append(_lu_factor_loop(re))
-        size = 1.0 + h * a_norm * jnp.max(jnp.sum(jnp.abs(jac), axis=1))
+            blocks.append(inverse(re))
+        return blocks, 1.0 + h * a_norm * jnp.max(jnp.sum(jnp.abs(jac), axis=1))
+
+    def solver(self, fac):
+        """(solve, size) of `factors`' result, solve(r) = (I - h A (x) J)^-1 r."""
+        blocks, size = fac
+        s = self.v.shape[0]
 
         def solve(r):
-            rr = r.reshape(self.v.shape[0], d)
+            rr = r.reshape(s, -1)
+            d = rr.shape[1]
             out = 0.0
-            for i, (lu, pair) in enumerate(zip(blocks, self.twice)):
+            for i, (inv, pair) in enumerate(zip(blocks, self.twice)):
                 w = _combine(self.v_inv[i].real, rr)
                 if pair:
-                    x = lu_solve(lu, jnp.concatenate([w, _combine(self.v_inv[i].imag, rr)]))
+                    x = apply(inv, jnp.concatenate([w, _combine(self.v_inv[i].imag, rr)]))
                     # V's column i times x plus its conjugate's: twice the real part.
                     part = [float(2 * c.real) * x[:d] - float(2 * c.imag) * x[d:]
                             for c in self.v[:, i]]
                 else:
-                    x = lu_solve(lu, w)
+                    x = apply(inv, w)
                     part = [float(c.real) * x for c in self.v[:, i]]
                 out = out + jnp.stack(part)
             return out.reshape(-1)
         return solve, size
+
+    def factorised(self, h, jac, a_norm):
+        """(solve, 1 + |h A (x) J|_inf) as `factorised` gives them for the whole system."""
+        return self.solver(self.factors(h, jac, a_norm))
 
 
 def _combine(coeffs, rows):
@@ -225,21 +272,21 @@ def _combine(coeffs, rows):
 
 
 def _iterate(residual, solver, z0, y_scale, opts, fresh, done0):
-    """One Newton iteration loop from z0, skipped where `done0`; `solver(z)` gives (solve,
-    size) of the iteration matrix, made once from z0 or, with `fresh`, anew at every iterate.
-    Returns (z, iterations, converged)."""
+    """One Newton iteration loop from z0, skipped where `done0`: with `fresh`, `solver(z)`
+    gives (solve, size) of the exact Jacobian's iteration matrix at each iterate (full
+    Newton); otherwise `solver` is the fixed (solve, size). Returns (z, iterations,
+    converged, the last contraction rate)."""
     w = opts.atol + opts.rtol * y_scale
     eps = jnp.finfo(z0.dtype).eps
-    fixed = None if fresh else solver(z0)
     limit = opts.max_iter_full if fresh else opts.max_iter
 
     def cond(st):
-        _, k, _, done, _ = st
+        _, k, _, done, _, _ = st
         return (~done) & (k < limit)
 
     def body(st):
-        z, k, prev, _, _ = st
-        solve, size = solver(z) if fresh else fixed
+        z, k, prev, _, _, _ = st
+        solve, size = solver(z) if fresh else solver
         r = residual(z)
         dz = solve(r)
         n = jnp.max(jnp.abs(dz) / w)
@@ -260,29 +307,97 @@ def _iterate(residual, solver, z0, y_scale, opts, fresh, done0):
                                      (theta ** (limit - 1 - k) / (1 - theta) * n > 1))
         hopeless = hopeless & (not fresh)
         done = ok | ~finite | hopeless
-        return z - dz, k + 1, n, done, ok
+        return z - dz, k + 1, n, done, ok, jnp.where(later, theta, 0)
 
     # Every carry is derived from the data, so that under shard_map it varies across devices
     # as the body's values do (a constant would not, and the loop would be refused).
     init = (z0, jnp.zeros_like(y_scale, int, shape=()),
             jnp.full_like(y_scale, jnp.inf, shape=()), done0,
-            jnp.zeros_like(y_scale, bool, shape=()))
-    z, k, _, _, ok = lax.while_loop(cond, body, init)
-    return z, k, ok
+            jnp.zeros_like(y_scale, bool, shape=()), jnp.zeros_like(y_scale, shape=()))
+    z, k, _, _, ok, theta = lax.while_loop(cond, body, init)
+    return z, k, ok, theta
 
 
-def newton_solve(residual, solver, z0, y_scale, opts: NewtonOptions):
-    """Solve residual(z) = 0 (z flat) from z0: the simplified iteration with `solver(z0)`
-    (solve, size): `solve(r)` applies the factorised iteration matrix's inverse, `size` is
-    1 + |h A (x) J|. Where it fails (a Jacobian from the step's start can be too far from
-    the solution's, as at Robertson's first step) the solve is retried from z0 with full
-    Newton, the exact Jacobian of the residual refactorised at every iterate; the retry
-    costs nothing when every trajectory of a batch converged. `y_scale` is |y| tiled like
-    z. Returns (z, simplified iterations, full iterations, converged)."""
-    z1, k1, ok1 = _iterate(residual, solver, z0, y_scale, opts, False,
-                           jnp.zeros_like(y_scale, bool, shape=()))
-    # Not lax.cond: under vmap it would run the retry for every trajectory; a loop that
-    # starts done is skipped unless some trajectory of the batch needs it.
+@custom_vmap
+def any_lane(flag):
+    """Whether `flag` holds for any trajectory of the batch being vmapped (of a driver's
+    chunk), the same unbatched answer for all; a single trajectory's flag itself. A loop
+    whose predicate it gives runs for all lanes or none, as one loop: a batched predicate
+    would make every iteration select, lane by lane, what to keep."""
+    return flag
+
+
+@any_lane.def_vmap
+def _any_lane_batched(axis_size, in_batched, flag):
+    return (jnp.any(flag, axis=0) if in_batched[0] else flag), False
+
+
+class Held(NamedTuple):
+    """What an implicit step carries to the next: the factors of its iteration matrices (as
+    the step's `factorise` makes them of a Jacobian, with their sizes), whether the next
+    step may keep them (`keep`), and whether they are the current step's own (`current`,
+    taken at its start)."""
+    factors: object
+    keep: jax.Array
+    current: jax.Array
+
+
+# Largest contraction rate of the simplified iteration with which the next step keeps the
+# Jacobian (RADAU5's default). A looser rate (RADAU5 advises 0.1 where a Jacobian is costly)
+# saved no evaluations on the bicycle, and its solves stop nearer the tolerance than fresh
+# Jacobians' do: Radau IIA 5 then no longer showed its order on DETEST A2 at h = 1/8, where
+# the Newton tolerance is near its error (see the implicit-speed study of 2026-11-28).
+THETA_KEEP = 1e-3
+
+
+def renew(held, factorise, need):
+    """`held` with the current step's factors `factorise()` where `need` (one flag for a
+    whole chunk, `any_lane`'s): a loop that runs once or not at all, since sin and cos are
+    made vectorisable inside loops and not inside lax.cond."""
+    def body(carry):
+        done, _ = carry
+        fresh = factorise()
+        return done | True, Held(fresh, held.keep | True, held.current | True)
+    return lax.while_loop(lambda carry: ~carry[0], body, (~need, held))[1]
+
+
+def newton_solve(residual, solver_of, factorise, held, z0, y_scale, opts: NewtonOptions):
+    """Solve residual(z) = 0 (z flat) from z0 by the simplified iteration with the factors
+    `held` carries (`solver_of(factors)` gives (solve, size): `solve(r)` applies the
+    iteration matrix's inverse, `size` is 1 + |h A (x) J|), or, where the step may not keep
+    them, with its own (`factorise()`). Where the kept ones fail, the step's own are taken
+    and the failed trajectories start again from z0. Where the step's own fail too (a
+    Jacobian from the step's start can be too far from the solution's, as at Robertson's
+    first step) the solve is retried from z0 with full Newton, the exact Jacobian of the
+    residual refactorised at every iterate. Each retry costs nothing when every trajectory
+    of the chunk converged. `y_scale` is |y| tiled like z. Returns (z, simplified
+    iterations, full iterations, converged, held, the simplified iteration's last
+    contraction rate)."""
+    def cond(st):
+        held, _, tries, ok, _, _ = st
+        return any_lane(tries == 0) | (any_lane(~ok) & ~any_lane(held.current))
+
+    def body(st):
+        held, z, tries, ok, k, theta = st
+        # The step's own where it may not keep them, or after they failed (a retry only
+        # runs while the held ones are not the step's own).
+        need = any_lane(~held.keep | (tries > 0)) & ~any_lane(held.current)
+        held = renew(held, factorise, need)
+        z1, k1, ok1, theta1 = _iterate(residual, solver_of(held.factors), z0, y_scale, opts,
+                                       False, ok)
+        return (held, jnp.where(ok, z, z1), tries + 1, ok | ok1, k + k1,
+                jnp.where(ok, theta, theta1))
+
+    none = jnp.zeros_like(y_scale, bool, shape=())
+    zero = jnp.zeros_like(y_scale, int, shape=())
+    held, z1, _, ok1, k1, theta = lax.while_loop(
+        cond, body, (held, z0, zero, none, zero, jnp.zeros_like(y_scale, shape=())))
     exact = lambda z: factorised(jax.jacfwd(residual)(z))
-    z2, k2, ok2 = _iterate(residual, exact, jnp.where(ok1, z1, z0), y_scale, opts, True, ok1)
-    return jnp.where(ok1, z1, z2), k1, k2, ok1 | ok2
+    z2, k2, ok2, _ = _iterate(residual, exact, jnp.where(ok1, z1, z0), y_scale, opts, True, ok1)
+    return jnp.where(ok1, z1, z2), k1, k2, ok1 | ok2, held, theta
+
+
+def keep_next(ok, theta, full):
+    """Whether the next step may keep this step's factors: its solves converged by the
+    simplified iteration alone, contracting at a rate of at most THETA_KEEP."""
+    return ok & (full == 0) & (theta <= THETA_KEEP)

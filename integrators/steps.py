@@ -1,16 +1,19 @@
-"""The one generic step of each family: explicit RK, implicit RK (simplified Newton: one
-Jacobian and one factorisation per step), Rosenbrock (one Jacobian, one factorisation and one
+"""The one generic step of each family: explicit RK, implicit RK (simplified Newton with a
+Jacobian and its factorisation kept across steps while the iteration contracts fast: see
+newton.Held), Rosenbrock (one Jacobian, one factorisation and one
 linear solve per stage, no Newton) and linear multistep (explicit or implicit).
 `fun(t, y)` is the right-hand side with inputs and parameters already bound; every step
 returns (y_next, state) and counts its evaluations in state["evals"] (implicit: the Jacobian
-counts as d evaluations, one per column). An implicit step whose solve fails returns NaN and
-clears state["converged"]; a step from a state that has already blown up (the method's own
-instability) is no solver failure."""
+counts as d evaluations, one per column, in the steps that take one). An implicit step whose
+solve fails returns NaN and clears state["converged"]; a step from a state that has already
+blown up (the method's own instability) is no solver failure."""
 import jax
 import jax.numpy as jnp
 import numpy as np
 
-from stepzoo.integrators.newton import Stages, factorised, newton_solve
+from stepzoo.integrators.multistep import LinearMultistep
+from stepzoo.integrators.newton import (Held, Stages, factorised, factors, keep_next,
+                                        newton_solve, solver)
 
 
 def rk_slopes(a, c, fun, t, y, h, needed=None, k0=None) -> list:
@@ -50,30 +53,70 @@ def jacobian(fun, t, y):
     return jax.jacfwd(lambda v: fun(t, v))(y)
 
 
-def jacobian_and_slope(fun, t, y):
-    """(df/dy, f) at (t, y): f comes with the Jacobian's forward pass, at no cost."""
-    return jax.jacfwd(lambda v: (fun(t, v),) * 2, has_aux=True)(y)
+def iteration_matrices(scheme, h):
+    """(factorise, solver_of) of an implicit step of `scheme` with step h: factorise(J) makes
+    the factors of its iteration matrices, I - h beta_k J (multistep), I - h a_ii J per
+    distinct diagonal entry (diagonally implicit, a dict by entry) or the stage system
+    I - h A (x) J (transformed where A allows, newton.Stages); solver_of(factors) gives
+    (solve, size) of the one a solve uses (a function of the entry a_ii where diagonally
+    implicit)."""
+    if isinstance(scheme, LinearMultistep):
+        bk = float(scheme.beta[-1])
+        return (lambda jac: factors(_eye(jac) - (h * bk) * jac)), solver
+    if scheme.diagonally_implicit:
+        diag = sorted({float(g) for g in np.diag(scheme.a) if g != 0.0})
+        return ((lambda jac: {g: factors(_eye(jac) - (h * g) * jac) for g in diag}),
+                lambda g: lambda fac: solver(fac[g]))
+    stages = Stages.of(scheme.a)
+    if stages is None:
+        a = np.asarray(scheme.a)
+        return ((lambda jac: factors(jnp.eye(a.shape[0] * jac.shape[0], dtype=jac.dtype)
+                                     - h * jnp.kron(jnp.asarray(a, jac.dtype), jac))), solver)
+    a_norm = float(np.max(np.sum(np.abs(scheme.a), axis=1)))
+    return (lambda jac: stages.factors(h, jac, a_norm)), stages.solver
 
 
-def _finish(y, y_next, ok, state, evals):
+def _eye(jac):
+    return jnp.eye(jac.shape[0], dtype=jac.dtype)
+
+
+def held_state(scheme, y0):
+    """The factors an implicit step of `scheme` carries to the next, before the first: of
+    the identity, shaped as the steps' and not to be kept (the first step takes its own)."""
+    jac = jnp.zeros_like(y0, shape=y0.shape * 2)
+    no = jnp.zeros_like(y0, bool, shape=())
+    return Held(iteration_matrices(scheme, 0.0)[0](jac), no, no)
+
+
+def _held(scheme, fun, t, y, h, state):
+    """(held, factorise) at a step's start: the factors the last step left, none of them the
+    step's own yet; factorise() makes the step's own, from the Jacobian at (t, y)."""
+    make = iteration_matrices(scheme, h)[0]
+    held = state["held"]
+    return held._replace(current=held.current & False), lambda: make(jacobian(fun, t, y))
+
+
+def _finish(y, y_next, ok, state, evals, held, keep):
     """NaN after a failed solve. The flag is cleared only by a failure from a state below
     finfo.max^(1/4) (1e77 in float64): beyond it the method has already blown up, and its
-    right-hand side's arithmetic overflows whatever the solver does."""
+    right-hand side's arithmetic overflows whatever the solver does. A step that took its
+    own Jacobian counts its d evaluations."""
     failed = ~ok & jnp.all(jnp.abs(y) < jnp.finfo(y.dtype).max ** 0.25)
     y_next = jnp.where(ok, y_next, jnp.nan)
-    return y_next, dict(state, evals=evals, converged=state["converged"] & ~failed)
+    evals = evals + jnp.where(held.current, y.shape[0], 0).astype(evals.dtype)
+    return y_next, dict(state, evals=evals, converged=state["converged"] & ~failed,
+                        held=held._replace(keep=keep))
 
 
 def implicit_rk_step(tab, opts, fun, t, y, h, state):
     """One step of an implicit tableau. A diagonally implicit one (a_ij = 0 for j > i) solves
     its stages one by one, each with I - h a_ii J (one factorisation per distinct a_ii);
     any other solves all stages at once with I - h A (x) J, through A's eigenvalues where A
-    allows (newton.Stages)."""
-    d = y.shape[0]
-    eye = jnp.eye(d, dtype=y.dtype)
+    allows (newton.Stages). J is the step's own or an earlier step's (newton.Held)."""
+    held, factorise = _held(tab, fun, t, y, h, state)
     if tab.diagonally_implicit:
-        return _dirk_step(tab, opts, fun, t, y, h, state, *jacobian_and_slope(fun, t, y), eye)
-    jac = jacobian(fun, t, y)
+        return _dirk_step(tab, opts, fun, t, y, h, state, held, factorise)
+    d = y.shape[0]
     s = tab.stages
     a = jnp.asarray(tab.a, y.dtype)
 
@@ -84,17 +127,13 @@ def implicit_rk_step(tab, opts, fun, t, y, h, state):
     def residual(z):
         return z - h * (a @ stage_f(z)).reshape(-1)
 
-    stages = Stages.of(tab.a)
-    if stages is None:
-        solver = lambda z: factorised(jnp.eye(s * d, dtype=y.dtype) - h * jnp.kron(a, jac))
-    else:
-        a_norm = float(np.max(np.sum(np.abs(tab.a), axis=1)))
-        solver = lambda z: stages.factorised(h, jac, a_norm)
     scale = jnp.tile(jnp.abs(y), s)
     # Starting from zeros like y's: see newton._iterate on carries under shard_map.
-    z, k1, k2, ok = newton_solve(residual, solver, jnp.zeros_like(scale), scale, opts)
+    z, k1, k2, ok, held, theta = newton_solve(residual, iteration_matrices(tab, h)[1],
+                                              factorise, held, jnp.zeros_like(scale), scale,
+                                              opts)
     zz = z.reshape(s, d)
-    evals = state["evals"] + d + k1 * s + k2 * (s + s * d)
+    evals = state["evals"] + k1 * s + k2 * (s + s * d)
     if np.linalg.matrix_rank(tab.a) == s:
         # y + h b^T F = y + b^T A^-1 Z: no evaluation of f, whose h*lambda-sized values
         # would cancel badly on stiff problems.
@@ -102,16 +141,16 @@ def implicit_rk_step(tab, opts, fun, t, y, h, state):
     else:
         y_next = y + h * (jnp.asarray(tab.b, y.dtype) @ stage_f(z))
         evals = evals + s
-    return _finish(y, y_next, ok, state, evals)
+    return _finish(y, y_next, ok, state, evals, held, keep_next(ok, theta, k2))
 
 
-def _dirk_step(tab, opts, fun, t, y, h, state, jac, f0, eye):
+def _dirk_step(tab, opts, fun, t, y, h, state, held, factorise):
     """Stages in order: Y_i = y + h sum_{j<i} a_ij k_j + z_i with z_i = h a_ii f(Y_i); the
     slope k_i = z_i / (h a_ii) costs no evaluation. Newton starts every stage from z_i = 0:
-    a start from a slope lands stiff problems on another root. An explicit first stage at
-    (t, y) is f(t, y), the Jacobian's by-product."""
-    ks, ok, evals = [], jnp.asarray(True), state["evals"] + y.shape[0]
-    solvers = {}        # one factorisation per distinct diagonal entry
+    a start from a slope lands stiff problems on another root."""
+    ks, ok, evals = [], jnp.asarray(True), state["evals"]
+    theta, full = jnp.zeros_like(y, shape=()), 0
+    solver_of = iteration_matrices(tab, h)[1]
     for i in range(tab.stages):
         known = y
         for j in range(i):
@@ -119,25 +158,21 @@ def _dirk_step(tab, opts, fun, t, y, h, state, jac, f0, eye):
                 known = known + (h * float(tab.a[i, j])) * ks[j]
         ti, gii = t + float(tab.c[i]) * h, float(tab.a[i, i])
         if gii == 0.0:
-            if i == 0 and tab.c[0] == 0.0:
-                ks.append(f0)
-            else:
-                ks.append(fun(ti, known))
-                evals = evals + 1
+            ks.append(fun(ti, known))
+            evals = evals + 1
             continue
-        if gii not in solvers:
-            solvers[gii] = factorised(eye - (h * gii) * jac)
         # The residual is solved at once, inside this iteration: late binding is harmless.
-        z, k1, k2, ok_i = newton_solve(lambda z: z - (h * gii) * fun(ti, known + z),  # noqa: B023
-                                       lambda _, f=solvers[gii]: f, jnp.zeros_like(y),
-                                       jnp.abs(y), opts)
+        z, k1, k2, ok_i, held, theta_i = newton_solve(
+            lambda z: z - (h * gii) * fun(ti, known + z), solver_of(gii), factorise, held,  # noqa: B023
+            jnp.zeros_like(y), jnp.abs(y), opts)
         ks.append(z / (h * gii))
         ok, evals = ok & ok_i, evals + k1 + k2 * (1 + y.shape[0])
+        theta, full = jnp.maximum(theta, theta_i), full + k2
     if tab.stiffly_accurate:
         y_next = known + z          # the last stage is the solution: no cancellation
     else:
         y_next = y + h * weighted(tab.b, ks)
-    return _finish(y, y_next, ok, state, evals)
+    return _finish(y, y_next, ok, state, evals, held, keep_next(ok, theta, full))
 
 
 def rosenbrock_step(ros, fun, t, y, h, state):
@@ -192,12 +227,12 @@ def multistep_step(lmm, opts, fun, t, y, h, state):
     else:
         bk = float(lmm.beta[k])
         d = y.shape[0]
-        fixed = factorised(jnp.eye(d, dtype=y.dtype) - (h * bk) * jacobian(fun, t, y))
-        y_next, k1, k2, ok = newton_solve(lambda v: v - (h * bk) * fun(t_next, v) - known,
-                                          lambda _: fixed,
-                                          jnp.tensordot(jnp.asarray(lmm.predictor, y.dtype), ys, 1),
-                                          jnp.abs(y), opts)
-        y_next, state = _finish(y, y_next, ok, state, evals + d + k1 + k2 * (1 + d))
+        held, factorise = _held(lmm, fun, t, y, h, state)
+        y_next, k1, k2, ok, held, theta = newton_solve(
+            lambda v: v - (h * bk) * fun(t_next, v) - known, solver, factorise, held,
+            jnp.tensordot(jnp.asarray(lmm.predictor, y.dtype), ys, 1), jnp.abs(y), opts)
+        y_next, state = _finish(y, y_next, ok, state, evals + k1 + k2 * (1 + d), held,
+                                keep_next(ok, theta, k2))
     ys = jnp.concatenate([ys[1:], y_next[None]])
     if lmm.uses_slopes:
         fs = jnp.concatenate([fs[1:], fun(t_next, y_next)[None]])

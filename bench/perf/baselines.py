@@ -158,12 +158,14 @@ def diffrax_solver(name: str, newton_tol: float = 1e-10):
     return diffrax.Kvaerno5(root_finder=optimistix.Newton(rtol=newton_tol, atol=newton_tol))
 
 
-def diffrax_run(h, n, regime, solver: str):
-    """diffeqsolve with a constant step h, vmapped; saving every step, or the end only."""
+def diffrax_run(h, n, regime, solver: str, rhs=None):
+    """diffeqsolve with a constant step h, vmapped; saving every step, or the end only; of
+    `rhs` (default the workload's model)."""
     import diffrax
     import jax
 
-    term = diffrax.ODETerm(lambda t, y, args: MODEL.rhs(t, y, *args))
+    f = MODEL.rhs if rhs is None else rhs
+    term = diffrax.ODETerm(lambda t, y, args: f(t, y, *args))
     saveat = (diffrax.SaveAt(t0=True, steps=True) if regime == "stored"
               else diffrax.SaveAt(t1=True))
     method = diffrax_solver(solver)

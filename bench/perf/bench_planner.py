@@ -2,7 +2,8 @@
 scenario up before timing it): search, first-solution and connection time per scenario; and
 the start-up of `stepzoo plan` with JAX's compilation cache empty (cold) and filled (warm):
 the whole call, and the time and CPU time before its search starts, beside what importing
-the libraries it needs costs on its own; and the same call sent to a warm `stepzoo serve`."""
+the libraries it needs costs on its own, with the split of a call's wall time into start-up,
+warm-up, search, connections and what follows; and the same call sent to a warm `stepzoo serve`."""
 import json
 import os
 import resource
@@ -91,11 +92,19 @@ def test_plan_start_up(benchmark, tmp_path):
         before, cpu, wall = _child(["-c", SEARCH_STARTS, "plan", "open_field", "--out",
                                     str(out)], env, "SEARCH_STARTS ")
         stats = json.loads((out / "plan.json").read_text())["stats"]
+        # Where the wall time goes, in the order it passes: start-up (imports, config, map)
+        # up to the warm-up, the warm-up (compilation and the OCP's build), the search, the
+        # connections, and what follows them (writing the plan, exit).
         return {f"plan_{label}_wall_s": wall,
                 f"plan_{label}_outside_search_s": wall - stats["search_s"] - stats["connect_s"],
                 f"plan_{label}_warmup_s": stats["warmup_s"],
                 f"plan_{label}_before_search_s": before,
-                f"plan_{label}_before_search_cpu_s": cpu}
+                f"plan_{label}_before_search_cpu_s": cpu,
+                f"plan_{label}_start_s": before - stats["warmup_s"],
+                f"plan_{label}_search_s": stats["search_s"],
+                f"plan_{label}_connect_s": stats["connect_s"],
+                f"plan_{label}_after_search_s": (wall - before - stats["search_s"]
+                                                 - stats["connect_s"])}
 
     figures.update(plan("cold", tmp_path / "cold"))
     warm = []

@@ -1,0 +1,85 @@
+"""Implicit steps keep their Jacobian's factors across steps while Newton contracts fast
+(newton.Held, THETA_KEEP): the results are the ones a new Jacobian every step gives, to the
+Newton tolerance; a Jacobian that changes fast is taken anew where a kept one would not do;
+and the kept factors keep a float32 state in float32."""
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from stepzoo.bench.perf.workload import H_S, MODEL, problem
+from stepzoo.integrators import integrate, integrate_batch, method, newton
+
+IMPLICIT = ["backward_euler", "trapezoidal", "bdf3", "radau_iia5", "kvaerno3"]
+
+
+def _bicycle():
+    """A new function each call, so that a run compiles afresh under a patched rule."""
+    return lambda t, x, u, p: MODEL.rhs(t, x, u, p)
+
+
+@pytest.mark.parametrize("name", IMPLICIT)
+def test_kept_jacobians_give_what_new_ones_give_to_the_newton_tolerance(monkeypatch, name):
+    n, x0, u, p = 100, *problem(40, seed=3)
+    kept = integrate_batch(name, _bicycle(), x0, u, p, H_S, n)
+    monkeypatch.setattr(newton, "THETA_KEEP", -1.0)     # never kept: one per step
+    fresh = integrate_batch(name, _bicycle(), x0, u, p, H_S, n)
+    assert bool(kept.converged.all()) and bool(fresh.converged.all())
+    # Each step's solve is within rtol = atol = 1e-10 of the exact stage values, both ways;
+    # over n steps of a stable problem the differences add up to at most about n of them.
+    scale = np.abs(np.asarray(fresh.x)).max(axis=1, keepdims=True) + 1.0
+    diff = np.abs(np.asarray(kept.x) - np.asarray(fresh.x)) / scale
+    assert diff.max() <= n * 1e-10, diff.max()
+    # ... and the kept ones saved evaluations: a Jacobian is 5 of them on the bicycle.
+    assert float(kept.evals.mean()) < 0.75 * float(fresh.evals.mean())
+
+
+def lam(t):
+    """A stiffness that swings between 100 and 1900 1/s ten times a second."""
+    return 1000.0 * (1.0 + 0.9 * jnp.sin(60.0 * t))
+
+
+def lam_np(t):
+    return 1000.0 * (1.0 + 0.9 * np.sin(60.0 * t))
+
+
+def forced(t, y, u, p):
+    """y' = -lambda(t) (y - cos t) - sin t: y = cos t + (y0 - 1) exp(-int lambda)."""
+    return -lam(t) * (y - jnp.cos(t)) - jnp.sin(t)
+
+
+def f_np(t, y):
+    return -lam_np(t) * (y - np.cos(t)) - np.sin(t)
+
+
+# The methods' own recurrences on `forced` (NumPy), solved for y_{n+1}, f being affine in y:
+# backward Euler y_{n+1} = y_n + h f(t_{n+1}, y_{n+1}); the trapezoidal rule averages f.
+ORACLES = {"backward_euler": lambda y, t, h: ((y + h * (f_np(t + h, 0.0)))
+                                              / (1 + h * lam_np(t + h))),
+           "trapezoidal": lambda y, t, h: ((y + h / 2 * (f_np(t, y) + f_np(t + h, 0.0)))
+                                           / (1 + h / 2 * lam_np(t + h)))}
+
+
+@pytest.mark.parametrize("keep", [newton.THETA_KEEP, np.inf])
+@pytest.mark.parametrize("name", sorted(ORACLES))
+def test_a_jacobian_that_changes_fast_is_taken_anew(monkeypatch, name, keep):
+    """With keep = inf a step keeps any Jacobian whose solve converged, so only the retry
+    with the step's own rescues the steps where lambda has moved on: from 100 to 1900 1/s,
+    a kept one's iteration diverges. No full-Newton retry, which would rescue them too."""
+    monkeypatch.setattr(newton, "THETA_KEEP", keep)
+    h, n = 0.002, 500
+    tr = integrate(method(name).with_newton(max_iter_full=0), forced, jnp.array([1.0, -2.0]), h=h, n_steps=n)
+    assert bool(tr.converged)
+    want = [np.array([1.0, -2.0])]
+    for k in range(n):
+        want.append(ORACLES[name](want[-1], k * h, h))
+    np.testing.assert_allclose(np.asarray(tr.x), np.array(want), rtol=1e-8, atol=1e-9)
+
+
+@pytest.mark.parametrize("name", ["trapezoidal", "bdf2", "radau_iia5"])
+def test_a_float32_state_stays_float32_in_chunks(name):
+    x0, u, p = problem(40, seed=1)
+    tr = integrate_batch(name, MODEL.rhs, x0.astype(np.float32), u, p, H_S, 20)
+    assert tr.x.dtype == np.float32
+    assert bool(tr.converged.all())
+    ref = integrate_batch(name, MODEL.rhs, x0, u, p, H_S, 20)
+    np.testing.assert_allclose(np.asarray(tr.x), np.asarray(ref.x), rtol=1e-4, atol=1e-4)
