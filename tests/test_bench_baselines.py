@@ -6,8 +6,9 @@ import json
 import numpy as np
 import pytest
 
-from stepzoo.bench.perf import baselines, run, tables
-from stepzoo.bench.perf.workload import H_S, problem
+from stepzoo.bench.perf import run, tables
+from stepzoo.bench.perf.workloads import baselines
+from stepzoo.bench.perf.workloads.bicycle import H_S, problem
 
 # A batch over driver.SMALL_BATCH, so stepzoo runs in chunks as at the benchmark's batches.
 BATCH, STEPS = 40, 20

@@ -6,7 +6,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from stepzoo.bench.perf.workload import H_S, MODEL, problem
+from stepzoo.bench.perf.workloads.bicycle import H_S, MODEL, problem
 from stepzoo.integrators import integrate, integrate_batch, method, newton
 
 IMPLICIT = ["backward_euler", "trapezoidal", "bdf3", "radau_iia5", "kvaerno3"]

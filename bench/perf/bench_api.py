@@ -66,7 +66,7 @@ def _worker() -> None:
 
     import jax
 
-    from stepzoo.bench.perf.workload import H_S, MODEL, problem
+    from stepzoo.bench.perf.workloads.bicycle import H_S, MODEL, problem
     from stepzoo.integrators import integrate_batch
     jax.config.update("jax_enable_x64", True)
     x0, u, p = problem(BATCH)

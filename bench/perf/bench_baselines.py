@@ -9,9 +9,9 @@ from time import perf_counter
 import jax
 import numpy as np
 
-from stepzoo.bench.perf import baselines
-from stepzoo.bench.perf.implicit import IMPLICIT
-from stepzoo.bench.perf.workload import H_S, problem
+from stepzoo.bench.perf.workloads import baselines
+from stepzoo.bench.perf.workloads.implicit import IMPLICIT
+from stepzoo.bench.perf.workloads.bicycle import H_S, problem
 
 BATCHES = (1_000, 10_000, 100_000)
 STEPS = 100                   # a stored run at batch 1e5 holds 0.4 GB

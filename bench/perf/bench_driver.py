@@ -8,8 +8,8 @@ import jax
 import numpy as np
 import pytest
 
-from stepzoo.bench.perf.implicit import IMPLICIT, IMPLICIT_BATCHES
-from stepzoo.bench.perf.workload import H_S, MODEL, N_STEPS, problem
+from stepzoo.bench.perf.workloads.implicit import IMPLICIT, IMPLICIT_BATCHES
+from stepzoo.bench.perf.workloads.bicycle import H_S, MODEL, N_STEPS, problem
 from stepzoo.integrators import integrate_batch, method
 from stepzoo.integrators.fast_trig import fast_trig
 

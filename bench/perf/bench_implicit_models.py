@@ -13,10 +13,10 @@ import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
 
-from stepzoo.bench.perf import baselines
+from stepzoo.bench.perf.workloads import baselines
 from stepzoo.bench.perf.bench_baselines import _compiled, _rounds
-from stepzoo.bench.perf.implicit import IMPLICIT
-from stepzoo.bench.perf.workload import H_S
+from stepzoo.bench.perf.workloads.implicit import IMPLICIT
+from stepzoo.bench.perf.workloads.bicycle import H_S
 from stepzoo.dynamics import commonroad
 
 BATCH = 1_000

@@ -18,7 +18,7 @@ from pathlib import Path
 from statistics import median
 
 from stepzoo.bench.perf import tables
-from stepzoo.bench.perf.implicit import IMPLICIT, IMPLICIT_BATCHES
+from stepzoo.bench.perf.workloads.implicit import IMPLICIT, IMPLICIT_BATCHES
 
 ROOT = Path(__file__).resolve().parents[2]
 RESULTS = ROOT / "bench" / "results"

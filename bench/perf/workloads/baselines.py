@@ -10,7 +10,7 @@ from typing import ClassVar
 
 import numpy as np
 
-from stepzoo.bench.perf.workload import MODEL
+from stepzoo.bench.perf.workloads.bicycle import MODEL
 
 REGIMES = ("stored", "final")
 # The contenders that integrate with RK4 (stepzoo's rk4 first in `contenders`): their final
