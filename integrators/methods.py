@@ -121,7 +121,7 @@ class Method:
             return (y, sub), y
 
         # A scan, not a Python loop: one copy of the starter's step to compile (BDF5's four
-        # Radau IIA 5 steps unrolled took 2x bdf2's compile time).
+        # Radau IIA 5 steps unrolled would compile four copies).
         steps_ = jnp.arange(self.n_start, dtype=y0.dtype)
         (_, sub), ys = lax.scan(one, (y0, self.starter.init_state(y0)), steps_)
         hist = jnp.concatenate([y0[None], ys])
