@@ -97,7 +97,7 @@ def plans():
         finder = PathFinder(scenario.omap, config, scenario.vehicle, scenario.speed)
         result = finder.plan(scenario.start, scenario.goal, scenario.goal_speed)
         assert result.status == "exact", result.reason
-        out[steering] = path_rows(result)
+        out[steering] = path_rows(result, finder.vehicle)
     return out
 
 
@@ -121,7 +121,7 @@ def plan_on(occupied, start, goal, **params):
     finder = PathFinder(omap, config, None, 2.0)
     result = finder.plan(start, goal)
     assert result.status == "exact", result.reason
-    return measure(path_rows(result)), result
+    return measure(path_rows(result, finder.vehicle)), result
 
 
 def test_a_dead_end_is_left_backwards():

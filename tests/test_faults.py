@@ -230,7 +230,8 @@ def test_a_read_only_folder_is_one_line_and_keeps_what_it_holds(tuned, tmp_path)
     ro = tmp_path / "ro"
     (ro / "export").mkdir(parents=True)
     (ro / "export" / "schedule.csv").write_text("an older export\n")
-    (ro / "v.csv").write_text("an older verdict\n")
+    # An older verdict table: a file verdict --csv may replace (its columns begin so).
+    (ro / "v.csv").write_text("method,h,point\neuler,0.05,0\n")
     before = files(ro)
     for folder in (ro / "export", ro):
         folder.chmod(0o555)
@@ -261,7 +262,7 @@ def test_a_full_disk_is_one_line_and_keeps_what_it_holds(tuned, tmp_path):
     if private_tmpfs() is None:
         script = f"""set -eu
 mount -t tmpfs -o size=64k tmpfs {disk}
-printf 'an older verdict\\n' > {disk}/v.csv
+printf 'method,h,point\\neuler,0.05,0\\n' > {disk}/v.csv
 dd if=/dev/zero of={disk}/fill bs=4096 2>/dev/null || true
 sha256sum {disk}/v.csv > {tmp_path}/before
 {shlex.join(map(str, each_command(*argvs)))} > {tmp_path}/said.json
@@ -273,14 +274,14 @@ sha256sum {disk}/v.csv > {tmp_path}/after
         assert (tmp_path / "before").read_text() == (tmp_path / "after").read_text()
         words = "No space left on device"
     else:
-        (disk / "v.csv").write_text("an older verdict\n")
+        (disk / "v.csv").write_text("method,h,point\neuler,0.05,0\n")
         def small_files():
             resource.setrlimit(resource.RLIMIT_FSIZE, (256, 256))
         proc = subprocess.run(each_command(*argvs), capture_output=True, text=True, cwd=ROOT,
                               timeout=600, env=env, preexec_fn=small_files)
         assert proc.returncode == 0, proc.stderr[-2000:]
         said = json.loads(proc.stdout)
-        assert (disk / "v.csv").read_text() == "an older verdict\n"
+        assert (disk / "v.csv").read_text() == "method,h,point\neuler,0.05,0\n"
         words = "ulimit -f"
     for code, err in said:
         assert code == 2 and len(err.strip().splitlines()) == 1 and words in err, err

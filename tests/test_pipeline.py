@@ -176,7 +176,7 @@ def test_a_report_process_that_fails_leaves_the_report_to_the_pipeline(tmp_path)
     ahead = Ahead()
     try:
         ahead.figures(tmp_path / "no-sweep", tmp_path / "no-tuned.toml")
-        assert ahead.report(tmp_path / "no-sweep", tmp_path / "report") is None
+        assert ahead.report(tmp_path / "no-sweep", tmp_path / "report", None, None, False) is None
     finally:
         ahead.close()
 

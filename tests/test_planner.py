@@ -398,7 +398,7 @@ def test_street_queries_plan_exact_paths_that_the_dense_check_accepts(qid):
     from stepzoo.search.plans.files import path_rows
     limits, car = dynamics.vehicles.limits(), dynamics.vehicle(None)
     wheelbase = car["Lf"] + car["Lr"]
-    d = drivability(path_rows(result), wheelbase, np.pi / 4, **limits)
+    d = drivability(path_rows(result, car), wheelbase, np.pi / 4, **limits)
     assert d["max_curvature_1pm"] <= 1.1 * np.tan(np.pi / 4) / wheelbase
     assert d["max_steer_rate_radps"] <= 1.25 * limits["max_steer_rate"]
     assert d["max_lateral_acceleration_mps2"] <= 1.15 * limits["max_lateral_acceleration"]

@@ -29,7 +29,10 @@ def participation(jac, lam: complex) -> np.ndarray:
     unit-free, so a state's share does not depend on the units it is written in."""
     vals, right = np.linalg.eig(np.asarray(jac, float))
     k = int(np.argmin(np.abs(vals - lam)))
-    left = np.linalg.inv(right)
+    # A defective Jacobian (a repeated eigenvalue without a full set of eigenvectors, as
+    # states that only integrate others give) has no left eigenvectors to pair: the
+    # pseudo-inverse gives the nearest pairing, whose shares still name the mode's states.
+    left = np.linalg.pinv(right)
     share = np.abs(right[:, k] * left[k, :])
     return share / share.sum()
 

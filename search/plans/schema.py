@@ -168,8 +168,8 @@ INTEGRATOR_COLUMNS = {
 # The runs table's columns that are not numbers (each number may be null: no path, no
 # solution): strings (budget_bound null when no budget cut the search) and true/false.
 RUN_TEXT = ("query", "map", "status", "cause", "budget_bound", "method", "integrator", "role",
-            "progress")
-RUN_FLAGS = ("solved", "approximate", "widened", "collides")
+            "progress", "tracking_controller", "tracking_model")
+RUN_FLAGS = ("solved", "approximate", "widened", "collides", "drivable", "tracking_collides")
 
 
 def run_row_problem(row) -> str | None:
