@@ -163,7 +163,7 @@ def sha256(instance: object) -> str:
 # Every config file kind -> its root model, by name: the kinds live beside the code that
 # reads them, in packages above this one, which may not be imported from here (as with entry
 # points, a name is resolved when asked for).
-KINDS = {"sweep": "stepzoo.bench.sweep.config:SweepFile",
+KINDS = {"sweep": "stepzoo.bench.sweep.config:SweepConfig",
          "suite": "stepzoo.bench.sweep.suite:SuiteFile",
          "planner": "stepzoo.search.planner.config:PlannerParams",
          "scenario": "stepzoo.search.world.scenarios:ScenarioFile",

@@ -55,7 +55,7 @@ def estimate(cfg, cache: dict, blocks: int) -> Estimate:
     for h in cfg.hs:
         block.accuracy_reference(h)
     block.nonsmooth()
-    if cfg.stab_rule != "blowup":
+    if cfg.stability.rule != "blowup":
         block.modal()
     shared = time.perf_counter() - t0
     methods = {name: _method(block, cfg.method(name)) for name in cfg.methods}
@@ -113,8 +113,8 @@ def _chunk_work(block: Block, meth) -> tuple[int, int, int, float]:
     cfg = block.cfg
     n_acc = [round(cfg.horizon / h) for h in cfg.hs]
     j = int(np.argmin(np.abs(np.array(n_acc) - CALIBRATION_STEPS)))   # the timed run
-    calls = len(n_acc) + cfg.timing_rounds - 1
-    steps = sum(n_acc) + (cfg.timing_rounds - 1) * n_acc[j]
+    calls = len(n_acc) + cfg.timing.rounds - 1
+    steps = sum(n_acc) + (cfg.timing.rounds - 1) * n_acc[j]
     t0 = time.perf_counter()
     pred = np.array([p.h for p in block.predicted(meth)])      # the chunk computes it too
     predict_s = time.perf_counter() - t0
@@ -128,10 +128,11 @@ def _chunk_work(block: Block, meth) -> tuple[int, int, int, float]:
 
     B = len(block.points)
     grid = limit_search.at_steps(probe, np.arange(B), np.tile(np.asarray(cfg.hs), (B, 1)).T)
-    measured = limit_search.measured_limit(grid, probe, cfg.hs, pred, cfg.h_probe_max,
-                                           cfg.rel_tol, B, ladder=cfg.stab_rule != "blowup")
-    if cfg.stab_rule != "blowup":         # the diagnosis probes just above each limit
-        h = measured.h_meas * (1 + cfg.rel_tol)
+    measured = limit_search.measured_limit(grid, probe, cfg.hs, pred, cfg.stability.h_probe_max,
+                                           cfg.stability.rel_tol, B,
+                                           ladder=cfg.stability.rule != "blowup")
+    if cfg.stability.rule != "blowup":         # the diagnosis probes just above each limit
+        h = measured.h_meas * (1 + cfg.stability.rel_tol)
         asked.append(h[np.isfinite(h) & (h > 0)])
     run_steps = 0
     for hs in asked:
@@ -146,9 +147,9 @@ def _probe_work(cfg, max_steps: int, B: int, hs: np.ndarray) -> tuple[int, int, 
     "modes" rule runs each with its directions, to the stability horizon, in calls of B
     runs, each call as long as its longest run."""
     from stepzoo.bench.sweep.runs.stability_runs import MODES
-    if cfg.stab_rule == "blowup":
+    if cfg.stability.rule == "blowup":
         calls = 2 * math.ceil(len(hs) / B)
-        return calls, calls * cfg.stab_steps, 2 * len(hs) * cfg.stab_steps
+        return calls, calls * cfg.stability.steps, 2 * len(hs) * cfg.stability.steps
     n = np.minimum(np.ceil(cfg.stability_horizon / hs - 1e-9), max_steps).astype(int)
     # Each of the MODES modes and each state alone (stability_runs.directions), and the
     # unperturbed run.

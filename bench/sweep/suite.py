@@ -45,15 +45,15 @@ ORDERS = "orders.csv"
 # A problem's table: a sweep config's keys, each optional (the top level's fill in); its name
 # labels the problem (default: its model's name).
 ProblemTable = config_schema.optional(
-    sweep_config.SweepFile, "ProblemTable", "[[problem]]: one problem of the suite: a sweep "
+    sweep_config.SweepConfig, "ProblemTable", "[[problem]]: one problem of the suite: a sweep "
     "config's keys, over the suite's top-level ones (the settings tables merged key by key); "
     "name labels it and its folder (default: its model's name).")
 # The suite's top level: a sweep config's keys, every problem's defaults.
 SuiteDefaults = config_schema.optional(
-    sweep_config.SweepFile, "SuiteDefaults", "A suite's top level: a sweep config's keys, "
+    sweep_config.SweepConfig, "SuiteDefaults", "A suite's top level: a sweep config's keys, "
     "every problem's defaults.")
 SuiteFile = config_schema.optional(
-    sweep_config.SweepFile, "SuiteFile", "A suite config file: several problems swept "
+    sweep_config.SweepConfig, "SuiteFile", "A suite config file: several problems swept "
     "into one results folder. Its top-level keys are a sweep config's, every problem's "
     "defaults; a problem without a horizon runs over its built-in model's published "
     "interval, one without an envelope its model's default problem.",
@@ -279,7 +279,7 @@ def _write_manifest(suite: SuiteConfig, out: Path, created, timing, complete) ->
     manifest = {
         "config_sha256": suite.sha256, "config_name": suite.name, "complete": complete,
         "problems": suite.labels, "methods": list(suite.methods),
-        "models": {label: cfg.model for label, cfg, _ in suite.problems},
+        "models": {label: cfg.spec.name for label, cfg, _ in suite.problems},
         "problem_sha256": {label: cfg.sha256 for label, cfg, _ in suite.problems},
         "timing": timing, "order_fit": metrics.ORDER_RULE,
         "order_tolerance": metrics.ORDER_TOL,
