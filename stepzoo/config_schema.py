@@ -167,12 +167,14 @@ KINDS = {"sweep": "stepzoo.bench.sweep.config:SweepConfig",
          "suite": "stepzoo.bench.sweep.suite:SuiteFile",
          "planner": "stepzoo.search.planner.config:PlannerParams",
          "scenario": "stepzoo.search.world.scenarios:ScenarioFile",
-         "tuned": "stepzoo.tuned_file:TunedFile"}
+         "tuned": "stepzoo.tuned_file:TunedFile",
+         "queries": "stepzoo.search.world.query_file:QueryFile"}
 
 
 def kinds() -> dict[str, type[Schema]]:
-    """Every config file kind ("sweep", "suite", "planner", "scenario", "tuned") -> its root
-    model, from which the docs' config reference is generated."""
+    """Every config file kind ("sweep", "suite", "planner", "scenario", "tuned", "queries":
+    each of a query file's objects) -> its root model, from which the docs' config reference
+    is generated."""
     return {kind: kind_model(kind) for kind in KINDS}
 
 

@@ -1,6 +1,7 @@
 """Every config file kind, read by its command: an unknown key is refused in one line (exit
 2, nothing written), every mistake of a file is named at once with the range's unit, and a
 sweep's sha256 is what its values say, not how the file spells them."""
+import json
 import tomllib
 from pathlib import Path
 
@@ -52,7 +53,10 @@ def with_key(source: Path, tmp_path: Path, line: str, table: str | None = None) 
     (lambda t: ["plan", "street", "--config", written(
         t / "planner.toml", 'method = "rk4"\nh = 0.02\n[planner]\ncolour = 3\n'), "--out",
         t / "out"], "colour"),
-], ids=["sweep", "suite", "scenario", "tuned by plan", "tuned by export", "planner"])
+    (lambda t: ["plan-bench", written(t / "q.json", json.dumps([
+        {"map": "x.npy", "cell_size": 1, "start": [0, 0, 0], "goal": [1, 1, 0], "colour": 3}])),
+        "--out", t / "out"], "q.json query 0: unknown key 'colour'"),
+], ids=["sweep", "suite", "scenario", "tuned by plan", "tuned by export", "planner", "queries"])
 def test_every_kind_refuses_an_unknown_key_in_one_line(tmp_path, capsys, argv, where):
     lines = refused(capsys, argv(tmp_path), tmp_path / "out")
     assert len(lines) == 1 and where in lines[0], lines
@@ -139,3 +143,75 @@ def test_a_config_of_another_kind_is_one_line_naming_its_kind(tmp_path, capsys, 
         assert (f"{SMALL}: is a sweep config, not a tuned config (it has chunks, envelope, "
                 "horizon and 8 more keys and lacks method, h); give a tuned config") \
             in lines[0]
+
+
+# The sha256 of every sweep config of the repository (of a suite: over its problems' own), as
+# the results folders swept from them record it: the config's declaration may change shape,
+# its fingerprint may not (tune, export and --resume find a folder's sweep again by it).
+RECORDED_SHA256 = {
+    "bench/configs/detest.toml":
+        "1c1972b44ca509afa82589f6d27bcc3cb7283028e3143f7a414be14872ea5a34",
+    "bench/configs/envelope.toml":
+        "07adebea49f4ba82f22997958464fdf64e0f3c143296620cbea70b0d15902b79",
+    "bench/configs/paper.toml":
+        "7d5b6f0aeee1bc40506de9344d466891885bdd61b787ed36ca9666d73eb35b3a",
+    "bench/configs/small.toml":
+        "4f2bd763b33f0f4c7e57725c5e0f96f91cefeda2e21e71d86fab7b5f195837dd",
+    "bench/configs/stiff.toml":
+        "ba26b938132516e6df3c8b74febfe64081e1f4e4312e068d36497d4af1f8af5a",
+    "bench/configs/tyre_laws.toml":
+        "b5972019aa8342aedb1532498dfbbcd2ccf7a379e5d0eea255634579abb7531e",
+    "bench/configs/tyres.toml":
+        "be404fda5dcaf31dfe4fe1aae661dba4af4869ae8d2771a063679535360ee16d",
+    "bench/configs/wheel.toml":
+        "b4c0e888b1bcd225b93218652acb789ad6e66b27088237be5c396d1a2fa1bf4c",
+    "docs/examples/myvehicle/vehicle.toml":
+        "1c8b1498c867a896b72ffb47f98fa6b4b22ba0af2659bb0ae7a2bba07910887e",
+    "docs/examples/myvehicle/vehicle_casadi.toml":
+        "e70b52f55a4d894f1ebd15eb1e89152303c6437cc216eb2f764695150fc5f0f6",
+    "tests/data/sweep_regression/suite.toml":
+        "30c8ea10aeb13acd715dd70bd46790051fbe75cc30561991e4fb06c78f2e2759",
+    "tests/user_model/casadi_bicycle.toml":
+        "fc7bb40201067a224a0972e7cecb57e3a4360d092b4b6351fe9879349d8e98e9",
+    "tests/user_model/chain.toml":
+        "7ab6d9bb14208cc278c2956939464620b2f283cef27918b0ccd4edcd9d234cdb",
+    "tests/user_model/quarter_wheel.toml":
+        "7f22279455431550172303eadcefb00f506569ca41359873850d102b7f016ea3",
+    "tests/user_model/steer_clamp.toml":
+        "210c2c2cbd41a5e19c9fc88564fcbaf817eb8de494c12d785bafefb3cbdf3f54",
+}
+
+
+@pytest.mark.parametrize("name", sorted(RECORDED_SHA256))
+def test_the_repositorys_sweep_configs_keep_their_recorded_sha256(name):
+    from stepzoo.bench.sweep.suite import load as load_any
+    assert load_any(ROOT / name).sha256 == RECORDED_SHA256[name]
+
+
+def test_a_tuned_file_is_the_planners_choice_and_tunes_evidence_side_by_side():
+    """The tuned kind is two declared parts in one table: what the planner reads and the
+    evidence tune chose it by. The file's keys are theirs, each once, in the file's order;
+    each part of the shipped file holds its own keys' values."""
+    from stepzoo.config_schema import check
+    from stepzoo.tuned_file import PlannerChoice, TuneEvidence, TunedFile
+    choice, evidence = list(PlannerChoice.model_fields), list(TuneEvidence.model_fields)
+    assert not set(choice) & set(evidence) and {"method", "h", "planner"} <= set(choice)
+    assert {"runners_up", "sweep_config_sha256", "margin"} <= set(evidence)
+    assert list(TunedFile.model_fields) == choice + evidence
+    data = tomllib.loads(TUNED.read_text())
+    tuned = check(TunedFile, data, str(TUNED))
+    assert (tuned.choice.method, tuned.choice.h) == (data["method"], data["h"])
+    assert [r.method for r in tuned.evidence.runners_up] == \
+        [r["method"] for r in data["runners_up"]]
+    assert {**tuned.choice.model_dump(), **tuned.evidence.model_dump()} == tuned.model_dump()
+
+
+def test_the_planner_reads_a_tuned_files_choice_alone(tmp_path):
+    from stepzoo.search.planner.config import load_config
+    from stepzoo.tuned_file import PlannerChoice
+    data = tomllib.loads(TUNED.read_text())
+    alone = written(tmp_path / "choice.toml", tomli_w.dumps(
+        {k: data[k] for k in PlannerChoice.model_fields if k in data}))
+    full, own = load_config(TUNED), load_config(alone)
+    assert (full.method, full.h, full.params, full.provenance) == \
+        (own.method, own.h, own.params, own.provenance)

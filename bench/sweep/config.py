@@ -307,15 +307,18 @@ class SweepConfig(Schema):
         """The envelope's values of one variable."""
         return dict(self.spec.envelope)[var]
 
-    def changed(self, spec: ModelSpec | None = None, **changes) -> SweepConfig:
+    def changed(self, spec: ModelSpec | None = None, source: str | None = None,
+                **changes) -> SweepConfig:
         """A copy with `changes`: a table given as a dict changes only the keys it names
-        (stability={"rule": "modes"}); `spec` replaces the model."""
+        (stability={"rule": "modes"}); `spec` replaces the model, `source` the file."""
         update = {key: getattr(self, key).model_copy(update=value)
                   if isinstance(value, dict) and isinstance(getattr(self, key), Schema)
                   else value for key, value in changes.items()}
         out = self.model_copy(update=update)
         if spec is not None:
             out._spec = spec
+        if source is not None:
+            out._source = source
         return out
 
     def __eq__(self, other) -> bool:

@@ -19,7 +19,7 @@ import re
 import shutil
 import time
 import types
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from pathlib import Path
 
 import pandas as pd
@@ -207,7 +207,7 @@ def run_suite(suite: SuiteConfig, out, resume=False, overwrite=False, progress=T
             own = folder / "config.toml"
             with claim(folder, "sweep", overwrite=overwrite):   # marks it the sweep's
                 atomic_write(own, _toml(merged).encode())
-            manifests[label] = run_sweep(replace(cfg, source=str(own)), folder, resume=resume,
+            manifests[label] = run_sweep(cfg.changed(source=str(own)), folder, resume=resume,
                                          overwrite=overwrite, progress=progress, runner=runner)
         tables = assemble(suite, out)
         for name in schema.PARQUET:
