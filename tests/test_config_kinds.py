@@ -215,3 +215,23 @@ def test_the_planner_reads_a_tuned_files_choice_alone(tmp_path):
     full, own = load_config(TUNED), load_config(alone)
     assert (full.method, full.h, full.params, full.provenance) == \
         (own.method, own.h, own.params, own.provenance)
+
+
+def test_every_setting_of_a_sweep_is_fingerprinted_or_decides_no_result():
+    """A key added to a settings table must be given its name in the sha256 (FINGERPRINT):
+    else two sweeps that differ in it would share a fingerprint, and resume into one folder."""
+    from stepzoo.bench.sweep.config import FINGERPRINT, SweepConfig
+    tables = ("reference", "stability", "chunks", "trajectories", "timing", "error", "limits")
+    settings = {(t, k) for t in tables
+                for k in SweepConfig.model_fields[t].annotation.model_fields}
+    in_spec = {("error", "states"), ("error", "scales")}     # the model spec holds them
+    decide_nothing = {("limits", "memory_gib"), ("limits", "steps")}
+    assert settings - in_spec - decide_nothing == set(FINGERPRINT.values())
+    assert len(set(FINGERPRINT.values())) == len(FINGERPRINT)
+    base = load(SMALL)
+    for table, key in FINGERPRINT.values():     # each one moves it
+        value = getattr(getattr(base, table), key)
+        other = {bool: lambda v: not v, int: lambda v: v + 1, float: lambda v: v * 0.5,
+                 tuple: lambda v: v[:1], str: lambda v: v + "x"}.get(type(value),
+                                                                    lambda v: 0.5)(value)
+        assert base.changed(**{table: {key: other}}).sha256 != base.sha256, (table, key)

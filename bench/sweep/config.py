@@ -90,7 +90,6 @@ def _known_methods(names: tuple) -> tuple:
     return names
 
 
-
 class Steps(Schema):
     """[steps]: the grid of step sizes of the accuracy runs."""
     h: StepGrid = Field(description="step sizes [s]: a list, or {min, max, num} (log-spaced); "
@@ -225,7 +224,6 @@ class Newton(Schema):
         if self.rtol == 0 and self.atol == 0:
             raise ValueError("newton.rtol and newton.atol are both 0; give one > 0")
         return self
-
 
 
 # The fingerprint's names: the settings that decide results (those of [model], [params],
