@@ -109,9 +109,10 @@ class PlannerParams(Schema):
         "a speed", "m/s", "a walking pace to a slow roll: below 0.5 m/s a move covers less than "
         "a pruning cell; above 5 m/s it is no longer tighter than the tree's", ge=0.5,
         le=5.0)] = Field(2.0, description=(
-            "speed of the tight moves [m/s]: at a steer rate r the steer turns r / v per metre, "
-            "so the car at 2 m/s reaches full lock in a car length where at 5 m/s it needs two "
-            "and a half; a tight move is driven at the smaller of this and the tree's speed"))
+            "speed of the tight moves and of reversing, with rate-limited steering (instant: "
+            "the tree's speed) [m/s]: at a steer rate r the steer turns r / v per metre, so at "
+            "2 m/s the wheel reaches full lock 2.5 times sooner than at 5 m/s; the smaller of "
+            "this and the tree's speed"))
     limit_fraction: Annotated[float, quantity(
         "a fraction", "", "1 plans at the car's limits; below 0.5 a plan gives away half its "
         "turning", ge=0.5, le=1.0)] = Field(0.8, description=(
