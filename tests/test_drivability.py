@@ -133,10 +133,10 @@ def test_a_dead_end_is_left_backwards():
     d, result = plan_on(grid, (34.0, 13.5, 0.0), (8.0, 20.0, math.pi / 2))
     assert d["cusps"] >= 1
     assert d["reverse_length_m"] >= 10.0  # out of the corridor, whose mouth is 14 m behind
-    # The plan's cost is its length, a metre backwards counting reverse_penalty (2) metres,
+    # The plan's cost is its length, a metre backwards counting reverse_penalty (3) metres,
     # and cusp_cost (5 m) per change of direction.
     forwards = result.path_length() - d["reverse_length_m"]
-    cost = forwards + 2.0 * d["reverse_length_m"] + 5.0 * d["cusps"]
+    cost = forwards + 3.0 * d["reverse_length_m"] + 5.0 * d["cusps"]
     assert result.progress[-1][1] == pytest.approx(cost, rel=1e-6)
 
 

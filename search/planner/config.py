@@ -122,10 +122,12 @@ class PlannerParams(Schema):
             "needs steer rate beyond the plan's to correct its errors"))
     reverse_penalty: Annotated[float, quantity(
         "a factor", "", "1 makes a metre backwards cost what one forwards does; beyond 10 "
-        "reversing is all but forbidden", ge=1.0, le=10.0)] = Field(2.0, description=(
-            "a metre driven backwards costs this many metres in g (with reverse = 1), as Nav2 "
-            "Smac Hybrid-A*'s reverse_penalty (default 2.0) and Kurzer's Hybrid A* "
-            "penaltyReversing (2.0) [1]"))
+        "reversing is all but forbidden", ge=1.0, le=10.0)] = Field(3.0, description=(
+            "a metre driven backwards costs this many metres in g (with reverse = 1) [1]: "
+            "above h_weight (2), since a move backwards towards a goal behind the car changes "
+            "f = g + h_weight H by (reverse_penalty - h_weight) per metre, and at 2 (Nav2 Smac "
+            "Hybrid-A*'s and Kurzer's Hybrid A*'s default) the greedy first path backed whole "
+            "queries"))
     cusp_cost: Annotated[float, quantity(
         "a length", "m", "0 makes cusps free; beyond 1 km one forbids them", ge=0.0,
         le=1000.0)] = Field(5.0, description=(
