@@ -17,7 +17,7 @@ from stepzoo import integrators
 from stepzoo.bench.sweep import engine as sweep
 from stepzoo.bench.sweep import config as sweep_config
 
-ENVELOPE = Path(sweep.__file__).parent / "configs" / "envelope.toml"
+ENVELOPE = Path(sweep.__file__).parents[1] / "configs" / "envelope.toml"
 
 
 def test_envelope_sweep(benchmark, tmp_path, monkeypatch):
@@ -65,7 +65,7 @@ def test_envelope_sweep_compilation_cache(benchmark):
     benchmark.extra_info.update(kind="sweep_cache", cold=cold, warm=warm)
 
 
-WHEEL = Path(sweep.__file__).parent / "configs" / "wheel.toml"
+WHEEL = Path(sweep.__file__).parents[1] / "configs" / "wheel.toml"
 
 
 def test_stiff_sweep_wall_time_estimate(benchmark, tmp_path):
@@ -83,7 +83,7 @@ def test_stiff_sweep_wall_time_estimate(benchmark, tmp_path):
         "sweep_estimate_error": abs(est / t["wall_s"] - 1.0)})
 
 
-STIFF9 = Path(sweep.__file__).parent / "configs" / "stiff9.toml"
+STIFF9 = Path(sweep.__file__).parents[1] / "configs" / "stiff9.toml"
 
 
 def test_stiff9_sweep_wall_time_estimate(benchmark, tmp_path):
