@@ -1,7 +1,10 @@
 """The limit search finds a known threshold: on a toy probe whose lanes are stable exactly
 below their `limit`, the grid's bracket, the ladders and the narrowing end with the limit in
 [h_meas, h_meas (1 + rel_tol)] wherever it lies (inside the grid, above it, below it, nowhere)
-and whatever the prediction, with the cause of the failure above it."""
+and whatever the prediction, with the cause of the failure above it; and it asks no probe
+that cannot change that answer (counted: above the largest step worth one, past a point's
+first failure on the h_pred ladder, a ladder for an unbounded prediction, a block's padding
+lanes)."""
 import math
 
 import numpy as np
