@@ -150,35 +150,37 @@ def test_a_config_of_another_kind_is_one_line_naming_its_kind(tmp_path, capsys, 
 # its fingerprint may not (tune, export and --resume find a folder's sweep again by it).
 RECORDED_SHA256 = {
     "bench/configs/detest.toml":
-        "1c1972b44ca509afa82589f6d27bcc3cb7283028e3143f7a414be14872ea5a34",
+        "f883f784bdebe6e473277953941d2c8b23e1b818f9729b8677699e491da5693e",
     "bench/configs/envelope.toml":
-        "07adebea49f4ba82f22997958464fdf64e0f3c143296620cbea70b0d15902b79",
+        "548418adc76d0e02754e6bc56cb40da6eed03094195c4e66c70d9c367031dba5",
     "bench/configs/paper.toml":
-        "7d5b6f0aeee1bc40506de9344d466891885bdd61b787ed36ca9666d73eb35b3a",
+        "cc3eae8fb8a41ca2c60043d7aa5ce6277d9caf2078085a4a2af10f4a656d6873",
     "bench/configs/small.toml":
-        "4f2bd763b33f0f4c7e57725c5e0f96f91cefeda2e21e71d86fab7b5f195837dd",
+        "817b9d0908d9175a08d90234a1777b302e2bac78c25c19f296f16c7dd6fe7149",
     "bench/configs/stiff.toml":
-        "ba26b938132516e6df3c8b74febfe64081e1f4e4312e068d36497d4af1f8af5a",
+        "4d2f2b66af0abeb8f6d2908592c1b7791490da2093774746b885c1575aa9401c",
+    "bench/configs/stiff9.toml":
+        "badbed28e2e8ead94bc3b7b5d64a6f6428addaa9f22fa936e8ae5ed548536337",
     "bench/configs/tyre_laws.toml":
-        "b5972019aa8342aedb1532498dfbbcd2ccf7a379e5d0eea255634579abb7531e",
+        "24fe6817b12d3e9f29eb527c47b7b420fbf9be84742b63953d6a58ad1067d3d7",
     "bench/configs/tyres.toml":
-        "be404fda5dcaf31dfe4fe1aae661dba4af4869ae8d2771a063679535360ee16d",
+        "af0b2865a9cb3298f77b8961c0df206886c6701f4b9fe0a8d5957befc8076ac5",
     "bench/configs/wheel.toml":
-        "b4c0e888b1bcd225b93218652acb789ad6e66b27088237be5c396d1a2fa1bf4c",
+        "73c2628bb44bc679a1aa3a88977da142a5063b4097ec3d0a20f83a0e55bbb7c8",
     "docs/examples/myvehicle/vehicle.toml":
-        "1c8b1498c867a896b72ffb47f98fa6b4b22ba0af2659bb0ae7a2bba07910887e",
+        "f58edd0e2790a30757dd3856679e0c3bacb218a778e3c286f284eed7a7e64d79",
     "docs/examples/myvehicle/vehicle_casadi.toml":
-        "e70b52f55a4d894f1ebd15eb1e89152303c6437cc216eb2f764695150fc5f0f6",
+        "739570f587bb07f8d013617e8f3b74196b91feb5eaacc5818b0ebad363affdc0",
     "tests/data/sweep_regression/suite.toml":
-        "30c8ea10aeb13acd715dd70bd46790051fbe75cc30561991e4fb06c78f2e2759",
+        "d18987808a9d116141c98cfa32464e573468299fea08534a1a2247df6e28937b",
     "tests/user_model/casadi_bicycle.toml":
-        "fc7bb40201067a224a0972e7cecb57e3a4360d092b4b6351fe9879349d8e98e9",
+        "51335bb0b60fea949f100586b97bb69e8e36586a2156d706a84f10a791c44fec",
     "tests/user_model/chain.toml":
-        "7ab6d9bb14208cc278c2956939464620b2f283cef27918b0ccd4edcd9d234cdb",
+        "88a3f4bed648e3b3ea89350efc915c8a2f2d0c7958566328bb375b563129885a",
     "tests/user_model/quarter_wheel.toml":
-        "7f22279455431550172303eadcefb00f506569ca41359873850d102b7f016ea3",
+        "64af15128a456546e0133dc7d9e8fe494dc078123db3ec78b0cbfde787b76116",
     "tests/user_model/steer_clamp.toml":
-        "210c2c2cbd41a5e19c9fc88564fcbaf817eb8de494c12d785bafefb3cbdf3f54",
+        "2bb7cdf2ba11e1e1a78be05c8591384d503d4e07504e0853d2ebbd84605d6a98",
 }
 
 
