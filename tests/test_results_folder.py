@@ -148,6 +148,34 @@ def test_an_interrupted_sweep_says_how_to_resume_and_resumes_to_the_same_tables(
         pd.testing.assert_frame_equal(a[name], b[name], check_exact=True, obj=name)
 
 
+@pytest.mark.parametrize("stopped_at", [1, 2, 3])
+def test_a_sweep_stopped_at_its_first_writes_resumes(tiny_sweep, tmp_path, monkeypatch,
+                                                     stopped_at):
+    """Ctrl-C at the sweep's first, second or third write (its config copy, its manifests): a
+    --resume continues it to the whole sweep's tables. A folder left with chunks/ and no
+    manifest was refused as "a sweep of a different config (sha256 None...)": the rerun of an
+    interrupted `stepzoo run` ended at its sweep stage."""
+    from stepzoo.bench.sweep import engine
+    path, whole = tiny_sweep
+    out, writes, write = tmp_path / "out", [], engine.atomic_write
+
+    def interrupted(*args):
+        writes.append(args[0])
+        if len(writes) == stopped_at:
+            raise KeyboardInterrupt
+        return write(*args)
+
+    monkeypatch.setattr(engine, "atomic_write", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        run_sweep(load(path), out, progress=False)
+    monkeypatch.undo()
+    assert not (out / "runs.parquet").exists()
+    run_sweep(load(path), out, resume=True, progress=False)
+    a, b = read_tables(whole), read_tables(out)
+    for name in TABLES:
+        pd.testing.assert_frame_equal(a[name], b[name], check_exact=True, obj=name)
+
+
 def test_resume_with_overwrite_is_refused_and_writes_nothing(tiny_sweep, tmp_path):
     path, _ = tiny_sweep
     code = stepzoo(["sweep", str(path), "--out", str(tmp_path / "out"), "--resume",
