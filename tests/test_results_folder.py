@@ -20,7 +20,7 @@ from stepzoo.bench.sweep.engine import chunk_ids, run_sweep
 from stepzoo.bench.sweep.config import load
 from stepzoo.errors import UsageError
 from stepzoo.results_folder import LOCK, claim, replacing
-from helpers import TABLES, read_tables, write_sweep, write_tuned
+from helpers import CTRL_C_REACHES, TABLES, read_tables, write_sweep, write_tuned
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -30,16 +30,6 @@ def cli(*args, timeout=120):
     proc = subprocess.run([sys.executable, "-m", "stepzoo", *map(str, args)],
                           capture_output=True, text=True, timeout=timeout, cwd=ROOT)
     return proc.returncode, proc.stdout, proc.stderr
-
-
-# `python -m stepzoo ARGS` with SIGINT's default action back: Python then installs its Ctrl-C
-# handler. A parent that ignores SIGINT (a background job of a shell script) passes the
-# ignoring on, and the command rightly keeps it there (that Ctrl-C is meant for another job);
-# these tests play the user at the terminal, whose Ctrl-C does reach the command. An exec
-# rather than a function run between fork and exec: JAX, loaded here, warns of its threads.
-CTRL_C_REACHES = [sys.executable, "-c", "import os, signal, sys; signal.signal(signal.SIGINT, "
-                  "signal.SIG_DFL); os.execv(sys.executable, [sys.executable, *sys.argv[1:]])",
-                  "-m", "stepzoo"]
 
 
 def one_line(err: str) -> str:
