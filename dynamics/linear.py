@@ -9,9 +9,11 @@ def state_jacobian(f, t, x, u, p):
     return jax.jacfwd(f, argnums=1)(t, x, u, p)
 
 
-def lateral_matrix(vx, delta, p):
+def lateral_matrix(vx, delta, p, xp=jnp):
     """A [1/s, m/s^2 per rad/s ...] and b of the lateral (vy, r) dynamics at speed vx [m/s],
-    steer delta [rad]; exact (not an approximation) for the reduced model."""
+    steer delta [rad]; exact (not an approximation) for the reduced model. `xp`: the array
+    module (NumPy for many steers at once outside a trace: A (2, 2, n), b (2, n))."""
+    jnp = xp
     cf = p["Caf"] * jnp.cos(delta)
     cr, m, Iz, Lf, Lr = p["Car"], p["m"], p["Iz"], p["Lf"], p["Lr"]
     A = jnp.array([

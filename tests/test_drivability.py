@@ -133,10 +133,10 @@ def test_a_dead_end_is_left_backwards():
     d, result = plan_on(grid, (34.0, 13.5, 0.0), (8.0, 20.0, math.pi / 2))
     assert d["cusps"] >= 1
     assert d["reverse_length_m"] >= 10.0  # out of the corridor, whose mouth is 14 m behind
-    # The plan's cost is its length, a metre backwards counting reverse_penalty (2) metres,
+    # The plan's cost is its length, a metre backwards counting reverse_penalty (3) metres,
     # and cusp_cost (5 m) per change of direction.
     forwards = result.path_length() - d["reverse_length_m"]
-    cost = forwards + 2.0 * d["reverse_length_m"] + 5.0 * d["cusps"]
+    cost = forwards + 3.0 * d["reverse_length_m"] + 5.0 * d["cusps"]
     assert result.progress[-1][1] == pytest.approx(cost, rel=1e-6)
 
 
@@ -146,6 +146,25 @@ def test_an_open_field_is_crossed_forwards():
     grid[:, :2] = grid[:, -2:] = grid[:2] = grid[-2:] = True
     d, _ = plan_on(grid, (10.0, 20.0, 0.0), (35.0, 28.0, math.pi / 2))
     assert d["reverse_length_m"] == 0.0 and d["cusps"] == 0
+
+
+def test_a_goal_straight_behind_is_reached_forwards_at_5_mps():
+    """Goal 25 m straight behind the car, facing its way, in an open field, the tree at
+    5 m/s: backing there costs reverse_penalty (3) x 25 = 75 m, a forward loop less, so the
+    plan drives forwards. (At reverse_penalty 2 = h_weight each metre backwards left the
+    search order f = g + 2 H unchanged and this plan backed all 25 m.)"""
+    grid = np.zeros((80, 120), bool)
+    grid[:, :2] = grid[:, -2:] = grid[:2] = grid[-2:] = True
+    omap = from_array(grid, 0.5)
+    config = make_config(reverse=1, max_seconds=3600.0)
+    finder = PathFinder(omap, config, None, 5.0)
+    result = finder.plan((40.0, 20.0, 0.0), (15.0, 20.0, 0.0))
+    assert result.status == "exact", result.reason
+    d = measure(path_rows(result, finder.vehicle))
+    assert config.params.reverse_penalty > config.params.h_weight
+    assert (d["reverse_length_m"], d["cusps"]) == (0.0, 0)
+    assert result.progress[-1][1] == pytest.approx(result.path_length(), rel=1e-9)
+    assert result.path_length() < config.params.reverse_penalty * 25.0
 
 
 def test_a_car_that_stands_still_has_nothing_to_measure():

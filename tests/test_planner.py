@@ -13,7 +13,7 @@ from stepzoo.integrators.reference import reference
 from stepzoo.search.planner.connection_ocp import resimulate
 from stepzoo.search.world.maps import MAP_DIR, SUBDIV, from_array, load_map
 from stepzoo.search.planner.pathfinder import PathFinder
-from stepzoo.search.planner.config import make_config
+from stepzoo.search.planner.config import make_config, with_params
 from stepzoo.search.planner.point_selector import point_selector, random_points
 from stepzoo.search.world.scenarios import builtin_names, load_scenario
 from stepzoo.search.planner.shooting import Shooter, pure_pursuit
@@ -77,7 +77,8 @@ def dense_check(scenario, result):
         # An edge may be the collision-free first part of a shooting: its own duration.
         duration = (len(edge) - 1) * result.h
         ts = np.linspace(0.0, duration, int(np.ceil(duration * scenario.speed * 4 / spacing)) + 1)
-        x0, u, rhs = np.r_[edge[0, :3], scenario.speed], np.array([steer, 0.0]), tight.rhs
+        # Tight moves are driven at the plan's tight speed.
+        x0, u, rhs = np.r_[edge[0, :3], result.tight_vx], np.array([steer, 0.0]), tight.rhs
         if not kinematic:
             x0, u, rhs = edge[0], np.array([steer]), model.rhs
         if rate is not None:
@@ -208,22 +209,56 @@ def test_a_dead_end_the_car_cannot_turn_in_is_proved_boxed_in_once_the_search_ex
     assert 0 < result.expansions < CONFIG.params.max_expansions
 
 
-def test_a_start_the_tree_cannot_turn_out_of_is_left_by_tight_moves():
-    # Facing a wall 3.5 m ahead at 17 degrees: the dynamic bicycle at 5 m/s understeers to a
-    # 3.3 m turn at full lock and its tree exhausts; the kinematic bicycle (2.6 m at full
-    # lock, what the connection drives) turns out, so the search widens and finds a path
-    # that the dense check re-simulates on each edge's own model.
+def yard_facing_a_wall(config=CONFIG):
+    """Facing a wall 3.5 m ahead at 17 degrees in a 30 x 30 m yard: (scenario, finder,
+    result). The dynamic bicycle at 5 m/s understeers to a 3.3 m turn at full lock and cannot
+    turn out; the kinematic bicycle (2.6 m at full lock, what the connection drives) can."""
     from stepzoo.search.world.scenarios import Scenario
     occupied = np.ones((64, 64), bool)
-    occupied[2:62, 2:62] = False            # a 30 x 30 m yard, its far wall at x = 31 m
+    occupied[2:62, 2:62] = False            # its far wall at x = 31 m
     omap = from_array(occupied, 0.5)
     start, goal = (27.5, 16.0, 0.3), (8.0, 16.0, np.pi)
-    result = PathFinder(omap, CONFIG, None, 5.0).plan(start, goal)
-    assert (result.status, result.widened) == ("exact", True), result.reason
-    assert any(result.path_tight)
+    finder = PathFinder(omap, config, None, 5.0)
     scenario = Scenario("yard", "", omap, "generated", start, goal, None, None, 5.0)
-    collisions, joint_gap, miss = dense_check(scenario, result)
-    assert (collisions, joint_gap < 1e-3, miss < 1e-3) == (0, True, True)
+    return scenario, finder, finder.plan(start, goal)
+
+
+def test_a_start_the_tree_cannot_turn_out_of_is_left_by_tight_moves():
+    # Its moves collide, so the tree shoots tight moves there (rate-limited, at once; the
+    # paper's instant steering only once its tree has exhausted) and finds a path that the
+    # dense check re-simulates on each edge's own model.
+    for steering, widened in (("rate_limited", False), ("instant", True)):
+        scenario, _, result = yard_facing_a_wall(with_params(CONFIG, steering=steering))
+        assert (result.status, result.widened) == ("exact", widened), result.reason
+        assert any(result.path_tight)
+        collisions, joint_gap, miss = dense_check(scenario, result)
+        assert (collisions, joint_gap < 1e-3, miss < 1e-3) == (0, True, True)
+
+
+def test_a_turn_tighter_than_the_trees_speed_allows_is_driven_slower():
+    """From the path rows alone (the heading's change over half a metre of rows, as the
+    drivability block reads it, and the speed their times give): where the path turns on a
+    radius r tighter than the lateral limit allows at the tree's 5 m/s, the car drives it at
+    v <= sqrt(a_lat r), a_lat the planned limit (limit_fraction of the car's); and it does
+    turn that tight, at the tight moves' speed."""
+    from stepzoo.search.plans.files import path_rows
+    _, finder, result = yard_facing_a_wall()
+    assert result.status == "exact", result.reason
+    rows = path_rows(result, finder.vehicle)
+    ds = np.hypot(*np.diff(rows[:, 1:3], axis=0).T)
+    keep = ds > 1e-6
+    heading = np.unwrap(rows[1:, 3])[keep]
+    along, t = np.cumsum(ds[keep]), rows[1:, 0][keep]
+    n = int(np.ceil(0.5 / np.median(ds[keep])))          # about half a metre of rows
+    kappa = np.abs(heading[n:] - heading[:-n]) / (along[n:] - along[:-n])
+    v = (along[n:] - along[:-n]) / (t[n:] - t[:-n])
+    a_lat = finder.lateral_limit
+    assert a_lat == pytest.approx(0.8 * 11.5)
+    assert (v ** 2 * kappa).max() <= 1.02 * a_lat
+    tight = kappa > 1.02 * a_lat / 5.0 ** 2
+    assert tight.any()
+    assert (v[tight] <= 1.01 * np.sqrt(a_lat / kappa[tight])).all()
+    assert v[tight].max() == pytest.approx(finder.config.params.tight_speed, rel=0.02)
 
 
 def test_the_expansion_budget_ends_in_the_closest_node():

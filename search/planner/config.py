@@ -96,20 +96,38 @@ class PlannerParams(Schema):
         "1: reverse gear (expansions backwards too, the connection may reverse); 0: forward "
         "only, as the paper [1]"))
     tight_moves: Switch = Field(1, description=(
-        "1: when the tree exhausts unsolved, expand every node again with tight moves too (the "
-        "kinematic bicycle, out to full lock), which chain until the tree's own moves take "
-        "over; 0: the tree's own moves only, as the paper [1]"))
+        "1: tight moves (the kinematic bicycle at tight_speed, out to full lock) from every "
+        "node where a move of the tree's collides, and from every node once the tree exhausts "
+        "unsolved; they chain until the tree's own moves take over; 0: the tree's own moves "
+        "only, as the paper [1]"))
     steering: Literal["rate_limited", "instant"] = Field("rate_limited", description=(
         "rate_limited: the steer angle is a state whose rate is bounded by the vehicle's "
         "max_steer_rate (tree edges are steer ramps, the connection's control is the steer "
         "rate) and the curvature by its max_lateral_acceleration at the planned speed; "
         "instant: each edge at one constant steer set at once, as the paper [1]"))
+    tight_speed: Annotated[float, quantity(
+        "a speed", "m/s", "a walking pace to a slow roll: below 0.5 m/s a move covers less than "
+        "a pruning cell; above 5 m/s it is no longer tighter than the tree's", ge=0.5,
+        le=5.0)] = Field(2.0, description=(
+            "speed of the tight moves and of reversing with rate-limited steering (instant: "
+            "the tree's speed), at most the tree's: at a steer rate r the steer turns r / v per "
+            "metre, so at 2 m/s the wheel reaches full lock 2.5 times sooner than at 5 m/s "
+            "[m/s]"))
+    limit_fraction: Annotated[float, quantity(
+        "a fraction", "", "1 plans at the car's limits; below 0.5 a plan gives away half its "
+        "turning", ge=0.5, le=1.0)] = Field(0.8, description=(
+            "the planner plans to this fraction of the vehicle's max_steer_rate and "
+            "max_lateral_acceleration (rate-limited steering): the tracked car (Fiala tyres) "
+            "grips to about 10.3 m/s^2, below the 11.5 m/s^2 of the published limit, and a "
+            "tracking controller needs steer rate beyond the plan's to correct its errors [1]"))
     reverse_penalty: Annotated[float, quantity(
         "a factor", "", "1 makes a metre backwards cost what one forwards does; beyond 10 "
-        "reversing is all but forbidden", ge=1.0, le=10.0)] = Field(2.0, description=(
-            "a metre driven backwards costs this many metres in g (with reverse = 1), as Nav2 "
-            "Smac Hybrid-A*'s reverse_penalty (default 2.0) and Kurzer's Hybrid A* "
-            "penaltyReversing (2.0) [1]"))
+        "reversing is all but forbidden", ge=1.0, le=10.0)] = Field(3.0, description=(
+            "a metre driven backwards costs this many metres in g (with reverse = 1); above "
+            "h_weight (2), since a move backwards towards a goal behind the car changes f = g + "
+            "h_weight H by (reverse_penalty - h_weight) per metre, and at 2 (Nav2 Smac "
+            "Hybrid-A*'s and Kurzer's Hybrid A*'s default) the greedy first path backed whole "
+            "queries [1]"))
     cusp_cost: Annotated[float, quantity(
         "a length", "m", "0 makes cusps free; beyond 1 km one forbids them", ge=0.0,
         le=1000.0)] = Field(5.0, description=(

@@ -99,7 +99,9 @@ class Connector:
             t0 = perf_counter()
             direction = int(tree.direction[i]) or 1
             conn, why = s.f.connect(tree.states[i], s.goal, s.goal_speed, direction=direction,
-                                    paths=guesses, steer=float(tree.steer[i]))
+                                    paths=guesses, steer=float(tree.steer[i]),
+                                    speed=s.f.tight_vx if tree.tight[i] or direction < 0
+                                    else s.f.vx)
             self.seconds += perf_counter() - t0
             if why:
                 self.failures.append(why)

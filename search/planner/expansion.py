@@ -12,6 +12,11 @@ from stepzoo.search.planner.point_selector import point_selector, random_points
 from stepzoo.search.planner.shooting import Shots
 
 PREFIX_FRACTION = 4     # a colliding shooting's free first part is kept from 1/4 of its rows
+# [rad] the car changes between the tree's speed and tight_speed only with its steer within
+# this: at one steer the dynamic bicycle at 5 m/s turns on a circle 1.3 times the kinematic
+# one's, so a change of speed at a large steer is a step in curvature the path rows read as a
+# jump of the steer (a fifth of it); within 0.3 rad that step stays under 0.07 rad.
+SPEED_CHANGE_STEER = 0.3
 
 
 class Expander:
@@ -38,6 +43,7 @@ class Expander:
         steers = np.repeat(tree.steer[rows], self.per)  # each shooting starts at its node's
         ways = np.repeat(tree.direction[rows], self.per)
         new = []
+        cramped = np.zeros(len(nodes), bool)  # nodes where a move of the tree's collides
         gears = [(1, s.f.shooter)]
         if s.f.back_shooter is not None:
             gears.append((-1, s.f.back_shooter))
@@ -56,22 +62,35 @@ class Expander:
             settle = None
             if s.f.rate_limited and direction > 0:
                 settle = standing | (ways < 0) | np.repeat(tree.tight[rows], self.per)
-            new += self.add_all(nodes, direction, shooter.shoot(
-                states, np.vstack(aims), s.goal, np.where(standing, np.nan, steers), settle))
-        # Tight moves leave the region the tree exhausted: from its nodes and along chains of
-        # tight moves; once a node is reached by the tree's own move, the tree goes on alone.
-        tight = [i for i in nodes if i < s.widened_at or tree.tight[i]]
+            shots = shooter.shoot(states, np.vstack(aims), s.goal,
+                                  np.where(standing, np.nan, steers), settle)
+            if direction > 0 and s.f.rate_limited:
+                # From a tight move's node the car speeds up only with its wheel near straight.
+                slow = np.repeat(tree.tight[rows], self.per)
+                shots.free[slow & (np.abs(shots.steer0) > SPEED_CHANGE_STEER)] = 0
+            cramped |= (shots.free < shots.states.shape[1]).reshape(len(rows), -1).any(
+                axis=1)[:len(nodes)]
+            new += self.add_all(nodes, direction, shots)
+        # Tight moves: where a move of the tree's collides (a door, a corner: the tree at its
+        # speed may not turn in time), from every node once the tree exhausted, and along
+        # chains of tight moves; once a node is reached by the tree's own move, the tree goes
+        # on alone.
+        tight = [i for k, i in enumerate(nodes)
+                 if i < s.widened_at or tree.tight[i]
+                 or (cramped[k] and s.prm.tight_moves and s.f.rate_limited
+                     and (tree.direction[i] != 1 or abs(tree.steer[i]) <= SPEED_CHANGE_STEER))]
         if tight:
             rows = self.filled(tight)
             shooter = s.f.tight_shooter
             steers = np.repeat(tree.steer[rows], self.per)
             steers[np.repeat(tree.direction[rows], self.per) != 1] = np.nan  # standing
-            fan = np.tile(np.linspace(-s.f.delta_max, s.f.delta_max, self.per), len(rows))
+            limit = shooter.delta_max
+            fan = np.tile(np.linspace(-limit, limit, self.per), len(rows))
             if shooter.rate is not None:
                 # Rate-limited, the fan spans the steers one shooting can reach.
                 reach = shooter.rate * shooter.duration
                 near = np.clip(steers + np.tile(np.linspace(-reach, reach, self.per), len(rows)),
-                               -s.f.delta_max, s.f.delta_max)
+                               -limit, limit)
                 fan = np.where(np.isnan(steers), fan, near)
             shots = shooter.shoot_steers(np.repeat(tree.states[rows], self.per, axis=0), fan,
                                          s.goal, steers)

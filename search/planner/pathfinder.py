@@ -65,31 +65,48 @@ class PathFinder:
         self.limits = vehicle_limits(self.vehicle["name"])
         # Rate-limited, the car's limits bound every move: the steer rate, and the steer
         # (so the curvature tan(delta) / L) where v^2 kappa would exceed the lateral limit.
+        # The planner keeps limit_fraction of each limit: the rest is the tracking
+        # controller's, to correct its errors on a car whose tyres grip less than the limit.
         self.rate_limited = prm.steering == "rate_limited"
-        self.steer_rate = self.limits["max_steer_rate"] if self.rate_limited else None
-        self.delta_max = (min(prm.delta_max, math.atan(
-            self.wheelbase * self.limits["max_lateral_acceleration"] / self.vx ** 2))
-            if self.rate_limited else prm.delta_max)
+        self.lateral_limit = prm.limit_fraction * self.limits["max_lateral_acceleration"]
+        self.steer_rate = (prm.limit_fraction * self.limits["max_steer_rate"]
+                           if self.rate_limited else None)
+        self.delta_max = self.steer_limit(self.vx)
+        # Tight moves are driven slower: the steer turns faster per metre and the lateral
+        # limit allows the full lock.
+        self.tight_vx = min(prm.tight_speed, self.vx) if self.rate_limited else self.vx
 
-        def shooter(**kind):
-            return Shooter(self.checker, self.vehicle["name"], self.vx, config.method, config.h,
+        def shooter(vx=self.vx, **kind):
+            return Shooter(self.checker, self.vehicle["name"], vx, config.method, config.h,
                            config.n_steps, prm.batch_nodes * (prm.n_arc + prm.n_random),
-                           self.delta_max, max_steer_rate=self.steer_rate, **kind)
+                           self.steer_limit(vx), max_steer_rate=self.steer_rate, **kind)
         self.shooter = shooter()
         # Reverse gear: a second shooter drives backwards from every node, towards an arc
-        # behind it and the random points.
-        self.back_shooter = shooter(reverse=True) if prm.reverse else None
-        # Tight moves, for when the tree exhausts unsolved: forwards on the kinematic bicycle
-        # at a fan of steers out to full lock (compiled only if a search needs them).
-        self.tight_shooter = shooter(tight=True)
+        # behind it and the random points, at tight_vx: drivers back up slowly, and a car
+        # backing fast is hard to hold on a path (its steered axle trails).
+        self.back_shooter = shooter(self.tight_vx, reverse=True) if prm.reverse else None
+        # Tight moves, where the tree's moves collide or the tree exhausts unsolved: forwards
+        # on the kinematic bicycle at tight_vx, a fan of steers out to full lock.
+        self.tight_shooter = shooter(self.tight_vx, tight=True)
+
+    def steer_limit(self, vx: float) -> float:
+        """[rad] the steer limit at speed vx [m/s]: delta_max, and rate-limited below it
+        atan(L a_lat / vx^2) where vx^2 tan(delta) / L would pass the planned lateral limit."""
+        prm = self.config.params
+        if not self.rate_limited:
+            return prm.delta_max
+        return min(prm.delta_max, math.atan(self.wheelbase * self.lateral_limit / vx ** 2))
 
     def warm_up(self, goal_speed_fixed=False) -> float:
         """Compile the driver and build the OCP once, so timed plans measure planning [s]."""
         t0 = perf_counter()
         batch = self.shooter.batch
         self.shooter.integrate(np.zeros((batch, 5)), np.zeros(batch), np.zeros(batch))
-        if self.back_shooter is not None:
-            self.back_shooter.integrate(np.zeros((batch, 5)), np.zeros(batch), np.zeros(batch))
+        shooters = [self.back_shooter] if self.back_shooter is not None else []
+        if self.rate_limited and self.config.params.tight_moves:
+            shooters.append(self.tight_shooter)   # it shoots wherever a tree move collides
+        for shooter in shooters:
+            shooter.integrate(np.zeros((batch, 5)), np.zeros(batch), np.zeros(batch))
         self.connect(np.array([0.0, 0.0, 0.0, 0.0, 0.0]), np.array([8.0, 2.0, 0.0]),
                      1.0 if goal_speed_fixed else None, bounds=(-50.0, 50.0, -50.0, 50.0))
         return perf_counter() - t0
@@ -140,10 +157,11 @@ class PathFinder:
         return cause, reason
 
     def turn_radius(self) -> float:
-        """[m] the kinematic bicycle's tightest turn, wheelbase / tan(delta_max) (rate-limited:
-        the steer limit the lateral acceleration allows at vx, if smaller): the radius of the
-        connection's car, the car bounds and the boxed-in proofs."""
-        return self.wheelbase / math.tan(self.delta_max)
+        """[m] the kinematic bicycle's tightest turn, wheelbase / tan(delta), delta the steer
+        limit at the slowest speed the tree drives (tight_vx with tight moves, else vx): the
+        radius of the connection's guesses, the car bounds and the boxed-in proofs."""
+        return self.wheelbase / math.tan(self.tight_shooter.delta_max
+                                         if self.config.params.tight_moves else self.delta_max)
 
     def corridors(self) -> np.ndarray:
         """The lattice's corridor components for this car (guide.corridors), computed once."""
@@ -152,20 +170,22 @@ class PathFinder:
         return self._components
 
     def connect(self, node, goal, goal_speed, bounds=None, direction=1,
-                paths=None, steer=0.0) -> tuple[Connection, str]:
-        """Connection from a node state (5,) at steer `steer` [rad], reached driving
-        `direction` (+1 forwards, -1 backwards), to the goal pose, its guesses driving `paths`
-        (connect's); (connection, '' or why not). With reverse gear the OCP lets the speed go
-        down to -vx; rate-limited, it starts at the node's steer and bounds the steer rate and
-        the lateral acceleration by the car's limits."""
+                paths=None, steer=0.0, speed=None) -> tuple[Connection, str]:
+        """Connection from a node state (5,) at steer `steer` [rad] and speed `speed` [m/s]
+        (default vx), reached driving `direction` (+1 forwards, -1 backwards), to the goal
+        pose, its guesses driving `paths` (connect's); (connection, '' or why not). With
+        reverse gear the OCP lets the speed go down to -tight_vx; rate-limited, it starts at the
+        node's steer and bounds the steer rate and the lateral acceleration by the planned
+        limits (the OCP may slow down to turn tighter: its steer limit is delta_max)."""
         prm = self.config.params
         limits = ({"steer0": steer, "max_steer_rate": self.steer_rate,
-                   "max_lateral_acceleration": self.limits["max_lateral_acceleration"]}
+                   "max_lateral_acceleration": self.lateral_limit}
                   if self.rate_limited else {})
-        conn = connect([node[0], node[1], node[2], direction * self.vx], goal, L=self.wheelbase,
+        speed = self.vx if speed is None else speed
+        conn = connect([node[0], node[1], node[2], direction * speed], goal, L=self.wheelbase,
                        m=self.vehicle["m"], bounds=bounds or self.omap.bounds(),
-                       N=prm.connect_N, goal_speed=goal_speed, delta_max=self.delta_max,
-                       v_min=-self.vx if prm.reverse else 0.0, paths=paths, **limits)
+                       N=prm.connect_N, goal_speed=goal_speed, delta_max=prm.delta_max,
+                       v_min=-self.tight_vx if prm.reverse else 0.0, paths=paths, **limits)
         if not conn.success:
             return conn, f"IPOPT: {conn.status}"
         if self.checker.first_invalid(conn.states[None, :, :3])[0] >= 0:
@@ -384,6 +404,7 @@ class Search:
         res.path_edges = [t.edges[i] for i in rows]
         res.path_steers = t.steer[rows].tolist()
         res.path_tight = t.tight[rows].tolist()
+        res.tight_vx = self.f.tight_vx
         res.path_directions = t.direction[rows].tolist()
         if self.f.rate_limited:
             # Each edge ramps from its start steer (its parent's, unless the car stood) to its

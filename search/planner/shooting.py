@@ -74,6 +74,7 @@ class Shooter:
         # Every leaf batched once: the driver then sees the same shapes at every expansion and
         # compiles once per (method, batch, n_steps).
         self.p = {k: jnp.full((batch,), float(v)) for k, v in p.items()}
+        self.scalars = {k: float(v) for k, v in p.items()}
 
     @property
     def duration(self) -> float:
@@ -130,10 +131,10 @@ class Shooter:
         x0 = np.array(x0, float)
         if self.kinematic or settle is None or not np.any(settle):
             return x0
-        p = {k: float(v[0]) for k, v in self.p.items()}
-        for i in np.flatnonzero(settle):
-            A, b = lateral_matrix(self.vx, float(steer0[i]), p)
-            x0[i, 3:5] = -np.linalg.solve(np.asarray(A), np.asarray(b))
+        rows = np.flatnonzero(settle)
+        delta = np.asarray(steer0, float)[rows]
+        A, b = lateral_matrix(self.vx, delta, self.scalars, np)
+        x0[rows, 3:5] = -np.linalg.solve(np.moveaxis(A, 2, 0), b.T[..., None])[..., 0]
         return x0
 
     def shoot(self, state, points, destination, steer0=0.0, settle=None) -> Shots:

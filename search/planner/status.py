@@ -78,6 +78,7 @@ class PlanResult:
     # kinematic bicycle at parking speed, full lock included), and which path edges are.
     widened: bool = False
     path_tight: list = field(default_factory=list)
+    tight_vx: float = 0.0         # [m/s] the speed tight moves are driven at
     path_directions: list = field(default_factory=list)
     # Rate-limited steering: each path edge's constant steer rate [rad/s], its steer ramping
     # to path_steers from the previous edge's end steer (from a standstill, the start or a

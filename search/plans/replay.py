@@ -55,7 +55,8 @@ def controls(result: PlanResult, method: str | None = None) -> list[dict]:
             ramp = {k: [v] * n for k, v in ramp.items()}
             delta = ([start] * n if rate is None
                      else (start + rate * result.h * np.arange(n)).tolist())
-            out.append({"model": "kinematic", "t0": t0, "dt": result.h, "v0": way * result.vx,
+            speed = result.tight_vx if tight or way < 0 else result.vx
+            out.append({"model": "kinematic", "t0": t0, "dt": result.h, "v0": way * speed,
                         "inputs": {"delta": delta, "F": [0.0] * n, **ramp},
                         "move": "tight" if tight else "reverse", "steps": n, **tree,
                         "h": result.h})

@@ -27,11 +27,16 @@ H_S = 0.01            # [s] integration step and control period (zero-order hold
 # (k_soft + v)); on the kinematic car the front axle's cross-track error then decays at rate k.
 GAIN_K = 2.0          # [1/s] cross-track gain k
 K_SOFT = 1.0          # [m/s] softening: the cross-track term stays bounded as the car stops
-# Backwards the rear axle leads and steering does not turn it: linearised, its cross-track
-# error obeys s^2 + HEADING_GAIN_REVERSE v / L s + GAIN_K_REVERSE v^2 / (L (K_SOFT + v)) = 0
-# at speed v (docs/plan-fidelity.md derives it).
-GAIN_K_REVERSE = 2.0  # [1/s]
-HEADING_GAIN_REVERSE = 2.0
+# Backwards, pure pursuit of the rear axle (Coulter, 'Implementation of the Pure Pursuit Path
+# Tracking Algorithm', CMU-RI-TR-92-01; reversing as in Nav2's Regulated Pure Pursuit): the
+# rear axle, which the steer does not move sideways, follows the arc through a point
+# LOOKAHEAD ahead along its path. The kinematic car's rear axle turns at tan(delta) / L
+# whichever way it goes, so backwards this is forward pure pursuit mirrored: linearised, its
+# offset obeys s^2 + 2 v / l s + 2 v^2 / l^2 = 0 (damping 0.71), and on a circle it settles on
+# the path, where the previous law (Stanley's terms on the rear axle plus a heading term)
+# fought the plan's body slip at every cusp and strayed up to 1 m.
+LOOKAHEAD_M = 2.0     # [m] least lookahead: about a wheelbase
+LOOKAHEAD_S = 0.6     # [s] lookahead per speed: the loop's time scale l / v stays the same
 STEER_LAG_RAD = 0.2   # [rad] steer lagging its command by this much halts the car ...
 SLOWEST = 0.1         # ... down to this fraction of the planned speed
 STEER_SERVO_S = 0.05  # [s] time constant of the steering servo (the plant limits its rate)
@@ -234,6 +239,8 @@ def _scan(n_steps: int):
     def run(x0, ref, n_pieces, p):
         at = lambda name, j, f: ref[name][j] + f * (ref[name][j + 1] - ref[name][j])
 
+        L = p["Lf"] + p["Lr"]
+
         def control(x, i, k):
             way = ref["way"][k]
             lo, hi = ref["first"][k], ref["last"][k]
@@ -248,9 +255,15 @@ def _scan(n_steps: int):
             e = side * way
             soft = K_SOFT + jnp.abs(v)
             forward = wrap(at("course", j, f) - psi) - jnp.arctan(GAIN_K * e / soft)
-            backward = (at("steer_ff", j, f)
-                        + HEADING_GAIN_REVERSE * wrap(psi - at("psi_body", j, f))
-                        - jnp.arctan(GAIN_K_REVERSE * e / soft))
+            # The point LOOKAHEAD along the path (its piece's end at most), seen from the rear
+            # axle against the direction of travel; the arc's curvature 2 sin(alpha) / l.
+            ahead_m = jnp.maximum(LOOKAHEAD_M, LOOKAHEAD_S * jnp.abs(v))
+            ahead = j + jnp.round(ahead_m / SPACING_M).astype(int)
+            goal = jnp.where(ahead < hi, at("C", jnp.minimum(ahead, hi - 1), f), ref["C"][hi])
+            gap = goal - axle
+            alpha = wrap(jnp.arctan2(gap[1], gap[0]) - psi - jnp.pi)
+            reach_m = jnp.maximum(jnp.hypot(gap[0], gap[1]), 1e-6)
+            backward = -jnp.arctan(2 * L * jnp.sin(alpha) / reach_m)
             steer = jnp.clip(jnp.where(way > 0, forward, backward), p["delta_min"],
                              p["delta_max"])
             # The plan's speed, or less where braking at A_BRAKE must start to stop at the
