@@ -109,17 +109,23 @@ class StiffMode(Schema):
 
 
 class Stiffness(Schema):
-    """[stiffness]: whether the model is stiff at the tolerance (bench/model/stiffness.py)."""
-    stiff: bool = Field(description="accuracy allows stiff_ratio x the largest explicit limit")
+    """[stiffness]: whether the model is stiff at the tolerance (bench/model/stiffness.py), at
+    the operating point where accuracy allows the most over the explicit limit."""
+    stiff: bool = Field(description="accuracy allows stiff_ratio x the largest explicit limit "
+                        "at some point")
     h_explicit_max_s: Measured | None = Field(None, description="the largest step an "
-                                           "explicit method may take at every point [s]")
+                                           "explicit method may take at that point [s]")
     h_accurate_max_s: Measured | None = Field(None, description="the largest step some method "
-                                           "meets the tolerance at within its limits [s]")
+                                           "meets the tolerance at there, within its limits "
+                                           "[s]")
     accurate_method: str | None = Field(None, description="that method")
     ratio: Measured | None = Field(None, description="h_accurate_max_s / h_explicit_max_s")
     stiff_ratio: float = Field(description="the ratio from which a model is stiff")
     mode: StiffMode | None = Field(None, description="the binding mode")
     says: str = Field("", description="the finding in words")
+    stiff_points: Count | None = Field(None, description="the operating points where the "
+                                       "model is stiff")
+    points: Count | None = Field(None, description="the operating points assessed")
 
 
 class TunedEnvelope(Schema):

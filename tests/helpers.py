@@ -242,6 +242,7 @@ rtol = 1e-8
 atol = 1e-10
 
 [stability]
+rule = "blowup"
 steps = 50
 h_probe_max = 10.0
 rel_tol = 0.05
@@ -264,6 +265,7 @@ delta = [0.3]
 [steps]
 h = [0.01, 0.05, 0.1]
 [stability]
+rule = "blowup"
 steps = 200
 [chunks]
 points = 1

@@ -169,7 +169,7 @@ def user_config(folder: Path, module: str, code: str, params: str = "k = 600.0\n
     config.write_text(f'name = "m"\nhorizon = 0.5\nmethods = ["rk4"]\n[model]\n'
                       f'rhs = "{module}:f"\nstates = ["x", "v"]\npath = "{folder}"\n'
                       f"[params]\n{params}[initial]\nx = 1.0\n[envelope]\n{envelope}"
-                      "[steps]\nh = [0.01, 0.02]\n[stability]\nsteps = 100\n")
+                      "[steps]\nh = [0.01, 0.02]\n[stability]\nrule = \"blowup\"\nsteps = 100\n")
     return config
 
 

@@ -31,6 +31,7 @@ delta = [0.3]
 [steps]
 h = [0.05, 0.1]
 [stability]
+rule = "blowup"
 steps = 100
 """
 

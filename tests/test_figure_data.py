@@ -155,7 +155,7 @@ def test_figure_3_judges_stability_along_the_trajectory(tmp_path):
     config.write_text(f'name = "s"\nhorizon = 1.0\nmethods = ["euler", "rk4"]\n[model]\n'
                       f'rhs = "stiffening:f"\nstates = ["x"]\npath = "{tmp_path}"\n'
                       "[params]\na = 50.0\n[initial]\nx = 1.0\n[envelope]\na = [50.0]\n"
-                      "[steps]\nh = [0.01, 0.02]\n[stability]\nsteps = 100\n")
+                      "[steps]\nh = [0.01, 0.02]\n[stability]\nrule = \"blowup\"\nsteps = 100\n")
     run_sweep(load(config), tmp_path / "out", progress=False)
     sweep = load_sweep(tmp_path / "out")
     data = figure_data.stability_regions(sweep, {"method": "euler", "h": 0.05})

@@ -1,7 +1,10 @@
 """The limit search finds a known threshold: on a toy probe whose lanes are stable exactly
 below their `limit`, the grid's bracket, the ladders and the narrowing end with the limit in
 [h_meas, h_meas (1 + rel_tol)] wherever it lies (inside the grid, above it, below it, nowhere)
-and whatever the prediction, with the cause of the failure above it."""
+and whatever the prediction, with the cause of the failure above it; and it asks no probe
+that cannot change that answer (counted: above the largest step worth one, past a point's
+first failure on the h_pred ladder, a ladder for an unbounded prediction, a block's padding
+lanes)."""
 import math
 
 import numpy as np
@@ -108,3 +111,89 @@ def test_candidates_lie_strictly_inside_the_bracket():
         for first in (True, False):
             c = candidates(-2.3, -1.7, guess, tau, 5, first, tau)
             assert len(c) and np.all((c > -2.3) & (c < -1.7)), (guess, first)
+
+
+# ---- what the search does not probe (issue 35, item 3) -----------------------------------
+
+def _ladder_search(limit, pred, top=H_PROBE_MAX):
+    """The "modes" rule's search (with the predicted-limit ladder) of a Threshold probe, with
+    `top` the largest step worth a probe; (h_meas, the probe)."""
+    probe = Threshold(limit)
+    grid = at_steps(probe, np.arange(len(limit)), HS)
+    return measured_limit(grid, probe, HS, np.asarray(pred, float), top, REL_TOL,
+                          len(limit), ladder=True).h_meas, probe
+
+
+def test_an_unbounded_method_stable_at_the_top_takes_the_grid_and_one_probe():
+    """pred inf (an A-stable method) and stable everywhere: the grid's probes, then one at
+    the top, and nothing else: no ladder, no bisection."""
+    h_meas, probe = _ladder_search([np.inf, np.inf], [np.inf, np.inf])
+    assert np.isinf(h_meas).all()
+    asked = np.concatenate(probe.ran)
+    assert len(asked) == 2 * (len(HS) + 1) and np.sum(asked == H_PROBE_MAX) == 2
+
+
+def test_the_ladder_stops_at_each_lanes_first_failure():
+    """The predicted-limit ladder (PRED_LADDER times pred) climbs rung by rung: a lane whose
+    limit lies between its rungs 1 and 2 (pred and sqrt 2 pred) probes rungs 0, 1 and 2 and
+    none above, where the first failure already ends the bracket; the limit is found as
+    before. A grid failure below every rung (limit under 0.7 pred, above the grid's step
+    below it) leaves the ladder unprobed but its rungs below that failure."""
+    pred = np.array([0.03, 0.0035])
+    limit = np.array([0.032, 0.00136])        # 1.07 pred; between grid steps 0.00100, 0.00376
+    h_meas, probe = _ladder_search(limit, pred)
+    assert np.all(h_meas < limit) and np.all(limit <= h_meas * (1 + REL_TOL) * (1 + 1e-9))
+    asked = set(np.round(np.concatenate(probe.ran), 12))
+    lane0, lane1 = (np.round(p * limit_search.PRED_LADDER, 12) for p in pred)
+    assert [r in asked for r in lane0] == [True] * 3 + [False] * (len(lane0) - 3)
+    # Lane 1: the grid fails at 0.00376; its first rung (0.71 pred, 0.0025) lies below that
+    # and is probed, and fails: every rung above it is left.
+    assert [r in asked for r in lane1] == [True] + [False] * (len(lane1) - 1)
+
+
+def test_no_probe_above_the_largest_step_worth_one():
+    """With `top` (the stability horizon of the "modes" rule) below h_probe_max, neither the
+    ladder nor the rising ladder probes past it, and a lane stable up to it is unbounded."""
+    top = 0.5
+    h_meas, probe = _ladder_search([np.inf, 0.3], [0.2, 0.2], top=top)
+    asked = np.concatenate(probe.ran)
+    assert asked.max() <= top and np.isinf(h_meas[0])
+    assert h_meas[1] < 0.3 <= h_meas[1] * (1 + REL_TOL) * (1 + 1e-9)
+
+
+def test_the_padding_lanes_of_a_block_are_not_probed(tmp_path, monkeypatch):
+    """Three points in chunks of two: block 1 holds one point and a padding lane that
+    repeats it. Its stability probes ask the real lane alone, and the padding lane's
+    outcomes and limit are the real lane's; the real lane's limit is the one block 0's
+    search finds for the same point (its lane 1 there)."""
+    from helpers import TINY_SWEEP
+
+    from stepzoo.bench.sweep.block import Block
+    from stepzoo.bench.sweep.config import load
+    from stepzoo.bench.sweep.runs.stability_runs import StabilityRuns
+    from stepzoo.integrators import method
+    path = tmp_path / "three.toml"
+    path.write_text(TINY_SWEEP.replace("vx = [6.0, 20.0]", "vx = [6.0, 20.0, 20.0000001]")
+                    .replace("points = 1", "points = 2"))
+    cfg = load(path)
+    asked = []
+    plain = StabilityRuns.runs_at
+
+    def recording(self, meth, lanes, h):
+        asked.append(np.asarray(lanes))
+        return plain(self, meth, lanes, h)
+
+    monkeypatch.setattr(StabilityRuns, "runs_at", recording)
+    euler = method("euler")
+    limits = []
+    for b in (0, 1):
+        block = Block(cfg, b, {})
+        grid = block.stable(euler, np.tile(np.asarray(cfg.hs), (2, 1)))
+        pred = np.array([p.h for p in block.predicted(euler)])
+        limits.append(block.measured_limits(euler, grid, pred).h_meas)
+        if b == 1:
+            assert block.points.n_real == 1 and all((a == 0).all() for a in asked)
+            assert (grid.stable[0] == grid.stable[1]).all()
+        asked.clear()
+    assert limits[1][0] == limits[1][1]
+    assert limits[1][0] == pytest.approx(limits[0][1], rel=REL_TOL)

@@ -37,6 +37,7 @@ k = [400.0, 600.0]
 [steps]
 h = [0.01, 0.02]
 [stability]
+rule = "blowup"
 steps = 100
 '''
 

@@ -102,7 +102,8 @@ def test_a_growing_solution_sets_the_limit_by_run_length_and_keeps_its_order(tmp
            "envelope": {"a": {"values": [1.0]}},
            "steps": {"h": {"min": 0.0125, "max": 0.1, "num": 4}},
            "reference": {"rtol": 1e-12, "atol": 1e-14},
-           "stability": {"steps": 500, "rel_tol": 1e-3}, "timing": {"rounds": 1}}
+           "stability": {"rule": "blowup", "steps": 500, "rel_tol": 1e-3},
+           "timing": {"rounds": 1}}
     cfg = validate(raw, str(tmp_path / "growth.toml"))
     chunk = compute_chunk(cfg, "euler-b000")
     assert not chunk["runs"]["stable"].any()

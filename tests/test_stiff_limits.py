@@ -139,12 +139,15 @@ def test_predicted_limit_is_the_exact_stability_polynomials_root_at_free_rolling
 
 def test_measured_limit_lies_within_the_independent_onset_or_says_why(wheel_limits):
     """Every explicit method at every point: h_meas within [0.85, 1.3] x the onset, or its
-    limit_note says why; free rolling (the binding mode as fast all along) within."""
+    limit_note says why; free rolling (the binding mode as fast all along) within. Where
+    the onset search finds none (up to 8 h_pred) and the sweep nothing failing up to the
+    stability horizon (which holds that range), the two agree."""
     cfg, lim = wheel_limits
     for _, row in lim.iterrows():
         x0 = np.array([0.0, row["v"], 0.0])
         h_on = onset(row["method"], x0, row["T"], cfg.horizon, row["h_pred"])
-        within = 0.85 <= row["h_meas"] / h_on <= 1.3
+        within = 0.85 <= row["h_meas"] / h_on <= 1.3 or (
+            np.isinf(h_on) and np.isinf(row["h_meas"]) and row["h_probe_max"] >= 8 * row["h_pred"])
         said = row["limit_note"] != "agrees" and row["unstable_state"] == "v_slip"
         assert within or said, (row["method"], row["v"], row["T"], row["h_meas"], h_on)
         assert within or row["T"] != 0.0, (row["method"], row["v"], row["h_meas"], h_on)

@@ -111,3 +111,57 @@ def test_tune_json_of_an_a_stable_choice_has_null_limits(wheel, tmp_path, capsys
     got = json.loads(capsys.readouterr().out)
     assert got["method"] == "ros2" and got["h_pred_min_s"] is None and got["stiff"]
     assert tomllib.loads(out.read_text())["h_pred_min_s"] == float("inf")
+
+
+def _wheel_numpy(x, T):
+    """The quarter wheel's f, written again in NumPy (tests/user_model/quarter_wheel.py)."""
+    vx, omega = x
+    slip = (omega * 0.3 - vx) / max(abs(vx), 0.1)
+    fx = 1.0 * 4000.0 * np.sin(1.9 * np.arctan(10.0 * slip))
+    return np.array([fx / 400.0, (T - fx * 0.3) / 1.2])
+
+
+def _backward_euler_error(vx0, T, h, horizon=0.5):
+    """The largest |vx - vx_ref| / 0.01 (the config's error norm) of backward Euler in plain
+    NumPy (Newton with a finite-difference Jacobian) at step h [s], against SciPy's Radau at
+    rtol 1e-10."""
+    from scipy.integrate import solve_ivp
+    x0 = np.array([vx0, vx0 / 0.3])
+    n = round(horizon / h)
+    ts = h * np.arange(n + 1)
+    ref = solve_ivp(lambda t, x: _wheel_numpy(x, T), (0, horizon), x0, method="Radau",
+                    rtol=1e-10, atol=1e-10, t_eval=ts).y.T
+    x, worst = x0.copy(), 0.0
+    for k in range(n):
+        y = x.copy()
+        for _ in range(50):
+            g = y - x - h * _wheel_numpy(y, T)
+            J = np.eye(2) - h * np.column_stack([
+                (_wheel_numpy(y + e, T) - _wheel_numpy(y - e, T)) / (2 * e.sum())
+                for e in np.eye(2) * 1e-6])
+            dy = np.linalg.solve(J, -g)
+            y += dy
+            if np.abs(dy).max() < 1e-12:
+                break
+        x = y
+        worst = max(worst, abs(x[0] - ref[k + 1, 0]) / 0.01)
+    return worst
+
+
+def test_the_quarter_wheel_is_stiff_at_its_point_against_independent_numbers(wheel):
+    """At the point the answer names, the explicit bound is at most the largest swept explicit
+    method's exact stability polynomial limit on the closed-form slip mode, and the accurate
+    step is at least the largest grid step at which backward Euler (L-stable), run in plain NumPy
+    against SciPy's Radau, meets the tolerance there: that pair alone is STIFF_RATIO apart."""
+    from stepzoo.integrators import method
+    from stepzoo.integrators.stability import max_stable_step
+    _, tuned = wheel
+    s = tuned["stiffness"]
+    vx = s["mode"]["point"]["vx"]
+    lam = -(WHEEL_PART + BODY_PART) / vx
+    poly = max(max_stable_step(method(m), [lam]) for m in ("euler", "rk4"))
+    assert s["h_explicit_max_s"] <= poly * (1 + 1e-9)
+    hs = [0.001, 0.002, 0.005, 0.01, 0.025, 0.05, 0.1]
+    oracle = max(h for h in hs if _backward_euler_error(vx, 200.0, h) <= 0.1)
+    assert s["h_accurate_max_s"] >= oracle and oracle / poly >= STIFF_RATIO
+    assert s["stiff_points"] >= 1 and s["points"] == 2

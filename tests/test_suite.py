@@ -118,6 +118,7 @@ h = { min = 0.05, max = 0.4, num = 4 }
 rtol = 1e-12
 atol = 1e-14
 [stability]
+rule = "blowup"
 steps = 100
 h_probe_max = 20.0
 rel_tol = 0.01
@@ -314,7 +315,7 @@ def test_a_problem_with_no_eigenvalue_to_list_keeps_the_tables_columns(tmp_path,
     (tmp_path / "a5.toml").write_text(
         'model = "detest_a5"\nhorizon = 20.0\nmethods = ["euler"]\n'
         '[envelope]\ny1 = { values = [4.0] }\n[steps]\nh = [1.0, 2.0]\n'
-        '[stability]\nsteps = 50\nh_probe_max = 4.0\n[timing]\nrounds = 1\n')
+        '[stability]\nrule = \"blowup\"\nsteps = 50\nh_probe_max = 4.0\n[timing]\nrounds = 1\n')
     run_sweep(load_config(tmp_path / "a5.toml"), tmp_path / "a5", progress=False)
     eig = pd.read_parquet(tmp_path / "a5" / "eigenvalues.parquet")
     assert len(eig) == 0 and {"point", "lam_re", "lam_im"} <= set(eig.columns)

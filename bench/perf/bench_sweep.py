@@ -17,7 +17,7 @@ from stepzoo import integrators
 from stepzoo.bench.sweep import engine as sweep
 from stepzoo.bench.sweep import config as sweep_config
 
-ENVELOPE = Path(sweep.__file__).parent / "configs" / "envelope.toml"
+ENVELOPE = Path(sweep.__file__).parents[1] / "configs" / "envelope.toml"
 
 
 def test_envelope_sweep(benchmark, tmp_path, monkeypatch):
@@ -65,7 +65,7 @@ def test_envelope_sweep_compilation_cache(benchmark):
     benchmark.extra_info.update(kind="sweep_cache", cold=cold, warm=warm)
 
 
-WHEEL = Path(sweep.__file__).parent / "configs" / "wheel.toml"
+WHEEL = Path(sweep.__file__).parents[1] / "configs" / "wheel.toml"
 
 
 def test_stiff_sweep_wall_time_estimate(benchmark, tmp_path):
@@ -81,3 +81,27 @@ def test_stiff_sweep_wall_time_estimate(benchmark, tmp_path):
         "sweep_estimate_s": est, "sweep_estimate_wall_s": t["wall_s"],
         "sweep_estimate_calibration_s": t["estimate"]["calibration_s"],
         "sweep_estimate_error": abs(est / t["wall_s"] - 1.0)})
+
+
+STIFF9 = Path(sweep.__file__).parents[1] / "configs" / "stiff9.toml"
+
+
+def test_stiff9_sweep_wall_time_estimate(benchmark, tmp_path):
+    """The 9-state stiff sweep (the CommonRoad single-track drift model, 10 methods x 36
+    points, issues 33 and 35): the wall time it estimated before it started against the wall
+    time it took and their ratio, with its CPU time (the machine is shared: CPU time over
+    wall time says how much of it the sweep had)."""
+    cfg = sweep_config.load(STIFF9)
+    cpu = os.times()
+    manifest = benchmark.pedantic(
+        lambda: sweep.run_sweep(cfg, tmp_path / "stiff9", overwrite=True, progress=True),
+        rounds=1)
+    after = os.times()
+    t = manifest["timing"]
+    est = t["estimate"]["total_s"]
+    benchmark.extra_info.update(kind="sweep_estimate", figures={
+        "stiff9_sweep_estimate_s": est, "stiff9_sweep_wall_s": t["wall_s"],
+        "stiff9_sweep_cpu_s": (after.user + after.system) - (cpu.user + cpu.system),
+        "stiff9_sweep_estimate_calibration_s": t["estimate"]["calibration_s"],
+        "stiff9_sweep_estimate_over_wall": est / t["wall_s"],
+        "stiff9_sweep_estimate_error": abs(est / t["wall_s"] - 1.0)})

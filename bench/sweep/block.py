@@ -143,7 +143,8 @@ class Block:
     def diagnose(self, meth, h_meas) -> Diagnosis:
         """Per lane, what fails just above its measured limit h_meas (B,) [s] (at the grid's
         smallest step where nothing was stable; nothing where nothing failed): the "modes"
-        rule's diagnosis, NaN/-1 under the "blowup" rule."""
+        rule's diagnosis, NaN/-1 under the "blowup" rule. The padding lanes copy the last
+        real one's."""
         B = len(self.points)
         none = Diagnosis(np.full(B, -1), np.full(B, np.nan), np.full(B, np.nan),
                          np.full(B, np.nan), np.zeros(B, bool))
@@ -151,29 +152,49 @@ class Block:
         if not isinstance(runs, ModalRuns):
             return none
         h = np.where(h_meas > 0, h_meas * (1 + self.cfg.rel_tol), self.cfg.hs[0])
-        lanes = np.where(np.isfinite(h))[0]
-        if not len(lanes):
-            return none._replace(ref_growth=np.nanmax(runs.ref_growth, axis=(1, 2)))
-        found = runs.judge(meth, lanes, h[lanes])[1]
+        lanes = np.where(np.isfinite(h[: self.points.n_real]))[0]
         out = Diagnosis(*(a.copy() for a in none))
-        for name, col in zip(Diagnosis._fields, found):
-            getattr(out, name)[lanes] = col
+        if len(lanes):
+            found = runs.judge(meth, lanes, h[lanes])[1]
+            for name, col in zip(Diagnosis._fields, found):
+                getattr(out, name)[lanes] = col
         out.ref_growth[:] = np.nanmax(runs.ref_growth, axis=(1, 2))
-        return out
+        return Diagnosis(*(self.padded(a) for a in out))
+
+    def padded(self, a: np.ndarray) -> np.ndarray:
+        """Rows per lane (B, ...) from a's rows of the real lanes (its first n_real): the
+        padding lanes repeat the last point, so their answers are a copy of its."""
+        n = self.points.n_real
+        return np.concatenate([a[:n], np.repeat(a[n - 1: n], len(self.points) - n, 0)])
+
+    @property
+    def h_top(self) -> float:
+        """The largest step worth a stability probe [s]: stability.h_probe_max, and under the
+        "modes" rule at most the stability horizon (a longer step is one step of a run: no
+        growth can show), but never below the grid's largest step."""
+        cfg = self.cfg
+        if cfg.stab_rule == "blowup":
+            return cfg.h_probe_max
+        return max(min(cfg.h_probe_max, cfg.stability_horizon), cfg.hs[-1])
 
     def stable(self, meth, H) -> Outcome:
-        """Outcomes (B, K) of the stability runs at steps H (B, K) [s], row b at lane b."""
-        return limit_search.at_steps(self.stability_runs().probe(meth), np.arange(len(H)),
-                                     np.asarray(H, float).T)
+        """Outcomes (B, K) of the stability runs at steps H (B, K) [s], row b at lane b; the
+        real lanes are probed, the padding lanes copy the last real one's."""
+        n = self.points.n_real
+        got = limit_search.at_steps(self.stability_runs().probe(meth), np.arange(n),
+                                    np.asarray(H, float)[:n].T)
+        return Outcome(*(self.padded(a) for a in got))
 
     def measured_limits(self, meth, grid: Outcome, pred) -> MeasuredLimit:
         """The largest stable step per lane [s] and its cause (limit_search.measured_limit)
         from the outcomes grid (B, K) at the config's steps, guided by the predicted limits
-        pred (B,) [s]."""
-        cfg = self.cfg
-        return limit_search.measured_limit(grid, self.stability_runs().probe(meth), cfg.hs,
-                                           pred, cfg.h_probe_max, cfg.rel_tol,
-                                           len(self.points), ladder=cfg.stab_rule != "blowup")
+        pred (B,) [s]: searched on the real lanes, copied to the padding lanes."""
+        cfg, n = self.cfg, self.points.n_real
+        found = limit_search.measured_limit(
+            Outcome(*(a[:n] for a in grid)), self.stability_runs().probe(meth), cfg.hs,
+            np.asarray(pred, float)[:n], self.h_top, cfg.rel_tol, len(self.points),
+            ladder=cfg.stab_rule != "blowup")
+        return MeasuredLimit(*(self.padded(a) for a in found))
 
     # -- the figure trajectory --------------------------------------------------------------
     def trajectory_points(self) -> Points:

@@ -81,7 +81,7 @@ def method_chunk(block, name: str) -> dict:
 
 def _limit_row(block, meth, lane, point, pred, fit, along, h_meas, cause) -> dict:
     """The limits table's row of one lane, but for its nonsmooth and model_nan columns."""
-    cfg, spec, k = block.cfg, block.spec, pred.k
+    spec, k = block.spec, pred.k
     rho = float(np.nanmax(np.abs(along.lam[lane]), initial=0.0))
     bind = along.lam[lane, k, pred.j] if k >= 0 else complex(np.nan, np.nan)
     return dict(
@@ -90,7 +90,7 @@ def _limit_row(block, meth, lane, point, pred, fit, along, h_meas, cause) -> dic
         h_pred=pred.h, h_meas=h_meas, ratio=_ratio(h_meas, pred.h),
         order_declared=meth.order,
         **fit.columns(), rho_max=rho, order_h_rho=fit.h_min * rho,
-        h_probe_max=cfg.h_probe_max, t_bind=along.ts[k] if k >= 0 else np.nan,
+        h_probe_max=block.h_top, t_bind=along.ts[k] if k >= 0 else np.nan,
         lam_re_bind=bind.real, lam_im_bind=bind.imag, limit_cause=cause,
         **{f"bind_{s}": along.xs[lane, k, c] if k >= 0 else np.nan
            for c, s in enumerate(spec.states)})

@@ -219,7 +219,8 @@ class Reference(Schema):
 
 class Stability(Schema):
     """[stability]: the search for each method's largest stable step per operating point."""
-    steps: StabSteps = Field(1000, description="steps of one stability run")
+    steps: StabSteps = Field(1000, description="blowup: steps of one stability run (the "
+                             "modes rule's runs last the stability horizon)")
     growth: Growth = Field(100.0, description="blow-up: the scaled deviation grown past this "
                            "many times its start")
     perturbation: Perturbation = Field(DEFAULT_PERTURBATION, description="scaled size of the "
@@ -229,9 +230,10 @@ class Stability(Schema):
     rel_tol: RelTol = Field(1e-3, description="the bisection of the largest stable step stops "
                             "when h_hi / h_lo - 1 <= rel_tol")
     rule: StabilityRule = Field(
-        "blowup", description="modes: every state, each eigenmode alone, against the "
-        "reference's own growth, within the stability horizon (for stiff, saturating "
-        "models); blowup: the error states, the modes summed, `steps` steps")
+        "modes", description="modes: every state, each eigenmode alone, against the "
+        "reference's own growth, within the stability horizon (what a stiff, saturating "
+        "model needs); blowup: the error states, the modes summed, `steps` steps (a smooth "
+        "model whose error states read its fast modes)")
     horizon: Horizon | None = Field(None, description="modes: how long a stability run lasts "
                                     "[s] (default: the accuracy horizon); events after it "
                                     "decide nothing")
@@ -484,6 +486,10 @@ def validate(raw: dict, source: str = "config") -> SweepConfig:
     if f.stability.h_probe_max < max(hs):
         bad.append(f"stability.h_probe_max ({f.stability.h_probe_max:g} s) is below the "
                    f"largest step ({max(hs):g} s); raise it")
+    if "steps" in f.stability.model_fields_set and f.stability.rule == "modes":
+        bad.append("stability.steps counts the \"blowup\" rule's steps; the \"modes\" rule "
+                   "(the default) runs to the stability horizon: set stability.rule = "
+                   "\"blowup\", or drop stability.steps (and set stability.horizon)")
     if f.stability.horizon is not None and f.stability.rule == "blowup":
         bad.append("stability.horizon is the length of the \"modes\" rule's runs; the "
                    "\"blowup\" rule runs stability.steps steps: set stability.rule = "

@@ -19,6 +19,11 @@ from stepzoo.bench.timing.rounds import CALIBRATION_STEPS
 
 # Steps of the timed call that gives a method's cost per step (past its fixed cost).
 CAL_STEPS = 200
+# The dry run's stand-in for a lane's measured limit: this fraction above its predicted one.
+# Growth past `growth` takes steps to show, so a measured limit lies a little above the
+# linear one even where the prediction holds; a stand-in at the prediction itself would end
+# the narrowing at its first probe, which a real search never does.
+STAND_IN = 0.01
 
 
 @dataclass(frozen=True)
@@ -62,8 +67,11 @@ def estimate(cfg, cache: dict, blocks: int) -> Estimate:
     calibration = time.perf_counter() - started
     # Block 0's shared work and compiling are done; the rest is the chunks' runs, and the
     # other blocks' shared work (their references cost what block 0's did, compiling aside).
+    # The last block's padding lanes are not probed: its stability work is its real lanes'.
+    padding = 1.0 - (len(cfg.points) - (blocks - 1) * cfg.points_per_chunk) / len(block.points)
     total = calibration + (blocks - 1) * shared + sum(
-        blocks * m["chunk_s"] for m in methods.values())
+        blocks * m["chunk_s"] - (padding if blocks > 1 else 0.0) * m["stability_s"]
+        + m["retry_compile_s"] for m in methods.values())
     return Estimate(total, calibration, shared, methods)
 
 
@@ -79,18 +87,30 @@ def _method(block: Block, meth) -> dict:
     many = _timed(block, meth, h, n)
     step_s = max(0.0, (many - one) / (n - 1))
     call_s = max(0.0, one - step_s)
-    calls, steps, run_steps, predict_s = _chunk_work(block, meth)
+    calls, steps, run_steps, predict_s, stab_calls, stab_steps = _chunk_work(block, meth)
     # What a stability probe costs besides its calls (judging each run, step by step, in
     # Python), per step of a run, from one probe of the block's lanes at that step.
     B = len(pts)
     c, s, r = _probe_work(cfg, block.run.max_steps, B, np.full(B, h))
-    t0 = time.perf_counter()
+    t0, compiled = time.perf_counter(), block.watch.seconds["compile_s"]
     block.stable(meth, np.full((B, 1), h))
-    judge_s = max(0.0, time.perf_counter() - t0 - c * call_s - s * step_s) / r
-    return {"compile_s": compile_s, "call_s": call_s, "step_s": step_s, "calls": calls,
+    # Less any compiling in it (a failed solve's retry program: counted apart, below).
+    compiled = block.watch.seconds["compile_s"] - compiled
+    probe_s = time.perf_counter() - t0 - compiled
+    judge_s = max(0.0, probe_s - c * call_s - s * step_s) / r
+    stability_s = stab_calls * call_s + stab_steps * step_s + run_steps * judge_s
+    # The "modes" rule retries a failed Newton solve with more iterations: another program
+    # of the method's size, compiled once per sweep. On a stiff model the probes past an
+    # implicit method's limit make a failure likely, so it is counted (unless the probe
+    # above compiled it already: the calibration paid it).
+    retry = compile_s if (cfg.stab_rule != "blowup" and meth.solves
+                          and compiled < 0.5 * compile_s) else 0.0
+    return {"compile_s": compile_s, "retry_compile_s": retry, "call_s": call_s,
+            "step_s": step_s, "calls": calls,
             "steps": steps, "run_steps": run_steps, "judge_s": judge_s,
-            "predict_s": predict_s,
-            "chunk_s": calls * call_s + steps * step_s + run_steps * judge_s + predict_s}
+            "predict_s": predict_s, "stability_s": stability_s,
+            "chunk_s": (calls - stab_calls) * call_s + (steps - stab_steps) * step_s
+            + stability_s + predict_s}
 
 
 def _timed(block, meth, h: float, n: int, rounds: int = 3) -> float:
@@ -105,16 +125,18 @@ def _timed(block, meth, h: float, n: int, rounds: int = 3) -> float:
     return float(np.median(walls))
 
 
-def _chunk_work(block: Block, meth) -> tuple[int, int, int, float]:
+def _chunk_work(block: Block, meth) -> tuple[int, int, int, float, int, int]:
     """(calls, steps per call summed, the stability runs' steps summed, the prediction's
-    time [s]) of one chunk of `meth`: the accuracy runs, the timing
-    rounds, and the stability probes of a dry run of the limit search (stable where h is at
-    most the predicted limit) in the calls the configured rule packs them in."""
+    time [s], the stability probes' calls and their steps) of one chunk of `meth` on block
+    0: its compiling call, the accuracy runs, the timing rounds, the figure runs, and the
+    stability probes of a dry run of the limit search (stable up to STAND_IN above the
+    predicted limit) in the calls the configured rule packs them in."""
     cfg = block.cfg
     n_acc = [round(cfg.horizon / h) for h in cfg.hs]
     j = int(np.argmin(np.abs(np.array(n_acc) - CALIBRATION_STEPS)))   # the timed run
-    calls = len(n_acc) + cfg.timing_rounds - 1
-    steps = sum(n_acc) + (cfg.timing_rounds - 1) * n_acc[j]
+    # The chunk's compiling call (one step), the accuracy runs and the timing rounds.
+    calls = 1 + len(n_acc) + cfg.timing_rounds - 1
+    steps = 1 + sum(n_acc) + (cfg.timing_rounds - 1) * n_acc[j]
     t0 = time.perf_counter()
     pred = np.array([p.h for p in block.predicted(meth)])      # the chunk computes it too
     predict_s = time.perf_counter() - t0
@@ -123,21 +145,34 @@ def _chunk_work(block: Block, meth) -> tuple[int, int, int, float]:
     def probe(lanes, hs):
         lanes, hs = np.asarray(lanes), np.asarray(hs, float)
         asked.append(hs)
-        ok = hs <= pred[lanes]
+        ok = hs <= pred[lanes] * (1 + STAND_IN)
         return limit_search.Outcome(ok, np.where(ok, np.nan, hs), np.ones(len(hs), bool))
 
-    B = len(block.points)
-    grid = limit_search.at_steps(probe, np.arange(B), np.tile(np.asarray(cfg.hs), (B, 1)).T)
-    measured = limit_search.measured_limit(grid, probe, cfg.hs, pred, cfg.h_probe_max,
-                                           cfg.rel_tol, B, ladder=cfg.stab_rule != "blowup")
+    n = block.points.n_real                   # the padding lanes are not probed
+    grid = limit_search.at_steps(probe, np.arange(n), np.tile(np.asarray(cfg.hs), (n, 1)).T)
+    measured = limit_search.measured_limit(grid, probe, cfg.hs, pred[:n], block.h_top,
+                                           cfg.rel_tol, len(block.points),
+                                           ladder=cfg.stab_rule != "blowup")
     if cfg.stab_rule != "blowup":         # the diagnosis probes just above each limit
         h = measured.h_meas * (1 + cfg.rel_tol)
         asked.append(h[np.isfinite(h) & (h > 0)])
-    run_steps = 0
+    stab_calls, stab_steps, run_steps, B = 0, 0, 0, len(block.points)
     for hs in asked:
         c, s, r = _probe_work(cfg, block.run.max_steps, B, hs)
-        calls, steps, run_steps = calls + c, steps + s, run_steps + r
-    return calls, steps, run_steps, predict_s
+        stab_calls, stab_steps, run_steps = stab_calls + c, stab_steps + s, run_steps + r
+    c, s = _figure_work(cfg, block.run.max_steps, B, pred[0])
+    return (calls + c + stab_calls, steps + s + stab_steps, run_steps, predict_s, stab_calls,
+            stab_steps)
+
+
+def _figure_work(cfg, max_steps: int, B: int, limit: float) -> tuple[int, int]:
+    """(calls, steps) of the figure runs (runs.figure_runs.method_rows), with the first
+    lane's predicted limit standing in for the trajectory point's."""
+    base = limit if math.isfinite(limit) else cfg.hs[-1]
+    hs = [max(f * base, cfg.hs[0]) for f in cfg.traj_fractions]
+    runs = len(hs) + (1 if math.isfinite(limit) and limit > 0 else 0)
+    calls = -(-runs // B)
+    return calls, calls * min(max_steps, math.ceil(cfg.horizon / min(hs) - 1e-9))
 
 
 def _probe_work(cfg, max_steps: int, B: int, hs: np.ndarray) -> tuple[int, int, int]:

@@ -185,31 +185,57 @@ def candidates(lo, hi, guess, width, k, first, tau):
     return (hi - width * np.arange(1, k + 1) / k)[::-1]
 
 
-def with_ladder(grid: Outcome, probe: Probe, hs, pred) -> tuple[Outcome, np.ndarray]:
+def with_ladder(grid: Outcome, probe: Probe, hs, pred, top: float = math.inf
+                ) -> tuple[Outcome, np.ndarray]:
     """The grid's outcomes (B, K) at steps hs (K,) [s] with the probes at PRED_LADDER times
     each lane's finite predicted limit pred (B,) [s] merged in, per lane ascending: (the
     outcomes (B, K + L), their steps (B, K + L)). A test that is not monotone in h (a
     saturating model's chatter that needs steps within the horizon to grow) can pass at a
-    coarse grid step above a failing one; the ladder probes where the limit should be."""
-    B = len(grid.stable)
-    ok = np.isfinite(pred) & (pred > 0)
-    extra = np.where(ok[:, None], pred[:, None] * PRED_LADDER, np.asarray(hs, float)[-1])
-    more = at_steps(probe, np.arange(B), extra.T)
-    H = np.concatenate([np.broadcast_to(np.asarray(hs, float), grid.stable.shape), extra], 1)
+    coarse grid step above a failing one; the ladder probes where the limit should be.
+    Rungs that cannot move the bracket are not probed (`ladder_rungs`); each stands in as a
+    copy of the grid's largest step and its outcome."""
+    L = len(PRED_LADDER)
+    H = np.broadcast_to(np.asarray(hs, float), grid.stable.shape)
+    with np.errstate(invalid="ignore"):
+        rungs = np.asarray(pred, float)[:, None] * PRED_LADDER
+    extra = np.repeat(H[:, -1:], L, 1)
+    more = [np.repeat(a[:, -1:], L, 1) for a in grid]
+    failed = np.where((~grid.stable).any(1), np.where(~grid.stable, H, np.inf).min(1), np.inf)
+    for r in range(L):          # ascending: a rung past a lane's first failure is not needed
+        lanes = np.where(ladder_rungs(rungs[:, r], failed, top))[0]
+        if not len(lanes):
+            continue
+        out = probe(lanes, rungs[lanes, r])
+        extra[lanes, r] = rungs[lanes, r]
+        for a, b in zip(more, out):
+            a[lanes, r] = b
+        bad = lanes[~out.stable]
+        failed[bad] = np.minimum(failed[bad], rungs[bad, r])
+    H = np.concatenate([H, extra], 1)
     order = np.argsort(H, axis=1, kind="stable")
     pick = lambda a, b: np.take_along_axis(np.concatenate([a, b], 1), order, 1)
     return Outcome(*(pick(a, b) for a, b in zip(grid, more))), \
         np.take_along_axis(H, order, 1)
 
 
+def ladder_rungs(rung, failed, top: float) -> np.ndarray:
+    """Which lanes probe their rung rung (B,) [s] of the predicted-limit ladder: a finite,
+    positive prediction (an unbounded one has no ladder: one probe at the top decides it,
+    `extend`), at most `top` [s] (steps the horizon or h_probe_max rule out), and below the
+    lane's first failure so far failed (B,) [s] (the bracket ends at the first failure:
+    a probe past it cannot move it)."""
+    with np.errstate(invalid="ignore"):
+        return np.isfinite(rung) & (rung > 0) & (rung <= top) & (rung < failed)
+
+
 def measured_limit(grid: Outcome, probe: Probe, hs, pred, h_probe_max: float,
                    rel_tol: float, slots: int, ladder: bool = False) -> MeasuredLimit:
     """The largest stable step per lane [s] from the grid's outcomes (B, K) at steps hs (K,):
     bracketed (with the probes of `with_ladder` where `ladder`), extended, then narrowed to
-    rel_tol from the predicted limits pred (B,) [s]. inf: nothing failed up to h_probe_max;
-    0: unstable even at the smallest probe."""
+    rel_tol from the predicted limits pred (B,) [s]. inf: nothing failed up to h_probe_max
+    (the largest step worth a probe); 0: unstable even at the smallest probe."""
     if ladder:
-        grid, hs = with_ladder(grid, probe, hs, pred)
+        grid, hs = with_ladder(grid, probe, hs, pred, h_probe_max)
     br = extend(bracket(grid, hs), probe, grid, hs, h_probe_max, pred)
     if (np.isfinite(br.hi) & (br.hi > br.lo * (1 + rel_tol))).any():
         br = narrow(br, probe, pred, rel_tol, slots)
