@@ -21,9 +21,10 @@ run: $(STAMP)
 	$(BIN)/stepzoo run --out results
 
 # Lint and type-check first (they stop a broken tree before the long part), then the suite:
-# one worker per core; a file's tests stay on one worker, so its module fixtures run once.
+# one worker per core; a file's tests stay on one worker, so its module fixtures run once;
+# files are handed out in the suite's order, the slow ones first (tests/conftest.py).
 test: lint typecheck
-	$(BIN)/python -m pytest -n auto --dist loadfile
+	$(BIN)/python -m pytest -n auto --dist loadfile --no-loadscope-reorder
 
 lint: $(STAMP)
 	$(BIN)/ruff check .

@@ -107,6 +107,17 @@ def _torques(m, r_w, accel):
     return jnp.where(accel > 0, 0.0, m * r_w * accel), jnp.where(accel > 0, m * r_w * accel, 0.0)
 
 
+def _tyres(kappa, alpha, gamma, f_z, tire):
+    """(f_x, f_y) [N] of wheels given as arrays (one entry a wheel) of their longitudinal
+    slips, slip angles [rad], camber angles [rad] and vertical forces [N]: pure slip, then
+    combined. The wheels go through the formulas together, so that a model's compiled
+    program holds them once and not once a wheel."""
+    f0_x = formula_longitudinal(kappa, gamma, f_z, tire)
+    f0_y, mu_y = formula_lateral(alpha, gamma, f_z, tire)
+    return (formula_longitudinal_comb(kappa, alpha, f0_x, tire),
+            formula_lateral_comb(kappa, alpha, gamma, mu_y, f_z, f0_y, tire))
+
+
 def std_rhs(t, x, u, p):
     """Single-track drift model, vehicle_dynamics_std.py. x: position (x, y) [m], steering
     angle [rad], speed at the centre of gravity [m/s], yaw [rad], yaw rate [rad/s], slip
@@ -129,14 +140,8 @@ def std_rhs(t, x, u, p):
     u_wr = jnp.maximum(0.0, x[3] * jnp.cos(x[6]))
     s_f = 1 - p.R_w * x[7] / jnp.maximum(u_wf, v_min)
     s_r = 1 - p.R_w * x[8] / jnp.maximum(u_wr, v_min)
-    f0_xf = formula_longitudinal(s_f, 0.0, f_zf, p.tire)
-    f0_xr = formula_longitudinal(s_r, 0.0, f_zr, p.tire)
-    f0_yf, mu_yf = formula_lateral(alpha_f, 0.0, f_zf, p.tire)
-    f0_yr, mu_yr = formula_lateral(alpha_r, 0.0, f_zr, p.tire)
-    f_xf = formula_longitudinal_comb(s_f, alpha_f, f0_xf, p.tire)
-    f_xr = formula_longitudinal_comb(s_r, alpha_r, f0_xr, p.tire)
-    f_yf = formula_lateral_comb(s_f, alpha_f, 0.0, mu_yf, f_zf, f0_yf, p.tire)
-    f_yr = formula_lateral_comb(s_r, alpha_r, 0.0, mu_yr, f_zr, f0_yr, p.tire)
+    (f_xf, f_xr), (f_yf, f_yr) = _tyres(jnp.stack([s_f, s_r]), jnp.stack([alpha_f, alpha_r]),
+                                        0.0, jnp.stack([f_zf, f_zr]), p.tire)
     t_b, t_e = _torques(m, p.R_w, u[1])
     d_v = 1 / m * (-f_yf * jnp.sin(x[2] - x[6]) + f_yr * jnp.sin(x[6])
                    + f_xr * jnp.cos(x[6]) + f_xf * jnp.cos(x[2] - x[6]))
@@ -225,15 +230,11 @@ def mb_rhs(t, x, u, p):
     gamma_rf = x[6] - p.D_f * z_srf - p.E_f * z_srf ** 2
     gamma_lr = x[6] + p.D_r * z_slr + p.E_r * z_slr ** 2
     gamma_rr = x[6] - p.D_r * z_srr - p.E_r * z_srr ** 2
-    # tyre forces: pure slip, then combined
-    wheels = ((s_lf, alpha_lf, gamma_lf, f_z_lf), (s_rf, alpha_rf, gamma_rf, f_z_rf),
-              (s_lr, alpha_lr, gamma_lr, f_z_lr), (s_rr, alpha_rr, gamma_rr, f_z_rr))
-    f_x, f_y = [], []
-    for s, alpha, gamma, f_z in wheels:
-        f0_x = formula_longitudinal(s, gamma, f_z, tire)
-        f0_y, mu_y = formula_lateral(alpha, gamma, f_z, tire)
-        f_x.append(formula_longitudinal_comb(s, alpha, f0_x, tire))
-        f_y.append(formula_lateral_comb(s, alpha, gamma, mu_y, f_z, f0_y, tire))
+    # tyre forces: pure slip, then combined, the four wheels as one array each
+    f_x, f_y = _tyres(jnp.stack([s_lf, s_rf, s_lr, s_rr]),
+                      jnp.stack([alpha_lf, alpha_rf, alpha_lr, alpha_rr]),
+                      jnp.stack([gamma_lf, gamma_rf, gamma_lr, gamma_rr]),
+                      jnp.stack([f_z_lf, f_z_rf, f_z_lr, f_z_rr]), tire)
     f_x_lf, f_x_rf, f_x_lr, f_x_rr = f_x
     f_y_lf, f_y_rf, f_y_lr, f_y_rr = f_y
     # compliant joints

@@ -361,7 +361,8 @@ def renew(held, factorise, need):
     return lax.while_loop(lambda carry: ~carry[0], body, (~need, held))[1]
 
 
-def newton_solve(residual, solver_of, factorise, held, z0, y_scale, opts: NewtonOptions):
+def newton_solve(residual, solver_of, factorise, held, z0, y_scale, opts: NewtonOptions,
+                 residual_jacobian=None):
     """Solve residual(z) = 0 (z flat) from z0 by the simplified iteration with the factors
     `held` carries (`solver_of(factors)` gives (solve, size): `solve(r)` applies the
     iteration matrix's inverse, `size` is 1 + |h A (x) J|), or, where the step may not keep
@@ -369,8 +370,9 @@ def newton_solve(residual, solver_of, factorise, held, z0, y_scale, opts: Newton
     and the failed trajectories start again from z0. Where the step's own fail too (a
     Jacobian from the step's start can be too far from the solution's, as at Robertson's
     first step) the solve is retried from z0 with full Newton, the exact Jacobian of the
-    residual refactorised at every iterate. Each retry costs nothing when every trajectory
-    of the chunk converged. `y_scale` is |y| tiled like z. Returns (z, simplified
+    residual (`residual_jacobian(z)`, by default forward mode through `residual`)
+    refactorised at every iterate. Each retry costs nothing when every trajectory of the
+    chunk converged. `y_scale` is |y| tiled like z. Returns (z, simplified
     iterations, full iterations, converged, held, the simplified iteration's last
     contraction rate)."""
     def cond(st):
@@ -392,7 +394,8 @@ def newton_solve(residual, solver_of, factorise, held, z0, y_scale, opts: Newton
     zero = jnp.zeros_like(y_scale, int, shape=())
     held, z1, _, ok1, k1, theta = lax.while_loop(
         cond, body, (held, z0, zero, none, zero, jnp.zeros_like(y_scale, shape=())))
-    exact = lambda z: factorised(jax.jacfwd(residual)(z))
+    jac = jax.jacfwd(residual) if residual_jacobian is None else residual_jacobian
+    exact = lambda z: factorised(jac(z))
     z2, k2, ok2, _ = _iterate(residual, exact, jnp.where(ok1, z1, z0), y_scale, opts, True, ok1)
     return jnp.where(ok1, z1, z2), k1, k2, ok1 | ok2, held, theta
 

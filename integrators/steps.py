@@ -108,6 +108,30 @@ def _finish(y, y_next, ok, state, evals, held, keep):
                         held=held._replace(keep=keep))
 
 
+def stage_system(tab, fun, t, y, h):
+    """(stage_f, residual, residual_jacobian) of an implicit tableau's stage equations in
+    z = (Y_i - y)_i, flat: stage_f(z) the slopes f(t + c_i h, Y_i) (s, d); residual(z) =
+    z - h (A (x) I) F(z); residual_jacobian(z) its Jacobian, the blocks
+    delta_ij I - h a_ij J(Y_j). Both take f and its Jacobian at the stages as one vmap over
+    them, so that a compiled step holds f and its derivative once each, not once a stage."""
+    d, s = y.shape[0], tab.stages
+    a = jnp.asarray(tab.a, y.dtype)
+    c = jnp.asarray(tab.c, y.dtype)
+
+    def stage_f(z):
+        return jax.vmap(lambda ci, zi: fun(t + ci * h, y + zi))(c, z.reshape(s, d))
+
+    def residual(z):
+        return z - h * (a @ stage_f(z)).reshape(-1)
+
+    def residual_jacobian(z):
+        jacs = jax.vmap(lambda ci, zi: jacobian(fun, t + ci * h, y + zi))(c, z.reshape(s, d))
+        blocks = (-h * a)[:, :, None, None] * jacs[None]
+        return jnp.eye(s * d, dtype=y.dtype) + blocks.transpose(0, 2, 1, 3).reshape(s * d, -1)
+
+    return stage_f, residual, residual_jacobian
+
+
 def implicit_rk_step(tab, opts, fun, t, y, h, state):
     """One step of an implicit tableau. A diagonally implicit one (a_ij = 0 for j > i) solves
     its stages one by one, each with I - h a_ii J (one factorisation per distinct a_ii);
@@ -118,20 +142,12 @@ def implicit_rk_step(tab, opts, fun, t, y, h, state):
         return _dirk_step(tab, opts, fun, t, y, h, state, held, factorise)
     d = y.shape[0]
     s = tab.stages
-    a = jnp.asarray(tab.a, y.dtype)
-
-    def stage_f(z):
-        zz = z.reshape(s, d)
-        return jnp.stack([fun(t + float(tab.c[i]) * h, y + zz[i]) for i in range(s)])
-
-    def residual(z):
-        return z - h * (a @ stage_f(z)).reshape(-1)
-
+    stage_f, residual, residual_jacobian = stage_system(tab, fun, t, y, h)
     scale = jnp.tile(jnp.abs(y), s)
     # Starting from zeros like y's: see newton._iterate on carries under shard_map.
     z, k1, k2, ok, held, theta = newton_solve(residual, iteration_matrices(tab, h)[1],
                                               factorise, held, jnp.zeros_like(scale), scale,
-                                              opts)
+                                              opts, residual_jacobian)
     zz = z.reshape(s, d)
     evals = state["evals"] + k1 * s + k2 * (s + s * d)
     if np.linalg.matrix_rank(tab.a) == s:

@@ -54,3 +54,15 @@ def paper_point():
     p = m.params(None, 15.0)
     x0, u = m.from_rest(15.0, np.pi / 4)
     return m, p, x0, u
+
+
+def pytest_collection_modifyitems(items):
+    """The files marked slow (a module's `pytestmark = pytest.mark.slow`) first, each file's
+    tests in their own order. `make test` has pytest-xdist hand out whole files in this order
+    (--dist loadfile --no-loadscope-reorder): the long files start at once and the short ones
+    fill the other worker behind them. xdist's own order, most tests first, left a long file
+    of few tests to start last and run alone. `-m "not slow"` leaves them out of a quick run."""
+    def slow(item) -> bool:
+        module = item.getparent(pytest.Module)
+        return module is not None and module.get_closest_marker("slow") is not None
+    items.sort(key=lambda item: not slow(item))

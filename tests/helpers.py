@@ -6,6 +6,7 @@ import os
 import shutil
 import subprocess
 import sys
+import time
 import gzip
 import json
 import re
@@ -367,3 +368,32 @@ def block_query(folder) -> None:
     (folder / "q.json").write_text(json.dumps([{"id": "around", "map": "grid.npy",
                                                 "cell_size": 0.5, "start": [4, 10, 0],
                                                 "goal": [36, 10, 0]}]))
+
+
+# `python -m stepzoo` with SIGINT's default action back, as a user's terminal has it: Python
+# then installs its Ctrl-C handler. A parent that ignores SIGINT (a background job of a shell
+# script) passes the ignoring on, and the command rightly keeps it there (that Ctrl-C is meant
+# for another job); these tests play the user at the terminal, whose Ctrl-C does reach the
+# command. An exec rather than a function run between fork and exec: JAX, loaded here, warns
+# of its threads.
+CTRL_C_REACHES = [sys.executable, "-c", "import os, signal, sys; signal.signal(signal.SIGINT, "
+                  "signal.SIG_DFL); os.execv(sys.executable, [sys.executable, *sys.argv[1:]])",
+                  "-m", "stepzoo"]
+
+
+def files(folder: Path) -> dict:
+    """Every file under `folder` (its lock aside) and its bytes."""
+    return {p.relative_to(folder): p.read_bytes() for p in sorted(folder.rglob("*"))
+            if p.is_file() and p.name != ".stepzoo.lock"}
+
+
+def until_line(proc, words: str, timeout: float = 300) -> None:
+    """Read `proc`'s stderr until a line holds `words`."""
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        line = proc.stderr.readline()
+        if not line:
+            raise AssertionError(f"{words!r} never came; the command ended")
+        if words in line:
+            return
+    raise AssertionError(f"{words!r} did not come in {timeout} s")

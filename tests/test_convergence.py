@@ -8,6 +8,8 @@ from stepzoo.dynamics import model
 from stepzoo.dynamics.exact import exact_reduced
 from stepzoo.integrators import METHODS, integrate
 
+pytestmark = pytest.mark.slow      # run first: see tests/conftest.py
+
 T, K = 2.0, 20                       # horizon [s]; checkpoints where the error is taken
 NS = K * np.array([2, 3, 4, 6, 8, 11, 16, 23, 32, 45, 64, 90, 128])
 

@@ -12,6 +12,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
+pytestmark = pytest.mark.slow      # run first: see tests/conftest.py
+
 pytest.importorskip("dask.distributed")
 
 from stepzoo import distributed as cluster  # noqa: E402

@@ -127,6 +127,30 @@ def test_a_choice_acados_lacks_goes_to_the_cheapest_qualifying_method_it_has():
         export.acados({"method": "heun", "h": 0.01, "runners_up": t["runners_up"][:2]}, 0.1)
 
 
+def test_an_export_of_another_method_than_the_tuned_one_says_so_on_stderr(tuned, tmp_path,
+                                                                        capsys):
+    """heun tuned (acados has no Heun), euler a qualifying runner-up: acados gets euler, and
+    the terminal is told in one line, not only the comment atop stdout (which a user
+    redirects into a file)."""
+    import tomli_w
+    _, t, _ = tuned
+    t = json.loads(json.dumps(t))
+    assert (t["method"], t["runners_up"][0]["method"]) == ("euler", "heun")
+    t["method"], t["runners_up"][0]["method"] = "heun", "euler"
+    t["h"], t["runners_up"][0]["h"] = t["runners_up"][0]["h"], t["h"]
+    path = tmp_path / "heun.toml"
+    path.write_text(tomli_w.dumps(t))
+    assert stepzoo(["export", str(path), "--to", "acados", "--interval", "0.1"]) == 0
+    captured = capsys.readouterr()
+    said = f"heun, the tuned choice, has no equivalent in acados; euler at h = {t['h']:g} s " \
+        "is the cheapest qualifying method that acados has (rank 2 of the tuning)"
+    assert captured.err == f"stepzoo export: {said}\n"
+    assert said in captured.out and 'integrator_type = "ERK"' in captured.out
+    # The tuned choice itself: nothing on stderr.
+    assert stepzoo(["export", str(tuned[0]), "--to", "acados", "--interval", "0.1"]) == 0
+    assert capsys.readouterr().err == ""
+
+
 @pytest.mark.skipif(importlib.util.find_spec("diffrax") is None,
                     reason="diffrax is not installed (pip install stepzoo[bench])")
 @pytest.mark.parametrize("method", ["choice", "rk4"])
@@ -255,12 +279,17 @@ def _runner_stepless(t):
     (lambda t: t.pop("margin"), "json", "lacks margin, which the step schedule needs"),
     (lambda t: t.pop("pos_tol_m"), "diffrax", "lacks pos_tol_m or tol"),
     (lambda t: t.pop("sweep_config_sha256"), "json", "lacks sweep_config_sha256"),
-], ids=["method", "runner-up", "runner-up's h", "horizon", "margin", "tolerance", "sha256"])
+    (lambda t: t.update(method="rk4"), "acados", "names rk4 at h = 0.01 s, which the sweep"),
+    (lambda t: t.update(h=0.03), "json", "names euler at h = 0.03 s, which the sweep"),
+], ids=["method", "runner-up", "runner-up's h", "horizon", "margin", "tolerance", "sha256",
+        "method not swept", "step not swept"])
 def test_a_tuned_config_export_cannot_use_is_one_line(tuned, tmp_path, capsys, change, to,
                                                       words):
     """The third battery's tracebacks (KeyError, ValueError): a tuned file whose method is not
     in the zoo, whose runner-up is unknown or has no h, with horizon_s = nan or a removed
-    key. And NaN horizon (tune's record of a sweep without one) is no error for --to json."""
+    key. And NaN horizon (tune's record of a sweep without one) is no error for --to json.
+    A (method, h) the sweep never ran (rk4 was exported to acados, exit 0, with an empty
+    step schedule) is refused too: nothing measured it."""
     import tomli_w
     _, t, _ = tuned
     t = json.loads(json.dumps(t))

@@ -17,6 +17,8 @@ from stepzoo.integrators.driver import (CHUNK, CHUNK_IMPLICIT, ONE_CHUNK_IMPLICI
                                         SMALL_BATCH)
 from stepzoo.integrators.fast_trig import BOUND, cos, fast_trig, flagged_trig, sin
 
+pytestmark = pytest.mark.slow      # run first: see tests/conftest.py
+
 MODEL = dynamics.model("dynamic5")
 
 

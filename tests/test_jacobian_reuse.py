@@ -9,6 +9,8 @@ import pytest
 from stepzoo.bench.perf.workloads.bicycle import H_S, MODEL, problem
 from stepzoo.integrators import integrate, integrate_batch, method, newton
 
+pytestmark = pytest.mark.slow      # run first: see tests/conftest.py
+
 IMPLICIT = ["backward_euler", "trapezoidal", "bdf3", "radau_iia5", "kvaerno3"]
 
 

@@ -18,6 +18,8 @@ from stepzoo.cli import main as stepzoo
 from stepzoo.integrators import METHODS
 from stepzoo.search.world.scenarios import builtin_names
 
+pytestmark = pytest.mark.slow      # run first: see tests/conftest.py
+
 ROOT = Path(__file__).resolve().parents[1]
 SWEEP_FILES = ["config.toml", "manifest.json", "runs.parquet", "limits.parquet", "limits.csv",
                "summary.csv", "eigenvalues.parquet", "trajectories.parquet"]

@@ -20,7 +20,7 @@ from stepzoo.bench.sweep.engine import chunk_ids, run_sweep
 from stepzoo.bench.sweep.config import load
 from stepzoo.errors import UsageError
 from stepzoo.results_folder import LOCK, claim, replacing
-from helpers import TABLES, read_tables, write_sweep, write_tuned
+from helpers import CTRL_C_REACHES, TABLES, read_tables, write_sweep, write_tuned
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -30,16 +30,6 @@ def cli(*args, timeout=120):
     proc = subprocess.run([sys.executable, "-m", "stepzoo", *map(str, args)],
                           capture_output=True, text=True, timeout=timeout, cwd=ROOT)
     return proc.returncode, proc.stdout, proc.stderr
-
-
-# `python -m stepzoo ARGS` with SIGINT's default action back: Python then installs its Ctrl-C
-# handler. A parent that ignores SIGINT (a background job of a shell script) passes the
-# ignoring on, and the command rightly keeps it there (that Ctrl-C is meant for another job);
-# these tests play the user at the terminal, whose Ctrl-C does reach the command. An exec
-# rather than a function run between fork and exec: JAX, loaded here, warns of its threads.
-CTRL_C_REACHES = [sys.executable, "-c", "import os, signal, sys; signal.signal(signal.SIGINT, "
-                  "signal.SIG_DFL); os.execv(sys.executable, [sys.executable, *sys.argv[1:]])",
-                  "-m", "stepzoo"]
 
 
 def one_line(err: str) -> str:
@@ -143,6 +133,34 @@ def test_an_interrupted_sweep_says_how_to_resume_and_resumes_to_the_same_tables(
     assert not (out / "runs.parquet").exists()
     code, _, err = cli("sweep", path, "--out", out, "--resume", "--no-progress")
     assert code == 0, err
+    a, b = read_tables(whole), read_tables(out)
+    for name in TABLES:
+        pd.testing.assert_frame_equal(a[name], b[name], check_exact=True, obj=name)
+
+
+@pytest.mark.parametrize("stopped_at", [1, 2, 3])
+def test_a_sweep_stopped_at_its_first_writes_resumes(tiny_sweep, tmp_path, monkeypatch,
+                                                     stopped_at):
+    """Ctrl-C at the sweep's first, second or third write (its config copy, its manifests): a
+    --resume continues it to the whole sweep's tables. A folder left with chunks/ and no
+    manifest was refused as "a sweep of a different config (sha256 None...)": the rerun of an
+    interrupted `stepzoo run` ended at its sweep stage."""
+    from stepzoo.bench.sweep import engine
+    path, whole = tiny_sweep
+    out, writes, write = tmp_path / "out", [], engine.atomic_write
+
+    def interrupted(*args):
+        writes.append(args[0])
+        if len(writes) == stopped_at:
+            raise KeyboardInterrupt
+        return write(*args)
+
+    monkeypatch.setattr(engine, "atomic_write", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        run_sweep(load(path), out, progress=False)
+    monkeypatch.undo()
+    assert not (out / "runs.parquet").exists()
+    run_sweep(load(path), out, resume=True, progress=False)
     a, b = read_tables(whole), read_tables(out)
     for name in TABLES:
         pd.testing.assert_frame_equal(a[name], b[name], check_exact=True, obj=name)

@@ -15,6 +15,8 @@ from stepzoo.integrators.stability import (a_alpha, a_stable, amplification_empi
                                            max_stable_step, ray_exit, region_grid,
                                            stability_intervals)
 
+pytestmark = pytest.mark.slow      # run first: see tests/conftest.py
+
 # Published (real, imaginary) intervals: Hairer & Wanner II; Butcher 2016; nodepy; the exact
 # polynomial |R(iy)|^2 - 1 for Heun, RK6 (leading term +y^8/786: tangent, interval 0) and
 # DOPRI5 (first positive root 0.99719); for BDF3-5 the first crossing of the imaginary axis

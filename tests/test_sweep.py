@@ -23,6 +23,8 @@ from stepzoo.errors import UsageError
 from stepzoo.integrators import METHODS, method
 from stepzoo.integrators.stability import a_alpha, a_stable, max_stable_step
 
+pytestmark = pytest.mark.slow      # run first: see tests/conftest.py
+
 CONFIGS = Path(__file__).resolve().parents[1] / "bench" / "configs"
 # Measured quantities: they differ between two runs of the same config.
 TIMED = schema.MEASURED

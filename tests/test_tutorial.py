@@ -23,6 +23,7 @@ ROOT = Path(__file__).resolve().parents[1]
 EXAMPLE = ROOT / "docs" / "examples" / "myvehicle"
 PAGE = (ROOT / "docs" / "tutorial-engineer-loop.md").read_text()
 STEER_MAX = 0.42       # [rad], the clamp of vehicle.py
+pytestmark = pytest.mark.slow      # run first: see tests/conftest.py
 
 
 def said(prefix: str) -> str:
@@ -117,11 +118,6 @@ def test_the_casadi_model_measures_the_jax_model_s_limits_bit_for_bit(loop):
         assert jax_[column].equals(casadi[column]), column
 
 
-# Known, open: the tutorial page's outputs predate this batch (verdict's CSV gained
-# h_over_h_pred, beyond_predicted and finite; tune's margin now stays under the predicted
-# limit too): regenerate the page's examples, then this passes and strict flags it.
-@pytest.mark.xfail(strict=True, reason="docs/tutorial-engineer-loop.md's example output "
-                   "predates this batch's verdict columns and tune rule")
 def test_verdict_prints_the_page_s_rows_per_point(loop):
     folder, out = loop
     lines = out["verdict"].splitlines()
@@ -136,11 +132,6 @@ def test_verdict_prints_the_page_s_rows_per_point(loop):
     assert page_csv == (folder / "verdict_points.csv").read_text().splitlines()[1:3]
 
 
-# Known, open: the tutorial page's outputs predate this batch (verdict's CSV gained
-# h_over_h_pred, beyond_predicted and finite; tune's margin now stays under the predicted
-# limit too): regenerate the page's examples, then this passes and strict flags it.
-@pytest.mark.xfail(strict=True, reason="docs/tutorial-engineer-loop.md's example output "
-                   "predates this batch's verdict columns and tune rule")
 def test_tune_and_the_exports_carry_the_same_numbers(loop):
     folder, out = loop
     tuned = tomllib.loads((folder / "tuned.toml").read_text())

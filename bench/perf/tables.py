@@ -84,16 +84,28 @@ def section(result: dict, targets: dict) -> str:
     per_model = [re.fullmatch(r"(.+)_d(\d+)_vs_scipy_radau", k) for k in r]
     states = sorted({int(m_[2]) for m_ in per_model if m_})
     lines += [] if not states else [
-              "", "**Implicit methods on the stiff vehicle models** (CommonRoad single-track "
-              "drift, 9 states, and multi-body, 29 states; batch 1e3, constant step; "
-              "throughput per step over diffrax's Kvaerno5 on the same work and over SciPy's "
-              "Radau on one trajectory):", "",
+              "", "**Implicit methods on vehicle models** (the bicycle, 5 states, and the "
+              "stiff CommonRoad single-track drift, 9 states, and multi-body, 29 states; "
+              "batch 1e3, constant step; throughput per step over diffrax's Kvaerno5 on the "
+              "same work and over SciPy's Radau on one trajectory):", "",
               "| method | " + " | ".join(f"d = {d} over {who}" for d in states
                                         for who in ("Kvaerno5", "SciPy Radau")) + " |",
               "|---|" + "---|" * 2 * len(states)]
     for name in sorted({m_[1] for m_ in per_model if m_}):
         cells = [_fmt(r.get(f"{name}_d{d}_vs_{who}")) for d in states
                  for who in ("diffrax_kvaerno5", "scipy_radau")]
+        lines.append(f"| {name} | " + " | ".join(cells) + " |")
+    compiled = sorted({m_[1] for m_ in (re.fullmatch(r"(.+)_d(\d+)_compile_s", k) for k in f)
+                       if m_})
+    lines += [] if not compiled else [
+              "", "**Compile time on those models** ([s], wall and processor time; stepzoo's "
+              "as a first call of `integrate_batch` less its best round, Kvaerno5's as its "
+              "jitted function's compile):", "",
+              "| method | " + " | ".join(f"d = {d} wall | d = {d} processor" for d in states)
+              + " |", "|---|" + "---|" * 2 * len(states)]
+    for name in compiled:
+        cells = [_fmt(f.get(f"{name}_d{d}_compile{part}_s")) for d in states
+                 for part in ("", "_cpu")]
         lines.append(f"| {name} | " + " | ".join(cells) + " |")
     return "\n".join(lines + ["", END])
 

@@ -81,14 +81,18 @@ def _fill(cfg, out: Path, resume, overwrite, progress, on_chunk, runner) -> dict
     started = time.perf_counter()
     chunks = out / "chunks"
     old = sweep_folder.check_start(cfg, out, resume, overwrite)
-    chunks.mkdir(parents=True, exist_ok=True)
-    for stale in chunks.glob(".*.tmp*"):           # a chunk cut off while being written
-        shutil.rmtree(stale, ignore_errors=True)
     atomic_write(out / "config.toml", _config_copy(cfg))
     created = (old or {}).get("created") or datetime.now(timezone.utc).isoformat(
         timespec="seconds")
     created = (created, environment.now())      # the first call's start, and this call's
     ids = chunk_ids(cfg)
+    # The manifest (the config's sha256) before the chunks folder: a folder with chunks/ is
+    # one a resumed sweep can check, even where Ctrl-C stopped the first call right here.
+    if old is None:
+        _write_manifest(cfg, out, created, [], None, complete=False)
+    chunks.mkdir(parents=True, exist_ok=True)
+    for stale in chunks.glob(".*.tmp*"):           # a chunk cut off while being written
+        shutil.rmtree(stale, ignore_errors=True)
     for cid, why in sweep_folder.set_aside_damaged(ids, chunks).items():
         sys.stderr.write(f"sweep: chunk {cid} is damaged ({why}); set aside as "
                          f"{chunks / f'.{cid}.damaged'}, computing it again\n")

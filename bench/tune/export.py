@@ -216,7 +216,7 @@ def sweep_of(tuned: dict, given=None) -> Path:
         raise UsageError("the tuned config does not record its sweep folder (tuned before "
                          "stepzoo recorded it); give it with --sweep DIR")
     folder = Path(folder)
-    _, _, manifest = load_results(folder)
+    runs, _, manifest = load_results(folder)
     if "sweep_config_sha256" not in tuned:
         raise UsageError("the tuned config lacks sweep_config_sha256, so the sweep it came from "
                          "cannot be told; give a file written by `stepzoo tune`")
@@ -229,7 +229,22 @@ def sweep_of(tuned: dict, given=None) -> Path:
         raise UsageError(f"{folder / 'manifest.json'} lacks {', '.join(lacking)}: the sweep was "
                          "written by an older `stepzoo sweep`; sweep its config again into a "
                          "new folder and tune that")
+    _check_swept(tuned, folder, runs)
     return folder
+
+
+def _check_swept(tuned: dict, folder: Path, runs) -> None:
+    """UsageError unless the choice and each qualifying runner-up is a (method, h) the sweep
+    ran: one it never ran (a tuned file changed by hand) has no measurement behind it, and an
+    export of it would stand on none."""
+    import numpy as np
+    for c in candidates(tuned):
+        hs = runs.loc[runs["method"] == c["method"], "h"].to_numpy(float)
+        if not np.isclose(hs, c["h"], rtol=1e-12, atol=0.0).any():
+            swept = ", ".join(dict.fromkeys(runs["method"]))
+            raise UsageError(f"the tuned config names {c['method']} at h = {c['h']:g} s, which "
+                             f"the sweep {folder} did not run (it ran {swept}): the file was "
+                             "changed after `stepzoo tune`; tune the sweep again")
 
 
 def schedule(tuned: dict, sweep: Path, method: str | None = None):

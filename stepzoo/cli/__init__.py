@@ -146,6 +146,9 @@ def build_parser(only: str | None = None) -> argparse.ArgumentParser:
     return parser
 
 
+_REDELIVERY: list[threading.Timer] = []     # the redelivery of a lost Ctrl-C not yet made
+
+
 def _redeliver_ctrl_c(unraisable, default=sys.unraisablehook) -> None:
     """sys.unraisablehook for the command: a Ctrl-C whose KeyboardInterrupt was raised inside
     a garbage-collector callback (JAX has one) cannot propagate and was lost, so the command
@@ -155,9 +158,18 @@ def _redeliver_ctrl_c(unraisable, default=sys.unraisablehook) -> None:
         # this hook, where its KeyboardInterrupt would be lost again.
         timer = threading.Timer(0.01, _thread.interrupt_main, (signal.SIGINT,))
         timer.daemon = True
+        _REDELIVERY.append(timer)
         timer.start()
     else:
         default(unraisable)
+
+
+def _drop_redelivery() -> None:
+    """The command has stopped for Ctrl-C: a redelivery still pending would land after it,
+    in the interpreter's exit, which then ends by SIGINT (status -2) after the command said
+    it was interrupted and returned 130."""
+    while _REDELIVERY:
+        _REDELIVERY.pop().cancel()
 
 
 def main(argv=None) -> int:
@@ -208,6 +220,7 @@ def dispatch(args, argv=None) -> int:
                      "or fewer points (--max-memory GIB says what the estimates may take), or "
                      "give the process more memory")
     except KeyboardInterrupt:
+        _drop_redelivery()
         hint = RESUME.get(args.command)
         sys.stderr.write(f"stepzoo {args.command}: interrupted{'; ' + hint if hint else ''}\n")
         return INTERRUPTED

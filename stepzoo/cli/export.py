@@ -33,11 +33,14 @@ def main(args) -> int:
     if args.to == "acados":
         assert interval is not None       # checked above
         settings = export.acados(tuned, interval)
+        _say_if_other(settings, tuned)
         text, name = export.acados_text(settings), "acados.py"
         table = export.schedule(tuned, sweep, settings["method"])
     elif args.to == "diffrax":
         text, name = export.diffrax_snippet(tuned, sweep, interval), "diffrax_snippet.py"
-        table = export.schedule(tuned, sweep, export.diffrax_settings(tuned)["method"])
+        settings = export.diffrax_settings(tuned, interval)
+        _say_if_other(settings, tuned)
+        table = export.schedule(tuned, sweep, settings["method"])
     else:
         table = export.schedule(tuned, sweep)
         text = to_json(export.as_json(tuned, args.tuned, sweep, table, interval)) + "\n"
@@ -49,6 +52,13 @@ def main(args) -> int:
     if args.out:
         _write(args.out, name, text, table)
     return 0
+
+
+def _say_if_other(settings: dict, tuned: dict) -> None:
+    """One line on stderr where the tool gets another method than the tuned one: stdout
+    (often redirected into a file) says it only in a comment."""
+    if settings["method"] != tuned["method"]:
+        sys.stderr.write(f"stepzoo export: {settings['why']}\n")
 
 
 def _write(out, name: str, text: str, table) -> None:
