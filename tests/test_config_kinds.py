@@ -160,7 +160,7 @@ RECORDED_SHA256 = {
     "bench/configs/stiff.toml":
         "4d2f2b66af0abeb8f6d2908592c1b7791490da2093774746b885c1575aa9401c",
     "bench/configs/stiff9.toml":
-        "badbed28e2e8ead94bc3b7b5d64a6f6428addaa9f22fa936e8ae5ed548536337",
+        "4cc0ae1231b7a11d66b85e4bef05298b463f0c6a3d2e44c111565fa8c32816ba",
     "bench/configs/tyre_laws.toml":
         "24fe6817b12d3e9f29eb527c47b7b420fbf9be84742b63953d6a58ad1067d3d7",
     "bench/configs/tyres.toml":
