@@ -163,16 +163,18 @@ def sha256(instance: object) -> str:
 # Every config file kind -> its root model, by name: the kinds live beside the code that
 # reads them, in packages above this one, which may not be imported from here (as with entry
 # points, a name is resolved when asked for).
-KINDS = {"sweep": "stepzoo.bench.sweep.config:SweepFile",
+KINDS = {"sweep": "stepzoo.bench.sweep.config:SweepConfig",
          "suite": "stepzoo.bench.sweep.suite:SuiteFile",
          "planner": "stepzoo.search.planner.config:PlannerParams",
          "scenario": "stepzoo.search.world.scenarios:ScenarioFile",
-         "tuned": "stepzoo.tuned_file:TunedFile"}
+         "tuned": "stepzoo.tuned_file:TunedFile",
+         "queries": "stepzoo.search.world.query_file:QueryFile"}
 
 
 def kinds() -> dict[str, type[Schema]]:
-    """Every config file kind ("sweep", "suite", "planner", "scenario", "tuned") -> its root
-    model, from which the docs' config reference is generated."""
+    """Every config file kind ("sweep", "suite", "planner", "scenario", "tuned", "queries":
+    each of a query file's objects) -> its root model, from which the docs' config reference
+    is generated."""
     return {kind: kind_model(kind) for kind in KINDS}
 
 

@@ -1,6 +1,8 @@
 """The tuned config: the TOML `stepzoo tune` writes (and `tune --for-plans` extends), which
 `stepzoo plan` reads as its planner config and `stepzoo export` as the tuning to export.
-Only `method` and `h` are required: a planner config written by hand is the same kind."""
+It is two declared parts in one table: the planner's choice (PlannerChoice) and tune's
+evidence for it (TuneEvidence). Only `method` and `h` are required: a planner config written
+by hand is the same kind, its choice alone."""
 from __future__ import annotations
 
 from typing import Annotated, Literal
@@ -136,15 +138,22 @@ class TunedEnvelope(Schema):
     points: Count = Field(description="operating points the choice was checked at")
 
 
-class TunedFile(Schema):
-    """A tuned (planner) config: the integration method and step the planner uses, tune's
-    reasons and evidence, and planner parameters over their defaults."""
+class PlannerChoice(Schema):
+    """What the planner reads of a tuned config: the integration method and step it uses,
+    planner parameters over their defaults, and where the choice came from. A planner config
+    written by hand is this part alone."""
     method: str = Field(description="the integration method, a zoo name")
     h: Step = Field(description="the integration step [s]")
     planner: PlannerValues = Field({}, description="planner parameters over their defaults, "
                                    "by name (the planner kind)")
     provenance: str | None = Field(None, description="where the choice came from")
     why: str = Field("", description="why this (method, h)")
+
+
+class TuneEvidence(Schema):
+    """What tune's choice came from: the tolerance and margin tuned to, the choice's costs,
+    errors and stable limits, the model's stiffness, the sweep and its envelope, how the
+    costs were timed, the runners-up, and the plans of `tune --for-plans`."""
     pos_tol_m: PosTol | None = Field(None, description="the position tolerance tuned to [m]")
     tol: Tol | None = Field(None, description="the error tolerance tuned to, in the sweep's "
                             "error norm")
@@ -181,3 +190,20 @@ class TunedFile(Schema):
     calibration: Calibration | None = Field(None, description="how the costs were timed")
     runners_up: tuple[RunnerUp, ...] = Field((), description="the other methods, ranked")
     plans: Plans | None = Field(None, description="the evidence of tune --for-plans")
+
+
+class TunedFile(TuneEvidence, PlannerChoice):
+    """A tuned (planner) config: the integration method and step the planner uses, tune's
+    reasons and evidence, and planner parameters over their defaults."""
+
+    @property
+    def choice(self) -> PlannerChoice:
+        """The planner's part."""
+        return PlannerChoice.model_construct(**{k: getattr(self, k)
+                                                for k in PlannerChoice.model_fields})
+
+    @property
+    def evidence(self) -> TuneEvidence:
+        """Tune's evidence."""
+        return TuneEvidence.model_construct(**{k: getattr(self, k)
+                                               for k in TuneEvidence.model_fields})

@@ -34,8 +34,8 @@ def chain():
     """The user's chain at its softest and stiffest spring, no force."""
     cfg = load(CHAIN)
     spec = dataclasses.replace(cfg.spec, envelope=(("k", (100.0, 1000.0)), ("F", (0.0,))))
-    return dataclasses.replace(cfg, spec=spec, methods=tuple(EXPLICIT),
-                               hs=(0.002, 0.008, 0.032), timing_rounds=1)
+    return cfg.changed(spec=spec, methods=tuple(EXPLICIT), steps={"h": (0.002, 0.008, 0.032)},
+                       timing={"rounds": 1})
 
 
 @pytest.fixture(scope="module")

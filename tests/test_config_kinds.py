@@ -1,6 +1,7 @@
 """Every config file kind, read by its command: an unknown key is refused in one line (exit
 2, nothing written), every mistake of a file is named at once with the range's unit, and a
 sweep's sha256 is what its values say, not how the file spells them."""
+import json
 import tomllib
 from pathlib import Path
 
@@ -52,7 +53,10 @@ def with_key(source: Path, tmp_path: Path, line: str, table: str | None = None) 
     (lambda t: ["plan", "street", "--config", written(
         t / "planner.toml", 'method = "rk4"\nh = 0.02\n[planner]\ncolour = 3\n'), "--out",
         t / "out"], "colour"),
-], ids=["sweep", "suite", "scenario", "tuned by plan", "tuned by export", "planner"])
+    (lambda t: ["plan-bench", written(t / "q.json", json.dumps([
+        {"map": "x.npy", "cell_size": 1, "start": [0, 0, 0], "goal": [1, 1, 0], "colour": 3}])),
+        "--out", t / "out"], "q.json query 0: unknown key 'colour'"),
+], ids=["sweep", "suite", "scenario", "tuned by plan", "tuned by export", "planner", "queries"])
 def test_every_kind_refuses_an_unknown_key_in_one_line(tmp_path, capsys, argv, where):
     lines = refused(capsys, argv(tmp_path), tmp_path / "out")
     assert len(lines) == 1 and where in lines[0], lines
@@ -139,3 +143,97 @@ def test_a_config_of_another_kind_is_one_line_naming_its_kind(tmp_path, capsys, 
         assert (f"{SMALL}: is a sweep config, not a tuned config (it has chunks, envelope, "
                 "horizon and 8 more keys and lacks method, h); give a tuned config") \
             in lines[0]
+
+
+# The sha256 of every sweep config of the repository (of a suite: over its problems' own), as
+# the results folders swept from them record it: the config's declaration may change shape,
+# its fingerprint may not (tune, export and --resume find a folder's sweep again by it).
+RECORDED_SHA256 = {
+    "bench/configs/detest.toml":
+        "f883f784bdebe6e473277953941d2c8b23e1b818f9729b8677699e491da5693e",
+    "bench/configs/envelope.toml":
+        "548418adc76d0e02754e6bc56cb40da6eed03094195c4e66c70d9c367031dba5",
+    "bench/configs/paper.toml":
+        "cc3eae8fb8a41ca2c60043d7aa5ce6277d9caf2078085a4a2af10f4a656d6873",
+    "bench/configs/small.toml":
+        "817b9d0908d9175a08d90234a1777b302e2bac78c25c19f296f16c7dd6fe7149",
+    "bench/configs/stiff.toml":
+        "4d2f2b66af0abeb8f6d2908592c1b7791490da2093774746b885c1575aa9401c",
+    "bench/configs/stiff9.toml":
+        "4cc0ae1231b7a11d66b85e4bef05298b463f0c6a3d2e44c111565fa8c32816ba",
+    "bench/configs/tyre_laws.toml":
+        "24fe6817b12d3e9f29eb527c47b7b420fbf9be84742b63953d6a58ad1067d3d7",
+    "bench/configs/tyres.toml":
+        "af0b2865a9cb3298f77b8961c0df206886c6701f4b9fe0a8d5957befc8076ac5",
+    "bench/configs/wheel.toml":
+        "73c2628bb44bc679a1aa3a88977da142a5063b4097ec3d0a20f83a0e55bbb7c8",
+    "docs/examples/myvehicle/vehicle.toml":
+        "f58edd0e2790a30757dd3856679e0c3bacb218a778e3c286f284eed7a7e64d79",
+    "docs/examples/myvehicle/vehicle_casadi.toml":
+        "739570f587bb07f8d013617e8f3b74196b91feb5eaacc5818b0ebad363affdc0",
+    "tests/data/sweep_regression/suite.toml":
+        "d18987808a9d116141c98cfa32464e573468299fea08534a1a2247df6e28937b",
+    "tests/user_model/casadi_bicycle.toml":
+        "51335bb0b60fea949f100586b97bb69e8e36586a2156d706a84f10a791c44fec",
+    "tests/user_model/chain.toml":
+        "88a3f4bed648e3b3ea89350efc915c8a2f2d0c7958566328bb375b563129885a",
+    "tests/user_model/quarter_wheel.toml":
+        "64af15128a456546e0133dc7d9e8fe494dc078123db3ec78b0cbfde787b76116",
+    "tests/user_model/steer_clamp.toml":
+        "2bb7cdf2ba11e1e1a78be05c8591384d503d4e07504e0853d2ebbd84605d6a98",
+}
+
+
+@pytest.mark.parametrize("name", sorted(RECORDED_SHA256))
+def test_the_repositorys_sweep_configs_keep_their_recorded_sha256(name):
+    from stepzoo.bench.sweep.suite import load as load_any
+    assert load_any(ROOT / name).sha256 == RECORDED_SHA256[name]
+
+
+def test_a_tuned_file_is_the_planners_choice_and_tunes_evidence_side_by_side():
+    """The tuned kind is two declared parts in one table: what the planner reads and the
+    evidence tune chose it by. The file's keys are theirs, each once, in the file's order;
+    each part of the shipped file holds its own keys' values."""
+    from stepzoo.config_schema import check
+    from stepzoo.tuned_file import PlannerChoice, TuneEvidence, TunedFile
+    choice, evidence = list(PlannerChoice.model_fields), list(TuneEvidence.model_fields)
+    assert not set(choice) & set(evidence) and {"method", "h", "planner"} <= set(choice)
+    assert {"runners_up", "sweep_config_sha256", "margin"} <= set(evidence)
+    assert list(TunedFile.model_fields) == choice + evidence
+    data = tomllib.loads(TUNED.read_text())
+    tuned = check(TunedFile, data, str(TUNED))
+    assert (tuned.choice.method, tuned.choice.h) == (data["method"], data["h"])
+    assert [r.method for r in tuned.evidence.runners_up] == \
+        [r["method"] for r in data["runners_up"]]
+    assert {**tuned.choice.model_dump(), **tuned.evidence.model_dump()} == tuned.model_dump()
+
+
+def test_the_planner_reads_a_tuned_files_choice_alone(tmp_path):
+    from stepzoo.search.planner.config import load_config
+    from stepzoo.tuned_file import PlannerChoice
+    data = tomllib.loads(TUNED.read_text())
+    alone = written(tmp_path / "choice.toml", tomli_w.dumps(
+        {k: data[k] for k in PlannerChoice.model_fields if k in data}))
+    full, own = load_config(TUNED), load_config(alone)
+    assert (full.method, full.h, full.params, full.provenance) == \
+        (own.method, own.h, own.params, own.provenance)
+
+
+def test_every_setting_of_a_sweep_is_fingerprinted_or_decides_no_result():
+    """A key added to a settings table must be given its name in the sha256 (FINGERPRINT):
+    else two sweeps that differ in it would share a fingerprint, and resume into one folder."""
+    from stepzoo.bench.sweep.config import FINGERPRINT, SweepConfig
+    tables = ("reference", "stability", "chunks", "trajectories", "timing", "error", "limits")
+    settings = {(t, k) for t in tables
+                for k in SweepConfig.model_fields[t].annotation.model_fields}
+    in_spec = {("error", "states"), ("error", "scales")}     # the model spec holds them
+    decide_nothing = {("limits", "memory_gib"), ("limits", "steps")}
+    assert settings - in_spec - decide_nothing == set(FINGERPRINT.values())
+    assert len(set(FINGERPRINT.values())) == len(FINGERPRINT)
+    base = load(SMALL)
+    for table, key in FINGERPRINT.values():     # each one moves it
+        value = getattr(getattr(base, table), key)
+        other = {bool: lambda v: not v, int: lambda v: v + 1, float: lambda v: v * 0.5,
+                 tuple: lambda v: v[:1], str: lambda v: v + "x"}.get(type(value),
+                                                                    lambda v: 0.5)(value)
+        assert base.changed(**{table: {key: other}}).sha256 != base.sha256, (table, key)

@@ -1,7 +1,6 @@
 """Sweeps and plans on a Dask cluster give what the in-process run gives: a LocalCluster of two
 worker processes on loopback, a worker killed while it holds a chunk, resume across the two
 modes; a scheduler that does not answer, or Dask missing, is one line and exit status 2."""
-import dataclasses
 import json
 import os
 import signal
@@ -58,8 +57,8 @@ def cfg(tmp_path_factory):
                     .replace("num = 10 }", "num = 4 }")
                     .replace("points = 9 ", "points = 5 "))
     cut = load(path)
-    assert len(cut.hs) == 4 and dataclasses.replace(cut, hs=small.hs) == dataclasses.replace(
-        small, methods=("rk4", "trapezoidal"), points_per_chunk=5)
+    assert len(cut.hs) == 4 and cut.changed(steps={"h": small.hs}) == small.changed(
+        methods=("rk4", "trapezoidal"), chunks={"points": 5})
     return cut
 
 

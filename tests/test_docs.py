@@ -90,6 +90,19 @@ def test_every_config_key_the_validator_accepts_is_in_the_config_reference(ref):
         assert not missing, (kind, missing)
 
 
+def test_the_config_reference_lists_the_keys_of_a_query_file(ref):
+    """plan-bench's query files are declared (search/world/query_file.py) and documented
+    like the TOML kinds: each key of a query, with what it takes."""
+    page = ref.config_page()
+    section = re.search(r"^## queries\n(.*?)(?=^## |\Z)", page, re.M | re.S)
+    assert section, "no queries section"
+    for key, takes in (("map", "a string"), ("cell_size", "m/cell"),
+                       ("start", "a list of numbers"), ("goal", "a list of numbers"),
+                       ("id", "a string or a whole number")):
+        line = next((ln for ln in section[1].splitlines() if ln.startswith(f"- `{key}`:")), "")
+        assert takes in line, (key, line)
+
+
 def _documented(section: str, variables, states) -> re.Pattern:
     """The columns a tables-page section names, with `<variable>` and `<state>` standing for
     the folder's own envelope variables and states."""

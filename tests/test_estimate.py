@@ -28,7 +28,7 @@ def counted(request, tiny_sweep):
     path = config.parent / f"tiny-{request.param}.toml"
     path.write_text(MODES[request.param](config.read_text()))
     cfg = load(path)
-    assert cfg.stab_rule == request.param
+    assert cfg.stability.rule == request.param
     est = estimate(cfg, {}, 2)
     seen = {}
     plain = method_runs.Runner.__call__

@@ -4,7 +4,6 @@ and not when it reaches the tyres' peak; from a state that is no equilibrium, a 
 prediction can settle on a spurious steady state of the method, which the test calls stable;
 a growing exact solution sets the measured limit through the run's length; the observed
 order reads every converged accuracy run, whatever the blow-up test says."""
-import dataclasses
 import math
 import tomllib
 from pathlib import Path
@@ -51,11 +50,11 @@ def test_saturating_tyre_limit_is_the_linearised_one_for_a_small_perturbation(pa
     one grows past 100, the blow-up test calls the step stable (the whole grid then was, and
     with 2000 steps h_meas came out 67 times h_pred)."""
     lim = chunk["limits"].set_index("delta").loc[0.0]
-    assert lim["ratio"] == pytest.approx(1.0, abs=2 * pacejka.rel_tol)
+    assert lim["ratio"] == pytest.approx(1.0, abs=2 * pacejka.stability.rel_tol)
     assert lim["limit_cause"] == "unstable"
     h = [[0.05], [0.05]]
     small = Block(pacejka, 0, {}).stable(method("rk4"), h)[0]
-    large = Block(dataclasses.replace(pacejka, perturbation=0.1), 0, {}).stable(
+    large = Block(pacejka.changed(stability={"perturbation": 0.1}), 0, {}).stable(
         method("rk4"), h)[0]
     assert 0.05 > 1.9 * lim["h_pred"] and not small[0, 0] and large[0, 0]
 
@@ -74,7 +73,7 @@ def test_past_the_limit_a_turn_settles_on_a_spurious_steady_state(pacejka, chunk
     assert runs.loc[0.1, "err"] > 2.0 * 0.109                 # a wrong answer, yet stable
     work = Block(pacejka, 0, {})                # both lanes: the chunk's compiled program
     pts = work.points
-    x = work.run(method("rk4"), pts.x0, pts.u, pts.p, 0.1, pacejka.stab_steps).x
+    x = work.run(method("rk4"), pts.x0, pts.u, pts.p, 0.1, pacejka.stability.steps).x
     end = x[1, -1]
     assert np.allclose(x[1, -2, 3:], end[3:], atol=1e-12)     # a fixed point of the map
     f = np.asarray(pacejka.spec.rhs(0.0, end, pts.u[1], {k: v[1] for k, v in pts.p.items()}))
@@ -109,8 +108,8 @@ def test_a_growing_solution_sets_the_limit_by_run_length_and_keeps_its_order(tmp
     assert not chunk["runs"]["stable"].any()
     lim = chunk["limits"].iloc[0]
     assert math.isinf(lim["h_pred"])                           # a growing mode bounds nothing
-    h_growth = cfg.growth ** (1 / cfg.stab_steps) - 1
-    assert h_growth / (1 + cfg.rel_tol) <= lim["h_meas"] <= h_growth * (1 + 1e-9)
+    h_growth = cfg.stability.growth ** (1 / cfg.stability.steps) - 1
+    assert h_growth / (1 + cfg.stability.rel_tol) <= lim["h_meas"] <= h_growth * (1 + 1e-9)
     assert lim["order_note"] == "asymptotic" and lim["order_points"] == 4
     assert lim["order_fit"] == pytest.approx(1.0, abs=metrics.ORDER_TOL)
 

@@ -2,7 +2,6 @@
 library versions, JAX backend, devices and precision, stepzoo's version, the command line,
 start and end), and each method's calibrated run is timed in repeated rounds summarised as
 minimum, median, largest and interquartile range, which price every run of the method."""
-import dataclasses
 import json
 from datetime import datetime
 from pathlib import Path
@@ -31,8 +30,7 @@ def test_timing_summary_of_known_rounds():
 
 @pytest.fixture(scope="module")
 def small_sweep(tmp_path_factory):
-    cfg = dataclasses.replace(load(CONFIGS / "small.toml"), methods=("euler",),
-                              timing_rounds=3)
+    cfg = load(CONFIGS / "small.toml").changed(methods=("euler",), timing={"rounds": 3})
     out = tmp_path_factory.mktemp("sweep")
     run_sweep(cfg, out, progress=False)
     return cfg, out

@@ -3,7 +3,6 @@ wheel models of dynamics/wheel.py against an independent onset search in plain N
 own model code, its own Runge-Kutta steps, SciPy's Radau for the truth) and the exact
 stability polynomials; a point whose eigenmodes cancel in the error norm is not unstable at
 every step; a run past the stability horizon decides nothing."""
-import dataclasses
 
 import numpy as np
 import pytest
@@ -177,9 +176,9 @@ def test_a_point_whose_modes_cancel_in_the_error_norm_is_measured_in_every_state
     from stepzoo.bench.sweep.runs.stability_runs import perturbation
     old = sweep_config.validate(tomllib.loads(CANCEL.format(rule="blowup")), "cancel")
     work = Block(old, 0, {})
-    delta = perturbation(old.spec, work.along().jac[:, 0], old.perturbation)
+    delta = perturbation(old.spec, work.along().jac[:, 0], old.stability.perturbation)
     assert np.count_nonzero(delta[0]) == 1 and delta[0, 0] != 0      # position only
-    cfg = dataclasses.replace(old, stab_rule="modes")
+    cfg = old.changed(stability={"rule": "modes"})
     cache = {}
     lim = pd.concat([sweep.compute_chunk(cfg, c, cache)["limits"]
                      for c in sweep.chunk_ids(cfg) if not c.startswith("reference")])

@@ -48,7 +48,7 @@ def test_the_shipped_suites_cover_the_standard_sets():
         at_1s = solve(m.rhs, m.x0, np.zeros(0), m.params(), [0.0, 1.0], stiff=True,
                       method="Radau", rtol=1e-10, atol=1e-14)[-1]
         assert slow.spec.arrays(slow.points)[0][0] == pytest.approx(at_1s, rel=1e-7)
-    assert horizons == {label: model(cfg.model).t_span[1] for label, cfg, _ in stiff.problems
+    assert horizons == {label: model(cfg.spec.name).t_span[1] for label, cfg, _ in stiff.problems
                         if label in horizons}
     # Each model's methods: the A(alpha)-stable ones on the model, the rest on its fine grid.
     for label in ("robertson", "vdp1000", "hires", "stiff_linear"):

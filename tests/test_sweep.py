@@ -3,7 +3,6 @@ stable step within 3% of the prediction at every envelope point, A-stable method
 whose sectors hold every envelope eigenvalue) never blow up, fitted orders match declared
 ones; an interrupted sweep resumes to the same tables, and config mistakes are one line with
 exit status 2."""
-import dataclasses
 import math
 from pathlib import Path
 
@@ -60,8 +59,8 @@ def _limits(cfg, name):
 def envelope():
     """The envelope's 25 points with a coarse step grid: bisection finds the limits anyway."""
     cfg = load(CONFIGS / "envelope.toml")
-    assert len(cfg.points) == 25 and cfg.points_per_chunk >= 25
-    return dataclasses.replace(cfg, hs=(0.001, 0.004, 0.016, 0.064, 0.256))
+    assert len(cfg.points) == 25 and cfg.chunks.points >= 25
+    return cfg.changed(steps={"h": (0.001, 0.004, 0.016, 0.064, 0.256)})
 
 
 def test_explicit_and_multistep_methods_cover_every_finite_limit():
@@ -84,7 +83,7 @@ def test_the_modes_rule_with_a_long_enough_horizon_measures_the_envelopes_limits
     horizon) agrees with the closed form within 3% too, given a stability horizon in which
     growth just past the limit can show (20 s: hundreds of steps); the team's bicycle
     configs keep "blowup", which measures the same in fewer runs."""
-    cfg = dataclasses.replace(envelope, stab_rule="modes", stab_horizon=20.0)
+    cfg = envelope.changed(stability={"rule": "modes", "horizon": 20.0})
     meas, pred = _limits(cfg, name)
     ratio = meas / pred
     assert np.all(np.isfinite(pred)) and np.all(np.abs(ratio - 1) <= 0.03), (name, ratio)
@@ -102,7 +101,7 @@ def test_methods_unbounded_on_the_real_axis_never_blow_up_in_the_envelope(envelo
     envelope because every eigenvalue lies within its sector (at most 38.3 deg from the
     negative real axis, at 30 m/s and full steer, below BDF5's 51.84): predicted and
     measured limits are both unbounded up to h = 2 s."""
-    cfg = dataclasses.replace(envelope, hs=(0.01, 0.256), h_probe_max=2.0)
+    cfg = envelope.changed(steps={"h": (0.01, 0.256)}, stability={"h_probe_max": 2.0})
     m = method(name)
     if not a_stable(m):
         angles = [np.degrees(np.pi - np.abs(np.angle(np.linalg.eigvals(A))))
@@ -118,7 +117,7 @@ def test_blowup_rule_flags_a_step_just_past_the_limit_and_not_just_below(envelop
                      for A in _lateral(work)])
     ok, t_blow, _ = work.stable(method("rk4"), np.stack([0.99 * pred, 1.02 * pred], axis=1))
     assert ok[:, 0].all() and not ok[:, 1].any()
-    assert np.all((t_blow[:, 1] > 0) & (t_blow[:, 1] <= envelope.stab_steps * 1.02 * pred))
+    assert np.all((t_blow[:, 1] > 0) & (t_blow[:, 1] <= envelope.stability.steps * 1.02 * pred))
 
 
 def test_predicted_limit_from_jacobians_equals_the_closed_form_lateral_one(envelope):
@@ -135,7 +134,7 @@ def test_predicted_limit_from_jacobians_equals_the_closed_form_lateral_one(envel
 def paper_sweep(tmp_path_factory):
     """The paper's default sweep, restricted to one method of each family for speed."""
     cfg = load(CONFIGS / "paper.toml")
-    cfg = dataclasses.replace(cfg, methods=("euler", "rk4", "rk6", "ab4", "trapezoidal"))
+    cfg = cfg.changed(methods=("euler", "rk4", "rk6", "ab4", "trapezoidal"))
     out = tmp_path_factory.mktemp("paper")
     run_sweep(cfg, out, progress=False)
     return out
@@ -176,7 +175,7 @@ def _tables(folder):
 
 def test_interrupted_sweep_resumed_gives_the_same_tables(tmp_path):
     cfg = load(CONFIGS / "small.toml")
-    cfg = dataclasses.replace(cfg, methods=("euler", "ab2"), points_per_chunk=5)
+    cfg = cfg.changed(methods=("euler", "ab2"), chunks={"points": 5})
     whole, cut = tmp_path / "whole", tmp_path / "cut"
     run_sweep(cfg, whole, progress=False)
 
@@ -200,7 +199,7 @@ def test_interrupted_sweep_resumed_gives_the_same_tables(tmp_path):
 
 
 def test_compute_chunk_is_a_function_of_config_and_id():
-    cfg = dataclasses.replace(load(CONFIGS / "small.toml"), methods=("euler",))
+    cfg = load(CONFIGS / "small.toml").changed(methods=("euler",))
     first = compute_chunk(cfg, "euler-b000")
     again = compute_chunk(cfg, "euler-b000", {})
     for name in ("runs", "limits"):

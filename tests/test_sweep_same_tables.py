@@ -57,7 +57,7 @@ def test_measured_limits_agree_with_the_recorded_ones_to_rel_tol(small):
         assert np.array_equal(np.isinf(h), np.isinf(old)), name
         fin = np.isfinite(old)
         # Both brackets hold the limit and are rel_tol wide (the recorded ones to 7 digits).
-        assert np.all(np.abs(np.log(h[fin] / old[fin])) <= np.log1p(cfg.rel_tol) + 1e-6), name
+        assert np.all(np.abs(np.log(h[fin] / old[fin])) <= np.log1p(cfg.stability.rel_tol) + 1e-6), name
         assert set(lim["limit_cause"]) == {"none" if not fin.any() else "unstable"}, name
 
 

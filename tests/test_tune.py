@@ -129,7 +129,7 @@ def test_tuned_step_holds_at_20_unseen_operating_points(tuned):
     delta = rng.uniform(min(cfg.values("delta")), max(cfg.values("delta")), 20)
     seen = {(round(a, 9), round(b, 9)) for a, b in cfg.points}
     assert not any((round(a, 9), round(b, 9)) in seen for a, b in zip(vx, delta))
-    model, meth, h = dynamics.model(cfg.model), method(t["method"]), t["h"]
+    model, meth, h = dynamics.model(cfg.spec.name), method(t["method"]), t["h"]
     n = round(cfg.horizon / h)
     ps = [model.params(cfg.vehicle, v) for v in vx]
     p = {k: jnp.asarray([q[k] for q in ps]) for k in ps[0]}

@@ -97,7 +97,8 @@ class Block:
                 return nonsmooth.detect(self.spec.rhs, h * np.arange(ref.x.shape[1]),
                                         np.where(ref.ok[:, None, None], ref.x, np.nan),
                                         self.points.u, self.points.p, self.spec.states,
-                                        self.spec.inputs, self.cfg.rtol, self.cfg.atol)
+                                        self.spec.inputs, self.cfg.reference.rtol,
+                                        self.cfg.reference.atol)
         return self.cached("nonsmooth", make)
 
     def predicted(self, meth) -> list[Predicted]:
@@ -112,7 +113,7 @@ class Block:
     def delta(self) -> np.ndarray:
         """(B, d) the stability runs' initial deviation (stability_runs.perturbation)."""
         return self.cached("perturbation", lambda: perturbation(
-            self.spec, self.along().jac[:, 0], self.cfg.perturbation))
+            self.spec, self.along().jac[:, 0], self.cfg.stability.perturbation))
 
     def modal(self) -> tuple:
         """The "modes" rule's (deviations (B, K, d), state scales (B, d), times ts (T,) [s],
@@ -125,7 +126,7 @@ class Block:
             base = self.along().xs if T == cfg.horizon else \
                 self.reference(dt, ALONG_SAMPLES).x
             scales = state_scales(self.spec, base)
-            delta = directions(self.along().jac[:, 0], scales, cfg.perturbation,
+            delta = directions(self.along().jac[:, 0], scales, cfg.stability.perturbation,
                                self.points.lanes)
             grow = reference_growth(lambda pts: self.reference(dt, ALONG_SAMPLES, pts),
                                     self.points, base, delta, scales)
@@ -135,10 +136,11 @@ class Block:
     def stability_runs(self):
         """The stability test of the config's [stability] rule."""
         cfg = self.cfg
-        if cfg.stab_rule == "blowup":
-            return StabilityRuns(self.run, self.points, self.delta, cfg.stab_steps, cfg.growth)
+        if cfg.stability.rule == "blowup":
+            return StabilityRuns(self.run, self.points, self.delta, cfg.stability.steps,
+                                 cfg.stability.growth)
         return ModalRuns(self.run, self.points, *self.modal(), cfg.stability_horizon,
-                         cfg.growth)
+                         cfg.stability.growth)
 
     def diagnose(self, meth, h_meas) -> Diagnosis:
         """Per lane, what fails just above its measured limit h_meas (B,) [s] (at the grid's
@@ -151,7 +153,7 @@ class Block:
         runs = self.stability_runs()
         if not isinstance(runs, ModalRuns):
             return none
-        h = np.where(h_meas > 0, h_meas * (1 + self.cfg.rel_tol), self.cfg.hs[0])
+        h = np.where(h_meas > 0, h_meas * (1 + self.cfg.stability.rel_tol), self.cfg.hs[0])
         lanes = np.where(np.isfinite(h[: self.points.n_real]))[0]
         out = Diagnosis(*(a.copy() for a in none))
         if len(lanes):
@@ -173,9 +175,9 @@ class Block:
         "modes" rule at most the stability horizon (a longer step is one step of a run: no
         growth can show), but never below the grid's largest step."""
         cfg = self.cfg
-        if cfg.stab_rule == "blowup":
-            return cfg.h_probe_max
-        return max(min(cfg.h_probe_max, cfg.stability_horizon), cfg.hs[-1])
+        if cfg.stability.rule == "blowup":
+            return cfg.stability.h_probe_max
+        return max(min(cfg.stability.h_probe_max, cfg.stability_horizon), cfg.hs[-1])
 
     def stable(self, meth, H) -> Outcome:
         """Outcomes (B, K) of the stability runs at steps H (B, K) [s], row b at lane b; the
@@ -192,14 +194,14 @@ class Block:
         cfg, n = self.cfg, self.points.n_real
         found = limit_search.measured_limit(
             Outcome(*(a[:n] for a in grid)), self.stability_runs().probe(meth), cfg.hs,
-            np.asarray(pred, float)[:n], self.h_top, cfg.rel_tol, len(self.points),
-            ladder=cfg.stab_rule != "blowup")
+            np.asarray(pred, float)[:n], self.h_top, cfg.stability.rel_tol, len(self.points),
+            ladder=cfg.stability.rule != "blowup")
         return MeasuredLimit(*(self.padded(a) for a in found))
 
     # -- the figure trajectory --------------------------------------------------------------
     def trajectory_points(self) -> Points:
         """The trajectory point in every lane (the batch keeps its compiled shape)."""
-        return Points.repeated(self.spec, self.cfg.traj_point, len(self.points))
+        return Points.repeated(self.spec, self.cfg.trajectories.point, len(self.points))
 
     def trajectory_reference(self):
         """(times (TRAJ_SAMPLES+1,) [s], reference states (TRAJ_SAMPLES+1, d)) at the

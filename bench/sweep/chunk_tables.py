@@ -63,16 +63,17 @@ def method_chunk(block, name: str) -> dict:
         limits = []
         for lane, i in enumerate(points.ids):
             rows = every[(every["point"] == i) & every["fit"]]
-            fit = metrics.order_fit(rows["h"], rows["err"], cfg.rtol, cfg.atol, err_scale[lane])
+            fit = metrics.order_fit(rows["h"], rows["err"], cfg.reference.rtol, cfg.reference.atol,
+                                    err_scale[lane])
             limits.append(_limit_row(block, meth, lane, i, predicted[lane], fit, along,
                                      measured.h_meas[lane], measured.cause[lane])
                           | events[lane].columns() | _diagnosis(block, diagnosis, lane))
     model_nan.record(limits, model_nan.lane_times(block))
     for row in limits:
         # The "blowup" rule's runs last stability.steps steps of the step probed.
-        horizon = cfg.stability_horizon if cfg.stab_rule == "modes" else \
-            cfg.stab_steps * row["h_meas"]
-        row["limit_note"] = metrics.limit_note(row, cfg.growth, horizon)
+        horizon = cfg.stability_horizon if cfg.stability.rule == "modes" else \
+            cfg.stability.steps * row["h_meas"]
+        row["limit_note"] = metrics.limit_note(row, cfg.stability.growth, horizon)
     traj = trajectory_runs.method_rows(block, meth) if block.block == 0 else pd.DataFrame()
     limits_df = pd.DataFrame(limits, columns=schema.limit_columns(block.spec.variables,
                                                                   block.spec.states))
@@ -116,7 +117,7 @@ def _accuracy_runs(block, meth) -> tuple[list[dict], np.ndarray]:
         n = round(cfg.horizon / h)
         ref = block.accuracy_reference(h)
         # Compiled already (method_chunk): the wall time is the computation's alone.
-        acc = accuracy_run(block.run, meth, points, h, n, ref.x, cfg.error_estimate)
+        acc = accuracy_run(block.run, meth, points, h, n, ref.x, cfg.error.estimate)
         walls.append(acc.run_s)
         with block.watch.clock("metrics_s"):
             scale = np.maximum(scale, spec.scaled(ref.x).max(axis=1))
@@ -141,7 +142,7 @@ def _calibrate(block, meth, walls) -> tuple[list[float], int]:
     steps = np.array([round(cfg.horizon / h) for h in cfg.hs])
     j = int(np.argmin(np.abs(steps - CALIBRATION_STEPS)))
     more = [block.run(meth, points.x0, points.u, points.p, cfg.hs[j], int(steps[j])).run_s
-            for _ in range(cfg.timing_rounds - 1)]
+            for _ in range(cfg.timing.rounds - 1)]
     block.watch.add("integration_s", sum(more))
     return [walls[j], *more], j
 

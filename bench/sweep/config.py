@@ -1,27 +1,28 @@
-"""A sweep config: a TOML file checked against its declaration (SweepFile: every key with its
-type, default, range and doc) and resolved into a frozen `SweepConfig`. Every mistake is one
-line naming the key, what is wrong and what to write instead; all mistakes are reported at
-once (UsageError, exit 2)."""
+"""A sweep config: a TOML file checked against its declaration (SweepConfig and its tables:
+every key with its type, default, range and doc), then resolved, each table by code beside it
+(the steps snapped, the trajectories' operating point, the reference's solver; the model by
+bench.sweep.model_table). Every mistake is one line naming the key, what is wrong and what to
+write instead; all mistakes are reported at once (UsageError, exit 2)."""
 from __future__ import annotations
 
-import dataclasses
+import hashlib
+import json
 import math
-import re
 import typing
 from pathlib import Path
 from typing import Annotated, Literal
 
-import numpy as np
-from pydantic import AfterValidator, ConfigDict, Field, PlainSerializer, Tag, model_validator
-from pydantic.dataclasses import dataclass
+from pydantic import AfterValidator, ConfigDict, Field, PrivateAttr, Tag, model_validator
+from pydantic_core import to_jsonable_python
 
 from stepzoo import config_schema
-from stepzoo.bench.model import casadi_source as casadi_model
-from stepzoo.bench.model.spec import (BICYCLE_ERROR_STATES, Expression, Hook, ModelSpec,
-                                      Nested, builtin, check_rhs, flatten, load_function)
+from stepzoo.bench.model.spec import ModelSpec, check_rhs
+from stepzoo.bench.sweep.grids import Step, StepGrid, grid_values
+from stepzoo.bench.sweep.model_table import (Envelope, ModelTable, Names, ParamTable,
+                                             closed_form_problem, default_solver, model_spec)
 from stepzoo.config_schema import BY_SHAPE, Schema, quantity, ranged
 from stepzoo.errors import UsageError
-from stepzoo.validate import problem, read_toml
+from stepzoo.validate import read_toml
 
 # The shared ranges of validate.RANGES, as field types.
 Atol = Annotated[float, ranged("atol")]
@@ -31,15 +32,12 @@ Perturbation = Annotated[float, ranged("perturbation")]
 RelTol = Annotated[float, ranged("rel_tol")]
 Rounds = Annotated[int, ranged("rounds")]
 Rtol = Annotated[float, ranged("rtol")]
-Step = Annotated[float, ranged("step")]
 NewtonAtol = Annotated[float, ranged("newton_atol")]
 NewtonMaxIter = Annotated[int, ranged("newton_max_iter")]
 NewtonMaxIterFull = Annotated[int, ranged("newton_max_iter_full")]
 NewtonResTol = Annotated[float, ranged("newton_res_tol")]
 NewtonRtol = Annotated[float, ranged("newton_rtol")]
 
-MAX_GRID = 10_000       # values of one grid, or points of an envelope: more is a typo, and
-                        # would be allocated before any estimate of the work
 # `methods = "..."`: the zoo's methods of one kind. bounded: a finite real stability
 # interval (explicit methods, Adams-Moulton), the methods a stiff problem's fast modes bind;
 # unbounded: the rest (A- and A(alpha)-stable).
@@ -67,9 +65,6 @@ DEFAULT_PERTURBATION = 1e-6
 StabilityRule = Literal["modes", "blowup"]
 STABILITY_RULES = typing.get_args(StabilityRule)
 
-GridSize = Annotated[int, quantity(
-    "a number of grid values", "", "more is a typo, and would be allocated before any estimate "
-    "of the work", ge=1, le=MAX_GRID)]
 StabSteps = Annotated[int, quantity(
     "", "", "enough steps for a deviation to grow past `growth`; more is minutes per rung of "
     "the limit search", ge=50, le=100_000)]
@@ -81,69 +76,6 @@ Scale = Annotated[float, quantity("an error scale", "", "the error norm divides 
 Gib = Annotated[float, quantity("", "GiB", "a limit of memory", gt=0.0)]
 Work = Annotated[float, quantity("", "", "a limit of work", gt=0.0)]
 Lanes = Annotated[int, quantity("", "", "at least one operating point per batch", ge=1)]
-
-
-def _distinct(values: tuple) -> tuple:
-    """A grid written as a list: at least one value, none twice, at most MAX_GRID."""
-    if not values:
-        raise ValueError("must list at least one value")
-    if len(values) > MAX_GRID:
-        raise ValueError(f"lists {len(values)} values; at most {MAX_GRID}")
-    if len(set(values)) != len(values):
-        raise ValueError("lists a value twice; list each once")
-    return values
-
-
-class Span(Schema):
-    """A grid as a table: {values = [...]}, or `num` values from `min` to `max`, evenly
-    spaced (log-spaced with log = true)."""
-    values: tuple[float, ...] | None = Field(None, description="the values themselves")
-    min: float | None = Field(None, description="the first value")
-    max: float | None = Field(None, description="the last value, >= min")
-    num: GridSize | None = Field(None, description="how many values")
-    log: bool = Field(False, description="log-spaced (min > 0) rather than evenly")
-
-    @model_validator(mode="after")
-    def _one_form(self):
-        given = self.model_fields_set - {"log"}
-        if given == {"values"}:
-            _distinct(self.values)
-        elif given != {"min", "max", "num"}:
-            raise ValueError("must be {values = [...]} or {min = ..., max = ..., num = ...}, "
-                             f"got the keys {', '.join(sorted(self.model_fields_set))}")
-        elif self.min > self.max:
-            raise ValueError(f"must be {{min, max, num}} with min <= max, got min {self.min:g} "
-                             f"> max {self.max:g}")
-        elif self.log and self.min <= 0:
-            raise ValueError(f"must be {{min, max, num}} with min > 0 for log spacing, got "
-                             f"min {self.min:g}")
-        return self
-
-    def grid(self) -> list[float]:
-        if self.values is not None:
-            return [float(v) for v in self.values]
-        assert self.min is not None and self.max is not None and self.num is not None
-        spaced = np.geomspace if self.log else np.linspace
-        return [float(v) for v in spaced(self.min, self.max, self.num)]
-
-
-class StepSpan(Span):
-    """A grid of steps [s] as a table, log-spaced unless log = false."""
-    values: tuple[Step, ...] | None = Field(None, description="the steps themselves [s]")
-    min: Step | None = Field(None, description="the smallest step [s]")
-    max: Step | None = Field(None, description="the largest step [s], >= min")
-    log: bool = Field(True, description="log-spaced rather than evenly")
-
-
-Grid = Annotated[Annotated[tuple[float, ...], AfterValidator(_distinct), Tag("list")]
-                 | Annotated[Span, Tag("table")], BY_SHAPE]
-StepGrid = Annotated[Annotated[tuple[Step, ...], AfterValidator(_distinct), Tag("list")]
-                     | Annotated[StepSpan, Tag("table")], BY_SHAPE]
-
-
-def grid_values(grid) -> list[float]:
-    """The values of a Grid or StepGrid as written (a list) or spanned (a table)."""
-    return grid.grid() if isinstance(grid, Span) else [float(v) for v in grid]
 
 
 def _known_methods(names: tuple) -> tuple:
@@ -158,53 +90,16 @@ def _known_methods(names: tuple) -> tuple:
     return names
 
 
-def _names(names: tuple) -> tuple:
-    if not all(names):
-        raise ValueError("must be names (non-empty strings)")
-    if len(set(names)) != len(names):
-        raise ValueError("lists a name twice; list each once")
-    return names
-
-
-Names = Annotated[tuple[str, ...], AfterValidator(_names)]
-
-
-class ModelTable(Schema):
-    """Your own model, by one of two keys: `rhs` (a JAX f(t, x, u, p) -> dx/dt) or `casadi`
-    (a casadi.Function of x, u, p, or its saved file)."""
-    rhs: str | None = Field(None, description='"module:function" of your JAX f(t, x, u, p) '
-                            "-> dx/dt; it reads [params] by name")
-    casadi: str | None = Field(None, description='"module:function" returning a '
-                               "casadi.Function of (x, u, p), or the saved function's file")
-    path: str = Field(".", description="the module's folder, relative to the config file")
-    states: Names = Field(description="the state names, in the order of x")
-    inputs: Names = Field((), description="the input names, in the order of u (constant "
-                          "in time)")
-    p: Names | None = Field(None, description="with casadi: the entries of the function's p, "
-                            "in order, each with a value in [params]")
-
-    @model_validator(mode="after")
-    def _one_way(self):
-        if self.rhs is not None and self.casadi is not None:
-            raise ValueError("model.rhs (a JAX f(t, x, u, p)) and model.casadi are two ways "
-                             "to give a model; keep one")
-        if self.p is not None and self.rhs is not None:
-            raise ValueError("model.p names the entries of a CasADi function's p "
-                             "(model.casadi); a JAX model.rhs reads [params] by name: drop "
-                             "model.p")
-        if self.rhs is None and self.casadi is None:
-            raise ValueError('model.rhs must be "module:function" (your f(t, x, u, p)), or '
-                             "give model.casadi")
-        if not self.states:
-            raise ValueError("model.states must name at least one state")
-        return self
-
-
 class Steps(Schema):
     """[steps]: the grid of step sizes of the accuracy runs."""
     h: StepGrid = Field(description="step sizes [s]: a list, or {min, max, num} (log-spaced); "
                         "each snapped to horizon/n so that a run ends at the horizon")
 
+    def snapped(self, horizon: float) -> Steps:
+        """The grid resolved: each step snapped to horizon/n (whole steps, each run ends at
+        the horizon [s]), each once, ascending."""
+        hs = sorted({horizon / max(1, round(horizon / h)) for h in grid_values(self.h)})
+        return self.model_copy(update={"h": tuple(hs)})
 
 class Reference(Schema):
     """[reference]: what the runs' errors are measured against."""
@@ -216,6 +111,17 @@ class Reference(Schema):
         "", description='the reference\'s solver: "" the model\'s default (dopri5, LSODA for '
         "a stiff test problem), or one of SciPy's solve_ivp methods")
 
+
+    def resolved(self, spec: ModelSpec | None, bad: list) -> Reference:
+        """The reference resolved for `spec`: `exact` only where the model's closed form
+        solves its problem (else a line in `bad`), and `solver` "" where it is the model's
+        default or unused (the same results, the same sha256)."""
+        exact, solver = self.exact, self.solver
+        if exact and spec is not None:
+            exact = closed_form_problem(spec, bad)
+        if spec is not None and (exact or solver == default_solver(spec)):
+            solver = ""
+        return self.model_copy(update={"exact": exact, "solver": solver})
 
 class Stability(Schema):
     """[stability]: the search for each method's largest stable step per operating point."""
@@ -268,7 +174,7 @@ class Limits(Schema):
 class Trajectories(Schema):
     """[trajectories]: the sample trajectories the report draws, at one operating point;
     besides `fractions` and `past_limit`, any envelope variable = its value there (default:
-    the envelope's first value)."""
+    the envelope's first value). Resolved, it holds every envelope variable, in order."""
     model_config = ConfigDict(extra="allow")
     __pydantic_extra__: dict[str, float] = Field(init=False)
     fractions: tuple[Fraction, ...] = Field((0.2, 0.5, 0.9), min_length=1, description="sample "
@@ -276,36 +182,27 @@ class Trajectories(Schema):
     past_limit: PastLimit = Field(1.5, description="the sample past the limit, as a multiple "
                                   "of it")
 
+    @property
+    def point(self) -> tuple[float, ...]:
+        """The operating point of the resolved table: one value per envelope variable."""
+        return tuple(float(v) for v in (self.model_extra or {}).values())
 
-class ParamTable(Schema):
-    """[params.<name>]: a nested table of parameters (as simulators ship them); each key is
-    named "<name>.<key>" in [envelope], [initial] expressions and the tables, and a model
-    module's f reads it as p["<name>"]["<key>"]."""
-    model_config = ConfigDict(extra="allow")
-    __pydantic_extra__: dict[str, float | ParamTable] = Field(init=False)
+    def at(self, point: dict[str, float]) -> Trajectories:
+        """This table at another operating point (envelope variable -> value, in order)."""
+        values: dict[str, typing.Any] = {var: float(v) for var, v in point.items()}
+        return type(self).model_construct(fractions=self.fractions, past_limit=self.past_limit,
+                                          **values)
 
-
-ParamTable.model_rebuild()
-
-
-def _plain_params(params: dict) -> dict:
-    """[params] as plain nested dicts of numbers."""
-    return {k: _plain_params(v.model_extra or {}) if isinstance(v, ParamTable) else v
-            for k, v in params.items()}
-
-
-# A "module:function" hook (an initial state computed by the user's code), not an expression.
-HOOK = re.compile(r"^[A-Za-z_][\w.]*:[A-Za-z_]\w*$")
-
-
-class Envelope(Schema):
-    """[envelope]: the operating grid: any parameter, input or initial state by name = its
-    values (a list, or {min, max, num}); every combination of the values is an operating
-    point."""
-    model_config = ConfigDict(extra="allow")
-    __pydantic_extra__: dict[str, Grid] = Field(init=False)
-    x0: tuple[float, ...] | None = Field(None, description="the whole initial state, one value "
-                                         "per state (the bicycle configs' form of [initial])")
+    def resolved(self, spec: ModelSpec | None, bad: list) -> Trajectories:
+        """The table at its operating point: [trajectories]' value of each envelope variable
+        of `spec`, else the envelope's first; an unknown key is a line in `bad`."""
+        if spec is None:
+            return self.at({})
+        given = self.model_extra or {}
+        for key in sorted(set(given) - set(spec.variables)):
+            bad.append(f"unknown key trajectories.{key}; known: fractions, past_limit and the "
+                       f"envelope's variables ({', '.join(spec.variables)})")
+        return self.at({var: given.get(var, values[0]) for var, values in spec.envelope})
 
 
 class Timing(Schema):
@@ -331,7 +228,24 @@ class Newton(Schema):
         return self
 
 
-class SweepFile(Schema):
+# The fingerprint's names: the settings that decide results (those of [model], [params],
+# [initial], [envelope] and [error]'s states and scales are in the model spec), each by the
+# name a config's sha256 has been taken over since results folders recorded it (a stored
+# folder's config_sha256 must stay its config's); over its value where that is not the
+# default.
+FINGERPRINT = {"rtol": ("reference", "rtol"), "atol": ("reference", "atol"),
+               "stab_steps": ("stability", "steps"), "growth": ("stability", "growth"),
+               "perturbation": ("stability", "perturbation"),
+               "h_probe_max": ("stability", "h_probe_max"), "rel_tol": ("stability", "rel_tol"),
+               "stab_rule": ("stability", "rule"), "stab_horizon": ("stability", "horizon"),
+               "points_per_chunk": ("chunks", "points"),
+               "traj_fractions": ("trajectories", "fractions"),
+               "traj_past_limit": ("trajectories", "past_limit"),
+               "timing_rounds": ("timing", "rounds"), "exact_reference": ("reference", "exact"),
+               "error_estimate": ("error", "estimate"), "ref_solver": ("reference", "solver")}
+
+
+class SweepConfig(Schema):
     """A sweep config file: one model, its operating envelope, the methods and steps."""
     name: str | None = Field(None, description="the sweep's name (default: the file's stem)")
     model: Annotated[Annotated[str, Tag("value")] | Annotated[ModelTable, Tag("table")],
@@ -366,53 +280,24 @@ class SweepFile(Schema):
     trajectories: Trajectories = Field(Trajectories(), description="the sample trajectories")
     timing: Timing = Field(Timing(), description="the timing of the accuracy runs")
     newton: Newton = Field(Newton(), description="the implicit methods' Newton solves")
+    # Resolved by validate(): the model with its operating points, and the file it came from.
+    _spec: ModelSpec = PrivateAttr()
+    _source: str = PrivateAttr("")
 
+    @property
+    def spec(self) -> ModelSpec:
+        """The model, its envelope and error norm, resolved (bench.sweep.model_table)."""
+        return self._spec
 
-def _default(table: type[Schema], key: str):
-    """The declared default of one key of a config table: the resolved config's default is
-    the file's."""
-    return table.model_fields[key].default
+    @property
+    def source(self) -> str:
+        """The config file's path ("" where none); it decides no result."""
+        return self._source
 
-
-@dataclass(frozen=True, kw_only=True, config=ConfigDict(arbitrary_types_allowed=True,
-                                                         extra="forbid"))
-class SweepConfig:
-    """A validated sweep, built by keyword. Step sizes are snapped to horizon/n (whole steps,
-    each run ends at the horizon) and sorted; the operating points are every combination of
-    the envelope's values (`spec.points`, the first variable slowest). Its sha256 is over the
-    values that differ from the defaults (config_schema.sha256)."""
-    name: str
-    model: str                     # built-in name, or "module:function" of a user's model
-    vehicle: str
-    horizon: float                 # [s] of the accuracy runs
-    methods: tuple[str, ...]
-    spec: Annotated[ModelSpec, PlainSerializer(lambda s: s.canonical())]
-    hs: tuple[float, ...]          # [s], ascending
-    traj_point: tuple[float, ...]  # one value per envelope variable: the sample trajectories'
-    rtol: float = _default(Reference, "rtol")
-    atol: float = _default(Reference, "atol")
-    stab_steps: int = _default(Stability, "steps")      # steps of one stability run
-    growth: float = _default(Stability, "growth")       # blow-up threshold, scaled deviation
-    perturbation: float = _default(Stability, "perturbation")
-    h_probe_max: float = _default(Stability, "h_probe_max")    # [s] largest step probed
-    rel_tol: float = _default(Stability, "rel_tol")     # bisection: h_hi / h_lo - 1 <= rel_tol
-    stab_rule: str = _default(Stability, "rule")        # a key of STABILITY_RULES
-    stab_horizon: float | None = _default(Stability, "horizon")   # [s] None: `horizon`
-    points_per_chunk: int = _default(Chunks, "points")
-    traj_fractions: tuple[float, ...] = _default(Trajectories, "fractions")
-    traj_past_limit: float = _default(Trajectories, "past_limit")
-    timing_rounds: int = _default(Timing, "rounds")     # timed repeats of each accuracy run
-    exact_reference: bool = _default(Reference, "exact")
-    error_estimate: Estimate = _default(ErrorNorm, "estimate")    # a key of ESTIMATES
-    ref_solver: RefSolver = _default(Reference, "solver")     # "": the model's default
-    newton: Newton = Newton()      # the implicit methods' solve options ([newton])
-    # What decides no result: the file's path and [limits] (what the sweep may allocate
-    # [GiB] and integrate) are not part of the config's identity.
-    source: Annotated[str, Field(exclude=True)] = dataclasses.field(default="", compare=False)
-    max_memory_gib: Annotated[float | None, Field(exclude=True)] = dataclasses.field(
-        default=None, compare=False)
-    max_steps: Annotated[float | None, Field(exclude=True)] = dataclasses.field(
-        default=None, compare=False)
+    @property
+    def hs(self) -> tuple[float, ...]:
+        """The resolved step sizes [s], ascending (Steps.snapped)."""
+        return tuple(grid_values(self.steps.h))
 
     @property
     def points(self) -> list[tuple]:
@@ -422,18 +307,56 @@ class SweepConfig:
         """The envelope's values of one variable."""
         return dict(self.spec.envelope)[var]
 
+    def changed(self, spec: ModelSpec | None = None, source: str | None = None,
+                **changes) -> SweepConfig:
+        """A copy with `changes`: a table given as a dict changes only the keys it names
+        (stability={"rule": "modes"}); `spec` replaces the model, `source` the file."""
+        update = {key: getattr(self, key).model_copy(update=value)
+                  if isinstance(value, dict) and isinstance(getattr(self, key), Schema)
+                  else value for key, value in changes.items()}
+        out = self.model_copy(update=update)
+        if spec is not None:
+            out._spec = spec
+        if source is not None:
+            out._source = source
+        return out
+
+    def __eq__(self, other) -> bool:
+        """Equal where they decide the same results (the file's path and [limits] decide
+        none)."""
+        return isinstance(other, SweepConfig) and self.canonical() == other.canonical()
+
+    def __hash__(self) -> int:
+        return hash(self.sha256)
+
     def canonical(self) -> dict:
-        """What decides the results and differs from the defaults (what sha256 is over)."""
-        return config_schema.differing(self)
+        """What decides the results, as JSON-ready data (what sha256 is over): the sweep's
+        identity, and each setting of FINGERPRINT and [newton] that differs from its
+        default."""
+        flat: dict = {"name": self.name, "model": self.spec.name, "vehicle": self.vehicle,
+                      "horizon": self.horizon, "methods": self.methods,
+                      "spec": self.spec.canonical(), "hs": self.hs,
+                      "traj_point": self.trajectories.point}
+        for key, (table, field) in FINGERPRINT.items():
+            part = getattr(self, table)
+            value = getattr(part, field)
+            if value != type(part).model_fields[field].default:
+                flat[key] = value
+        newton = config_schema.differing(self.newton)
+        if newton:
+            flat["newton"] = newton
+        return to_jsonable_python(flat)
 
     @property
     def sha256(self) -> str:
-        return config_schema.sha256(self)
+        """The hex sha256 of canonical() as canonical JSON (sorted keys, no spaces)."""
+        text = json.dumps(self.canonical(), sort_keys=True, separators=(",", ":"))
+        return hashlib.sha256(text.encode()).hexdigest()
 
     @property
     def stability_horizon(self) -> float:
         """How long a stability run of the "modes" rule lasts [s]."""
-        return self.horizon if self.stab_horizon is None else self.stab_horizon
+        return self.horizon if self.stability.horizon is None else self.stability.horizon
 
     @property
     def newton_options(self) -> dict:
@@ -467,22 +390,20 @@ def check_one_problem(raw: dict, path):
 
 
 def validate(raw: dict, source: str = "config") -> SweepConfig:
-    """The sweep of a config's table: its keys checked against SweepFile, then against each
-    other and the model (UsageError, one line per mistake)."""
-    f = config_schema.check(SweepFile, raw, source)
+    """The sweep of a config's table: its keys checked against SweepConfig, then against each
+    other and the model (UsageError, one line per mistake), and resolved: its name, vehicle,
+    methods, steps, reference and trajectories as the sweep runs them, and its model."""
+    f = config_schema.check(SweepConfig, raw, source)
     bad: list[str] = []
     spec, vehicle = model_spec(f, source, bad)
     methods = selected(f.methods) if isinstance(f.methods, str) else list(f.methods)
-    hs = grid_values(f.steps.h)
-    if max(hs) > f.horizon:
-        bad.append(f"steps.h reaches {max(hs):g} s, past the horizon {f.horizon:g} s; keep "
+    grid = grid_values(f.steps.h)
+    if max(grid) > f.horizon:
+        bad.append(f"steps.h reaches {max(grid):g} s, past the horizon {f.horizon:g} s; keep "
                    "every step <= horizon")
-    hs = sorted({f.horizon / max(1, round(f.horizon / h)) for h in hs})
-    exact, solver = f.reference.exact, f.reference.solver
-    if exact and spec is not None:
-        exact = closed_form_problem(spec, bad)
-    if spec is not None and (exact or solver == default_solver(spec)):
-        solver = ""       # the default, or unused: the same results, the same sha256
+    steps = f.steps.snapped(f.horizon)
+    hs = grid_values(steps.h)
+    reference = f.reference.resolved(spec, bad)
     if f.stability.h_probe_max < max(hs):
         bad.append(f"stability.h_probe_max ({f.stability.h_probe_max:g} s) is below the "
                    f"largest step ({max(hs):g} s); raise it")
@@ -494,240 +415,20 @@ def validate(raw: dict, source: str = "config") -> SweepConfig:
         bad.append("stability.horizon is the length of the \"modes\" rule's runs; the "
                    "\"blowup\" rule runs stability.steps steps: set stability.rule = "
                    "\"modes\" or drop stability.horizon")
-    traj_point = trajectory_point(f.trajectories, spec, bad)
-    if exact and spec is not None and traj_point not in spec.points:
+    trajectories = f.trajectories.resolved(spec, bad)
+    if reference.exact and spec is not None and trajectories.point not in spec.points:
         bad.append("reference.exact solves the model's own problem alone; leave "
                    "[trajectories] at the envelope's values")
     if not bad and spec is not None:
         check_rhs(spec, source)
     if bad or spec is None:               # no spec: model_spec said why in bad
         raise UsageError("\n".join(f"{source}: {line}" for line in bad))
-    return SweepConfig(
-        name=f.name if f.name is not None else Path(source).stem, model=spec.name,
-        vehicle=vehicle, horizon=f.horizon, methods=tuple(methods), spec=spec, hs=tuple(hs),
-        traj_point=traj_point, rtol=f.reference.rtol, atol=f.reference.atol,
-        stab_steps=f.stability.steps, growth=f.stability.growth,
-        perturbation=f.stability.perturbation, h_probe_max=f.stability.h_probe_max,
-        rel_tol=f.stability.rel_tol, stab_rule=f.stability.rule,
-        stab_horizon=f.stability.horizon, points_per_chunk=f.chunks.points,
-        traj_fractions=f.trajectories.fractions, traj_past_limit=f.trajectories.past_limit,
-        timing_rounds=f.timing.rounds, exact_reference=exact, error_estimate=f.error.estimate,
-        ref_solver=solver, newton=f.newton, source=source, max_memory_gib=f.limits.memory_gib,
-        max_steps=f.limits.steps)
-
-
-def trajectory_point(traj: Trajectories, spec: ModelSpec | None, bad: list) -> tuple:
-    """The sample trajectories' operating point: [trajectories]' value of each envelope
-    variable, else the envelope's first."""
-    if spec is None:
-        return ()
-    given = traj.model_extra or {}
-    for key in sorted(set(given) - set(spec.variables)):
-        bad.append(f"unknown key trajectories.{key}; known: fractions, past_limit and the "
-                   f"envelope's variables ({', '.join(spec.variables)})")
-    return tuple(float(given.get(var, values[0])) for var, values in spec.envelope)
-
-
-def default_solver(spec: ModelSpec) -> str:
-    """The reference's solver where reference.solver is not given: LSODA for a stiff test
-    problem, else dopri5."""
-    return "LSODA" if spec.stiff else "dopri5"
-
-
-def closed_form_problem(spec: ModelSpec, bad: list) -> bool:
-    """Whether the references may be `spec`'s closed form: a built-in test problem that has
-    one, at its own default problem (initial state, inputs, parameters) in every operating
-    point, since the closed form solves that problem alone; appends to `bad` if not."""
-    from stepzoo import dynamics
-    m = dynamics.MODELS.get(spec.name)
-    if m is None or m.exact is None or m.vehicle_params is not None:
-        bad.append(f"reference.exact needs a built-in test problem with a closed form; "
-                   f"{spec.name} has none (set reference.exact = false)")
-        return False
-    x0, u, p = spec.arrays(spec.points)
-    own = bool((x0 == np.asarray(m.x0, float)).all() and (u == np.asarray(m.u0, float)).all()
-               and all((p[k] == v).all() for k, v in m.params().items()))
-    if not own:
-        bad.append(f"reference.exact solves {spec.name}'s own problem alone; keep "
-                   "[envelope], [initial] and [params] at its published values")
-    return own
-
-
-def model_spec(f: SweepFile, source: str, bad: list) -> tuple[ModelSpec | None, str]:
-    """(the config's model, the vehicle set name) from `model`, [params], [initial],
-    [envelope] and [error]; appends to `bad` and returns None for the model when wrong."""
-    from stepzoo import dynamics
-    before = len(bad)
-    vehicle = f.vehicle if f.vehicle is not None else dynamics.default_vehicle()
-    if vehicle not in dynamics.vehicle_names():
-        bad.append(f"unknown vehicle {vehicle!r}; known: {', '.join(dynamics.vehicle_names())}")
-        vehicle = dynamics.default_vehicle()
-    sha, stiff, folder, model = "", False, "", f.model
-    given = flatten(_plain_params(f.params))
-    if isinstance(model, str):
-        if model not in dynamics.MODELS:
-            bad.append(f"unknown model {model!r}; known: {', '.join(dynamics.MODELS)} (or a "
-                       "[model] table naming your own rhs = \"module:function\")")
-            return None, vehicle
-        name = model
-        try:
-            rhs, states, inputs, params, initial, kinds, stiff = builtin(model, vehicle, f.tyre)
-        except KeyError as err:
-            bad.append(err.args[0])
-            return None, vehicle
-    else:
-        if f.tyre is not None:
-            bad.append("tyre is an option of the built-in dynamic bicycles; your own model "
-                       "sets its tyres itself")
-            return None, vehicle
-        function = model.casadi if model.casadi is not None else model.rhs
-        assert function is not None       # ModelTable._one_way: one of the two is given
-        name = function
-        states, inputs = model.states, model.inputs
-        folder = str((Path(source).resolve().parent / model.path).resolve())
-        try:
-            if model.casadi is not None:
-                said: list[str] = []
-                p_names = casadi_model.check_p(list(model.p or ()), given, source, said)
-                bad.extend(line.removeprefix(f"{source}: ") for line in said)
-                if len(bad) > before:
-                    return None, vehicle
-                rhs, sha = casadi_model.load(name, Path(folder), states, inputs, p_names,
-                                             source)
-            else:
-                rhs, sha = load_function(name, Path(folder), source)
-                if any("." in k for k in given):
-                    rhs = Nested(rhs)          # the module reads its tables nested
-        except UsageError as err:
-            bad.append(str(err).removeprefix(f"{source}: "))
-            return None, vehicle
-        params, initial, kinds = {}, dict.fromkeys([*states, *inputs], 0.0), {}
-    params.update(given)
-    if f.envelope.x0 is not None:
-        if len(f.envelope.x0) != len(states):
-            bad.append(f"envelope.x0 must be {len(states)} finite numbers "
-                       f"[{', '.join(states)}]")
-        else:
-            initial.update(zip(states, f.envelope.x0))
-    derived = {}
-    for key, value in f.initial.items():
-        if key not in states:
-            bad.append(f"initial.{key} is not a state; states: {', '.join(states)}")
-        elif isinstance(value, str):
-            derived[key] = value
-        else:
-            initial[key] = value
-    known = set(states) | set(inputs) | set(params)
-    derive = _derive(derived, known, folder or str(Path(source).resolve().parent), source, bad)
-    envelope = []
-    for var, grid in (f.envelope.model_extra or {}).items():
-        if var not in known:
-            bad.append(f"envelope.{var} is not a parameter, input or state of {name}; "
-                       f"known: {', '.join(sorted(known))}")
-            continue
-        if var in derived:
-            bad.append(f"envelope.{var} varies a state that initial.{var} computes; keep one "
-                       "of the two")
-            continue
-        values = grid_values(grid)
-        kind = kinds.get(var)
-        wrong = kind and next(filter(None, (problem(kind, f"every envelope.{var}", v)
-                                            for v in values)), None)
-        if wrong:
-            bad.append(wrong)
-            continue
-        envelope.append((var, tuple(values)))
-    n_points = math.prod(len(vals) for _, vals in envelope)
-    if n_points > MAX_GRID:
-        bad.append(f"the envelope has {' x '.join(str(len(v)) for _, v in envelope)} "
-                   f"operating points; at most {MAX_GRID}")
-    if not envelope and len(bad) == before:
-        bad.append("[envelope] names no variable; give at least one parameter, input or "
-                   "initial state with its values")
-    error_states = f.error.states
-    if error_states is None:
-        error_states = BICYCLE_ERROR_STATES if name == "dynamic5" else states
-    elif not set(error_states) <= set(states):
-        bad.append(f"error.states must be a non-empty list of state names; states: "
-                   f"{', '.join(states)}")
-        error_states = states
-    scales = f.error.scales if f.error.scales is not None else (1.0,) * len(error_states)
-    if len(scales) != len(error_states) and len(bad) == before:
-        bad.append(f"error.scales must be one number > 0 per error state "
-                   f"({len(error_states)})")
-    if len(bad) > before:
-        return None, vehicle
-    spec = ModelSpec(name, rhs, tuple(states), tuple(inputs),
-                     tuple((k, float(v)) for k, v in params.items()),
-                     tuple(float(initial[s]) for s in states),
-                     tuple(float(initial[s]) for s in inputs), tuple(envelope),
-                     tuple(error_states), tuple(float(s) for s in scales), stiff,
-                     f.tyre, sha, folder, tuple(derived.items()), tuple(derive))
-    return _check_derived(spec, bad), vehicle
-
-
-def _derive(derived: dict, known: set, folder: str, source: str, bad: list) -> list:
-    """The evaluators (model_spec.Expression or Hook) of the initial states given as text,
-    in order; each may read the states, inputs and parameters, but no state computed after
-    it (nor itself). Appends to `bad` when one cannot be had."""
-    from stepzoo.bench.model.spec import import_user_module
-    out: list[Hook | Expression] = []
-    later = set(derived)
-    for key, text in derived.items():
-        later.discard(key)
-        if HOOK.match(text):
-            module, _, func = text.partition(":")
-            try:
-                fn = getattr(import_user_module(module, Path(folder), source,
-                                                f"initial.{key}"), func, None)
-            except UsageError as err:
-                bad.append(str(err).removeprefix(f"{source}: "))
-                continue
-            if not callable(fn):
-                bad.append(f"initial.{key} = {text!r}: {module} has no function {func!r}")
-                continue
-            out.append(Hook(fn))
-            continue
-        try:
-            expr = Expression(text)
-        except ValueError as err:
-            bad.append(f"initial.{key} = {text!r} {err}; write an arithmetic expression of "
-                       "states, inputs and parameters, or \"module:function\"")
-            continue
-        unknown = sorted(expr.names - known)
-        ahead = sorted(expr.names & (later | {key}))
-        if unknown:
-            bad.append(f"initial.{key} = {text!r} names {', '.join(unknown)}, not a state, "
-                       f"input or parameter; known: {', '.join(sorted(known))}")
-        elif ahead:
-            bad.append(f"initial.{key} = {text!r} reads {', '.join(ahead)}, computed at or "
-                       f"after it; list initial.{ahead[0]} before initial.{key}")
-        else:
-            out.append(expr)
-    return out
-
-
-def _check_derived(spec: ModelSpec, bad: list) -> ModelSpec | None:
-    """The spec, or None (with a line in `bad`) when an initial state it computes fails or is
-    not finite at some operating point."""
-    if not spec.derived:
-        return spec
-    try:
-        with np.errstate(all="ignore"):
-            x0, _, _ = spec.arrays(spec.points)
-    except Exception as err:     # the user's hook or a bad shape: one line, not a traceback
-        bad.append(f"the initial states computed by [initial] ({', '.join(dict(spec.derived))})"
-                   f" fail: {type(err).__name__}: {err}")
-        return None
-    for state, text in spec.derived:
-        col = x0[:, spec.states.index(state)]
-        if not np.isfinite(col).all():
-            at = spec.points[int(np.argmin(np.isfinite(col)))]
-            where = ", ".join(f"{v} = {a:g}" for v, a in zip(spec.variables, at))
-            bad.append(f"initial.{state} = {text!r} is not finite at {where}; keep it finite "
-                       "over the envelope")
-            return None
-    return spec
+    cfg = f.model_copy(update={
+        "name": f.name if f.name is not None else Path(source).stem, "vehicle": vehicle,
+        "methods": tuple(methods), "steps": steps, "reference": reference,
+        "trajectories": trajectories})
+    cfg._spec, cfg._source = spec, source
+    return cfg
 
 
 def check_workload(cfg: SweepConfig, what: str | None = None):
@@ -735,9 +436,9 @@ def check_workload(cfg: SweepConfig, what: str | None = None):
     kind on `cfg`) would hold more trajectory memory or integrate more steps than allowed
     ([limits], --max-memory, --max-steps)."""
     from stepzoo.validate import GIB, check_budget
-    lanes = min(cfg.points_per_chunk, len(cfg.points))
+    lanes = min(cfg.chunks.points, len(cfg.points))
     steps = run_steps(cfg) + 1                                           # every call's length
-    blocks = -(-len(cfg.points) // cfg.points_per_chunk)
+    blocks = -(-len(cfg.points) // cfg.chunks.points)
     # Per method and block, calls of one block's lanes: the accuracy runs at every step; for
     # stability a pair of runs (perturbed, unperturbed) a call apart, per grid step, per rung
     # of the ladders past the grid (at most ten) and per narrowing round (a bisection's at
@@ -746,20 +447,20 @@ def check_workload(cfg: SweepConfig, what: str | None = None):
     # probes its ladder of multiples of h_pred.
     from stepzoo.bench.sweep.limit_search import PRED_LADDER
     from stepzoo.bench.sweep.runs.stability_runs import MODES
-    rounds = math.ceil(math.log2(math.log(1.3) / math.log1p(cfg.rel_tol))) + 1
-    per, probes = (2, 0) if cfg.stab_rule == "blowup" else \
+    rounds = math.ceil(math.log2(math.log(1.3) / math.log1p(cfg.stability.rel_tol))) + 1
+    per, probes = (2, 0) if cfg.stability.rule == "blowup" else \
         (MODES + len(cfg.spec.states) + 1, len(PRED_LADDER))
     calls = len(cfg.hs) + per * (len(cfg.hs) + 10 + rounds + probes)
-    memory = cfg.max_memory_gib and cfg.max_memory_gib * GIB
+    memory = cfg.limits.memory_gib and cfg.limits.memory_gib * GIB
     check_budget(what or f"the sweep {cfg.name!r}", steps, 2 * lanes, len(cfg.spec.states),
                  calls=len(cfg.methods) * blocks * calls / 2,
-                 memory=memory, max_steps=cfg.max_steps)
+                 memory=memory, max_steps=cfg.limits.steps)
 
 
 def run_steps(cfg: SweepConfig) -> int:
     """The steps of a sweep's longest call: the accuracy run at the smallest step, or a
     stability run (`stability.steps`, or the stability horizon at the smallest step)."""
-    stab = cfg.stab_steps if cfg.stab_rule == "blowup" else \
+    stab = cfg.stability.steps if cfg.stability.rule == "blowup" else \
         math.ceil(cfg.stability_horizon / cfg.hs[0] - 1e-9)
     return max(round(cfg.horizon / cfg.hs[0]), stab)
 

@@ -36,7 +36,7 @@ from stepzoo.bench.sweep.config import ESTIMATES, SweepConfig, check_workload
 # ---- chunks -----------------------------------------------------------------------------
 
 def n_blocks(cfg: SweepConfig) -> int:
-    return -(-len(cfg.points) // cfg.points_per_chunk)
+    return -(-len(cfg.points) // cfg.chunks.points)
 
 
 def chunk_ids(cfg: SweepConfig) -> list[str]:
@@ -245,23 +245,25 @@ def _write_manifest(cfg, out: Path, created, done, timing, complete) -> dict:
         "updated": datetime.now(timezone.utc).isoformat(timespec="seconds"),
         "complete": complete, "methods": list(cfg.methods), "chunks": list(done),
         "n_chunks": len(chunk_ids(cfg)), "timing": timing,
-        "blowup_rule": metrics.BLOWUP_RULE if cfg.stab_rule == "blowup" else
+        "blowup_rule": metrics.BLOWUP_RULE if cfg.stability.rule == "blowup" else
         stability_runs.MODES_RULE,
-        "stability": {"rule": cfg.stab_rule, "horizon_s": cfg.stability_horizon,
+        "stability": {"rule": cfg.stability.rule, "horizon_s": cfg.stability_horizon,
                       "agreement_tol": metrics.AGREE_TOL,
-                      "steps": cfg.stab_steps, "growth": cfg.growth,
-                      "perturbation": cfg.perturbation, "h_probe_max_s": cfg.h_probe_max,
-                      "bisection_rel_tol": cfg.rel_tol, "narrowing": limit_search.NARROWING},
+                      "steps": cfg.stability.steps, "growth": cfg.stability.growth,
+                      "perturbation": cfg.stability.perturbation,
+                      "h_probe_max_s": cfg.stability.h_probe_max,
+                      "bisection_rel_tol": cfg.stability.rel_tol,
+                      "narrowing": limit_search.NARROWING},
         "order_fit": metrics.ORDER_RULE,
         "nonsmooth": nonsmooth.RULE,
         "prediction": frozen.RULE,
-        "trajectory_point": dict(zip(cfg.spec.variables, cfg.traj_point)),
-        "horizon_s": cfg.horizon, "vehicle": cfg.vehicle, "model": cfg.model,
+        "trajectory_point": dict(zip(cfg.spec.variables, cfg.trajectories.point)),
+        "horizon_s": cfg.horizon, "vehicle": cfg.vehicle, "model": cfg.spec.name,
         "reference": reference_backend.choose(cfg).description,
-        "error_estimate": ESTIMATES[cfg.error_estimate],
+        "error_estimate": ESTIMATES[cfg.error.estimate],
         "newton": cfg.newton_options,
         "model_spec": schema.model_record(cfg.spec),
-        "stepzoo_version": ver, "timing_rounds": cfg.timing_rounds,
+        "stepzoo_version": ver, "timing_rounds": cfg.timing.rounds,
         "timing_rule": TIMING_RULE,
         **environment.provenance("sweep", created[1], environment.now() if complete else None),
     }

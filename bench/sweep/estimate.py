@@ -60,7 +60,7 @@ def estimate(cfg, cache: dict, blocks: int) -> Estimate:
     for h in cfg.hs:
         block.accuracy_reference(h)
     block.nonsmooth()
-    if cfg.stab_rule != "blowup":
+    if cfg.stability.rule != "blowup":
         block.modal()
     shared = time.perf_counter() - t0
     methods = {name: _method(block, cfg.method(name)) for name in cfg.methods}
@@ -68,7 +68,7 @@ def estimate(cfg, cache: dict, blocks: int) -> Estimate:
     # Block 0's shared work and compiling are done; the rest is the chunks' runs, and the
     # other blocks' shared work (their references cost what block 0's did, compiling aside).
     # The last block's padding lanes are not probed: its stability work is its real lanes'.
-    padding = 1.0 - (len(cfg.points) - (blocks - 1) * cfg.points_per_chunk) / len(block.points)
+    padding = 1.0 - (len(cfg.points) - (blocks - 1) * cfg.chunks.points) / len(block.points)
     total = calibration + (blocks - 1) * shared + sum(
         blocks * m["chunk_s"] - (padding if blocks > 1 else 0.0) * m["stability_s"]
         + m["retry_compile_s"] for m in methods.values())
@@ -103,7 +103,7 @@ def _method(block: Block, meth) -> dict:
     # of the method's size, compiled once per sweep. On a stiff model the probes past an
     # implicit method's limit make a failure likely, so it is counted (unless the probe
     # above compiled it already: the calibration paid it).
-    retry = compile_s if (cfg.stab_rule != "blowup" and meth.solves
+    retry = compile_s if (cfg.stability.rule != "blowup" and meth.solves
                           and compiled < 0.5 * compile_s) else 0.0
     return {"compile_s": compile_s, "retry_compile_s": retry, "call_s": call_s,
             "step_s": step_s, "calls": calls,
@@ -135,8 +135,8 @@ def _chunk_work(block: Block, meth) -> tuple[int, int, int, float, int, int]:
     n_acc = [round(cfg.horizon / h) for h in cfg.hs]
     j = int(np.argmin(np.abs(np.array(n_acc) - CALIBRATION_STEPS)))   # the timed run
     # The chunk's compiling call (one step), the accuracy runs and the timing rounds.
-    calls = 1 + len(n_acc) + cfg.timing_rounds - 1
-    steps = 1 + sum(n_acc) + (cfg.timing_rounds - 1) * n_acc[j]
+    calls = 1 + len(n_acc) + cfg.timing.rounds - 1
+    steps = 1 + sum(n_acc) + (cfg.timing.rounds - 1) * n_acc[j]
     t0 = time.perf_counter()
     pred = np.array([p.h for p in block.predicted(meth)])      # the chunk computes it too
     predict_s = time.perf_counter() - t0
@@ -151,10 +151,10 @@ def _chunk_work(block: Block, meth) -> tuple[int, int, int, float, int, int]:
     n = block.points.n_real                   # the padding lanes are not probed
     grid = limit_search.at_steps(probe, np.arange(n), np.tile(np.asarray(cfg.hs), (n, 1)).T)
     measured = limit_search.measured_limit(grid, probe, cfg.hs, pred[:n], block.h_top,
-                                           cfg.rel_tol, len(block.points),
-                                           ladder=cfg.stab_rule != "blowup")
-    if cfg.stab_rule != "blowup":         # the diagnosis probes just above each limit
-        h = measured.h_meas * (1 + cfg.rel_tol)
+                                           cfg.stability.rel_tol, len(block.points),
+                                           ladder=cfg.stability.rule != "blowup")
+    if cfg.stability.rule != "blowup":         # the diagnosis probes just above each limit
+        h = measured.h_meas * (1 + cfg.stability.rel_tol)
         asked.append(h[np.isfinite(h) & (h > 0)])
     stab_calls, stab_steps, run_steps, B = 0, 0, 0, len(block.points)
     for hs in asked:
@@ -169,7 +169,7 @@ def _figure_work(cfg, max_steps: int, B: int, limit: float) -> tuple[int, int]:
     """(calls, steps) of the figure runs (runs.figure_runs.method_rows), with the first
     lane's predicted limit standing in for the trajectory point's."""
     base = limit if math.isfinite(limit) else cfg.hs[-1]
-    hs = [max(f * base, cfg.hs[0]) for f in cfg.traj_fractions]
+    hs = [max(f * base, cfg.hs[0]) for f in cfg.trajectories.fractions]
     runs = len(hs) + (1 if math.isfinite(limit) and limit > 0 else 0)
     calls = -(-runs // B)
     return calls, calls * min(max_steps, math.ceil(cfg.horizon / min(hs) - 1e-9))
@@ -181,9 +181,9 @@ def _probe_work(cfg, max_steps: int, B: int, hs: np.ndarray) -> tuple[int, int, 
     "modes" rule runs each with its directions, to the stability horizon, in calls of B
     runs, each call as long as its longest run."""
     from stepzoo.bench.sweep.runs.stability_runs import MODES
-    if cfg.stab_rule == "blowup":
+    if cfg.stability.rule == "blowup":
         calls = 2 * math.ceil(len(hs) / B)
-        return calls, calls * cfg.stab_steps, 2 * len(hs) * cfg.stab_steps
+        return calls, calls * cfg.stability.steps, 2 * len(hs) * cfg.stability.steps
     n = np.minimum(np.ceil(cfg.stability_horizon / hs - 1e-9), max_steps).astype(int)
     # Each of the MODES modes and each state alone (stability_runs.directions), and the
     # unperturbed run.

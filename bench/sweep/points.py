@@ -23,11 +23,11 @@ class Points:
 
     @classmethod
     def block(cls, cfg, block: int) -> Points:
-        """Block `block` of cfg's points, in lanes of cfg.points_per_chunk (fewer where the
+        """Block `block` of cfg's points, in lanes of cfg.chunks.points (fewer where the
         config has fewer points)."""
         pts = cfg.points
-        size = min(cfg.points_per_chunk, len(pts))
-        first = block * cfg.points_per_chunk
+        size = min(cfg.chunks.points, len(pts))
+        first = block * cfg.chunks.points
         ids = tuple(range(first, min(first + size, len(pts))))
         lanes = ids + (ids[-1],) * (size - len(ids))
         x0, u, p = cfg.spec.arrays([pts[i] for i in lanes])

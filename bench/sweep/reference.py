@@ -9,7 +9,8 @@ from typing import TYPE_CHECKING, NamedTuple, Protocol
 
 import numpy as np
 
-from stepzoo.bench.sweep.config import SweepConfig, default_solver
+from stepzoo.bench.sweep.config import SweepConfig
+from stepzoo.bench.sweep.model_table import default_solver
 
 if TYPE_CHECKING:
     from stepzoo.bench.model.spec import ModelSpec
@@ -45,7 +46,7 @@ class Exact:
         from stepzoo import dynamics
         with watch.clock("reference_s"):
             exact = dynamics.MODELS[self.model].exact
-            assert exact is not None      # config.closed_form_problem: the model has one
+            assert exact is not None      # model_table.closed_form_problem: the model has one
             x = exact(h * np.arange(n + 1))
         x = np.broadcast_to(np.asarray(x, float), (len(points), n + 1, len(x[0]))).copy()
         return Solution(x, np.ones(len(points), bool))
@@ -128,9 +129,9 @@ def _batched_dopri5(f, rtol, atol):
 def choose(cfg: SweepConfig) -> Reference:
     """The config's reference: the closed form where reference.exact, else reference.solver
     (the model's default where not given): dopri5 in JAX, any other by SciPy."""
-    if cfg.exact_reference:
+    if cfg.reference.exact:
         return Exact(cfg.spec.name)
-    solver = cfg.ref_solver or default_solver(cfg.spec)
+    solver = cfg.reference.solver or default_solver(cfg.spec)
     if solver == "dopri5":
-        return Dopri5(cfg.spec, cfg.rtol, cfg.atol)
-    return SciPy(cfg.spec, solver, cfg.rtol, cfg.atol)
+        return Dopri5(cfg.spec, cfg.reference.rtol, cfg.reference.atol)
+    return SciPy(cfg.spec, solver, cfg.reference.rtol, cfg.reference.atol)

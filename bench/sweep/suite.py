@@ -19,7 +19,7 @@ import re
 import shutil
 import time
 import types
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from pathlib import Path
 
 import pandas as pd
@@ -45,15 +45,15 @@ ORDERS = "orders.csv"
 # A problem's table: a sweep config's keys, each optional (the top level's fill in); its name
 # labels the problem (default: its model's name).
 ProblemTable = config_schema.optional(
-    sweep_config.SweepFile, "ProblemTable", "[[problem]]: one problem of the suite: a sweep "
+    sweep_config.SweepConfig, "ProblemTable", "[[problem]]: one problem of the suite: a sweep "
     "config's keys, over the suite's top-level ones (the settings tables merged key by key); "
     "name labels it and its folder (default: its model's name).")
 # The suite's top level: a sweep config's keys, every problem's defaults.
 SuiteDefaults = config_schema.optional(
-    sweep_config.SweepFile, "SuiteDefaults", "A suite's top level: a sweep config's keys, "
+    sweep_config.SweepConfig, "SuiteDefaults", "A suite's top level: a sweep config's keys, "
     "every problem's defaults.")
 SuiteFile = config_schema.optional(
-    sweep_config.SweepFile, "SuiteFile", "A suite config file: several problems swept "
+    sweep_config.SweepConfig, "SuiteFile", "A suite config file: several problems swept "
     "into one results folder. Its top-level keys are a sweep config's, every problem's "
     "defaults; a problem without a horizon runs over its built-in model's published "
     "interval, one without an envelope its model's default problem.",
@@ -207,7 +207,7 @@ def run_suite(suite: SuiteConfig, out, resume=False, overwrite=False, progress=T
             own = folder / "config.toml"
             with claim(folder, "sweep", overwrite=overwrite):   # marks it the sweep's
                 atomic_write(own, _toml(merged).encode())
-            manifests[label] = run_sweep(replace(cfg, source=str(own)), folder, resume=resume,
+            manifests[label] = run_sweep(cfg.changed(source=str(own)), folder, resume=resume,
                                          overwrite=overwrite, progress=progress, runner=runner)
         tables = assemble(suite, out)
         for name in schema.PARQUET:
@@ -279,7 +279,7 @@ def _write_manifest(suite: SuiteConfig, out: Path, created, timing, complete) ->
     manifest = {
         "config_sha256": suite.sha256, "config_name": suite.name, "complete": complete,
         "problems": suite.labels, "methods": list(suite.methods),
-        "models": {label: cfg.model for label, cfg, _ in suite.problems},
+        "models": {label: cfg.spec.name for label, cfg, _ in suite.problems},
         "problem_sha256": {label: cfg.sha256 for label, cfg, _ in suite.problems},
         "timing": timing, "order_fit": metrics.ORDER_RULE,
         "order_tolerance": metrics.ORDER_TOL,

@@ -7,7 +7,6 @@ envelope each verdict holds, in words that name no point of another verdict; and
 model is stiff, with the mode that binds explicit steps (bench/model/stiffness.py)."""
 from __future__ import annotations
 
-import dataclasses
 import math
 
 import numpy as np
@@ -58,7 +57,7 @@ def _verdict(cfg, method_name: str, h: float) -> tuple[pd.DataFrame, pd.DataFram
         run = work.run(meth, pts.x0, pts.u, pts.p, h, n)
         x, acc_conv = run.x, run.converged
         ref = work.reference(h, n).x
-        err = metrics.run_error(cfg.spec, x, ref, cfg.error_estimate)
+        err = metrics.run_error(cfg.spec, x, ref, cfg.error.estimate)
         predicted = work.predicted(meth)
         h_meas, limit_cause = work.measured_limits(meth, grid, np.array([p.h for p in predicted]))
         nan_t = model_nan.lane_times(work)
@@ -108,7 +107,8 @@ def at_step(cfg, h: float):
     """The sweep config `cfg` as a verdict at the step h [s] runs it: the accuracy runs take
     the horizon in steps of h, as the sweep's; the limit search brackets from h, and probes
     above it even when h is past the config's largest probe."""
-    return dataclasses.replace(cfg, hs=(h,), h_probe_max=max(cfg.h_probe_max, 2.0 * h))
+    return cfg.changed(steps={"h": (h,)},
+                       stability={"h_probe_max": max(cfg.stability.h_probe_max, 2.0 * h)})
 
 
 def check_workload(cfg, pairs) -> None:
@@ -117,7 +117,7 @@ def check_workload(cfg, pairs) -> None:
     than allowed (the sweep's estimate at that one step)."""
     from stepzoo.bench.sweep.config import check_workload as check
     for name, h in pairs:
-        check(dataclasses.replace(at_step(cfg, h), methods=(name,)),
+        check(at_step(cfg, h).changed(methods=(name,)),
               f"the verdict on {name} at h = {h:g} s")
 
 

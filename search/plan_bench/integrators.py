@@ -48,14 +48,14 @@ def from_tuned(path, runners_up: int | None = None) -> list[Integrator]:
     The file is checked as the tuned kind (stepzoo.tuned_file), as `plan` checks it."""
     from stepzoo.config_schema import check
     from stepzoo.integrators import METHODS
-    from stepzoo.tuned_file import RunnerUp, TunedFile
+    from stepzoo.tuned_file import PlannerChoice, RunnerUp, TunedFile
     from stepzoo.validate import read_toml
     where = f"--integrators-from {path}"
     tuned = check(TunedFile, read_toml(path, "--integrators-from", "give a TOML file written "
                                        "by `stepzoo tune`"), where)
-    qualified = [r for r in tuned.runners_up if r.h is not None and r.qualifies]
+    qualified = [r for r in tuned.evidence.runners_up if r.h is not None and r.qualifies]
     out: list[Integrator] = []
-    rows: list[TunedFile | RunnerUp] = [tuned, *qualified[:runners_up]]
+    rows: list[PlannerChoice | RunnerUp] = [tuned.choice, *qualified[:runners_up]]
     for k, row in enumerate(rows):
         if row.method not in METHODS:
             raise UsageError(f"{where}: " + ("the choice" if k == 0 else f"runner-up {k}")

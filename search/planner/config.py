@@ -206,7 +206,7 @@ def load_config(path=None) -> PlannerConfig:
     from stepzoo.tuned_file import TunedFile
     path = Path(path) if path is not None else DEFAULT_CONFIG
     data = read_toml(path, "planner config", "give a TOML file written by `stepzoo tune`")
-    tuned = check(TunedFile, data, str(path))
-    provenance = tuned.provenance if tuned.provenance is not None else (tuned.why or
-                                                                        "not stated")
-    return make_config(tuned.method, tuned.h, provenance, str(path), **tuned.planner)
+    choice = check(TunedFile, data, str(path)).choice     # the evidence is tune's, not ours
+    provenance = choice.provenance if choice.provenance is not None else (choice.why or
+                                                                          "not stated")
+    return make_config(choice.method, choice.h, provenance, str(path), **choice.planner)

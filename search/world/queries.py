@@ -1,7 +1,8 @@
 """Query files for `stepzoo plan-bench`: a JSON list of {map, cell_size, start, goal, id}, the map
-path relative to the file; and the seeded generator of random street queries (start and goal
-in one free region of a map, a given distance apart, the start with a collision-free forward
-departure and the goal with a collision-free forward arrival) that wrote the shipped test set."""
+path relative to the file (declared in query_file.py); and the seeded generator of random
+street queries (start and goal in one free region of a map, a given distance apart, the start
+with a collision-free forward departure and the goal with a collision-free forward arrival)
+that wrote the shipped test set."""
 from __future__ import annotations
 
 import json
@@ -15,11 +16,13 @@ import numpy as np
 from scipy.ndimage import label
 
 from stepzoo import dynamics
+from stepzoo.config_schema import check
 from stepzoo.errors import UsageError
 from stepzoo.safe_parse import json_loads
 from stepzoo.search.proofs.departure import free_departure, turned
 from stepzoo.search.world.footprint import Footprint, poses_collide
 from stepzoo.search.world.maps import MAP_DIR, SUBDIV, OccupancyMap
+from stepzoo.search.world.query_file import QueryFile
 from stepzoo.search.planner.config import PlannerParams
 from stepzoo.search.world.scenarios import open_map, pose
 
@@ -43,7 +46,8 @@ class Query:
 
 
 def load_queries(path) -> list[Query]:
-    """The queries of a plan-bench file; every mistake is one UsageError line."""
+    """The queries of a plan-bench file, each checked against its declaration (QueryFile);
+    the first mistake is one UsageError line."""
     path = Path(path)
     try:
         data = json_loads(path.read_text())
@@ -58,6 +62,10 @@ def load_queries(path) -> list[Query]:
         if not isinstance(item, dict) or not {"map", "start", "goal"} <= set(item):
             raise UsageError(f"{where} must be an object with map, start and goal "
                              "(cell_size for MovingAI maps, id optional)")
+        try:
+            check(QueryFile, item, where)
+        except UsageError as err:         # the first mistake, as every other here: one line
+            raise UsageError(str(err).splitlines()[0]) from None
         qid = str(item.get("id", k))
         bad = id_problem(qid)
         if bad:
@@ -67,9 +75,6 @@ def load_queries(path) -> list[Query]:
             raise UsageError(f"{where}: id {qid!r} appears twice; ids must be unique")
         seen.add(qid)
         cell = item.get("cell_size")
-        if cell is not None and (isinstance(cell, bool) or not isinstance(cell, (int, float))
-                                 or not (math.isfinite(cell) and cell > 0)):
-            raise UsageError(f"{where}: cell_size must be a number > 0 [m/cell], got {cell!r}")
         queries.append(Query(qid, str(item["map"]), path.parent / str(item["map"]),
                              None if cell is None else float(cell),
                              pose(item["start"], f"start of {where}"),

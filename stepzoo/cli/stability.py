@@ -67,7 +67,7 @@ def config_from_args(args):
 
 def at_point(cfg, assignments) -> tuple:
     """The operating point: the trajectory point, with --at VAR=VALUE applied."""
-    point = dict(zip(cfg.spec.variables, cfg.traj_point))
+    point = dict(zip(cfg.spec.variables, cfg.trajectories.point))
     for item in assignments:
         var, eq, value = item.partition("=")
         if not eq or var not in point:
@@ -95,7 +95,8 @@ def predict(cfg, point) -> dict:
     from stepzoo.integrators import METHODS
     spec = dataclasses.replace(cfg.spec, envelope=tuple(
         (var, (value,)) for var, value in zip(cfg.spec.variables, point)))
-    one = dataclasses.replace(cfg, spec=spec, points_per_chunk=1, traj_point=point)
+    one = cfg.changed(spec=spec, chunks={"points": 1},
+                      trajectories=cfg.trajectories.at(dict(zip(spec.variables, point))))
     work = Block(one, 0, {})
     along = work.along()
     ts, lam = along.ts, along.lam
@@ -109,7 +110,7 @@ def predict(cfg, point) -> dict:
                          "t_bind": None if k < 0 else float(ts[k]),
                          "lambda_bind": None if k < 0 else [float(lam[0, k, j].real),
                                                             float(lam[0, k, j].imag)]}
-    return {"model": cfg.model, "point": dict(zip(cfg.spec.variables, point)),
+    return {"model": cfg.spec.name, "point": dict(zip(cfg.spec.variables, point)),
             "horizon_s": cfg.horizon, "jacobian_finite": math.isnan(nan_t),
             "model_nan_t": None if math.isnan(nan_t) else nan_t,
             "eigenvalues": [[float(e.real), float(e.imag)]

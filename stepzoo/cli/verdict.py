@@ -69,7 +69,7 @@ def main(args) -> int:
         check_file_target(args.csv, "--csv", kind=VERDICT_CSV, inputs=[args.config])
     cfg = load(args.config)
     if column == "err_pos" and not cfg.spec.vehicle:
-        raise UsageError(f"{cfg.model} has no position (X, Y); use --tol E")
+        raise UsageError(f"{cfg.spec.name} has no position (X, Y); use --tol E")
     unit = " m" if column == "err_pos" else ""
     results = verdicts(cfg, list(zip(args.method, hs)), column, tol, margin, unit,
                        args.allow_beyond_predicted_limit)
@@ -86,7 +86,7 @@ def main(args) -> int:
                 v[key] = v[key] if math.isfinite(v[key]) else None
             v["stiffness"] = _finite(v["stiffness"])
             out.append(v)
-        print(to_json({"model": cfg.model, "config": str(args.config), "verdicts": out}))
+        print(to_json({"model": cfg.spec.name, "config": str(args.config), "verdicts": out}))
         return 0
     for v, table in results:
         _show(cfg, v, table, tol, unit)
@@ -116,7 +116,7 @@ def _show(cfg, v, table, tol, unit) -> None:
     if solver.any():
         measured += (f"; a nonlinear solve failed above {table.loc[solver, 'h_meas'].min():.4g}"
                      f" s at {int(solver.sum())} point(s)")
-    print(f"{v['method']} at h = {v['h']:g} s on {cfg.model} ({v['points']} points): "
+    print(f"{v['method']} at h = {v['h']:g} s on {cfg.spec.name} ({v['points']} points): "
           f"stable at {v['stable']} ({v['stable_with_margin']} with margin {v['margin']:g}), "
           f"within {tol:g}{unit} at {v['accurate']}; smallest predicted limit "
           f"{v['h_pred_min']:.4g} s, {measured}")

@@ -93,8 +93,9 @@ def run(out="results", config=None, pos_tol: float = 0.1, margin: float = DEFAUL
     from stepzoo.bench.sweep.config import load
     cfg = load(config)
     if not cfg.spec.vehicle:     # found before the sweep, not at the tune stage after it
-        raise UsageError(f"{config}: its model {cfg.model} has no position (X, Y), and `stepzoo "
-                         "run` tunes to a position tolerance (--pos-tol) for the planner's car; "
+        raise UsageError(f"{config}: its model {cfg.spec.name} has no position (X, Y), and "
+                         "`stepzoo run` tunes to a position tolerance (--pos-tol) for the "
+                         "planner's car; "
                          f"run `stepzoo sweep {config} --out DIR`, then `stepzoo tune DIR --tol "
                          "E --out tuned.toml`")
     with claim(out, "run"):

@@ -3,8 +3,6 @@ one past it, and the reference) at an operating point other than the one it ran 
 rows of trajectories.parquet, computed by the sweep's own code."""
 from __future__ import annotations
 
-import dataclasses
-
 import pandas as pd
 
 from stepzoo.bench.sweep import tables as schema
@@ -15,7 +13,7 @@ from stepzoo.bench.sweep.block import Block
 def trajectories_at(cfg, point) -> pd.DataFrame:
     """trajectories.parquet's rows of the sweep config `cfg` with its trajectory point
     replaced by `point` (one value per envelope variable, in their order)."""
-    cfg = dataclasses.replace(cfg, traj_point=tuple(float(v) for v in point))
+    cfg = cfg.changed(trajectories=cfg.trajectories.at(dict(zip(cfg.spec.variables, point))))
     block = Block(cfg, 0, {})
     frames = [trajectory_runs.reference_rows(block)]
     frames += [trajectory_runs.method_rows(block, cfg.method(name)) for name in cfg.methods]

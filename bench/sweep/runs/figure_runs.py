@@ -49,10 +49,10 @@ def method_rows(block, meth) -> pd.DataFrame:
                                points.p)
     limit = frozen.predicted_limit(meth, frozen.eigenvalues(jac[0]))[0]
     base = limit if math.isfinite(limit) else cfg.hs[-1]
-    hs = [max(f * base, cfg.hs[0]) for f in cfg.traj_fractions]
+    hs = [max(f * base, cfg.hs[0]) for f in cfg.trajectories.fractions]
     past = [False] * len(hs)
     if math.isfinite(limit) and limit > 0:
-        hs.append(cfg.traj_past_limit * limit)
+        hs.append(cfg.trajectories.past_limit * limit)
         past.append(True)
     frames, lanes = [], len(points)
     for start in range(0, len(hs), lanes):
