@@ -101,8 +101,9 @@ class PathFinder:
         """Compile the driver and build the OCP once, so timed plans measure planning [s]."""
         t0 = perf_counter()
         batch = self.shooter.batch
-        self.shooter.integrate(np.zeros((batch, 5)), np.zeros(batch), np.zeros(batch))
-        shooters = [self.back_shooter] if self.back_shooter is not None else []
+        shooters = [self.shooter]
+        if self.back_shooter is not None:
+            shooters.append(self.back_shooter)
         if self.rate_limited and self.config.params.tight_moves:
             shooters.append(self.tight_shooter)   # it shoots wherever a tree move collides
         for shooter in shooters:
