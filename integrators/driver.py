@@ -113,7 +113,10 @@ def _stepwise(step, x0, ys0, y_m, state, m, n_steps, max_steps, t0, h):
     return jnp.where(rows <= n_steps, buf, jnp.nan), state
 
 
-def _integrate(method, f, x0, u, p, h, n_steps, t0, max_steps):
+def _integrate(method, f, x0, u, p, h, n_steps, t0, max_steps, newton=None):
+    """One trajectory. `method` is a Method's program and `newton` its run_options() (None:
+    its own, compiled in)."""
+    method = method if newton is None else method.running(newton)
     fun = _bound(f, u, p)
     h = jnp.asarray(h, x0.dtype)
     xs, state = _scan(lambda t, y: method.start(fun, t, y, h),
@@ -190,9 +193,10 @@ def _split(a, n_chunks, size):
     return jnp.moveaxis(a.reshape((n_chunks, size) + a.shape[1:]), 1, -1)
 
 
-def _batch(method, f, x0, u, p, h, n_steps, t0, max_steps, libm):
+def _batch(method, f, x0, u, p, h, n_steps, t0, max_steps, libm, newton=None):
     """(Trajectory, whether a chunk met a sin or cos argument beyond the polynomials' bound:
-    then the caller runs again with `libm`)."""
+    then the caller runs again with `libm`); `method` and `newton` as _integrate's."""
+    method = method if newton is None else method.running(newton)
     x0 = jnp.asarray(x0)
     batch = x0.shape[0]
     one = lambda x, uu, pp, hh: _integrate(method, f, x, uu, pp, hh, n_steps, t0, max_steps)
@@ -308,7 +312,8 @@ def integrate(method, f, x0, u=None, p=None, h=None, n_steps=None, t0=0.0,
     """
     method, f, x0, scalar = _arguments(method, f, x0, h, n_steps, t0, max_steps, None)
     fn = _jitted[(_integrate, max_steps is not None)]
-    traj = fn(method, f, x0, u, p, h, n_steps, t0, max_steps)
+    traj = fn(method.program, f, x0, u, p, h, n_steps, t0, max_steps,
+              newton=method.run_options())
     return traj._replace(x=traj.x[..., 0]) if scalar else traj
 
 
@@ -333,12 +338,15 @@ def integrate_batch(method, f, x0, u=None, p=None, h=None, n_steps=None, t0=0.0,
     given = (u, p)
     u, p = arguments.shared(u, x0.shape[0]), arguments.shared(p, x0.shape[0])
     fn = _jitted[(_batch, max_steps is not None)]
+    program, newton = method.program, method.run_options()
     try:
-        traj, far = fn(method, f, x0, u, p, h, n_steps, t0, max_steps, libm=False)
+        traj, far = fn(program, f, x0, u, p, h, n_steps, t0, max_steps, libm=False,
+                       newton=newton)
     except (TypeError, ValueError) as err:      # JAX's words for it name neither u nor p
         arguments.explain_batch(err, *given, x0.shape[0])
         raise
-    exact = lambda: fn(method, f, x0, u, p, h, n_steps, t0, max_steps, libm=True)[0]
+    exact = lambda: fn(program, f, x0, u, p, h, n_steps, t0, max_steps, libm=True,
+                       newton=newton)[0]
     if isinstance(far, jax.core.Tracer):
         traj = lax.cond(far, exact, lambda: traj)
     elif far:

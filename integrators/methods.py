@@ -1,6 +1,6 @@
 """The zoo: each method is data (a tableau or multistep coefficients) plus metadata, and a
 registry by name. Adding a method is one `_register` line."""
-from dataclasses import asdict, dataclass, replace
+from dataclasses import asdict, astuple, dataclass, field, replace
 from functools import cache
 
 import jax.numpy as jnp
@@ -9,7 +9,7 @@ from jax import lax
 
 from stepzoo.integrators import steps
 from stepzoo.integrators.multistep import LinearMultistep, adams_bashforth, adams_moulton, bdf
-from stepzoo.integrators.newton import NewtonOptions
+from stepzoo.integrators.newton import NewtonOptions, RunOptions
 from stepzoo.integrators.rosenbrock import Rosenbrock
 from stepzoo.integrators.tableau import ButcherTableau
 
@@ -26,25 +26,47 @@ class Method:
     Multistep methods take their first k-1 steps with `starter` (a one-step method of order
     >= theirs). Hashable by identity, so a Method can be a static argument of `jax.jit`.
     `newton` holds the tolerances and iteration limit of an implicit method's nonlinear
-    solves (Rosenbrock methods have none)."""
+    solves (Rosenbrock methods have none). The driver compiles `program` and passes the
+    options as run-time values (`run_options`), so methods that differ in them alone share
+    one compiled program."""
     name: str
     family: str
     order: int
     scheme: ButcherTableau | Rosenbrock | LinearMultistep
     reference: str
     starter: "Method | None" = None
-    newton: NewtonOptions = NewtonOptions()
+    newton: NewtonOptions | RunOptions = NewtonOptions()
+    origin: "Method | None" = field(default=None, repr=False)
 
     def with_newton(self, **options) -> "Method":
-        """This method (and its starter) with other Newton options (fields of NewtonOptions).
-        A call that changes the options makes a new Method, hence a new compilation: make it
-        once and reuse it (`method(name, newton)` does). A method with no nonlinear solve,
-        or options equal to its own, is returned itself: same results, no compilation."""
+        """This method (and its starter) with other Newton options (fields of NewtonOptions),
+        sharing this one's compiled programs (`program`). A method with no nonlinear solve,
+        or options equal to its own, is returned itself."""
         opts = replace(self.newton, **options)
         if opts == self.newton or not self.solves:
             return self
         starter = self.starter.with_newton(**options) if self.starter is not None else None
-        return replace(self, newton=opts, starter=starter)
+        return replace(self, newton=opts, starter=starter, origin=self.program)
+
+    @property
+    def program(self) -> "Method":
+        """The Method the driver compiles for this one (a static argument of `jax.jit`): the
+        one it was made from by `with_newton`, or itself."""
+        return self.origin if self.origin is not None else self
+
+    def run_options(self) -> tuple:
+        """Its Newton options and its starter's, as the compiled program takes them (Python
+        numbers: run-time arguments of `jax.jit`, weakly typed, so a float32 state stays
+        float32)."""
+        own = tuple(astuple(self.newton))
+        return own, None if self.starter is None else self.starter.run_options()
+
+    def running(self, options) -> "Method":
+        """This method reading `run_options()`' values (traced inside the driver's program)
+        instead of its own."""
+        own, starter = options
+        return replace(self, newton=RunOptions(*own),
+                       starter=None if self.starter is None else self.starter.running(starter))
 
     @property
     def solves(self) -> bool:

@@ -50,6 +50,16 @@ class NewtonOptions:
                              f"max_iter_full={self.max_iter_full!r}")
 
 
+class RunOptions(NamedTuple):
+    """NewtonOptions' fields as a compiled step reads them: run-time values (tracers inside
+    the driver's program), unchecked; see Method.run_options."""
+    rtol: object
+    atol: object
+    res_tol: object
+    max_iter: object
+    max_iter_full: object
+
+
 # Increments this many ulps of the iterate are round-off: the iteration has converged as far
 # as the arithmetic allows, whatever the rate estimate says (it is noise at that level).
 ROUND_OFF_ULPS = 8

@@ -66,10 +66,13 @@ ORACLES = {"backward_euler": lambda y, t, h: ((y + h * (f_np(t + h, 0.0)))
 def test_a_jacobian_that_changes_fast_is_taken_anew(monkeypatch, name, keep):
     """With keep = inf a step keeps any Jacobian whose solve converged, so only the retry
     with the step's own rescues the steps where lambda has moved on: from 100 to 1900 1/s,
-    a kept one's iteration diverges. No full-Newton retry, which would rescue them too."""
+    a kept one's iteration diverges. No full-Newton retry, which would rescue them too. A new
+    f each run, so that it compiles afresh under the patched rule (Newton options alone
+    would not: they are run-time values of one program)."""
     monkeypatch.setattr(newton, "THETA_KEEP", keep)
     h, n = 0.002, 500
-    tr = integrate(method(name).with_newton(max_iter_full=0), forced, jnp.array([1.0, -2.0]), h=h, n_steps=n)
+    tr = integrate(method(name).with_newton(max_iter_full=0),
+                   lambda t, y, u, p: forced(t, y, u, p), jnp.array([1.0, -2.0]), h=h, n_steps=n)
     assert bool(tr.converged)
     want = [np.array([1.0, -2.0])]
     for k in range(n):

@@ -72,6 +72,32 @@ def test_a_solve_that_cannot_converge_is_flagged_and_nan(name):
     assert np.all(np.isnan(np.asarray(tr.x[m.n_start + 1:])))
 
 
+@pytest.mark.parametrize("name", ["backward_euler", "bdf2"])
+def test_newton_options_are_run_time_values_of_the_method_s_program(name):
+    """A method with other Newton options (the sweep's retry with more iterations, a
+    config's [newton]) runs the method's own compiled program: the driver's jitted function
+    gains no entry. The options still decide: two simplified iterations with no full-Newton
+    retry fail Robertson's first step, which the defaults solve; four times the defaults'
+    iterations give the defaults' converged steps to their tolerance."""
+    from stepzoo.integrators import driver
+    fn = driver._jitted[(driver._batch, True)]
+    f = lambda t, y, u, p: robertson(t, y, u, p)    # a new f: its programs start here
+    x0 = jnp.tile(Y0, (40, 1))
+
+    def run(m):
+        return integrate_batch(m, f, x0, jnp.zeros((40, 1)), {}, 0.1, 12, max_steps=16)
+
+    base = run(method(name))
+    entries = fn._cache_size()
+    failed = run(method(name).with_newton(max_iter=2, max_iter_full=0))
+    more = run(method(name, NewtonOptions(max_iter=40, max_iter_full=160)))
+    assert fn._cache_size() == entries
+    assert bool(base.converged.all()) and not bool(failed.converged.any())
+    assert bool(more.converged.all())
+    x, ref = np.asarray(more.x[:, :13]), np.asarray(base.x[:, :13])
+    assert np.max(np.abs(x - ref) / (1 + np.abs(ref))) <= 1e-8
+
+
 def test_batch_flags_each_trajectory():
     # At y3 = 0 nothing couples y2 back; from a start with y2 already near equilibrium the
     # simplified iteration converges; from (1, 0, 0) it needs the retry, here forbidden.

@@ -71,7 +71,7 @@ def estimate(cfg, cache: dict, blocks: int) -> Estimate:
     padding = 1.0 - (len(cfg.points) - (blocks - 1) * cfg.chunks.points) / len(block.points)
     total = calibration + (blocks - 1) * shared + sum(
         blocks * m["chunk_s"] - (padding if blocks > 1 else 0.0) * m["stability_s"]
-        + m["retry_compile_s"] for m in methods.values())
+        for m in methods.values())
     return Estimate(total, calibration, shared, methods)
 
 
@@ -94,18 +94,12 @@ def _method(block: Block, meth) -> dict:
     c, s, r = _probe_work(cfg, block.run.max_steps, B, np.full(B, h))
     t0, compiled = time.perf_counter(), block.watch.seconds["compile_s"]
     block.stable(meth, np.full((B, 1), h))
-    # Less any compiling in it (a failed solve's retry program: counted apart, below).
+    # Less any compiling in it (the libm fallback's, should an argument reach the bound).
     compiled = block.watch.seconds["compile_s"] - compiled
     probe_s = time.perf_counter() - t0 - compiled
     judge_s = max(0.0, probe_s - c * call_s - s * step_s) / r
     stability_s = stab_calls * call_s + stab_steps * step_s + run_steps * judge_s
-    # The "modes" rule retries a failed Newton solve with more iterations: another program
-    # of the method's size, compiled once per sweep. On a stiff model the probes past an
-    # implicit method's limit make a failure likely, so it is counted (unless the probe
-    # above compiled it already: the calibration paid it).
-    retry = compile_s if (cfg.stability.rule != "blowup" and meth.solves
-                          and compiled < 0.5 * compile_s) else 0.0
-    return {"compile_s": compile_s, "retry_compile_s": retry, "call_s": call_s,
+    return {"compile_s": compile_s, "call_s": call_s,
             "step_s": step_s, "calls": calls,
             "steps": steps, "run_steps": run_steps, "judge_s": judge_s,
             "predict_s": predict_s, "stability_s": stability_s,

@@ -124,8 +124,8 @@ class Diagnosis(NamedTuple):
 
 
 def more_iterations(meth):
-    """The method with RETRY_ITERATIONS times its Newton iterations (one Method per process:
-    `integrators.method` caches it, so it compiles once)."""
+    """The method with RETRY_ITERATIONS times its Newton iterations: the driver runs it with
+    the method's own compiled program (the options are run-time values, Method.program)."""
     import dataclasses
 
     from stepzoo.integrators import method
