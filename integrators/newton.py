@@ -28,7 +28,8 @@ class NewtonOptions:
     `res_tol` times 1 + |h A (x) J| (the residual of an iterate is the iteration matrix times
     its error: with res_tol = 1 it is no larger than an error within tolerance makes it).
     At most `max_iter` simplified iterations, then, where they fail, at most `max_iter_full`
-    of the full-Newton retry (0: none)."""
+    of the full-Newton retry (0: none). The driver passes them at run time
+    (Method.run_options): other options need no other compiled program."""
     rtol: float = 1e-10
     atol: float = 1e-10
     res_tol: float = 1.0
