@@ -1,6 +1,6 @@
 """The zoo: each method is data (a tableau or multistep coefficients) plus metadata, and a
 registry by name. Adding a method is one `_register` line."""
-from dataclasses import asdict, astuple, dataclass, field, replace
+from dataclasses import asdict, dataclass, field, replace
 from functools import cache
 
 import jax.numpy as jnp
@@ -42,7 +42,7 @@ class Method:
         """This method (and its starter) with other Newton options (fields of NewtonOptions),
         sharing this one's compiled programs (`program`). A method with no nonlinear solve,
         or options equal to its own, is returned itself."""
-        opts = replace(self.newton, **options)
+        opts = replace(NewtonOptions(*self._option_values()), **options)
         if opts == self.newton or not self.solves:
             return self
         starter = self.starter.with_newton(**options) if self.starter is not None else None
@@ -58,8 +58,11 @@ class Method:
         """Its Newton options and its starter's, as the compiled program takes them (Python
         numbers: run-time arguments of `jax.jit`, weakly typed, so a float32 state stays
         float32)."""
-        own = tuple(astuple(self.newton))
+        own = self._option_values()
         return own, None if self.starter is None else self.starter.run_options()
+
+    def _option_values(self) -> tuple:
+        return tuple(getattr(self.newton, name) for name in RunOptions._fields)
 
     def running(self, options) -> "Method":
         """This method reading `run_options()`' values (traced inside the driver's program)
