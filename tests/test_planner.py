@@ -261,6 +261,51 @@ def test_a_turn_tighter_than_the_trees_speed_allows_is_driven_slower():
     assert v[tight].max() == pytest.approx(finder.config.params.tight_speed, rel=0.02)
 
 
+def test_a_rolling_cars_body_turns_from_its_path_by_body_slip():
+    """Geometry alone: a car rolling without slip, whose centre of gravity (Lr ahead of the
+    rear axle) keeps to a circle of radius R, has its rear axle on the circle of radius
+    sqrt(R^2 - Lr^2) and its body along that axle's tangent; the angle from the body to the
+    centre of gravity's velocity is body_slip at the kinematic bicycle's steer atan(L / R),
+    whose (X, Y) turns on that same radius."""
+    from stepzoo.dynamics.kinematic import body_slip
+    car = dynamics.vehicle(None)
+    L, Lr = car["Lf"] + car["Lr"], car["Lr"]
+    for R in (2.6, 4.0, 10.0):
+        rear = np.array([np.sqrt(R**2 - Lr**2), 0.0])   # turning left about the origin
+        body = np.array([0.0, 1.0])
+        cog = rear + Lr * body
+        velocity = np.array([-cog[1], cog[0]]) / R
+        angle = np.arctan2(body[0] * velocity[1] - body[1] * velocity[0], body @ velocity)
+        assert angle == pytest.approx(body_slip(np.arctan(L / R), L, Lr), abs=1e-12)
+
+
+@pytest.mark.parametrize("tight", [True, False])
+def test_the_planner_checks_a_kinematic_move_where_the_cars_body_is(tight):
+    """A tight move's (X, Y) moves along theta; the car keeping to that path faces theta -
+    body_slip(steer): that is the pose the validity checker is given, at the ramp's first
+    and last steer. The dynamic bicycle's own heading is the body's, checked as it is."""
+    from stepzoo.dynamics.kinematic import body_slip
+    seen = []
+
+    class Recorder:
+        def first_invalid(self, poses):
+            seen.append(np.array(poses))
+            return np.full(len(poses), -1)
+
+    car = dynamics.vehicle(None)
+    L, Lr = car["Lf"] + car["Lr"], car["Lr"]
+    shooter = Shooter(Recorder(), None, 2.0 if tight else 5.0, "rk4", 0.02, 40, 3, 0.7,
+                      tight=tight, max_steer_rate=0.32)
+    steer0, steer = 0.2, np.array([-0.05, 0.2, 0.45])
+    shots = shooter.shoot_steers(np.zeros(5), steer, np.array([20.0, 0.0, 0.0]), steer0)
+    checked, states = seen[-1], shots.states
+    slip = (lambda d: body_slip(d, L, Lr)) if tight else (lambda d: 0.0 * d)
+    assert checked[:, 0, 2] == pytest.approx(states[:, 0, 2] - slip(np.full(3, steer0)),
+                                             abs=1e-12)
+    assert checked[:, -1, 2] == pytest.approx(states[:, -1, 2] - slip(steer), abs=1e-12)
+    assert checked[:, -1, :2] == pytest.approx(states[:, -1, :2], abs=1e-12)
+
+
 def test_the_expansion_budget_ends_in_the_closest_node():
     scenario = load_scenario("wall_between")
     config = make_config(max_expansions=5)
