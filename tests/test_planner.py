@@ -209,15 +209,15 @@ def test_a_dead_end_the_car_cannot_turn_in_is_proved_boxed_in_once_the_search_ex
     assert 0 < result.expansions < CONFIG.params.max_expansions
 
 
-def yard_facing_a_wall(config=CONFIG):
-    """Facing a wall 3.5 m ahead at 17 degrees in a 30 x 30 m yard: (scenario, finder,
-    result). The dynamic bicycle at 5 m/s understeers to a 3.3 m turn at full lock and cannot
+def yard_facing_a_wall(config=CONFIG, heading=0.6):
+    """Facing a wall 3.5 m ahead at `heading` [rad] (default 34 degrees) in a 30 x 30 m yard:
+    (scenario, finder, result). The dynamic bicycle at 5 m/s understeers to a 3.3 m turn at full lock and cannot
     turn out; the kinematic bicycle (2.6 m at full lock, what the connection drives) can."""
     from stepzoo.search.world.scenarios import Scenario
     occupied = np.ones((64, 64), bool)
     occupied[2:62, 2:62] = False            # its far wall at x = 31 m
     omap = from_array(occupied, 0.5)
-    start, goal = (27.5, 16.0, 0.3), (8.0, 16.0, np.pi)
+    start, goal = (27.5, 16.0, heading), (8.0, 16.0, np.pi)
     finder = PathFinder(omap, config, None, 5.0)
     scenario = Scenario("yard", "", omap, "generated", start, goal, None, None, 5.0)
     return scenario, finder, finder.plan(start, goal)
@@ -226,9 +226,12 @@ def yard_facing_a_wall(config=CONFIG):
 def test_a_start_the_tree_cannot_turn_out_of_is_left_by_tight_moves():
     # Its moves collide, so the tree shoots tight moves there (rate-limited, at once; the
     # paper's instant steering only once its tree has exhausted) and finds a path that the
-    # dense check re-simulates on each edge's own model.
-    for steering, widened in (("rate_limited", False), ("instant", True)):
-        scenario, _, result = yard_facing_a_wall(with_params(CONFIG, steering=steering))
+    # dense check re-simulates on each edge's own model. Rate-limited at 17 degrees there is
+    # none: its tight moves are checked with the body turned by its rolling slip, the front
+    # swung out, and reach no farther than the tree's; at 34 degrees they turn out.
+    for steering, widened, heading in (("rate_limited", False, 0.6), ("instant", True, 0.3)):
+        scenario, _, result = yard_facing_a_wall(with_params(CONFIG, steering=steering),
+                                                 heading)
         assert (result.status, result.widened) == ("exact", widened), result.reason
         assert any(result.path_tight)
         collisions, joint_gap, miss = dense_check(scenario, result)
@@ -282,8 +285,9 @@ def test_a_rolling_cars_body_turns_from_its_path_by_body_slip():
 @pytest.mark.parametrize("tight", [True, False])
 def test_the_planner_checks_a_kinematic_move_where_the_cars_body_is(tight):
     """A tight move's (X, Y) moves along theta; the car keeping to that path faces theta -
-    body_slip(steer): that is the pose the validity checker is given, at the ramp's first
-    and last steer. The dynamic bicycle's own heading is the body's, checked as it is."""
+    body_slip(steer): that is the pose the validity checker is given, at the ramp's last
+    steer, the node itself as it is. The dynamic bicycle's own
+    heading is the body's, checked as it is."""
     from stepzoo.dynamics.kinematic import body_slip
     seen = []
 
@@ -300,8 +304,7 @@ def test_the_planner_checks_a_kinematic_move_where_the_cars_body_is(tight):
     shots = shooter.shoot_steers(np.zeros(5), steer, np.array([20.0, 0.0, 0.0]), steer0)
     checked, states = seen[-1], shots.states
     slip = (lambda d: body_slip(d, L, Lr)) if tight else (lambda d: 0.0 * d)
-    assert checked[:, 0, 2] == pytest.approx(states[:, 0, 2] - slip(np.full(3, steer0)),
-                                             abs=1e-12)
+    assert checked[:, 0, 2] == pytest.approx(states[:, 0, 2], abs=1e-12)   # the node itself
     assert checked[:, -1, 2] == pytest.approx(states[:, -1, 2] - slip(steer), abs=1e-12)
     assert checked[:, -1, :2] == pytest.approx(states[:, -1, :2], abs=1e-12)
 

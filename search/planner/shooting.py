@@ -143,14 +143,17 @@ class Shooter:
         `fraction` (K,) of the shootings to the end steers `steer` (B,) from `steer0`: the
         dynamic bicycle's own; rate-limited on the kinematic bicycle, whose (X, Y) moves along
         theta, the car's body turned back by its rolling slip at the ramp's steer
-        (dynamics.kinematic.body_slip), as the car keeping to the path faces."""
+        (dynamics.kinematic.body_slip), as the car keeping to the path faces, but at the node
+        itself."""
         poses = states[..., :3]
         if not self.kinematic or self.rate is None:
             return poses
         start = self.start_steers(steer0, steer)
         delta = start[:, None] + (steer - start)[:, None] * fraction[None, :]
-        return np.concatenate([poses[..., :2], (poses[..., 2] - body_slip(
-            delta, self.wheelbase, self.scalars["Lr"]))[..., None]], axis=-1)
+        # The node itself (fraction 0) keeps its pose: the move that reached it checked it.
+        slip = np.where(fraction[None, :] > 0, body_slip(delta, self.wheelbase,
+                                                         self.scalars["Lr"]), 0.0)
+        return np.concatenate([poses[..., :2], (poses[..., 2] - slip)[..., None]], axis=-1)
 
     def shoot(self, state, points, destination, steer0=0.0, settle=None) -> Shots:
         """Shoot from `state` (5,), or from one state per point (B, 5), at steer `steer0`
