@@ -93,9 +93,12 @@ class Connector:
             if key[i] >= s.best * (1 - IMPROVE_TOL):
                 continue
             self.tried.add(i)
-            # The OCP ignores obstacles: started from a free path it more often stays free.
-            guesses = self.free_guesses(i, guess_paths(tree.states[i][:3], s.goal[:3],
-                                                       s.radius, prm.reverse))
+            # The OCP ignores obstacles: started from a free path it more often stays free
+            # (rate-limited; the paper's planner tries every word's guess).
+            words = guess_paths(tree.states[i][:3], s.goal[:3], s.radius, prm.reverse)
+            guesses = self.free_guesses(i, words)
+            if guesses is not None and not s.f.rate_limited:
+                guesses = words
             if guesses is None:
                 # The OCP starts from these paths and ignores obstacles: it would collide too.
                 self.cheap.add(i)
