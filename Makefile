@@ -5,7 +5,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: run test lint typecheck bench docs setup clean
+.PHONY: run test test-e2e lint typecheck bench docs setup clean
 
 $(BIN)/python:
 	$(PY) -m venv $(VENV)
@@ -23,8 +23,14 @@ run: $(STAMP)
 # Lint and type-check first (they stop a broken tree before the long part), then the suite:
 # one worker per core; a file's tests stay on one worker, so its module fixtures run once;
 # files are handed out in the suite's order, the slow ones first (tests/conftest.py).
+# The end-to-end group (pytest.mark.e2e: the tutorial's whole loop, a Dask cluster, a
+# browser) runs apart, in `make test-e2e`; CI (.ci/run) runs both.
+PYTEST := $(BIN)/python -m pytest -n auto --dist loadfile --no-loadscope-reorder
 test: lint typecheck
-	$(BIN)/python -m pytest -n auto --dist loadfile --no-loadscope-reorder
+	$(PYTEST) -m "not e2e"
+
+test-e2e: $(STAMP)
+	$(PYTEST) -m e2e
 
 lint: $(STAMP)
 	$(BIN)/ruff check .

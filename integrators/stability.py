@@ -139,9 +139,18 @@ def _empirical(m: Method):
 
 
 def amplification_empirical(m: Method, z):
+    """The amplification at each z measured with the method's own step. Evaluated in blocks
+    of SCAN_CHUNK points (the last one padded with z = 0), so that every call but one of a
+    single point runs one of two compiled programs per method: a program is compiled per
+    input length, and for an implicit method compiling is most of the cost."""
     z = np.asarray(z, dtype=complex)
-    out = _empirical(m)(jnp.asarray(z.real.ravel()), jnp.asarray(z.imag.ravel()))
-    return np.asarray(out).reshape(z.shape)
+    flat = z.ravel()
+    if flat.size > 1:
+        flat = np.concatenate([flat, np.zeros(-flat.size % SCAN_CHUNK, complex)])
+    amp = _empirical(m)
+    out = [np.asarray(amp(jnp.asarray(b.real), jnp.asarray(b.imag)))
+           for b in np.split(flat, max(1, flat.size // SCAN_CHUNK))] if flat.size else []
+    return np.concatenate(out or [np.zeros(0)])[:z.size].reshape(z.shape)
 
 
 def _ray_exit(amp, theta: float, scan_amp=None) -> float:

@@ -2,6 +2,7 @@
 import csv
 import io
 import json
+import signal
 import subprocess
 import sys
 
@@ -214,16 +215,22 @@ def test_a_ctrl_c_lost_in_a_gc_callback_is_raised_again():
             raise KeyboardInterrupt
 
     previous = sys.unraisablehook
+    # The command's process has Python's own Ctrl-C handler; an earlier test in this worker
+    # may have left another (the redelivered signal then raises nothing).
+    handler = signal.signal(signal.SIGINT, signal.default_int_handler)
     sys.unraisablehook = cli._redeliver_ctrl_c
     gc.callbacks.append(callback)
     try:
         with pytest.raises(KeyboardInterrupt):
             gc.collect()
-            for _ in range(200):        # the signal comes again a moment later
+            # The signal comes again a moment later (10 ms; up to 30 s on a loaded machine:
+            # the wait ends as soon as it lands).
+            for _ in range(3000):
                 time.sleep(0.01)
     finally:
         gc.callbacks.remove(callback)
         sys.unraisablehook = previous
+        signal.signal(signal.SIGINT, handler)
 
 
 def test_a_ctrl_c_the_command_stopped_for_drops_a_redelivery_still_pending(monkeypatch, capsys):

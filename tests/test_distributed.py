@@ -12,7 +12,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-pytestmark = pytest.mark.slow      # run first: see tests/conftest.py
+pytestmark = [pytest.mark.slow, pytest.mark.e2e]    # first, in make test-e2e: tests/conftest.py
 
 pytest.importorskip("dask.distributed")
 

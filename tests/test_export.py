@@ -127,6 +127,28 @@ def test_a_choice_acados_lacks_goes_to_the_cheapest_qualifying_method_it_has():
         export.acados({"method": "heun", "h": 0.01, "runners_up": t["runners_up"][:2]}, 0.1)
 
 
+def test_an_implicit_choice_takes_the_sweep_s_newton_solve_to_acados(tiny_sweep):
+    """acados' IRK runs 3 Newton iterations and no stopping test by default; the sweep solved
+    each step to its [newton] tolerance. The export carries the sweep's: its atol as acados'
+    residual tolerance, its full-Newton limit (acados' Newton takes a fresh Jacobian each
+    iteration), and the simplified limit where the sweep had no full-Newton retry."""
+    t = {"method": "radau_iia5", "h": 0.01, "runners_up": []}
+    given = {"rtol": 1e-6, "atol": 1e-8, "res_tol": 1.0, "max_iter": 7, "max_iter_full": 25}
+    a = export.acados(t, 0.1, given)
+    assert (a["sim_method_newton_iter"], a["sim_method_newton_tol"]) == (25, 1e-8)
+    assert export.acados(t, 0.1, {**given, "max_iter_full": 0})["sim_method_newton_iter"] == 7
+    text = export.acados_text(a)
+    assert "ocp.solver_options.sim_method_newton_iter = 25\n" in text
+    assert "ocp.solver_options.sim_method_newton_tol = 1e-08\n" in text
+    # The tiny sweep records the default options; an explicit method has no Newton solve.
+    recorded = export.sweep_newton(tiny_sweep[1])
+    assert recorded == {"rtol": 1e-10, "atol": 1e-10, "res_tol": 1.0, "max_iter": 10,
+                        "max_iter_full": 40}
+    assert export.acados(t, 0.1, None)["sim_method_newton_iter"] == 40
+    explicit = export.acados({"method": "rk4", "h": 0.01, "runners_up": []}, 0.1, recorded)
+    assert not any(k.startswith("sim_method_newton") for k in explicit)
+
+
 def test_an_export_of_another_method_than_the_tuned_one_says_so_on_stderr(tuned, tmp_path,
                                                                         capsys):
     """heun tuned (acados has no Heun), euler a qualifying runner-up: acados gets euler, and

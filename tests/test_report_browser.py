@@ -9,7 +9,8 @@ from stepzoo.workflows.report import build
 from helpers import write_plan, write_sweep, write_tuned
 
 WHY_NOT = report_browser.unavailable()
-pytestmark = pytest.mark.skipif(WHY_NOT is not None, reason=f"no browser test: {WHY_NOT}")
+pytestmark = [pytest.mark.e2e,
+              pytest.mark.skipif(WHY_NOT is not None, reason=f"no browser test: {WHY_NOT}")]
 PHONE_PX = 390
 
 

@@ -64,6 +64,23 @@ def test_methods_json_gives_published_intervals_by_both_routes(methods_json, nam
         assert (math.isinf(e) and math.isinf(t)) or round(e, 3) == round(t, 3)
 
 
+@pytest.mark.parametrize("name", ["heun", "bdf2"])
+def test_measured_amplification_of_any_length_runs_one_compiled_program(name):
+    """Points in any number above one go through the same program in blocks of SCAN_CHUNK
+    (an implicit method's program takes seconds to compile), and each value is the one the
+    points give alone: padding and blocking change nothing."""
+    from stepzoo.integrators import stability
+    z = -np.geomspace(1e-3, 1e3, 1500) * np.exp(0.3j)
+    amp = stability._empirical(METHODS[name])
+    before = amp._cache_size()
+    blocks = [amplification_empirical(METHODS[name], z[:n]) for n in (2, 513, 1500)]
+    assert amp._cache_size() - before <= 1
+    alone = np.array([amplification_empirical(METHODS[name], z[i:i + 1])[0]
+                      for i in (0, 1, 511, 512, 1499)])
+    np.testing.assert_array_equal(blocks[2][[0, 1, 511, 512, 1499]], alone)
+    np.testing.assert_array_equal(blocks[1], blocks[2][:513])
+
+
 def test_a_stable_methods_have_no_step_limit():
     for name in ("backward_euler", "trapezoidal", "gauss_legendre4", "radau_iia3", "bdf2"):
         assert max_stable_step(method(name), [-1e6 + 1e5j, -3.0]) == math.inf

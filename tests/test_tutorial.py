@@ -23,7 +23,7 @@ ROOT = Path(__file__).resolve().parents[1]
 EXAMPLE = ROOT / "docs" / "examples" / "myvehicle"
 PAGE = (ROOT / "docs" / "tutorial-engineer-loop.md").read_text()
 STEER_MAX = 0.42       # [rad], the clamp of vehicle.py
-pytestmark = pytest.mark.slow      # run first: see tests/conftest.py
+pytestmark = [pytest.mark.slow, pytest.mark.e2e]    # first, in make test-e2e: tests/conftest.py
 
 
 def said(prefix: str) -> str:

@@ -93,8 +93,14 @@ def pick(tuned: dict, usable, tool: str) -> tuple[dict, str]:
                    f"{tool}; tune a sweep that includes one")
 
 
-def acados(tuned: dict, interval_s: float) -> dict:
-    """acados' sim settings (AcadosOcpOptions names) for a shooting interval of interval_s."""
+def acados(tuned: dict, interval_s: float, newton: dict | None = None) -> dict:
+    """acados' sim settings (AcadosOcpOptions names) for a shooting interval of interval_s.
+
+    An implicit method also gets its Newton solve: acados' IRK runs a fixed 3 iterations by
+    default (newton_tol 0 turns its stopping test off), where the sweep iterated each solve to
+    `newton`'s tolerance (the sweep's [newton], manifest.json). acados iterates with a fresh
+    Jacobian (full Newton), so it gets the sweep's full-Newton limit (at least its simplified
+    one) and stops once the stage residual's largest component is below the sweep's atol."""
     c, why = pick(tuned, lambda m: m in ACADOS, "acados")
     kind, stages, collocation = ACADOS[c["method"]]
     n = steps_for(interval_s, c["h"])
@@ -102,6 +108,11 @@ def acados(tuned: dict, interval_s: float) -> dict:
            "sim_method_num_steps": n}
     if collocation:
         out["collocation_type"] = collocation
+        from dataclasses import asdict
+        from stepzoo.integrators.newton import NewtonOptions
+        nt = {**asdict(NewtonOptions()), **(newton or {})}     # unrecorded: the defaults
+        out["sim_method_newton_iter"] = int(max(nt["max_iter"], nt["max_iter_full"]))
+        out["sim_method_newton_tol"] = float(nt["atol"])
     return {**out, "method": c["method"], "h_tuned_s": c["h"], "interval_s": interval_s,
             "step_s": interval_s / n, "why": why}
 
@@ -109,7 +120,7 @@ def acados(tuned: dict, interval_s: float) -> dict:
 def acados_text(a: dict) -> str:
     """The settings as lines of Python for an AcadosOcp `ocp`."""
     keys = ["integrator_type", "sim_method_num_stages", "sim_method_num_steps",
-            "collocation_type"]
+            "collocation_type", "sim_method_newton_iter", "sim_method_newton_tol"]
     lines = [f"# acados: {a['why']}; a shooting interval of {a['interval_s']:g} s in steps of "
              f"{a['step_s']:.6g} s (<= h)"]
     lines += [f"ocp.solver_options.{k} = {json.dumps(a[k])}" for k in keys if k in a]
@@ -233,6 +244,13 @@ def sweep_of(tuned: dict, given=None) -> Path:
     return folder
 
 
+def sweep_newton(folder: Path) -> dict | None:
+    """The [newton] options the sweep in `folder` solved with (its manifest), None if unrecorded."""
+    manifest = json.loads((Path(folder) / "manifest.json").read_text())
+    newton = manifest.get("newton")
+    return newton if isinstance(newton, dict) else None
+
+
 def _check_swept(tuned: dict, folder: Path, runs) -> None:
     """UsageError unless the choice and each qualifying runner-up is a (method, h) the sweep
     ran: one it never ran (a tuned file changed by hand) has no measurement behind it, and an
@@ -297,7 +315,8 @@ def as_json(tuned: dict, path, sweep: Path, table,
            "h": float(tuned["h"]), "cost": tuned.get("cost", "evals"),
            "interval_s": interval_s}
     try:
-        out["acados"] = acados(tuned, interval_s) if interval_s is not None else None
+        out["acados"] = (acados(tuned, interval_s, sweep_newton(sweep))
+                         if interval_s is not None else None)
     except NoAnswer as err:
         out["acados"] = {"error": str(err)}
     try:

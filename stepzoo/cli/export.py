@@ -32,7 +32,7 @@ def main(args) -> int:
     sweep = export.sweep_of(tuned, args.sweep)
     if args.to == "acados":
         assert interval is not None       # checked above
-        settings = export.acados(tuned, interval)
+        settings = export.acados(tuned, interval, export.sweep_newton(sweep))
         _say_if_other(settings, tuned)
         text, name = export.acados_text(settings), "acados.py"
         table = export.schedule(tuned, sweep, settings["method"])
