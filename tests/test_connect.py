@@ -207,3 +207,31 @@ def test_casadi_step_is_the_zoo_step(name):
 def test_implicit_methods_are_refused():
     with pytest.raises(ValueError, match="implicit"):
         step_function("radau_iia3")
+
+
+def test_below_the_steer_speed_the_steer_turns_per_metre_not_by_crawling():
+    """A goal 3 m ahead and 6 m to the left, facing back: under a steer rate alone the
+    minimum-time car crawls (below 1 m/s) to turn the wheel by more than 0.3 rad per metre;
+    with steer_speed 2 m/s, between every two nodes (from the states alone) the steer turns
+    at most rate / steer_speed per metre travelled, the standstill allowance aside."""
+    from stepzoo.search.planner.connection_ocp import STANDSTILL_RATE
+    rate, v_steer = 0.32, 2.0
+    kwargs = dict(L=L, m=M, N=50, steer0=0.0, max_steer_rate=rate,
+                  max_lateral_acceleration=9.2)
+    start, goal = [0.0, 0.0, 0.0, 5.0], [3.0, 6.0, pi_]
+
+    def per_metre(conn):
+        steer = np.r_[conn.inputs[:, 0], conn.inputs[-1, 0] + conn.steer_rates[-1] * conn.tf
+                      / len(conn.inputs)]
+        travel = np.hypot(*np.diff(conn.states[:, :2], axis=0).T)
+        return np.abs(np.diff(steer)), travel, conn.tf / len(conn.inputs)
+
+    crawl = connect(start, goal, **kwargs)
+    turned, travel, _ = per_metre(crawl)
+    assert crawl.success and crawl.states[:, 3].min() < 1.0
+    assert (turned / travel).max() > 0.3
+    bounded = connect(start, goal, steer_speed=v_steer, **kwargs)
+    turned, travel, dt = per_metre(bounded)
+    assert bounded.success
+    assert np.all(turned <= rate / v_steer * travel + STANDSTILL_RATE * rate * dt + 1e-6)
+    assert bounded.states[:, 3].min() > 1.0

@@ -209,15 +209,15 @@ def test_a_dead_end_the_car_cannot_turn_in_is_proved_boxed_in_once_the_search_ex
     assert 0 < result.expansions < CONFIG.params.max_expansions
 
 
-def yard_facing_a_wall(config=CONFIG):
-    """Facing a wall 3.5 m ahead at 17 degrees in a 30 x 30 m yard: (scenario, finder,
-    result). The dynamic bicycle at 5 m/s understeers to a 3.3 m turn at full lock and cannot
+def yard_facing_a_wall(config=CONFIG, heading=0.6):
+    """Facing a wall 3.5 m ahead at `heading` [rad] (default 34 degrees) in a 30 x 30 m yard:
+    (scenario, finder, result). The dynamic bicycle at 5 m/s understeers to a 3.3 m turn at full lock and cannot
     turn out; the kinematic bicycle (2.6 m at full lock, what the connection drives) can."""
     from stepzoo.search.world.scenarios import Scenario
     occupied = np.ones((64, 64), bool)
     occupied[2:62, 2:62] = False            # its far wall at x = 31 m
     omap = from_array(occupied, 0.5)
-    start, goal = (27.5, 16.0, 0.3), (8.0, 16.0, np.pi)
+    start, goal = (27.5, 16.0, heading), (8.0, 16.0, np.pi)
     finder = PathFinder(omap, config, None, 5.0)
     scenario = Scenario("yard", "", omap, "generated", start, goal, None, None, 5.0)
     return scenario, finder, finder.plan(start, goal)
@@ -226,9 +226,12 @@ def yard_facing_a_wall(config=CONFIG):
 def test_a_start_the_tree_cannot_turn_out_of_is_left_by_tight_moves():
     # Its moves collide, so the tree shoots tight moves there (rate-limited, at once; the
     # paper's instant steering only once its tree has exhausted) and finds a path that the
-    # dense check re-simulates on each edge's own model.
-    for steering, widened in (("rate_limited", False), ("instant", True)):
-        scenario, _, result = yard_facing_a_wall(with_params(CONFIG, steering=steering))
+    # dense check re-simulates on each edge's own model. Rate-limited at 17 degrees there is
+    # none: its tight moves are checked with the body turned by its rolling slip, the front
+    # swung out, and reach no farther than the tree's; at 34 degrees they turn out.
+    for steering, widened, heading in (("rate_limited", False, 0.6), ("instant", True, 0.3)):
+        scenario, _, result = yard_facing_a_wall(with_params(CONFIG, steering=steering),
+                                                 heading)
         assert (result.status, result.widened) == ("exact", widened), result.reason
         assert any(result.path_tight)
         collisions, joint_gap, miss = dense_check(scenario, result)
@@ -259,6 +262,51 @@ def test_a_turn_tighter_than_the_trees_speed_allows_is_driven_slower():
     assert tight.any()
     assert (v[tight] <= 1.01 * np.sqrt(a_lat / kappa[tight])).all()
     assert v[tight].max() == pytest.approx(finder.config.params.tight_speed, rel=0.02)
+
+
+def test_a_rolling_cars_body_turns_from_its_path_by_body_slip():
+    """Geometry alone: a car rolling without slip, whose centre of gravity (Lr ahead of the
+    rear axle) keeps to a circle of radius R, has its rear axle on the circle of radius
+    sqrt(R^2 - Lr^2) and its body along that axle's tangent; the angle from the body to the
+    centre of gravity's velocity is body_slip at the kinematic bicycle's steer atan(L / R),
+    whose (X, Y) turns on that same radius."""
+    from stepzoo.dynamics.kinematic import body_slip
+    car = dynamics.vehicle(None)
+    L, Lr = car["Lf"] + car["Lr"], car["Lr"]
+    for R in (2.6, 4.0, 10.0):
+        rear = np.array([np.sqrt(R**2 - Lr**2), 0.0])   # turning left about the origin
+        body = np.array([0.0, 1.0])
+        cog = rear + Lr * body
+        velocity = np.array([-cog[1], cog[0]]) / R
+        angle = np.arctan2(body[0] * velocity[1] - body[1] * velocity[0], body @ velocity)
+        assert angle == pytest.approx(body_slip(np.arctan(L / R), L, Lr), abs=1e-12)
+
+
+@pytest.mark.parametrize("tight", [True, False])
+def test_the_planner_checks_a_kinematic_move_where_the_cars_body_is(tight):
+    """A tight move's (X, Y) moves along theta; the car keeping to that path faces theta -
+    body_slip(steer): that is the pose the validity checker is given, at the ramp's last
+    steer, the node itself as it is. The dynamic bicycle's own
+    heading is the body's, checked as it is."""
+    from stepzoo.dynamics.kinematic import body_slip
+    seen = []
+
+    class Recorder:
+        def first_invalid(self, poses):
+            seen.append(np.array(poses))
+            return np.full(len(poses), -1)
+
+    car = dynamics.vehicle(None)
+    L, Lr = car["Lf"] + car["Lr"], car["Lr"]
+    shooter = Shooter(Recorder(), None, 2.0 if tight else 5.0, "rk4", 0.02, 40, 3, 0.7,
+                      tight=tight, max_steer_rate=0.32)
+    steer0, steer = 0.2, np.array([-0.05, 0.2, 0.45])
+    shots = shooter.shoot_steers(np.zeros(5), steer, np.array([20.0, 0.0, 0.0]), steer0)
+    checked, states = seen[-1], shots.states
+    slip = (lambda d: body_slip(d, L, Lr)) if tight else (lambda d: 0.0 * d)
+    assert checked[:, 0, 2] == pytest.approx(states[:, 0, 2], abs=1e-12)   # the node itself
+    assert checked[:, -1, 2] == pytest.approx(states[:, -1, 2] - slip(steer), abs=1e-12)
+    assert checked[:, -1, :2] == pytest.approx(states[:, -1, :2], abs=1e-12)
 
 
 def test_the_expansion_budget_ends_in_the_closest_node():

@@ -35,10 +35,11 @@ class Connector:
         """Connection attempts that called the OCP."""
         return len(self.tried) - len(self.cheap)
 
-    def car_path_free(self, node, guesses) -> bool:
-        """Whether any Dubins path (with reverse gear, also any Reeds-Shepp path) from the node
-        to the goal is valid: `guesses`, the paths the connection's guesses drive
-        (connect.guess_paths), and with reverse gear the Dubins paths driven backwards."""
+    def free_guesses(self, node, guesses) -> list | None:
+        """The valid ones of `guesses`, the Dubins paths (with reverse gear, also Reeds-Shepp
+        paths) from the node to the goal that the connection's guesses drive
+        (connect.guess_paths); all of them if only a Dubins path driven backwards is valid
+        (reverse gear); None if none is."""
         s = self.s
         radius, start = s.radius, s.tree.states[node][:3]
         paths = [path_poses(start, segs, radius, DUBINS_SPACING) for segs in guesses]
@@ -49,12 +50,15 @@ class Connector:
             paths += [path_poses(back, segs, radius, DUBINS_SPACING) for segs in
                       dubins_paths(back, s.goal[:3] + (0.0, 0.0, math.pi), radius)]
         if not paths:
-            return False
+            return None
         # One check of all words: each padded with its last pose to the longest.
         rows = max(len(p) for p in paths)
         padded = np.stack([np.vstack([p, np.repeat(p[-1:], rows - len(p), axis=0)])
                            for p in paths])
-        return bool((s.f.checker.first_invalid(padded) < 0).any())
+        free = s.f.checker.first_invalid(padded) < 0
+        if not free.any():
+            return None
+        return [segs for segs, ok in zip(guesses, free) if ok] or list(guesses)
 
     def cost(self, conn, direction) -> float:
         """[m] the connection's cost as the tree's g counts it: its length, a metre backwards
@@ -89,8 +93,13 @@ class Connector:
             if key[i] >= s.best * (1 - IMPROVE_TOL):
                 continue
             self.tried.add(i)
-            guesses = guess_paths(tree.states[i][:3], s.goal[:3], s.radius, prm.reverse)
-            if not self.car_path_free(i, guesses):
+            # The OCP ignores obstacles: started from a free path it more often stays free
+            # (rate-limited; the paper's planner tries every word's guess).
+            words = guess_paths(tree.states[i][:3], s.goal[:3], s.radius, prm.reverse)
+            guesses = self.free_guesses(i, words)
+            if guesses is not None and not s.f.rate_limited:
+                guesses = words
+            if guesses is None:
                 # The OCP starts from these paths and ignores obstacles: it would collide too.
                 self.cheap.add(i)
                 self.failures.append("every Dubins path collides" if not prm.reverse

@@ -32,6 +32,9 @@ DEFAULT_METHOD = "rk4"
 # F is bounded by m * A_MAX, a firm but ordinary passenger-car acceleration/braking level.
 A_MAX = 4.0            # [m/s^2]
 TF_BOUNDS = (0.1, 30.0)  # [s]; the lower bound keeps dt = t_f/N away from zero
+# Below the per-metre bound's speed the steer may still turn this fraction of its rate at a
+# standstill: the bound's gradient does not vanish at v = 0 (a cusp), where IPOPT needs it.
+STANDSTILL_RATE = 0.05   # [1]
 THETA_MARGIN = 2 * pi  # [rad] beyond the start and goal headings: room for one loop, no more
 END_TOL = 1e-6         # [m, rad, m/s] end-constraint residual accepted as success
 MAX_TRIES = 3          # solves (one per winding and first direction) before giving up
@@ -310,8 +313,9 @@ def _guess_inputs(N, runs, plans, a_max):
 class _Problem:
     """A built IPOPT solver and the maps from its variables to the connection."""
     solver: ca.Function   # nlpsol: x = [T, vec(U)(, vec(Z))], p = [x0, goal, L, m, d_max,
-    #                       a_max(, rate_max, a_lat)(, v_goal)]; g = [defects (multiple), end,
-    #                       state rows (single), lateral acceleration / a_lat (steered)]
+    #                       a_max(, rate_max, a_lat, v_steer)(, v_goal)]; g = [defects
+    #                       (multiple), end, state rows (single), lateral acceleration / a_lat
+    #                       and the steer rate per metre (steered)]
     rollout: ca.Function  # (T, U, p) -> states (nx, N+1) simulated from x0
     path: ca.Function     # (x, p) -> states (nx, N+1), inputs (2, N) [rad or rad/s, N]
     shooting: str
@@ -335,10 +339,11 @@ ADAPTIVE_MU: dict[str, int | str] = {"mu_strategy": "adaptive",
 def _problem(N: int, shooting: str, method: str, bounded: bool, speed_fixed: bool,
              steered: bool = False) -> _Problem:
     """The parametrised minimum-time OCP, positions relative to the start node; `steered`:
-    the steer a state, its rate the control, and v^2 tan(delta) / L bounded."""
+    the steer a state, its rate the control, v^2 tan(delta) / L bounded, and below the speed
+    v_steer the steer rate bounded per metre (rate_max / v_steer [rad/m])."""
     nx = 4 + steered
-    k = nx + 7                    # parameters before (rate_max, a_lat) and v_goal
-    p = ca.MX.sym("p", k + 2 * steered + speed_fixed)
+    k = nx + 7                    # parameters before (rate_max, a_lat, v_steer) and v_goal
+    p = ca.MX.sym("p", k + 3 * steered + speed_fixed)
     x0, goal, L, m, d_max, a_max = p[:nx], p[nx:nx + 3], p[nx + 3], p[nx + 4], p[nx + 5], \
         p[nx + 6]
     T, U = ca.MX.sym("T"), ca.MX.sym("U", 2, N)
@@ -362,6 +367,10 @@ def _problem(N: int, shooting: str, method: str, bounded: bool, speed_fixed: boo
     if steered:
         # Lateral acceleration v^2 kappa, scaled by its limit to order one.
         g.append(ca.vec(states[3, 1:] ** 2 * ca.tan(states[4, 1:]) / (L * p[k + 1])))
+        # |rate| <= rate_max |v| / v_steer at both ends of each interval, squared to stay
+        # smooth through v = 0: U^2 - (v / v_steer)^2 <= STANDSTILL_RATE^2.
+        for ends in (states[3, :-1], states[3, 1:]):
+            g.append(ca.vec(U[0, :] ** 2 - (ends / p[k + 2]) ** 2))
     ipopt = {**IPOPT_OPTIONS, **ADAPTIVE_MU} if shooting == "multiple" else IPOPT_OPTIONS
     solver = ca.nlpsol(f"connect_{shooting}{N}{'_steered' * steered}", "ipopt",
                        # casadi's stub takes SX alone; nlpsol takes MX as well
@@ -372,9 +381,10 @@ def _problem(N: int, shooting: str, method: str, bounded: bool, speed_fixed: boo
                     rows, nx)
 
 
-def _solve(prob, p, lo, hi, tf_range, tf_g, u_g) -> _Solution:
+def _solve(prob, p, lo, hi, tf_range, tf_g, u_g, per_metre=False) -> _Solution:
     """One IPOPT solve from the guess (tf_g [s], scaled inputs u_g (2, N)) with parameters p,
-    states 1..N within lo..hi ([X, Y, theta, v]) and t_f within tf_range [s]:
+    states 1..N within lo..hi ([X, Y, theta, v]) and t_f within tf_range [s] (steered,
+    `per_metre`: the steer rate bounded per metre below p's v_steer):
     (success, status, tf, states, inputs)."""
     N, nx = u_g.shape[1], prob.nx
     x_g = np.r_[tf_g, u_g.ravel(order="F")]
@@ -388,7 +398,9 @@ def _solve(prob, p, lo, hi, tf_range, tf_g, u_g) -> _Solution:
         lbg = np.r_[np.zeros(prob.n_end), np.tile(lo[prob.rows], N)]
         ubg = np.r_[np.zeros(prob.n_end), np.tile(hi[prob.rows], N)]
     if nx == 5:
-        lbg, ubg = np.r_[lbg, -np.ones(N)], np.r_[ubg, np.ones(N)]
+        lbg = np.r_[lbg, -np.ones(N), np.full(2 * N, -np.inf)]
+        ubg = np.r_[ubg, np.ones(N), np.full(2 * N, STANDSTILL_RATE ** 2 if per_metre
+                                             else np.inf)]
     sol = prob.solver(x0=x_g, p=p, lbx=lbx, ubx=ubx, lbg=lbg, ubg=ubg)
     stats = prob.solver.stats()
     states, inputs = (np.asarray(a).T.copy() for a in prob.path(sol["x"], p))
@@ -407,14 +419,18 @@ def _solve(prob, p, lo, hi, tf_range, tf_g, u_g) -> _Solution:
 def connect(start, goal, *, L, m, bounds=None, N=50, shooting=DEFAULT_SHOOTING,
             method=DEFAULT_METHOD, goal_speed=None, v_max=25.0, delta_max=pi / 4,
             a_max=A_MAX, tf_bounds=None, v_min=0.0, paths=None, steer0=0.0,
-            max_steer_rate=None, max_lateral_acceleration=None) -> Connection:
+            max_steer_rate=None, max_lateral_acceleration=None,
+            steer_speed=None) -> Connection:
     """Minimum-time connection from `start` [X, Y, theta, v] to `goal` [X, Y, theta]
     ([m, m, rad, m/s]), N piecewise-constant input intervals of dt = t_f/N.
 
     The car's limits: with `max_steer_rate` [rad/s] the steer is a state starting at steer0
     [rad], its rate the control (|ddelta| <= max_steer_rate), and |v^2 tan(delta) / L| <=
-    max_lateral_acceleration [m/s^2] at every node (required with it); without (None, the
-    paper's OCP) the steer is a control.
+    max_lateral_acceleration [m/s^2] at every node (required with it), and below
+    `steer_speed` [m/s] (default: no bound per metre) the steer turns at most max_steer_rate /
+    steer_speed per metre (STANDSTILL_RATE of its rate at a standstill): a minimum-time car
+    does not slow to a crawl to turn the wheel, which leaves a kink no car tracks at speed.
+    Without max_steer_rate (None, the paper's OCP) the steer is a control.
 
     L [m] wheelbase, m [kg] mass; bounds (Xmin, Xmax, Ymin, Ymax) [m] or None; goal_speed
     [m/s] or None (free); v_min <= v <= v_max [m/s] (v_min < 0 lets the car reverse),
@@ -441,7 +457,8 @@ def connect(start, goal, *, L, m, bounds=None, N=50, shooting=DEFAULT_SHOOTING,
     # Positions relative to the start node keep the numbers small wherever the map lies.
     origin = start[:2]
     x0 = np.array([0.0, 0.0, start[2], start[3]])
-    limits = [max_steer_rate, max_lateral_acceleration] if rate_limited else []
+    limits = ([max_steer_rate, max_lateral_acceleration,
+               1.0 if steer_speed is None else steer_speed] if rate_limited else [])
     box = (np.array([-np.inf, np.inf, -np.inf, np.inf]) if bounds is None
            else np.asarray(bounds, dtype=float) - np.repeat(origin, 2))
     v_goal = [] if goal_speed is None else [goal_speed]
@@ -475,7 +492,7 @@ def connect(start, goal, *, L, m, bounds=None, N=50, shooting=DEFAULT_SHOOTING,
             x_start = np.r_[x0, steer0]
             lo, hi = np.r_[lo, -delta_max], np.r_[hi, delta_max]
         p = np.r_[x_start, goal_local[:2], theta_g, L, m, delta_max, a_max, limits, v_goal]
-        solved = _solve(prob, p, lo, hi, (tf_lo, tf_hi), tf_g, u_g)
+        solved = _solve(prob, p, lo, hi, (tf_lo, tf_hi), tf_g, u_g, steer_speed is not None)
         if solved.success or len(tried) == MAX_TRIES:
             break
     solved.states[:, :2] += origin

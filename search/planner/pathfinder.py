@@ -12,6 +12,7 @@ from typing import NamedTuple
 import numpy as np
 
 from stepzoo import dynamics
+from stepzoo.dynamics.kinematic import body_slip
 from stepzoo.dynamics.vehicles import limits as vehicle_limits
 from stepzoo.search.planner.connection_ocp import Connection, connect
 from stepzoo.search.planner.endpoints import bad_endpoint, departure_boxed_in, enclosed, walled_off
@@ -189,9 +190,20 @@ class PathFinder:
                        v_min=-self.tight_vx if prm.reverse else 0.0, paths=paths, **limits)
         if not conn.success:
             return conn, f"IPOPT: {conn.status}"
-        if self.checker.first_invalid(conn.states[None, :, :3])[0] >= 0:
+        if self.checker.first_invalid(self.connection_poses(conn)[None])[0] >= 0:
             return conn, "connection collides"
         return conn, ""
+
+    def connection_poses(self, conn: Connection) -> np.ndarray:
+        """(N+1, 3) the poses [X, Y, psi] the car's body takes at the connection's nodes: its
+        states'; rate-limited, turned back by the rolling slip at the node's steer
+        (dynamics.kinematic.body_slip), as the car keeping to the path faces."""
+        poses = conn.states[:, :3].copy()
+        if conn.steer_rates is not None:
+            dt = conn.tf / len(conn.inputs)
+            steer = np.r_[conn.inputs[:, 0], conn.inputs[-1, 0] + conn.steer_rates[-1] * dt]
+            poses[:, 2] -= body_slip(steer, self.wheelbase, self.vehicle["Lr"])
+        return poses
 
 
 class Cell(NamedTuple):

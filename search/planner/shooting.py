@@ -7,6 +7,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from stepzoo import dynamics
+from stepzoo.dynamics.kinematic import body_slip
 from stepzoo.dynamics.linear import lateral_matrix
 from stepzoo.dynamics.models import steered
 from stepzoo.integrators import integrate_batch, method
@@ -137,6 +138,23 @@ class Shooter:
         x0[rows, 3:5] = -np.linalg.solve(np.moveaxis(A, 2, 0), b.T[..., None])[..., 0]
         return x0
 
+    def body_poses(self, states, steer, steer0, fraction) -> np.ndarray:
+        """(B, K, 3) the poses [X, Y, psi] the car's body takes at `states` (B, K, 5), at the
+        `fraction` (K,) of the shootings to the end steers `steer` (B,) from `steer0`: the
+        dynamic bicycle's own; rate-limited on the kinematic bicycle, whose (X, Y) moves along
+        theta, the car's body turned back by its rolling slip at the ramp's steer
+        (dynamics.kinematic.body_slip), as the car keeping to the path faces, but at the node
+        itself."""
+        poses = states[..., :3]
+        if not self.kinematic or self.rate is None:
+            return poses
+        start = self.start_steers(steer0, steer)
+        delta = start[:, None] + (steer - start)[:, None] * fraction[None, :]
+        # The node itself (fraction 0) keeps its pose: the move that reached it checked it.
+        slip = np.where(fraction[None, :] > 0, body_slip(delta, self.wheelbase,
+                                                         self.scalars["Lr"]), 0.0)
+        return np.concatenate([poses[..., :2], (poses[..., 2] - slip)[..., None]], axis=-1)
+
     def shoot(self, state, points, destination, steer0=0.0, settle=None) -> Shots:
         """Shoot from `state` (5,), or from one state per point (B, 5), at steer `steer0`
         [rad] (one or (B,); NaN: from a standstill), towards each of `points` (B, 2) [m]."""
@@ -173,7 +191,8 @@ class Shooter:
             # s = CHECK_SPACING_M on the tightest turn (R = 2.6 m), far inside the margin.
             stride = max(1, int(CHECK_SPACING_M / max(self.vx * self.h, 1e-12)))
             checked = np.unique(np.r_[np.arange(0, rows, stride), rows - 1])
-            hit = self.checker.first_invalid(states[:, checked])
+            hit = self.checker.first_invalid(self.body_poses(states[:, checked], steer, steer0,
+                                                             checked / (rows - 1)))
             # Rows before the last checked pose that is clear are clear.
             first = np.where(hit > 0, checked[np.maximum(hit - 1, 0)] + 1,
                              np.where(hit == 0, 0, -1))

@@ -37,6 +37,9 @@ K_SOFT = 1.0          # [m/s] softening: the cross-track term stays bounded as t
 # fought the plan's body slip at every cusp and strayed up to 1 m.
 LOOKAHEAD_M = 2.0     # [m] least lookahead: about a wheelbase
 LOOKAHEAD_S = 0.6     # [s] lookahead per speed: the loop's time scale l / v stays the same
+STEER_SHARE = 0.5     # the share of the steer rate the path may ask for per metre at speed
+A_CAP = 2.0           # [m/s^2] braking towards a speed the steer rate caps
+V_CAP_MIN = 0.2       # [m/s] the least speed that cap sets
 STEER_LAG_RAD = 0.2   # [rad] steer lagging its command by this much halts the car ...
 SLOWEST = 0.1         # ... down to this fraction of the planned speed
 STEER_SERVO_S = 0.05  # [s] time constant of the steering servo (the plant limits its rate)
@@ -103,8 +106,8 @@ def reference(rows, p: dict, kinematic=None) -> dict:
     L, Lr, Lf = p["Lf"] + p["Lr"], p["Lr"], p["Lf"]
     # The kinematic car's slip angle at full lock bounds the one the path asks for.
     sin_beta_max = math.sin(math.atan(Lr * math.tan(p["delta_max"]) / L))
-    out: dict[str, list] = {k: [] for k in ("P", "C", "course", "psi_body", "steer_ff", "speed",
-                                            "accel", "left")}
+    out: dict[str, list] = {k: [] for k in ("P", "C", "course", "psi_body", "steer_ff", "kappa",
+                                            "speed", "accel", "left")}
     first, last, ways = [], [], []
     for a, b, way in pieces(rows):
         # Resampled evenly along the path: rows closer than their rounding would make the
@@ -130,17 +133,33 @@ def reference(rows, p: dict, kinematic=None) -> dict:
         course = _smooth(np.unwrap(np.arctan2(*np.gradient(axle, s, axis=0).T[::-1])))
         dt = np.diff(t)
         v = np.where(dt > 0, d / np.where(dt > 0, dt, 1.0), 0.0)
-        speed = np.r_[v, v[-1:]]
+        speed = steering_speed(np.r_[v, v[-1:]], s, np.arctan(L * _smooth(kappa)),
+                               p["ddelta_max"])
         first.append(sum(len(c) for c in out["P"]))
         last.append(first[-1] + len(seg) - 1)
         ways.append(way)
         for k, val in (("P", xy), ("C", axle), ("course", course), ("psi_body", psi_body),
-                       ("steer_ff", np.arctan(L * np.tan(beta) / Lr)),
+                       ("steer_ff", np.arctan(L * np.tan(beta) / Lr)), ("kappa", _smooth(kappa)),
                        ("speed", speed), ("accel", speed * np.gradient(speed, s)),
                        ("left", s[-1] - s)):
             out[k].append(val)
     ref = {k: np.concatenate(v) for k, v in out.items()}
     return dict(ref, first=np.array(first), last=np.array(last), way=np.array(ways))
+
+
+def steering_speed(speed, s, steer, rate: float):
+    """(n,) [m/s] the plan's `speed` (n,) at the points `s` (n,) [m] along a piece, capped
+    where the steer the path asks for, `steer` (n,) [rad], changes faster per metre than
+    STEER_SHARE of the car's steer `rate` [rad/s] follows at that speed, and braking towards
+    each such cap at A_CAP (a backward pass), at least V_CAP_MIN: the car slows to turn the
+    wheel where the path turns it within a short distance, rather than running wide. (A plan
+    that crawls there is not followed exactly in time: the tracker slows where it must.)"""
+    per_m = np.abs(np.gradient(steer, s)) if len(s) > 2 else np.zeros(len(s))
+    cap = np.maximum(STEER_SHARE * rate / np.maximum(per_m, 1e-9), V_CAP_MIN)
+    ds = np.diff(s)
+    for i in range(len(s) - 2, -1, -1):
+        cap[i] = min(cap[i], math.sqrt(cap[i + 1] ** 2 + 2 * A_CAP * ds[i]))
+    return np.minimum(speed, cap)
 
 
 def _smooth(a):
@@ -186,9 +205,12 @@ def track(rows, start, vehicle: dict, kinematic=None) -> dict:
     arrays = {k: pad(v) for k, v in ref.items() if k not in ("first", "last", "way")}
     for k in ("first", "last", "way"):
         arrays[k] = np.r_[ref[k], np.repeat(ref[k][-1:], n_p - n_pieces)]
-    # Time allowed: the plan's, plus a stop and a start at A_TRACK per piece, plus slack.
+    # Time allowed: the plan's (or the reference's, slower), plus a stop and a start at A_TRACK
+    # per piece, plus slack.
     v_max = float(ref["speed"].max())
-    allowed = float(rows[-1, 0] - rows[0, 0]) + n_pieces * (2 * v_max / A_BRAKE + 2.0) + 5.0
+    driven = float(np.sum(SPACING_M / np.maximum(ref["speed"], V_CAP_MIN)))  # at its speeds
+    allowed = max(float(rows[-1, 0] - rows[0, 0]), driven) + n_pieces * (
+        2 * v_max / A_BRAKE + 2.0) + 5.0
     n_steps = _bucket(math.ceil(allowed / H_S), 1024)
     # At the start pose at the plan's first speed, the wheel turned (before moving off, as
     # the planner's driver turns it) to the controller's first command for a car on its path,
@@ -241,6 +263,18 @@ def _scan(n_steps: int):
 
         L = p["Lf"] + p["Lr"]
 
+        def front_slip(v, kappa):
+            """[rad] the front tyre's slip angle (Fiala, inverted in closed form: |F| =
+            grip (1 - (1 - y)^3), y = Ca |tan alpha| / (3 grip)) that carries its share of
+            the steady turn m v^2 kappa, as far as the car's speed blends in its tyres:
+            the steer the car needs beyond the front axle's course."""
+            grip = p["mu"] * p["Fzf"]
+            share = jnp.minimum(p["m"] * p["Lr"] / L * v * v * jnp.abs(kappa) / grip, 0.999)
+            y = 1 - jnp.cbrt(1 - share)
+            w = jnp.clip((jnp.abs(v) - p["v_blend_low"])
+                         / (p["v_blend_high"] - p["v_blend_low"]), 0.0, 1.0)
+            return w * jnp.sign(kappa) * jnp.arctan(3 * grip * y / p["Caf"])
+
         def control(x, i, k):
             way = ref["way"][k]
             lo, hi = ref["first"][k], ref["last"][k]
@@ -254,7 +288,8 @@ def _scan(n_steps: int):
             # The offset to the left of the body's forward direction along the path.
             e = side * way
             soft = K_SOFT + jnp.abs(v)
-            forward = wrap(at("course", j, f) - psi) - jnp.arctan(GAIN_K * e / soft)
+            forward = (wrap(at("course", j, f) - psi) - jnp.arctan(GAIN_K * e / soft)
+                       + front_slip(v, at("kappa", j, f)))
             # The point LOOKAHEAD along the path (its piece's end at most), seen from the rear
             # axle against the direction of travel; the arc's curvature 2 sin(alpha) / l.
             ahead_m = jnp.maximum(LOOKAHEAD_M, LOOKAHEAD_S * jnp.abs(v))
