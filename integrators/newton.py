@@ -21,6 +21,14 @@ from jax import lax
 from jax.custom_batching import custom_vmap
 
 
+# Largest contraction rate of the simplified iteration with which the next step keeps the
+# Jacobian (RADAU5's default). A looser rate (RADAU5 advises 0.1 where a Jacobian is costly)
+# saved no evaluations on the bicycle, and its solves stop nearer the tolerance than fresh
+# Jacobians' do: Radau IIA 5 then no longer showed its order on DETEST A2 at h = 1/8, where
+# the Newton tolerance is near its error (see the implicit-speed study of 2026-11-28).
+THETA_KEEP = 1e-3
+
+
 @dataclass(frozen=True)
 class NewtonOptions:
     """Tolerances of one nonlinear solve, on the components weighted by atol + rtol |y|:
@@ -28,16 +36,19 @@ class NewtonOptions:
     `res_tol` times 1 + |h A (x) J| (the residual of an iterate is the iteration matrix times
     its error: with res_tol = 1 it is no larger than an error within tolerance makes it).
     At most `max_iter` simplified iterations, then, where they fail, at most `max_iter_full`
-    of the full-Newton retry (0: none). The driver passes them at run time
-    (Method.run_options): other options need no other compiled program."""
+    of the full-Newton retry (0: none). A step whose simplified iteration contracted at a
+    rate of at most `keep` keeps its Jacobian's factors for the next step (RADAU5's WORK(3);
+    below 0: never kept). The driver passes them at run time (Method.run_options): other
+    options need no other compiled program."""
     rtol: float = 1e-10
     atol: float = 1e-10
     res_tol: float = 1.0
     max_iter: int = 10
     max_iter_full: int = 40
+    keep: float = THETA_KEEP
 
     def __post_init__(self):
-        for name in ("rtol", "atol", "res_tol", "max_iter", "max_iter_full"):
+        for name in ("rtol", "atol", "res_tol", "max_iter", "max_iter_full", "keep"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, Real):
                 raise TypeError(f"NewtonOptions.{name} must be a number, got {value!r}")
@@ -59,6 +70,7 @@ class RunOptions(NamedTuple):
     res_tol: object
     max_iter: object
     max_iter_full: object
+    keep: object
 
 
 # Increments this many ulps of the iterate are round-off: the iteration has converged as far
@@ -353,13 +365,6 @@ class Held(NamedTuple):
     current: jax.Array
 
 
-# Largest contraction rate of the simplified iteration with which the next step keeps the
-# Jacobian (RADAU5's default). A looser rate (RADAU5 advises 0.1 where a Jacobian is costly)
-# saved no evaluations on the bicycle, and its solves stop nearer the tolerance than fresh
-# Jacobians' do: Radau IIA 5 then no longer showed its order on DETEST A2 at h = 1/8, where
-# the Newton tolerance is near its error (see the implicit-speed study of 2026-11-28).
-THETA_KEEP = 1e-3
-
 
 def renew(held, factorise, need):
     """`held` with the current step's factors `factorise()` where `need` (one flag for a
@@ -411,7 +416,7 @@ def newton_solve(residual, solver_of, factorise, held, z0, y_scale, opts: Newton
     return jnp.where(ok1, z1, z2), k1, k2, ok1 | ok2, held, theta
 
 
-def keep_next(ok, theta, full):
+def keep_next(ok, theta, full, keep):
     """Whether the next step may keep this step's factors: its solves converged by the
-    simplified iteration alone, contracting at a rate of at most THETA_KEEP."""
-    return ok & (full == 0) & (theta <= THETA_KEEP)
+    simplified iteration alone, contracting at a rate of at most `keep` (NewtonOptions)."""
+    return ok & (full == 0) & (theta <= keep)

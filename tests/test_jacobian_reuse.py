@@ -1,5 +1,5 @@
 """Implicit steps keep their Jacobian's factors across steps while Newton contracts fast
-(newton.Held, THETA_KEEP): the results are the ones a new Jacobian every step gives, to the
+(newton.Held, NewtonOptions.keep): the results are the ones a new Jacobian every step gives, to the
 Newton tolerance; a Jacobian that changes fast is taken anew where a kept one would not do;
 and the kept factors keep a float32 state in float32."""
 import jax.numpy as jnp
@@ -14,17 +14,12 @@ pytestmark = pytest.mark.slow      # run first: see tests/conftest.py
 IMPLICIT = ["backward_euler", "trapezoidal", "bdf3", "radau_iia5", "kvaerno3"]
 
 
-def _bicycle():
-    """A new function each call, so that a run compiles afresh under a patched rule."""
-    return lambda t, x, u, p: MODEL.rhs(t, x, u, p)
-
-
 @pytest.mark.parametrize("name", IMPLICIT)
-def test_kept_jacobians_give_what_new_ones_give_to_the_newton_tolerance(monkeypatch, name):
+def test_kept_jacobians_give_what_new_ones_give_to_the_newton_tolerance(name):
+    """Never kept (keep < 0) is a run-time option: both runs are one compiled program."""
     n, x0, u, p = 100, *problem(40, seed=3)
-    kept = integrate_batch(name, _bicycle(), x0, u, p, H_S, n)
-    monkeypatch.setattr(newton, "THETA_KEEP", -1.0)     # never kept: one per step
-    fresh = integrate_batch(name, _bicycle(), x0, u, p, H_S, n)
+    kept = integrate_batch(name, MODEL.rhs, x0, u, p, H_S, n)
+    fresh = integrate_batch(method(name).with_newton(keep=-1.0), MODEL.rhs, x0, u, p, H_S, n)
     assert bool(kept.converged.all()) and bool(fresh.converged.all())
     # Each step's solve is within rtol = atol = 1e-10 of the exact stage values, both ways;
     # over n steps of a stable problem the differences add up to at most about n of them.
@@ -63,16 +58,13 @@ ORACLES = {"backward_euler": lambda y, t, h: ((y + h * (f_np(t + h, 0.0)))
 
 @pytest.mark.parametrize("keep", [newton.THETA_KEEP, np.inf])
 @pytest.mark.parametrize("name", sorted(ORACLES))
-def test_a_jacobian_that_changes_fast_is_taken_anew(monkeypatch, name, keep):
+def test_a_jacobian_that_changes_fast_is_taken_anew(name, keep):
     """With keep = inf a step keeps any Jacobian whose solve converged, so only the retry
     with the step's own rescues the steps where lambda has moved on: from 100 to 1900 1/s,
-    a kept one's iteration diverges. No full-Newton retry, which would rescue them too. A new
-    f each run, so that it compiles afresh under the patched rule (Newton options alone
-    would not: they are run-time values of one program)."""
-    monkeypatch.setattr(newton, "THETA_KEEP", keep)
+    a kept one's iteration diverges. No full-Newton retry, which would rescue them too."""
     h, n = 0.002, 500
-    tr = integrate(method(name).with_newton(max_iter_full=0),
-                   lambda t, y, u, p: forced(t, y, u, p), jnp.array([1.0, -2.0]), h=h, n_steps=n)
+    tr = integrate(method(name).with_newton(max_iter_full=0, keep=keep), forced,
+                   jnp.array([1.0, -2.0]), h=h, n_steps=n)
     assert bool(tr.converged)
     want = [np.array([1.0, -2.0])]
     for k in range(n):
