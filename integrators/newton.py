@@ -365,7 +365,6 @@ class Held(NamedTuple):
     current: jax.Array
 
 
-
 def renew(held, factorise, need):
     """`held` with the current step's factors `factorise()` where `need` (one flag for a
     whole chunk, `any_lane`'s): a loop that runs once or not at all, since sin and cos are

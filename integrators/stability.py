@@ -144,13 +144,14 @@ def amplification_empirical(m: Method, z):
     single point runs one of two compiled programs per method: a program is compiled per
     input length, and for an implicit method compiling is most of the cost."""
     z = np.asarray(z, dtype=complex)
-    flat = z.ravel()
-    if flat.size > 1:
-        flat = np.concatenate([flat, np.zeros(-flat.size % SCAN_CHUNK, complex)])
+    if z.size <= 1:
+        blocks = [z.ravel()]
+    else:
+        flat = np.concatenate([z.ravel(), np.zeros(-z.size % SCAN_CHUNK, complex)])
+        blocks = np.split(flat, flat.size // SCAN_CHUNK)
     amp = _empirical(m)
-    out = [np.asarray(amp(jnp.asarray(b.real), jnp.asarray(b.imag)))
-           for b in np.split(flat, max(1, flat.size // SCAN_CHUNK))] if flat.size else []
-    return np.concatenate(out or [np.zeros(0)])[:z.size].reshape(z.shape)
+    out = [np.asarray(amp(jnp.asarray(b.real), jnp.asarray(b.imag))) for b in blocks]
+    return np.concatenate(out)[:z.size].reshape(z.shape)
 
 
 def _ray_exit(amp, theta: float, scan_amp=None) -> float:
