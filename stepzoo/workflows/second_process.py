@@ -45,6 +45,7 @@ def _serve(conn, settings: dict) -> None:
             kind, args = conn.recv()
         except EOFError:                # the parent has ended
             return
+        answer: list | str | tuple | None
         try:
             if kind == "plan":
                 from stepzoo.workflows.plan import timed_plan
@@ -53,8 +54,7 @@ def _serve(conn, settings: dict) -> None:
                 from stepzoo.bench.sweep.config import load as load_config
                 from stepzoo.bench.sweep.engine import compute_chunk
                 cfg = load_config(args[0])
-                answer: list | str | None = [(cid, compute_chunk(cfg, cid, cache))
-                                             for cid in args[1]]
+                answer = [(cid, compute_chunk(cfg, cid, cache)) for cid in args[1]]
             elif kind == "figures":
                 sweep = load.load_sweep(args[0])
                 tuned = load.load_tuned(args[1], sweep)
