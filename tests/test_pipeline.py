@@ -214,7 +214,8 @@ def test_the_second_process_computes_the_chunks_the_sweep_would(tmp_path):
 
 def test_scenarios_planned_beside_are_the_plans_made_here():
     """The run shares its scenarios with the second process (plan.plan_all): each plan, in
-    the scenarios' order, equals the one planned here in turn but for its wall times; a
+    the scenarios' order, equals the one planned here in turn but for its wall times, and
+    so does the plan.png each process draws of its own; a
     scenario the second process does not plan (it answers None, as when it has died) is
     planned here."""
     from stepzoo.search.planner.config import load_config
@@ -224,7 +225,9 @@ def test_scenarios_planned_beside_are_the_plans_made_here():
     # The regression plans' config: no clock budget, so a plan is the same however loaded.
     config = load_config(ROOT / "tests" / "data" / "plan_regression" / "config.toml")
     scenarios = [load_scenario(name) for name in ("wall_between", "street")]
-    here = [without_timings(r) for r in plan_all(scenarios, config, 0, False)]
+    made = plan_all(scenarios, config, 0, False)
+    here = [(without_timings(r), png) for r, png in made]
+    assert all(png.startswith(b"\x89PNG") for _, png in made)
     ahead, asked = Ahead(), []
     try:
         def beside(*job):
@@ -234,7 +237,7 @@ def test_scenarios_planned_beside_are_the_plans_made_here():
     finally:
         ahead.close()
     assert asked                      # the second process planned a scenario (or both)
-    assert [without_timings(r) for r in shared] == here
+    assert [(without_timings(r), png) for r, png in shared] == here
     asked.clear()
     failed = plan_all(scenarios, config, 0, False, lambda *job: asked.append(job) or None)
-    assert len(asked) == 1 and [without_timings(r) for r in failed] == here
+    assert len(asked) == 1 and [(without_timings(r), png) for r, png in failed] == here

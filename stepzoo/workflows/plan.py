@@ -94,17 +94,19 @@ def plan(scenarios, out, config=None, seed: int = 0, *, reverse: bool = False,
                              "nothing to plan, give a goal elsewhere")
     if scheduler is None:
         # A line per plan of a batch; one plan's own result line follows at once.
-        records = plan_all(scenarios, config, seed, progress and len(scenarios) > 1, beside)
+        planned = plan_all(scenarios, config, seed, progress and len(scenarios) > 1, beside)
+        records, pngs = [r for r, _ in planned], [png for _, png in planned]
     else:
         from stepzoo.distributed import connect, gather_in_order
         with connect(scheduler) as client:
             records = gather_in_order(client, _plan_on_worker, scenarios, config, seed)
+        pngs = [None] * len(records)
     for record in records:
         if record["cause"] in BAD_ENDPOINT:
             # The poses are the user's input: no plan is written for a pose that cannot be.
             raise UsageError(f"{record['reason']}; choose a pose in free space on the map")
     with claim(out, "plan"):
-        _write(out, records, scenarios, batch)
+        _write(out, records, scenarios, batch, pngs)
         environment.write_manifest(out, "plan", started, {
             "scenarios": [r["scenario"] for r in records], "seed": seed,
             "config": config.source, "method": config.method, "h": config.h,
@@ -112,16 +114,23 @@ def plan(scenarios, out, config=None, seed: int = 0, *, reverse: bool = False,
     return records
 
 
-def timed_plan(scenario, config, seed) -> tuple[dict, float]:
-    """(plan_scenario's record, its wall time [s])."""
+def timed_plan(scenario, config, seed) -> tuple[dict, float, bytes | None]:
+    """(plan_scenario's record, its wall time [s], its plan.png, None for a pose that cannot
+    be planned): drawn by the process that planned it."""
+    from stepzoo.search.planner.pathfinder import BAD_ENDPOINT
+    from stepzoo.search.plans.files import render_png
     t0 = time.perf_counter()
     record = plan_scenario(scenario, config, seed)
-    return record, time.perf_counter() - t0
+    seconds = time.perf_counter() - t0
+    return (record, seconds,
+            None if record["cause"] in BAD_ENDPOINT else render_png(record, scenario))
 
 
-def plan_all(scenarios, config, seed, progress: bool, beside=None) -> list[dict]:
-    """plan_scenario's record of each scenario, in their order, each followed by a line on
-    stderr if `progress`. Without `beside` they are planned here in turn. With it (a
+def plan_all(scenarios, config, seed, progress: bool,
+             beside=None) -> list[tuple[dict, bytes | None]]:
+    """(plan_scenario's record, its plan.png) of each scenario (timed_plan's), in their
+    order, each followed by a line on stderr if `progress`. Without `beside` they are planned
+    here in turn. With it (a
     callable taking (scenario, config, seed) to timed_plan's answer computed in another
     process, or to None where that failed) a thread hands it the scenarios this process has
     not taken yet, one at a time, while this process plans the others: two cores plan at
@@ -129,15 +138,15 @@ def plan_all(scenarios, config, seed, progress: bool, beside=None) -> list[dict]
     on the machine's speed), not on the process that makes it; one that `beside` could not
     make is made here."""
     todo = list(enumerate(scenarios))
-    done: dict[int, dict] = {}
+    done: dict[int, tuple[dict, bytes | None]] = {}
     lock = threading.Lock()
 
     def take():
         with lock:
             return todo.pop(0) if todo else None
 
-    def finish(i, record, seconds):
-        done[i] = record
+    def finish(i, record, seconds, png):
+        done[i] = record, png
         if progress:
             _say_planned(f"[{i + 1}/{len(scenarios)}]", scenarios[i].name, record, seconds)
 
@@ -176,14 +185,15 @@ def _say_planned(count: str, name: str, record: dict, seconds: float) -> None:
     sys.stderr.flush()
 
 
-def _write(out, records, scenarios, batch: bool) -> None:
-    """Write the plans: one into `out`, or a batch (a folder each and the summary)."""
+def _write(out, records, scenarios, batch: bool, pngs) -> None:
+    """Write the plans: one into `out`, or a batch (a folder each and the summary); `pngs`
+    their plan.png where drawn already (else None)."""
     from stepzoo.search.plans.files import write_plan
     if not batch:
-        write_plan(out, records[0], scenarios[0])
+        write_plan(out, records[0], scenarios[0], pngs[0])
         return
-    for record, scenario in zip(records, scenarios):
-        write_plan(out / scenario.name, record, scenario)
+    for record, scenario, png in zip(records, scenarios, pngs):
+        write_plan(out / scenario.name, record, scenario, png)
     rows = [_summary_row(r) for r in records]
     buf = io.StringIO()
     writer = csv.DictWriter(buf, SUMMARY_COLUMNS, lineterminator="\n")

@@ -27,7 +27,7 @@ def _serve(conn, settings: dict) -> None:
     """The second process: JAX set as its parent, the report's modules imported, then the
     jobs ("chunks", (sweep config file, chunk ids)), answered with [(chunk id, tables)],
     ("figures", (sweep folder, tuned file)), unanswered, ("plan", (scenario, planner config,
-    seed)), answered with plan.timed_plan's (record, seconds), and ("report", build's
+    seed)), answered with plan.timed_plan's (record, seconds, plan.png), and ("report", build's
     arguments), answered with the index's path; None answers a job that failed."""
     # Ctrl-C goes to the whole process group: the parent says it was interrupted and ends
     # this process (SIGTERM, silent); a report it was writing leaves a hidden folder, which
@@ -130,7 +130,7 @@ class Ahead:
     def figures(self, sweep, tuned) -> None:
         self._send(("figures", (str(sweep), str(tuned))))
 
-    def plan(self, scenario, config, seed) -> tuple[dict, float] | None:
+    def plan(self, scenario, config, seed) -> tuple[dict, float, bytes | None] | None:
         """plan.timed_plan's answer, computed in the second process; None where it failed."""
         if not self._send(("plan", (scenario, config, seed))):
             return None
