@@ -216,8 +216,8 @@ def test_scenarios_planned_beside_are_the_plans_made_here():
     """The run shares its scenarios with the second process (plan.plan_all): each plan, in
     the scenarios' order, equals the one planned here in turn but for its wall times, and
     so does the plan.png each process draws of its own; a
-    scenario the second process does not plan (it answers None, as when it has died) is
-    planned here."""
+    scenario the second process does not plan (it answers None, as when it has died, or the
+    call raises) is planned here."""
     from stepzoo.search.planner.config import load_config
     from stepzoo.search.world.scenarios import load_scenario
     from stepzoo.workflows.plan import plan_all
@@ -238,6 +238,8 @@ def test_scenarios_planned_beside_are_the_plans_made_here():
         ahead.close()
     assert asked                      # the second process planned a scenario (or both)
     assert [(without_timings(r), png) for r, png in shared] == here
-    asked.clear()
-    failed = plan_all(scenarios, config, 0, False, lambda *job: asked.append(job) or None)
-    assert len(asked) == 1 and [(without_timings(r), png) for r, png in failed] == here
+    for fails in (lambda: None, lambda: 1 / 0):
+        asked.clear()
+        failed = plan_all(scenarios, config, 0, False,
+                          lambda *job, fails=fails: asked.append(job) or fails())
+        assert len(asked) == 1 and [(without_timings(r), png) for r, png in failed] == here

@@ -130,13 +130,12 @@ def plan_all(scenarios, config, seed, progress: bool,
              beside=None) -> list[tuple[dict, bytes | None]]:
     """(plan_scenario's record, its plan.png) of each scenario (timed_plan's), in their
     order, each followed by a line on stderr if `progress`. Without `beside` they are planned
-    here in turn. With it (a
-    callable taking (scenario, config, seed) to timed_plan's answer computed in another
-    process, or to None where that failed) a thread hands it the scenarios this process has
-    not taken yet, one at a time, while this process plans the others: two cores plan at
-    once. A plan depends only on its scenario, config and seed (and, through a clock budget,
-    on the machine's speed), not on the process that makes it; one that `beside` could not
-    make is made here."""
+    here in turn. With it (a callable taking (scenario, config, seed) to timed_plan's answer
+    computed in another process, or to None where that failed) a thread hands it the
+    scenarios this process has not taken yet, one at a time, while this process plans the
+    others: two cores plan at once. A plan depends only on its scenario, config and seed
+    (and, through a clock budget, on the processor time it gets), not on the process that
+    makes it; one that `beside` could not make is made here."""
     todo = list(enumerate(scenarios))
     done: dict[int, tuple[dict, bytes | None]] = {}
     lock = threading.Lock()
@@ -153,7 +152,10 @@ def plan_all(scenarios, config, seed, progress: bool,
     def feed():
         while (job := take()) is not None:
             i, scenario = job
-            answer = beside(scenario, config, seed)
+            try:
+                answer = beside(scenario, config, seed)
+            except Exception:           # e.g. a scenario that cannot be sent: planned here,
+                answer = None           # where an error of the plan itself is raised
             if answer is None:          # that process failed: this one plans the rest
                 with lock:
                     todo.insert(0, job)
