@@ -37,7 +37,8 @@ TF_BOUNDS = (0.1, 30.0)  # [s]; the lower bound keeps dt = t_f/N away from zero
 STANDSTILL_RATE = 0.05   # [1]
 THETA_MARGIN = 2 * pi  # [rad] beyond the start and goal headings: room for one loop, no more
 END_TOL = 1e-6         # [m, rad, m/s] end-constraint residual accepted as success
-MAX_TRIES = 3          # solves (one per winding and first direction) before giving up
+MAX_TRIES = 3          # solves (one per winding and first direction, and one more in a
+#                        corridor where a solution touches) before giving up
 
 
 MIN_ROOM = 0.01        # [m] the least room a disc of the corridor gets: a guess touching
@@ -539,7 +540,7 @@ def connect(start, goal, *, L, m, bounds=None, N=50, shooting=DEFAULT_SHOOTING,
     v_guess = min(v_max, math.sqrt(max_lateral_acceleration * radius)) if rate_limited else v_max
     guesses = sorted((_profile(segs, radius, x0, a_max, v_guess, goal_speed, -v_min)
                       for segs in paths), key=lambda guess: guess.tf)
-    tried = set()
+    tried, solves = set(), 0
     for guess in guesses:
         way = guess.runs[0][0]
         theta_g = unwrap(goal[2], start[2] + guess.turn)
@@ -560,6 +561,7 @@ def connect(start, goal, *, L, m, bounds=None, N=50, shooting=DEFAULT_SHOOTING,
             lo, hi = np.r_[lo, -delta_max], np.r_[hi, delta_max]
         p = np.r_[x_start, goal_local[:2], theta_g, L, m, delta_max, a_max, limits, v_goal]
         solved = _solve(prob, p, lo, hi, (tf_lo, tf_hi), tf_g, u_g, steer_speed is not None)
+        solves += 1
         if (kept is not None and corridor is not None and solved.success
                 and _touches(corridor, solved, L, origin)):
             # The OCP ignores obstacles: solved again, each disc kept within its guess's room.
@@ -570,7 +572,8 @@ def connect(start, goal, *, L, m, bounds=None, N=50, shooting=DEFAULT_SHOOTING,
                       v_goal]
             solved = _solve(kept, p, lo, hi, (tf_lo, tf_hi), tf_g, u_g,
                             steer_speed is not None, room.ravel())
-        if solved.success or len(tried) == MAX_TRIES:
+            solves += 1
+        if solved.success or solves >= MAX_TRIES:
             break
     solved.states[:, :2] += origin
     return Connection(success=solved.success, status=solved.status, tf=solved.tf,
