@@ -10,7 +10,7 @@ from stepzoo.dynamics.vehicles import vehicle
 from stepzoo.integrators import integrate, method
 from stepzoo.search.proofs.car_bounds import reeds_shepp_length
 from stepzoo.search.planner.connection_ocp import (A_MAX, _fastest_profile, connect, dubins_paths,
-                                    reeds_shepp_paths, resimulate, step_function)
+                                    path_poses, reeds_shepp_paths, resimulate, step_function)
 
 CAR = vehicle("bmw320i")
 L, M = CAR["Lf"] + CAR["Lr"], CAR["m"]
@@ -235,3 +235,42 @@ def test_below_the_steer_speed_the_steer_turns_per_metre_not_by_crawling():
     assert bounded.success
     assert np.all(turned <= rate / v_steer * travel + STANDSTILL_RATE * rate * dt + 1e-6)
     assert bounded.states[:, 3].min() > 1.0
+
+
+def test_a_connection_that_would_collide_is_kept_within_its_guess_room():
+    """A left turn of 90 degrees at 2 m/s past a block on the inside of the rate-limited
+    turn: the Dubins path (left, straight, left, at full lock) clears it, the obstacle-blind
+    OCP, whose steer ramps, swings through it. With the corridor the OCP is solved again,
+    each disc of the body at each node within its guess disc's clearance: the car's discs
+    (the footprint the planner checks) touch nothing at any node or between them."""
+    from stepzoo.search.planner.connection_ocp import Corridor
+    from stepzoo.search.world.footprint import Footprint, first_collision
+    from stepzoo.search.world.maps import from_array
+    footprint = Footprint.from_vehicle(CAR["length"] + 0.2, CAR["width"] + 0.2, 6)
+    occupied = np.zeros((120, 120), bool)
+    occupied[12:24, 40:48] = True      # x 10..12 m, y 3..6 m at 0.25 m/cell
+    omap = from_array(occupied, 0.25)
+    start, goal = np.array([5.0, 5.0, 0.0, 2.0]), np.array([13.0, 13.0, pi_ / 2])
+    limits = dict(L=L, m=M, delta_max=pi_ / 4, max_steer_rate=0.32,
+                  max_lateral_acceleration=9.2)
+
+    def first_hit(conn):
+        steer = np.r_[conn.inputs[:, 0],
+                      conn.inputs[-1, 0] + conn.steer_rates[-1] * conn.tf / len(conn.inputs)]
+        poses = conn.states[:, :3].copy()
+        poses[:, 2] -= np.arcsin(CAR["Lr"] * np.tan(steer) / L)
+        return first_collision(omap, footprint, poses[None])[0]
+
+    radius = L / np.tan(pi_ / 4)
+    guess = path_poses(start[:3], dubins_paths(start[:3], goal, radius)[0], radius, 0.2)
+    assert first_collision(omap, footprint, guess[None])[0] < 0
+    blind = connect(start, goal, **limits)
+    assert blind.success and first_hit(blind) >= 0
+    corridor = Corridor(footprint.offsets, footprint.radius, CAR["Lr"], omap.clearance)
+    kept = connect(start, goal, **limits, corridor=corridor)
+    assert kept.success and first_hit(kept) < 0
+    assert np.abs(kept.states[-1, :3] - goal).max() < 1e-6
+    # Where the blind solution is free, the corridor changes nothing.
+    free = connect(start, goal, **limits, corridor=Corridor(
+        footprint.offsets, footprint.radius, CAR["Lr"], from_array(occupied * 0, 0.25).clearance))
+    assert free.tf == blind.tf and np.array_equal(free.states, blind.states)

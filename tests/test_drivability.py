@@ -71,6 +71,25 @@ def test_driving_backwards_is_counted_and_a_cusp_splits_the_measures():
     assert d["cusps"] == 1 and d["max_curvature_1pm"] == 0 and d["max_steer_rate_radps"] == 0
 
 
+def test_turning_the_wheel_at_a_cusp_is_no_steer_rate():
+    """10 m straight on at 2 m/s, a stop, the wheel turned to 0.3 rad while stopped, then 4 m
+    back on the arc of that steer: the centre of gravity sets off body_slip aside of the
+    heading it stopped with (0.2 rad here). The runs' curvatures are 0 and tan(0.3) / L; the
+    steer is constant in each run, so no steer rate, whatever the cusp's row holds."""
+    kappa = math.tan(0.3) / L
+    on = np.linspace(0.0, 5.0, 501)
+    back = np.linspace(0.0, 2.0, 201)[1:]
+    theta = 0.2 - kappa * 2.0 * back      # backwards at 2 m/s, turning right
+    x = 10.0 - np.r_[0.0, np.cumsum(2.0 * 0.01 * np.cos(theta))][1:]
+    y = -np.r_[0.0, np.cumsum(2.0 * 0.01 * np.sin(theta))][1:]
+    rows = np.vstack([rows_of(on, np.column_stack([2.0 * on, 0 * on, 0 * on])),
+                      rows_of(5.0 + back, np.column_stack([x, y, theta]))])
+    d = measure(rows)
+    assert d["cusps"] == 1 and d["reverse_length_m"] == pytest.approx(4.0, abs=0.01)
+    assert d["max_curvature_1pm"] == pytest.approx(kappa, rel=0.02)
+    assert d["max_steer_rate_radps"] < 0.05 and d["drivable"]
+
+
 def finite_difference(rows, dt=0.1):
     """(max |curvature| [1/m], max implied steer rate [rad/s]) of path rows, by a route of
     its own: the rows resampled every `dt` s, the heading's and the position's central

@@ -282,6 +282,17 @@ def test_a_rolling_cars_body_turns_from_its_path_by_body_slip():
         assert angle == pytest.approx(body_slip(np.arctan(L / R), L, Lr), abs=1e-12)
 
 
+class Recorder:
+    """A validity checker that finds everything free and keeps the poses it was given."""
+
+    def __init__(self):
+        self.seen = []
+
+    def first_invalid(self, poses):
+        self.seen.append(np.array(poses))
+        return np.full(len(poses), -1)
+
+
 @pytest.mark.parametrize("tight", [True, False])
 def test_the_planner_checks_a_kinematic_move_where_the_cars_body_is(tight):
     """A tight move's (X, Y) moves along theta; the car keeping to that path faces theta -
@@ -289,24 +300,45 @@ def test_the_planner_checks_a_kinematic_move_where_the_cars_body_is(tight):
     steer, the node itself as it is. The dynamic bicycle's own
     heading is the body's, checked as it is."""
     from stepzoo.dynamics.kinematic import body_slip
-    seen = []
-
-    class Recorder:
-        def first_invalid(self, poses):
-            seen.append(np.array(poses))
-            return np.full(len(poses), -1)
-
+    recorder = Recorder()
     car = dynamics.vehicle(None)
     L, Lr = car["Lf"] + car["Lr"], car["Lr"]
-    shooter = Shooter(Recorder(), None, 2.0 if tight else 5.0, "rk4", 0.02, 40, 3, 0.7,
+    shooter = Shooter(recorder, None, 2.0 if tight else 5.0, "rk4", 0.02, 40, 3, 0.7,
                       tight=tight, max_steer_rate=0.32)
     steer0, steer = 0.2, np.array([-0.05, 0.2, 0.45])
     shots = shooter.shoot_steers(np.zeros(5), steer, np.array([20.0, 0.0, 0.0]), steer0)
-    checked, states = seen[-1], shots.states
+    checked, states = recorder.seen[-1], shots.states
     slip = (lambda d: body_slip(d, L, Lr)) if tight else (lambda d: 0.0 * d)
     assert checked[:, 0, 2] == pytest.approx(states[:, 0, 2], abs=1e-12)   # the node itself
     assert checked[:, -1, 2] == pytest.approx(states[:, -1, 2] - slip(steer), abs=1e-12)
     assert checked[:, -1, :2] == pytest.approx(states[:, -1, :2], abs=1e-12)
+
+
+@pytest.mark.parametrize("reverse", [False, True])
+def test_a_kinematic_move_sets_off_without_sliding_its_rear_axle(reverse):
+    """Geometry as the oracle: a car rolling without slip at a steady steer moves its rear
+    axle along its body, from the first metre on. A kinematic move (tight or backwards) from
+    a standstill (the start, a cusp), its wheel turned first (steer0 NaN), from a node whose
+    body faces psi = 0.4: between every two poses the validity checker is given (the
+    body's), the rear axle's chord lies along the mean of their body headings, and the first
+    pose is the node's. A move that set off along the node's heading instead of body_slip
+    beyond it slides the rear axle by up to 0.45 rad (full lock) at the start."""
+    recorder = Recorder()
+    car = dynamics.vehicle(None)
+    Lr = car["Lr"]
+    shooter = Shooter(recorder, None, 2.0, "rk4", 0.01, 80, 4, 0.75, reverse=reverse,
+                      tight=not reverse, max_steer_rate=0.32)
+    steer = np.array([-0.75, -0.2, 0.45, 0.75])
+    start = np.array([3.0, -1.0, 0.4, 0.0, 0.0])
+    shooter.shoot_steers(start, steer, np.array([20.0, 0.0, 0.0]), np.nan)
+    body = recorder.seen[-1]
+    assert body[:, 0] == pytest.approx(np.tile(start[:3], (4, 1)), abs=1e-12)
+    rear = body[..., :2] - Lr * np.stack([np.cos(body[..., 2]), np.sin(body[..., 2])], -1)
+    chord = np.diff(rear, axis=1)
+    mean = (body[:, 1:, 2] + body[:, :-1, 2]) / 2
+    sideways = (np.cos(mean) * chord[..., 1] - np.sin(mean) * chord[..., 0]) \
+        / np.hypot(*np.moveaxis(chord, -1, 0))
+    assert np.abs(sideways).max() < 2e-3
 
 
 def test_the_expansion_budget_ends_in_the_closest_node():

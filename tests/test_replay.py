@@ -88,13 +88,25 @@ def independent_deviation(record):
         replayed[rows] = sol.sol(np.minimum(path[rows, 0] - t0, span))[:2].T
         return sol.y[:, -1]
 
+    # Rate-limited, a tree move setting off from a standstill (the first move, a cusp) starts
+    # from the body's heading: the centre of gravity, Lr ahead of the rear axle (which does
+    # not slide), moves asin(Lr tan(delta) / L) to the side of the body on the kinematic
+    # bicycle.
+    way, body = 0, x[2]
     for seg in record["controls"]:
         u = seg["inputs"]
+        slip = (lambda d: np.arcsin(v["Lr"] * np.tan(d) / v["wheelbase"])) \
+            if "delta_rate" in u else (lambda d: 0.0)
+        direction = 1 if seg["model"] == "dynamic5" else np.sign(seg["v0"])
+        if "delta_rate" in u and seg["move"] != "connection" and direction != way:
+            x[2] = body + (slip(u["delta"][0]) if seg["model"] == "kinematic" else 0.0)
+        way = direction
         if seg["model"] == "dynamic5":
             if "lateral0" in seg:
                 x = np.r_[x[:3], seg["lateral0"]]
             x = solve(dynamic_bicycle(seg["vx"], u["delta"], v, u.get("delta_rate", 0.0)), x,
                       seg["t0"], seg["duration"])
+            body = x[2]
         else:
             k = np.r_[x[:3], seg["v0"]]
             rates = u.get("delta_rate", [0.0] * len(u["F"]))
@@ -102,6 +114,7 @@ def independent_deviation(record):
                 k = solve(kinematic_bicycle(delta, force, v, rate), k, seg["t0"] + i * seg["dt"],
                           seg["dt"])
             x = np.r_[k[:3], 0.0, 0.0]
+            body = k[2] - slip(u["delta"][-1] + rates[-1] * seg["dt"])
     assert not np.isnan(replayed).any()
     return float(np.hypot(*(path[:, 1:3] - replayed).T).max())
 

@@ -9,7 +9,7 @@ from functools import cache
 import math
 from math import pi
 from time import perf_counter
-from typing import NamedTuple
+from typing import Callable, NamedTuple
 
 import casadi as ca
 import jax.numpy as jnp
@@ -37,7 +37,24 @@ TF_BOUNDS = (0.1, 30.0)  # [s]; the lower bound keeps dt = t_f/N away from zero
 STANDSTILL_RATE = 0.05   # [1]
 THETA_MARGIN = 2 * pi  # [rad] beyond the start and goal headings: room for one loop, no more
 END_TOL = 1e-6         # [m, rad, m/s] end-constraint residual accepted as success
-MAX_TRIES = 3          # solves (one per winding and first direction) before giving up
+MAX_TRIES = 3          # solves (one per winding and first direction, and one more in a
+#                        corridor where a solution touches) before giving up
+
+
+MIN_ROOM = 0.01        # [m] the least room a disc of the corridor gets: a guess touching
+#                        an obstacle leaves the solve a sliver, not an empty set
+
+
+class Corridor(NamedTuple):
+    """What the connection keeps clear of (rate-limited): the car's body as discs of
+    `radius` [m] at `offsets` (J,) [m] along it from (X, Y), the body facing theta less
+    asin(Lr tan(delta) / L) (Lr [m] from the rear axle to (X, Y)), and `clearance`, points
+    (..., 2) [m] -> (...) [m] a lower bound of their distance to the nearest obstacle
+    (OccupancyMap.clearance)."""
+    offsets: np.ndarray
+    radius: float
+    Lr: float
+    clearance: Callable
 
 
 @dataclass(frozen=True)
@@ -287,26 +304,52 @@ def _steer_ramps(signs, steer0, delta_max, rate_max, dt):
     return rates
 
 
+def _progress(t, runs, plans, a_max):
+    """(run index, time into it [s], distance along it [m]) at time `t` [s] of driving `runs`
+    at their speed profiles `plans` (from `_profile`)."""
+    ends = np.cumsum([profile[2] for _, profile in plans])
+    k = min(int(np.searchsorted(ends, t)), len(runs) - 1)
+    v0, (t1, t2, _) = plans[k]
+    tau = t - (ends[k - 1] if k else 0.0)
+    # Accelerate until t1, cruise until t2, then brake.
+    a1, a2, a3 = min(tau, t1), min(max(tau - t1, 0.0), t2 - t1), max(tau - t2, 0.0)
+    peak = v0 + a_max * t1
+    return k, tau, v0 * a1 + a_max * a1 ** 2 / 2 + peak * (a2 + a3) - a_max * a3 ** 2 / 2
+
+
 def _guess_inputs(N, runs, plans, a_max):
     """Scaled inputs (2, N) [steer sign, acceleration / a_max] at the midpoints of N equal
     intervals of driving `runs` at their speed profiles `plans` (from `_profile`)."""
-    ends = np.cumsum([profile[2] for _, profile in plans])
-    tf = float(ends[-1])
-    t_mid = (np.arange(N) + 0.5) * tf / N
+    tf = float(sum(profile[2] for _, profile in plans))
     steer, acc = np.zeros(N), np.zeros(N)
-    for i, t in enumerate(t_mid):
-        k = min(int(np.searchsorted(ends, t)), len(runs) - 1)
+    for i, t in enumerate((np.arange(N) + 0.5) * tf / N):
+        k, tau, s = _progress(t, runs, plans, a_max)
         way, run = runs[k]
-        v0, (t1, t2, _) = plans[k]
-        tau = t - (ends[k - 1] if k else 0.0)
-        # Distance along the run at tau: accelerate until t1, cruise until t2, then brake.
-        a1, a2, a3 = min(tau, t1), min(max(tau - t1, 0.0), t2 - t1), max(tau - t2, 0.0)
-        peak = v0 + a_max * t1
-        s = v0 * a1 + a_max * a1 ** 2 / 2 + peak * (a2 + a3) - a_max * a3 ** 2 / 2
+        t1, t2 = plans[k][1][:2]
         along = np.cumsum([q for _, q in run])
         steer[i] = run[min(int(np.searchsorted(along, s)), len(run) - 1)][0]
         acc[i] = way * (1.0 if tau < t1 else 0.0 if tau < t2 else -1.0)
     return np.vstack([steer, acc])
+
+
+def _guess_poses(N, start, radius, runs, plans, a_max):
+    """(N, 3) poses [X, Y, theta] at the ends of N equal intervals of driving `runs` at their
+    speed profiles `plans` (from `_profile`) from pose `start` on turns of `radius` [m]."""
+    firsts = [np.asarray(start, float)[:3]]
+    for way, run in runs:
+        firsts.append(path_poses(firsts[-1], [(sign, way * q) for sign, q in run], radius,
+                                 np.inf)[-1])
+    tf = float(sum(profile[2] for _, profile in plans))
+    poses = np.zeros((N, 3))
+    for i, t in enumerate(np.arange(1, N + 1) * tf / N):
+        k, _, s = _progress(t, runs, plans, a_max)
+        way, run = runs[k]
+        pose, left = firsts[k], s
+        for sign, q in run:
+            pose = _advance(pose, sign, way * min(q, max(left, 0.0)), radius)
+            left -= q
+        poses[i] = pose
+    return poses
 
 
 @dataclass(frozen=True)
@@ -337,13 +380,17 @@ ADAPTIVE_MU: dict[str, int | str] = {"mu_strategy": "adaptive",
 
 @cache
 def _problem(N: int, shooting: str, method: str, bounded: bool, speed_fixed: bool,
-             steered: bool = False) -> _Problem:
+             steered: bool = False, discs: int = 0) -> _Problem:
     """The parametrised minimum-time OCP, positions relative to the start node; `steered`:
     the steer a state, its rate the control, v^2 tan(delta) / L bounded, and below the speed
-    v_steer the steer rate bounded per metre (rate_max / v_steer [rad/m])."""
+    v_steer the steer rate bounded per metre (rate_max / v_steer [rad/m]); `discs` (steered):
+    the squared distance of each of that many discs of the car's body (Lr and their offsets
+    parameters) at each node 1..N from a parametrised centre, whose bounds the solve sets."""
     nx = 4 + steered
-    k = nx + 7                    # parameters before (rate_max, a_lat, v_steer) and v_goal
-    p = ca.MX.sym("p", k + 3 * steered + speed_fixed)
+    k = nx + 7                    # parameters before (rate_max, a_lat, v_steer), the discs'
+    #                               (Lr, offsets, centres (2, N * discs)) and v_goal
+    n_discs = (1 + discs + 2 * N * discs) if discs else 0
+    p = ca.MX.sym("p", k + 3 * steered + n_discs + speed_fixed)
     x0, goal, L, m, d_max, a_max = p[:nx], p[nx:nx + 3], p[nx + 3], p[nx + 4], p[nx + 5], \
         p[nx + 6]
     T, U = ca.MX.sym("T"), ca.MX.sym("U", 2, N)
@@ -371,6 +418,18 @@ def _problem(N: int, shooting: str, method: str, bounded: bool, speed_fixed: boo
         # smooth through v = 0: U^2 - (v / v_steer)^2 <= STANDSTILL_RATE^2.
         for ends in (states[3, :-1], states[3, 1:]):
             g.append(ca.vec(U[0, :] ** 2 - (ends / p[k + 2]) ** 2))
+    if discs:
+        # The body faces theta less the rolling slip asin(Lr tan(delta) / L)
+        # (dynamics.kinematic.body_slip); each disc centre lies its offset along the body.
+        c = k + 3
+        Lr, offsets = p[c], p[c + 1:c + 1 + discs]
+        centres = ca.reshape(p[c + 1 + discs:c + n_discs], 2, N * discs)
+        body = states[2, 1:] - ca.asin(Lr * ca.tan(states[4, 1:]) / L)
+        along = ca.repmat(offsets.T, 1, N)                       # disc fastest
+        cx, cy, heading = (ca.reshape(ca.repmat(row, discs, 1), 1, N * discs)
+                           for row in (states[0, 1:], states[1, 1:], body))
+        g.append(ca.vec((cx + along * ca.cos(heading) - centres[0, :]) ** 2
+                        + (cy + along * ca.sin(heading) - centres[1, :]) ** 2))
     ipopt = {**IPOPT_OPTIONS, **ADAPTIVE_MU} if shooting == "multiple" else IPOPT_OPTIONS
     solver = ca.nlpsol(f"connect_{shooting}{N}{'_steered' * steered}", "ipopt",
                        # casadi's stub takes SX alone; nlpsol takes MX as well
@@ -381,11 +440,12 @@ def _problem(N: int, shooting: str, method: str, bounded: bool, speed_fixed: boo
                     rows, nx)
 
 
-def _solve(prob, p, lo, hi, tf_range, tf_g, u_g, per_metre=False) -> _Solution:
+def _solve(prob, p, lo, hi, tf_range, tf_g, u_g, per_metre=False, room=None) -> _Solution:
     """One IPOPT solve from the guess (tf_g [s], scaled inputs u_g (2, N)) with parameters p,
     states 1..N within lo..hi ([X, Y, theta, v]) and t_f within tf_range [s] (steered,
-    `per_metre`: the steer rate bounded per metre below p's v_steer):
-    (success, status, tf, states, inputs)."""
+    `per_metre`: the steer rate bounded per metre below p's v_steer; `room`: (N * discs,)
+    [m] how far each disc may lie from its centre in p): (success, status, tf, states,
+    inputs)."""
     N, nx = u_g.shape[1], prob.nx
     x_g = np.r_[tf_g, u_g.ravel(order="F")]
     lbx, ubx = np.r_[tf_range[0], np.full(2 * N, -1.0)], np.r_[tf_range[1], np.ones(2 * N)]
@@ -401,6 +461,8 @@ def _solve(prob, p, lo, hi, tf_range, tf_g, u_g, per_metre=False) -> _Solution:
         lbg = np.r_[lbg, -np.ones(N), np.full(2 * N, -np.inf)]
         ubg = np.r_[ubg, np.ones(N), np.full(2 * N, STANDSTILL_RATE ** 2 if per_metre
                                              else np.inf)]
+    if room is not None:
+        lbg, ubg = np.r_[lbg, np.full(len(room), -np.inf)], np.r_[ubg, np.square(room)]
     sol = prob.solver(x0=x_g, p=p, lbx=lbx, ubx=ubx, lbg=lbg, ubg=ubg)
     stats = prob.solver.stats()
     states, inputs = (np.asarray(a).T.copy() for a in prob.path(sol["x"], p))
@@ -420,7 +482,7 @@ def connect(start, goal, *, L, m, bounds=None, N=50, shooting=DEFAULT_SHOOTING,
             method=DEFAULT_METHOD, goal_speed=None, v_max=25.0, delta_max=pi / 4,
             a_max=A_MAX, tf_bounds=None, v_min=0.0, paths=None, steer0=0.0,
             max_steer_rate=None, max_lateral_acceleration=None,
-            steer_speed=None) -> Connection:
+            steer_speed=None, corridor: Corridor | None = None) -> Connection:
     """Minimum-time connection from `start` [X, Y, theta, v] to `goal` [X, Y, theta]
     ([m, m, rad, m/s]), N piecewise-constant input intervals of dt = t_f/N.
 
@@ -430,7 +492,10 @@ def connect(start, goal, *, L, m, bounds=None, N=50, shooting=DEFAULT_SHOOTING,
     `steer_speed` [m/s] (default: no bound per metre) the steer turns at most max_steer_rate /
     steer_speed per metre (STANDSTILL_RATE of its rate at a standstill): a minimum-time car
     does not slow to a crawl to turn the wheel, which leaves a kink no car tracks at speed.
-    Without max_steer_rate (None, the paper's OCP) the steer is a control.
+    Without max_steer_rate (None, the paper's OCP) the steer is a control. With it, a
+    `corridor` keeps the car off the obstacles: at each node each disc of the body lies
+    within the room its guess's disc has (that disc's clearance less its radius, at least
+    MIN_ROOM), so that the solution is as free as the guess where the guess is free.
 
     L [m] wheelbase, m [kg] mass; bounds (Xmin, Xmax, Ymin, Ymax) [m] or None; goal_speed
     [m/s] or None (free); v_min <= v <= v_max [m/s] (v_min < 0 lets the car reverse),
@@ -454,6 +519,9 @@ def connect(start, goal, *, L, m, bounds=None, N=50, shooting=DEFAULT_SHOOTING,
     rate_limited = max_steer_rate is not None
     prob = _problem(N, shooting, method, bounds is not None, goal_speed is not None,
                     rate_limited)
+    kept = (_problem(N, shooting, method, bounds is not None, goal_speed is not None,
+                     rate_limited, len(corridor.offsets))
+            if corridor is not None and rate_limited else None)
     # Positions relative to the start node keep the numbers small wherever the map lies.
     origin = start[:2]
     x0 = np.array([0.0, 0.0, start[2], start[3]])
@@ -472,7 +540,7 @@ def connect(start, goal, *, L, m, bounds=None, N=50, shooting=DEFAULT_SHOOTING,
     v_guess = min(v_max, math.sqrt(max_lateral_acceleration * radius)) if rate_limited else v_max
     guesses = sorted((_profile(segs, radius, x0, a_max, v_guess, goal_speed, -v_min)
                       for segs in paths), key=lambda guess: guess.tf)
-    tried = set()
+    tried, solves = set(), 0
     for guess in guesses:
         way = guess.runs[0][0]
         theta_g = unwrap(goal[2], start[2] + guess.turn)
@@ -493,13 +561,44 @@ def connect(start, goal, *, L, m, bounds=None, N=50, shooting=DEFAULT_SHOOTING,
             lo, hi = np.r_[lo, -delta_max], np.r_[hi, delta_max]
         p = np.r_[x_start, goal_local[:2], theta_g, L, m, delta_max, a_max, limits, v_goal]
         solved = _solve(prob, p, lo, hi, (tf_lo, tf_hi), tf_g, u_g, steer_speed is not None)
-        if solved.success or len(tried) == MAX_TRIES:
+        solves += 1
+        if (kept is not None and corridor is not None and solved.success
+                and _touches(corridor, solved, L, origin)):
+            # The OCP ignores obstacles: solved again, each disc kept within its guess's room.
+            poses = _guess_poses(N, x0[:3], radius, guess.runs, guess.plans, a_max)
+            centres = _disc_centres(corridor, poses, delta_max * u_g[0], L)
+            room = np.maximum(corridor.clearance(centres + origin) - corridor.radius, MIN_ROOM)
+            p = np.r_[p[:len(p) - len(v_goal)], corridor.Lr, corridor.offsets, centres.ravel(),
+                      v_goal]
+            solved = _solve(kept, p, lo, hi, (tf_lo, tf_hi), tf_g, u_g,
+                            steer_speed is not None, room.ravel())
+            solves += 1
+        if solved.success or solves >= MAX_TRIES:
             break
     solved.states[:, :2] += origin
     return Connection(success=solved.success, status=solved.status, tf=solved.tf,
                       t=np.linspace(0, solved.tf, N + 1), states=solved.states,
                       inputs=solved.inputs, solve_s=perf_counter() - t0,
                       shooting=shooting, steer_rates=solved.steer_rates)
+
+
+def _disc_centres(corridor: Corridor, poses, steers, L) -> np.ndarray:
+    """(n, J, 2) [m] the centres of the corridor's discs of the car at poses (n, 3+) [X, Y,
+    theta] and steers (n,) [rad], its body facing theta less its rolling slip."""
+    poses = np.asarray(poses, float)
+    body = poses[:, 2] - np.arcsin(np.clip(corridor.Lr * np.tan(steers) / L, -1.0, 1.0))
+    return poses[:, None, :2] + np.asarray(corridor.offsets)[None, :, None] \
+        * np.stack([np.cos(body), np.sin(body)], axis=-1)[:, None, :]
+
+
+def _touches(corridor: Corridor, solved: _Solution, L, origin) -> bool:
+    """Whether a disc of the car touches an obstacle at a node 1..N of the (steered) solution,
+    positions relative to `origin` [m]."""
+    assert solved.steer_rates is not None
+    dt = solved.tf / len(solved.inputs)
+    steers = np.r_[solved.inputs[1:, 0], solved.inputs[-1, 0] + solved.steer_rates[-1] * dt]
+    centres = _disc_centres(corridor, solved.states[1:], steers, L)
+    return bool((corridor.clearance(centres + origin) <= corridor.radius).any())
 
 
 def resimulate(conn: Connection, *, L, m, refine=10) -> np.ndarray:

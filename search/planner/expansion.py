@@ -40,6 +40,7 @@ class Expander:
             randoms.append(points)
         rows = self.filled(nodes)
         states = np.repeat(tree.states[rows], self.per, axis=0)
+        body = np.repeat(s.body_states(rows), self.per, axis=0)
         steers = np.repeat(tree.steer[rows], self.per)  # each shooting starts at its node's
         ways = np.repeat(tree.direction[rows], self.per)
         new = []
@@ -62,8 +63,9 @@ class Expander:
             settle = None
             if s.f.rate_limited and direction > 0:
                 settle = standing | (ways < 0) | np.repeat(tree.tight[rows], self.per)
-            shots = shooter.shoot(states, np.vstack(aims), s.goal,
-                                  np.where(standing, np.nan, steers), settle)
+            # From a standstill the car sets off from its body's heading.
+            shots = shooter.shoot(np.where(standing[:, None], body, states), np.vstack(aims),
+                                  s.goal, np.where(standing, np.nan, steers), settle)
             if direction > 0 and s.f.rate_limited:
                 # From a tight move's node the car speeds up only with its wheel near straight.
                 slow = np.repeat(tree.tight[rows], self.per)
@@ -82,8 +84,9 @@ class Expander:
         if tight:
             rows = self.filled(tight)
             shooter = s.f.tight_shooter
+            standing = tree.direction[rows] != 1    # from the start or a cusp
             steers = np.repeat(tree.steer[rows], self.per)
-            steers[np.repeat(tree.direction[rows], self.per) != 1] = np.nan  # standing
+            steers[np.repeat(standing, self.per)] = np.nan
             limit = shooter.delta_max
             fan = np.tile(np.linspace(-limit, limit, self.per), len(rows))
             if shooter.rate is not None:
@@ -92,8 +95,8 @@ class Expander:
                 near = np.clip(steers + np.tile(np.linspace(-reach, reach, self.per), len(rows)),
                                -limit, limit)
                 fan = np.where(np.isnan(steers), fan, near)
-            shots = shooter.shoot_steers(np.repeat(tree.states[rows], self.per, axis=0), fan,
-                                         s.goal, steers)
+            start = np.where(standing[:, None], s.body_states(rows), tree.states[rows])
+            shots = shooter.shoot_steers(np.repeat(start, self.per, axis=0), fan, s.goal, steers)
             new += self.add_all(tight, 1, shots, tight=True)
         return new
 

@@ -14,7 +14,7 @@ import numpy as np
 from stepzoo import dynamics
 from stepzoo.dynamics.kinematic import body_slip
 from stepzoo.dynamics.vehicles import limits as vehicle_limits
-from stepzoo.search.planner.connection_ocp import Connection, connect
+from stepzoo.search.planner.connection_ocp import Connection, Corridor, connect
 from stepzoo.search.planner.endpoints import bad_endpoint, departure_boxed_in, enclosed, walled_off
 from stepzoo.search.planner.expansion import Expander
 from stepzoo.search.world.footprint import Footprint
@@ -184,6 +184,9 @@ class PathFinder:
                    "max_lateral_acceleration": self.lateral_limit}
                   if self.rate_limited else {})
         speed = self.vx if speed is None else speed
+        if self.rate_limited:
+            limits["corridor"] = Corridor(self.footprint.offsets, self.footprint.radius,
+                                          self.vehicle["Lr"], self.omap.clearance)
         conn = connect([node[0], node[1], node[2], direction * speed], goal, L=self.wheelbase,
                        m=self.vehicle["m"], bounds=bounds or self.omap.bounds(),
                        N=prm.connect_N, goal_speed=goal_speed, delta_max=prm.delta_max,
@@ -265,6 +268,13 @@ class Search:
                     math.floor(heading / self.cell_heading),
                     direction if self.prm.reverse else 0,
                     math.floor(steer / STEER_CELL + 0.5) if self.f.rate_limited else 0)
+
+    def body_states(self, nodes) -> np.ndarray:
+        """(n, 5) the states of `nodes` with psi the car body's heading (Shooter.body_states):
+        a move from a standstill sets off from the body."""
+        t = self.tree
+        return self.f.shooter.body_states(t.states[nodes], t.steer[nodes],
+                                          t.tight[nodes] | (t.direction[nodes] < 0))
 
     def order(self, nodes) -> list[float]:
         """The search's order of `nodes`: g + w H, w = h_weight (above 1: greedier first

@@ -56,7 +56,11 @@ class Shooter:
     Hybrid A*'s and CommonRoad's steer-rate inputs do, except from a standstill (a start steer
     of NaN: the start, a cusp), where the driver turns the wheel before moving off and the
     shooting holds its end steer; without, each shooting holds one steer, set at once, as the
-    paper."""
+    paper. Rate-limited, a kinematic shooting from a standstill starts from a state whose psi
+    is the car body's heading: the kinematic bicycle's theta, along which its (X, Y) moves,
+    starts body_slip (dynamics.kinematic.body_slip) at its steer to the side the steer turns,
+    as a car sets off once its wheel is turned. Rolling on, it carries the node's theta on,
+    so that its centre of gravity's path has no kink."""
 
     def __init__(self, checker: ValidityChecker, vehicle: str, vx: float, method_name: str,
                  h: float, n_steps: int, batch: int, delta_max: float, reverse: bool = False,
@@ -101,7 +105,8 @@ class Shooter:
 
     def integrate(self, x0, steer, steer0=None) -> np.ndarray:
         """(B, 5) states and (B,) end steers (and, rate-limited, (B,) start steers, NaN: from a
-        standstill) -> (B, N+1, 5) trajectories."""
+        standstill) -> (B, N+1, 5) trajectories (kinematic and rate-limited, from a
+        standstill: psi the body's heading in x0, the kinematic theta in the trajectories)."""
         # NumPy arguments go straight into the jitted driver; jnp conversions here would each
         # be a separate dispatch, costing more than the integration itself.
         x0, steer = np.asarray(x0, float), np.asarray(steer, float)
@@ -113,7 +118,11 @@ class Shooter:
             inputs = steer[:, None]
         else:
             # The steer a state, its constant rate the input.
+            standing = np.isnan(np.broadcast_to(np.asarray(steer0, float), steer.shape))
             steer0 = self.start_steers(steer0, steer)
+            if self.kinematic:
+                x0[:, 2] += np.where(standing, body_slip(steer0, self.wheelbase,
+                                                         self.scalars["Lr"]), 0.0)
             x0, inputs = np.column_stack([x0, steer0]), ((steer - steer0) / self.duration)[:, None]
         if self.kinematic:
             inputs = np.column_stack([inputs, np.zeros(B)])            # [delta or rate, F = 0]
@@ -143,17 +152,28 @@ class Shooter:
         `fraction` (K,) of the shootings to the end steers `steer` (B,) from `steer0`: the
         dynamic bicycle's own; rate-limited on the kinematic bicycle, whose (X, Y) moves along
         theta, the car's body turned back by its rolling slip at the ramp's steer
-        (dynamics.kinematic.body_slip), as the car keeping to the path faces, but at the node
-        itself."""
+        (dynamics.kinematic.body_slip), as the car keeping to the path faces; at the node
+        itself (fraction 0) of a move rolling on, the node's pose (the move that reached it
+        checked it)."""
         poses = states[..., :3]
         if not self.kinematic or self.rate is None:
             return poses
         start = self.start_steers(steer0, steer)
         delta = start[:, None] + (steer - start)[:, None] * fraction[None, :]
-        # The node itself (fraction 0) keeps its pose: the move that reached it checked it.
-        slip = np.where(fraction[None, :] > 0, body_slip(delta, self.wheelbase,
-                                                         self.scalars["Lr"]), 0.0)
+        standing = np.isnan(np.broadcast_to(np.asarray(steer0, float), steer.shape))
+        slip = np.where((fraction[None, :] > 0) | standing[:, None],
+                        body_slip(delta, self.wheelbase, self.scalars["Lr"]), 0.0)
         return np.concatenate([poses[..., :2], (poses[..., 2] - slip)[..., None]], axis=-1)
+
+    def body_states(self, states, steer, kinematic) -> np.ndarray:
+        """`states` (B, 5) of nodes with psi the car body's heading: rate-limited, the rows
+        `kinematic` (B,) bool (reached by a kinematic move) hold the kinematic theta at their
+        end steer `steer` (B,) [rad], which the body faces body_slip short of."""
+        states = np.array(states, float)
+        if self.rate is not None:
+            states[:, 2] -= np.where(kinematic, body_slip(steer, self.wheelbase,
+                                                          self.scalars["Lr"]), 0.0)
+        return states
 
     def shoot(self, state, points, destination, steer0=0.0, settle=None) -> Shots:
         """Shoot from `state` (5,), or from one state per point (B, 5), at steer `steer0`

@@ -61,7 +61,8 @@ def drivability(rows, wheelbase, delta_max, max_steer_rate, max_lateral_accelera
     v^2 |kappa| [m/s^2] at the window's mean speed v; the steer rate [rad/s] is the implied
     steer's change between windows over that of their times weighted by distance (the
     curvature's weights: exact for a steer ramp at any speed, also where the car slows to
-    turn the wheel). reverse_length_m [m] driven backwards; cusps. `drivable`:
+    turn the wheel; the heading a run after a cusp sets off with is its own, the wheel turned
+    at the standstill). reverse_length_m [m] driven backwards; cusps. `drivable`:
     every measure within TOLERANCE times the car's limit (curvature: tan(delta_max) /
     wheelbase, delta_max [rad]; max_steer_rate [rad/s]; max_lateral_acceleration [m/s^2]). A
     run shorter than a window adds no measure."""
@@ -79,7 +80,8 @@ def drivability(rows, wheelbase, delta_max, max_steer_rate, max_lateral_accelera
     moving = np.flatnonzero(ds > STILL_M)
     kappa, rate, lateral = [0.0], [0.0], [0.0]
     # Runs of one direction of travel: the moving steps, split where the direction flips.
-    for run in np.split(moving, np.flatnonzero(np.diff(along[moving]) != 0) + 1):
+    runs = np.split(moving, np.flatnonzero(np.diff(along[moving]) != 0) + 1)
+    for k, run in enumerate(runs):
         if not run.size:
             continue
         # Every row of the run, its stops included: the time stood still is time steered.
@@ -90,6 +92,12 @@ def drivability(rows, wheelbase, delta_max, max_steer_rate, max_lateral_accelera
         s = np.r_[0.0, np.cumsum(ds[run[0]:run[-1] + 1])]
         weighted = np.r_[0.0, np.cumsum((t[1:] + t[:-1]) / 2 * np.diff(s))]  # of t ds
         heading = np.unwrap(span[:, 3])
+        if k and len(heading) > 2:
+            # A cusp's row holds the heading the car stopped with; it sets off with its wheel
+            # turned at the standstill, along the run's own heading: extrapolated back from
+            # the next two rows, so that turning the wheel while stopped is not read as a
+            # steer rate.
+            heading[0] = 2 * heading[1] - heading[2]
         centre = np.arange(t[0] + window / 2, t[-1] - window / 2 + 1e-12, window / 4)
         travel = np.interp(centre + window / 2, t, s) - np.interp(centre - window / 2, t, s)
         turn = (np.interp(centre + window / 2, t, heading)

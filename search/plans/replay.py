@@ -10,6 +10,7 @@ from functools import cache
 import numpy as np
 
 from stepzoo import dynamics
+from stepzoo.dynamics.kinematic import body_slip
 from stepzoo.dynamics.models import steered as steered_rhs
 from stepzoo.search.planner.connection_ocp import DEFAULT_METHOD as CONNECT_METHOD
 from stepzoo.search.world.footprint import Footprint, first_collision
@@ -104,7 +105,10 @@ def replay(plan, omap: OccupancyMap, footprint: Footprint | None = None,
     the start pose, segment after segment, by DOP853 at rtol 1e-10: the dynamic bicycle's
     state carried across tree edges; a kinematic segment starting from the pose reached at its
     v0; a tree edge after a kinematic one from that pose with vy = r = 0, as the planner
-    starts it; a tree edge
+    starts it (rate-limited, a tree segment setting off from a standstill, the first or one
+    whose direction of travel differs from the last's, starts from the body's heading, where
+    a kinematic segment ended body_slip at its last steer beyond it, and a kinematic one's
+    theta starts body_slip at its first steer beyond that); a tree edge
     that records `lateral0` (rate-limited, after a standstill or a kinematic edge) from its
     (vy, r), the steady state of its steer.
 
@@ -199,10 +203,16 @@ def drive(segs: list[dict], start, vehicle: dict, times=None) -> tuple[np.ndarra
         samples.append(fine)
         return x
 
+    way, body = 0, state[2]  # the last segment's direction of travel, the body's heading
     for i, seg in enumerate(segs):
         inputs = seg["inputs"]
         steered = "delta_rate" in inputs  # the steer a state, driven by its rate
         last = i == len(segs) - 1
+        heading = 1 if seg["model"] == "dynamic5" or float(seg["v0"]) > 0 else -1
+        standing = steered and seg.get("move") != "connection" and heading != way
+        if standing:
+            state[2] = body  # the car sets off from its body's heading
+        way = heading
         if seg["model"] == "dynamic5":
             p = dict(_params("dynamic5", vehicle), vx=float(seg["vx"]))
             if "lateral0" in seg:
@@ -213,6 +223,7 @@ def drive(segs: list[dict], start, vehicle: dict, times=None) -> tuple[np.ndarra
             x = solve("dynamic5", x0, u, p, float(seg["t0"]), float(seg["duration"]),
                       abs(float(seg["vx"])), steered, last)
             state = x[:5]
+            body = state[2]
         elif seg["model"] == "kinematic":
             p = _params("kinematic", vehicle)
             x = np.r_[state[:3], float(seg["v0"])]
@@ -220,6 +231,9 @@ def drive(segs: list[dict], start, vehicle: dict, times=None) -> tuple[np.ndarra
                                   inputs["F"]]).astype(float)
             if steered:
                 x = np.r_[x, float(inputs["delta"][0])]
+            if standing:
+                # Its wheel turned, the car's centre of gravity sets off body_slip to the side.
+                x[2] += body_slip(x[4], p["L"], p["Lr"])
             dt = float(seg["dt"])
             # Runs of equal inputs are one smooth problem: solved in one call.
             breaks = np.r_[0, 1 + np.flatnonzero((np.diff(uk, axis=0) != 0).any(axis=1)), len(uk)]
@@ -230,6 +244,7 @@ def drive(segs: list[dict], start, vehicle: dict, times=None) -> tuple[np.ndarra
             # The kinematic bicycle has no lateral motion: a tree edge after it starts at rest
             # laterally, as the planner starts it.
             state = np.r_[x[:3], 0.0, 0.0]
+            body = x[2] - (body_slip(x[4], p["L"], p["Lr"]) if steered else 0.0)
         else:
             raise ValueError(f"unknown control model {seg['model']!r}: dynamic5 or kinematic")
     return poses, np.vstack(samples)
