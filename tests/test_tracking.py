@@ -162,6 +162,29 @@ def test_the_car_slows_where_the_path_turns_the_wheel_faster_than_it_can():
     assert speed[s > 12.1] == pytest.approx(5.0)
 
 
+def test_a_full_lock_turn_at_the_planners_lateral_limit_is_tracked_within_a_quarter_metre():
+    """A kinematic plan round a circle of R = 3 m (about the car's full lock) at the speed
+    where v^2 / R is the planner's lateral limit (limit_fraction 0.8 of 11.5 m/s^2: 0.89 of
+    the tyres' friction mu g): the Fiala car cannot corner that hard at that steer and ran
+    0.5 m wide (room-64-64-8-00's connection touched a wall so). Capped at GRIP_SHARE of mu g,
+    reached by braking, it keeps within a quarter metre, and it still drives the plan's speed
+    where the path is straight."""
+    R = 3.0
+    v = np.sqrt(0.8 * VEHICLE["max_lateral_acceleration"] * R)
+    s = np.arange(0.0, 0.75 * 2 * np.pi * R, 0.05)
+    a = s / R
+    rows = np.column_stack([s / v, R * np.sin(a), R * (1 - np.cos(a)), a])
+    out = track(rows, [0.0, 0.0, -np.arcsin(LR / R)], VEHICLE, np.ones(len(rows), bool))
+    assert out["done"]
+    assert out["deviation"].max() < 0.25
+    # 10 m straight, then the circle: the cap is sqrt(lateral R) on it, v before braking.
+    s = np.arange(0.0, 20.0 + 1e-9, 0.05)
+    speed = T.steering_speed(np.full(len(s), v), s, np.zeros(len(s)), 0.4,
+                             np.where(s < 10.0, 0.0, 1 / R), 6.0)
+    assert speed[0] == pytest.approx(v)
+    assert speed[s > 10.0] == pytest.approx(np.sqrt(6.0 * R))
+
+
 def test_backwards_on_a_circle_the_rear_axle_pursuit_keeps_the_car_on_it():
     """Backing round a circle of R = 8 m at 0.8 m/s (the kinematic single track), from a
     pose on it (the centre of gravity on the circle, the body turned by the rolling car's

@@ -13,7 +13,7 @@ import numpy as np
 from stepzoo import dynamics
 from stepzoo.dynamics.blended import blended_single_track, kinematic_lateral
 from stepzoo.search.planner.connection_ocp import A_MAX
-from stepzoo.dynamics.vehicles import axle_loads, default_vehicle, st_params, tyre_params
+from stepzoo.dynamics.vehicles import G, axle_loads, default_vehicle, st_params, tyre_params
 
 CONTROLLER = "stanley"
 MODEL = "single_track_fiala"
@@ -38,7 +38,9 @@ K_SOFT = 1.0          # [m/s] softening: the cross-track term stays bounded as t
 LOOKAHEAD_M = 2.0     # [m] least lookahead: about a wheelbase
 LOOKAHEAD_S = 0.6     # [s] lookahead per speed: the loop's time scale l / v stays the same
 STEER_SHARE = 0.5     # the share of the steer rate the path may ask for per metre at speed
-A_CAP = 2.0           # [m/s^2] braking towards a speed the steer rate caps
+A_CAP = 2.0           # [m/s^2] braking towards a speed the steer rate or the grip caps
+GRIP_SHARE = 0.6      # the share of the tyres' friction mu g the path's turns may ask for
+                      # (the planner's lateral limit may ask more: 0.8 of 11.5 m/s^2)
 V_CAP_MIN = 0.2       # [m/s] the least speed that cap sets
 STEER_LAG_RAD = 0.2   # [rad] steer lagging its command by this much halts the car ...
 SLOWEST = 0.1         # ... down to this fraction of the planned speed
@@ -134,7 +136,7 @@ def reference(rows, p: dict, kinematic=None) -> dict:
         dt = np.diff(t)
         v = np.where(dt > 0, d / np.where(dt > 0, dt, 1.0), 0.0)
         speed = steering_speed(np.r_[v, v[-1:]], s, np.arctan(L * _smooth(kappa)),
-                               p["ddelta_max"])
+                               p["ddelta_max"], _smooth(kappa), GRIP_SHARE * p["mu"] * G)
         first.append(sum(len(c) for c in out["P"]))
         last.append(first[-1] + len(seg) - 1)
         ways.append(way)
@@ -147,15 +149,21 @@ def reference(rows, p: dict, kinematic=None) -> dict:
     return dict(ref, first=np.array(first), last=np.array(last), way=np.array(ways))
 
 
-def steering_speed(speed, s, steer, rate: float):
+def steering_speed(speed, s, steer, rate: float, kappa=None, lateral: float = math.inf):
     """(n,) [m/s] the plan's `speed` (n,) at the points `s` (n,) [m] along a piece, capped
     where the steer the path asks for, `steer` (n,) [rad], changes faster per metre than
     STEER_SHARE of the car's steer `rate` [rad/s] follows at that speed, and braking towards
     each such cap at A_CAP (a backward pass), at least V_CAP_MIN: the car slows to turn the
-    wheel where the path turns it within a short distance, rather than running wide. (A plan
-    that crawls there is not followed exactly in time: the tracker slows where it must.)"""
+    wheel where the path turns it within a short distance, rather than running wide. With
+    the path's curvature `kappa` (n,) [1/m], also capped where v^2 |kappa| would exceed
+    `lateral` [m/s^2]: near full lock the tyres cannot carry a turn near their friction
+    limit, and the car slows for it as a driver does. (A plan that crawls there is not
+    followed exactly in time: the tracker slows where it must.)"""
     per_m = np.abs(np.gradient(steer, s)) if len(s) > 2 else np.zeros(len(s))
-    cap = np.maximum(STEER_SHARE * rate / np.maximum(per_m, 1e-9), V_CAP_MIN)
+    cap = STEER_SHARE * rate / np.maximum(per_m, 1e-9)
+    if kappa is not None:
+        cap = np.minimum(cap, np.sqrt(lateral / np.maximum(np.abs(kappa), 1e-9)))
+    cap = np.maximum(cap, V_CAP_MIN)
     ds = np.diff(s)
     for i in range(len(s) - 2, -1, -1):
         cap[i] = min(cap[i], math.sqrt(cap[i + 1] ** 2 + 2 * A_CAP * ds[i]))
