@@ -1,7 +1,9 @@
 """`stepzoo plan` makes the same plans as the stored ones: a built-in scenario, a street query
-(forwards and with reverse gear) and a room query that sets off with tight moves from a
+(forwards and with reverse gear), a room query that sets off with tight moves from a
 standstill (which the planner exhausted and proved boxed in while its tight moves set off
-along the standing car's heading instead of body_slip aside of it). Strings and whole numbers must match exactly, floats to
+along the standing car's heading instead of body_slip aside of it), and a car nose-in in a
+dead-end bay, whose search exhausts, refines, widens with tight moves and ends with the
+enclosure proof that the start is boxed in. Strings and whole numbers must match exactly, floats to
 a relative RTOL or an absolute ATOL (a quantity zero in exact arithmetic, such as the
 replay's end heading error, is rounding alone, and a rounding has no relative size); the
 wall times are left out, as they differ from run to run.
@@ -28,7 +30,8 @@ BERLIN = ["--map", "search/world/mapdata/Berlin_1_256.map", "--cell-size", "1.5"
 ROOM09 = ["--map", "search/world/mapdata/room-64-64-8.map", "--cell-size", "3",
           "--start=153,100.5,-1.84", "--goal=85.5,178.5,0.817"]
 CASES = {"wall_between": ["wall_between"], "berlin_06": BERLIN,
-         "berlin_06_reverse": [*BERLIN, "--reverse"], "room09": ROOM09}
+         "berlin_06_reverse": [*BERLIN, "--reverse"], "room09": ROOM09,
+         "dead_end_bay": [str(DATA / "dead_end_bay.toml")]}
 # Floats agree to a relative RTOL, or within ATOL [m, rad, s, m/s: plan.json's units]: far
 # above a rounding of the maps' largest coordinates, far below what a changed plan moves.
 RTOL, ATOL = 1e-9, 1e-9
@@ -105,9 +108,12 @@ def test_plan_json_has_the_keys_of_the_plan_schema_in_its_order(fresh):
 
 def test_the_cases_cover_what_they_claim(fresh):
     assert all(fresh[n]["stats"]["budget_bound"] is None for n in CASES)
-    assert [fresh[n]["status"] for n in CASES] == ["exact", "exact", "exact", "exact"]
+    assert [fresh[n]["status"] for n in CASES] == ["exact"] * 4 + ["no_path"]
     assert fresh["berlin_06_reverse"]["params"]["reverse"] == 1
     assert fresh["room09"]["controls"][0]["move"] == "tight"
+    bay = fresh["dead_end_bay"]
+    assert (bay["cause"], bay["stats"]["widened"]) == ("start_boxed_in", True)
+    assert bay["stats"]["expansions"] > 0 and "search exhausted" in bay["reason"]
 
 
 if __name__ == "__main__":
