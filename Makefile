@@ -24,7 +24,7 @@ run: $(STAMP)
 # one worker per core; a file's tests stay on one worker, so its module fixtures run once;
 # files are handed out in the suite's order, the slow ones first (tests/conftest.py).
 # The end-to-end group (pytest.mark.e2e: the tutorial's whole loop, a Dask cluster, a
-# browser) runs apart, in `make test-e2e`; CI (.ci/run) runs both.
+# browser, `stepzoo run`'s whole pipeline, every built-in scenario planned) runs apart, in `make test-e2e`; CI (.ci/run) runs both.
 PYTEST := $(BIN)/python -m pytest -n auto --dist loadfile --no-loadscope-reorder
 test: lint typecheck
 	$(PYTEST) -m "not e2e"

@@ -31,7 +31,8 @@ POS_TOL = "1"   # [m] what the tiny sweep's coarse steps can meet
 def ran(tiny_sweep, tmp_path_factory):
     """(config, results folder, the finished process) of `stepzoo run` on the tiny sweep,
     killed once its sweep has a chunk on disk (its lock dies with it) and run again, the
-    same command: every test of the pipeline reads the resumed run."""
+    same command: every test of the pipeline reads the resumed run. A whole run, twice: the
+    tests that read it are end-to-end (pytest.mark.e2e, `make test-e2e`)."""
     config, _ = tiny_sweep
     out = tmp_path_factory.mktemp("run") / "results"
     argv = [sys.executable, "-m", "stepzoo", "run", "--config", str(config), "--out", str(out),
@@ -48,6 +49,7 @@ def ran(tiny_sweep, tmp_path_factory):
                                        timeout=600)
 
 
+@pytest.mark.e2e
 def test_a_killed_run_resumes_to_the_tables_of_an_undisturbed_sweep(ran, tiny_sweep,
                                                                     tmp_path):
     _, out, proc = ran
@@ -69,6 +71,7 @@ def test_a_killed_run_resumes_to_the_tables_of_an_undisturbed_sweep(ran, tiny_sw
     assert chosen[0] == chosen[1]
 
 
+@pytest.mark.e2e
 def test_run_ends_by_printing_the_report_path(ran):
     _, out, proc = ran
     assert proc.returncode == 0, proc.stderr[-2000:]
@@ -77,6 +80,7 @@ def test_run_ends_by_printing_the_report_path(ran):
         assert stage in proc.stderr
 
 
+@pytest.mark.e2e
 def test_run_writes_sweep_tables_and_a_tuned_config_from_them(ran):
     _, out, proc = ran
     assert proc.returncode == 0, proc.stderr[-2000:]
@@ -89,6 +93,7 @@ def test_run_writes_sweep_tables_and_a_tuned_config_from_them(ran):
     assert tuned["sweep_config_sha256"] == manifest["config_sha256"]
 
 
+@pytest.mark.e2e
 def test_run_plans_every_builtin_scenario_with_the_tuned_step(ran):
     _, out, proc = ran
     assert proc.returncode == 0, proc.stderr[-2000:]
@@ -99,6 +104,7 @@ def test_run_plans_every_builtin_scenario_with_the_tuned_step(ran):
         assert stats["method"] == tuned["method"] and stats["h"] == pytest.approx(tuned["h"])
 
 
+@pytest.mark.e2e
 def test_run_builds_the_full_report(ran):
     _, out, proc = ran
     assert proc.returncode == 0, proc.stderr[-2000:]
@@ -119,6 +125,7 @@ def test_run_default_config_is_the_shipped_envelope():
     assert config_path(None).resolve() == (ROOT / "bench" / "configs" / "envelope.toml")
 
 
+@pytest.mark.e2e
 def test_every_results_folder_of_a_run_records_its_environment_and_progress(ran):
     _, out, proc = ran
     assert proc.returncode == 0, proc.stderr[-2000:]
@@ -135,6 +142,7 @@ def test_every_results_folder_of_a_run_records_its_environment_and_progress(ran)
         assert f"stepzoo report: [{i}/7] Figure {i}. " in proc.stderr
 
 
+@pytest.mark.e2e
 def test_a_stage_that_finds_nothing_is_one_line_naming_it_and_keeps_what_was_written(ran,
                                                                                       capsys):
     # Last: it runs again in the shared folder, as a second `make run` does, and reuses the
@@ -152,6 +160,7 @@ def test_a_stage_that_finds_nothing_is_one_line_naming_it_and_keeps_what_was_wri
     assert json.loads((out / "sweep" / "manifest.json").read_text())["created"] == created
 
 
+@pytest.mark.e2e
 def test_figures_drawn_while_planning_are_the_report_s_own(ran):
     """Figures 1-6, drawn in the second process while the run plans, are byte for byte what
     the report draws from the run's folder: the same PNGs and the same Plotly fragments."""

@@ -95,6 +95,7 @@ def test_the_same_command_gives_the_same_path(planned, tmp_path):
     assert read(tmp_path)["tree"] == read(planned)["tree"]
 
 
+@pytest.mark.e2e       # every built-in scenario planned: make test-e2e
 def test_all_plans_every_scenario_and_writes_the_summary(tmp_path, capsys):
     assert run("--all", "--out", tmp_path) == 0
     printed = capsys.readouterr().out

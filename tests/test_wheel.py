@@ -1,7 +1,7 @@
 """The wheel is what a user installs: built from the repository, it holds the one top-level
 package `stepzoo` and the data the commands read, not the development-only benchmarks; in a
 fresh venv, from another folder, `stepzoo methods`, the README's Python API example and
-(slow) `stepzoo run` work. Offline: the dependencies come from this venv through a .pth."""
+(end-to-end, make test-e2e) `stepzoo run` work. Offline: the dependencies come from this venv through a .pth."""
 import re
 import shutil
 import subprocess
@@ -79,7 +79,7 @@ def test_the_readme_python_example_prints_what_the_readme_says(venv, tmp_path):
     assert float(got[2]) < 1e-6
 
 
-@pytest.mark.slow
+@pytest.mark.e2e       # the whole pipeline from the wheel: make test-e2e
 def test_stepzoo_run_from_the_wheel_writes_the_report(venv, tmp_path):
     config = tmp_path / "tiny.toml"                 # the smallest sweep; tune accepts 1 m
     config.write_text(TINY_SWEEP)
