@@ -12,8 +12,7 @@ from pathlib import Path
 
 import pandas as pd
 import pytest
-from helpers import (TABLES, TIMED, TINY_SWEEP, check_provenance, check_report, read_tables,
-                     without_timings)
+from helpers import TABLES, TIMED, TINY_SWEEP, check_provenance, check_report, read_tables
 
 from stepzoo.cli import main as stepzoo
 from stepzoo.integrators import METHODS
@@ -219,36 +218,3 @@ def test_the_second_process_computes_the_chunks_the_sweep_would(tmp_path):
             pd.testing.assert_frame_equal(chunk[name].drop(columns=timed),
                                           here[name].drop(columns=timed), check_exact=True,
                                           obj=name)
-
-
-def test_scenarios_planned_beside_are_the_plans_made_here():
-    """The run shares its scenarios with the second process (plan.plan_all): each plan, in
-    the scenarios' order, equals the one planned here in turn but for its wall times, and
-    so does the plan.png each process draws of its own; a
-    scenario the second process does not plan (it answers None, as when it has died, or the
-    call raises) is planned here."""
-    from stepzoo.search.planner.config import load_config
-    from stepzoo.search.world.scenarios import load_scenario
-    from stepzoo.workflows.plan import plan_all
-    from stepzoo.workflows.second_process import Ahead
-    # The regression plans' config: no clock budget, so a plan is the same however loaded.
-    config = load_config(ROOT / "tests" / "data" / "plan_regression" / "config.toml")
-    scenarios = [load_scenario(name) for name in ("wall_between", "street")]
-    made = plan_all(scenarios, config, 0, False)
-    here = [(without_timings(r), png) for r, png in made]
-    assert all(png.startswith(b"\x89PNG") for _, png in made)
-    ahead, asked = Ahead(), []
-    try:
-        def beside(*job):
-            asked.append(job[0].name)
-            return ahead.plan(*job)
-        shared = plan_all(scenarios, config, 0, False, beside)
-    finally:
-        ahead.close()
-    assert asked                      # the second process planned a scenario (or both)
-    assert [(without_timings(r), png) for r, png in shared] == here
-    for fails in (lambda: None, lambda: 1 / 0):
-        asked.clear()
-        failed = plan_all(scenarios, config, 0, False,
-                          lambda *job, fails=fails: asked.append(job) or fails())
-        assert len(asked) == 1 and [(without_timings(r), png) for r, png in failed] == here

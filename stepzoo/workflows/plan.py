@@ -5,7 +5,6 @@ import io
 import json
 import sys
 import textwrap
-import threading
 import time
 from pathlib import Path
 
@@ -68,13 +67,11 @@ def _summary_row(record):
 
 
 def plan(scenarios, out, config=None, seed: int = 0, *, reverse: bool = False,
-         scheduler=None, batch: bool | None = None, progress: bool = False,
-         beside=None) -> list[dict]:
+         scheduler=None, batch: bool | None = None, progress: bool = False) -> list[dict]:
     """Plan each scenario with the planner config file `config` (default: the shipped one;
     `reverse` allows reverse gear) and planner seed `seed`, and write the plans and a
     manifest into the folder `out`; returns their records. On the Dask cluster at
-    `scheduler` if given; else here, sharing the scenarios with `beside` if given (see
-    `plan_all`); `progress`: a line per plan of a batch on stderr. A batch (default:
+    `scheduler` if given; `progress`: a line per plan of a batch on stderr. A batch (default:
     more than one scenario) writes a folder per scenario and summary.csv/json; a single plan
     goes into `out` itself. `stepzoo plan` and `stepzoo run` call it, e.g.
     `plan([load_scenario("street")], "plans")`."""
@@ -94,19 +91,19 @@ def plan(scenarios, out, config=None, seed: int = 0, *, reverse: bool = False,
                              "nothing to plan, give a goal elsewhere")
     if scheduler is None:
         # A line per plan of a batch; one plan's own result line follows at once.
-        planned = plan_all(scenarios, config, seed, progress and len(scenarios) > 1, beside)
-        records, pngs = [r for r, _ in planned], [png for _, png in planned]
+        records = [_plan_one(s, config, seed, f"[{i}/{len(scenarios)}]",
+                             progress and len(scenarios) > 1)
+                   for i, s in enumerate(scenarios, 1)]
     else:
         from stepzoo.distributed import connect, gather_in_order
         with connect(scheduler) as client:
             records = gather_in_order(client, _plan_on_worker, scenarios, config, seed)
-        pngs = [None] * len(records)
     for record in records:
         if record["cause"] in BAD_ENDPOINT:
             # The poses are the user's input: no plan is written for a pose that cannot be.
             raise UsageError(f"{record['reason']}; choose a pose in free space on the map")
     with claim(out, "plan"):
-        _write(out, records, scenarios, batch, pngs)
+        _write(out, records, scenarios, batch)
         environment.write_manifest(out, "plan", started, {
             "scenarios": [r["scenario"] for r in records], "seed": seed,
             "config": config.source, "method": config.method, "h": config.h,
@@ -114,88 +111,30 @@ def plan(scenarios, out, config=None, seed: int = 0, *, reverse: bool = False,
     return records
 
 
-def timed_plan(scenario, config, seed) -> tuple[dict, float, bytes | None]:
-    """(plan_scenario's record, its wall time [s], its plan.png, None for a pose that cannot
-    be planned): drawn by the process that planned it."""
+def _plan_one(scenario, config, seed, count: str, progress: bool) -> dict:
+    """plan_scenario, then a line on stderr saying how it went (none for a pose that cannot
+    be planned: that is the user's mistake, told in one line after the batch)."""
     from stepzoo.search.planner.pathfinder import BAD_ENDPOINT
-    from stepzoo.search.plans.files import render_png
     t0 = time.perf_counter()
     record = plan_scenario(scenario, config, seed)
-    seconds = time.perf_counter() - t0
-    return (record, seconds,
-            None if record["cause"] in BAD_ENDPOINT else render_png(record, scenario))
+    if progress and record["cause"] not in BAD_ENDPOINT:
+        st = record["stats"]
+        sys.stderr.write(f"stepzoo plan: {count} {scenario.name}: {record['status']} in "
+                         f"{time.perf_counter() - t0:.1f} s (warm-up {st['warmup_s']:.2f} s, "
+                         f"tree search time {st['search_s']:.3f} s, connection solve time "
+                         f"{st['connect_s']:.3f} s)\n")
+        sys.stderr.flush()
+    return record
 
 
-def plan_all(scenarios, config, seed, progress: bool,
-             beside=None) -> list[tuple[dict, bytes | None]]:
-    """(plan_scenario's record, its plan.png) of each scenario (timed_plan's), in their
-    order, each followed by a line on stderr if `progress`. Without `beside` they are planned
-    here in turn. With it (a callable taking (scenario, config, seed) to timed_plan's answer
-    computed in another process, or to None where that failed) a thread hands it the
-    scenarios this process has not taken yet, one at a time, while this process plans the
-    others: two cores plan at once. A plan depends only on its scenario, config and seed
-    (and, through a clock budget, on the processor time it gets), not on the process that
-    makes it; one that `beside` could not make is made here."""
-    todo = list(enumerate(scenarios))
-    done: dict[int, tuple[dict, bytes | None]] = {}
-    lock = threading.Lock()
-
-    def take():
-        with lock:
-            return todo.pop(0) if todo else None
-
-    def finish(i, record, seconds, png):
-        done[i] = record, png
-        if progress:
-            _say_planned(f"[{i + 1}/{len(scenarios)}]", scenarios[i].name, record, seconds)
-
-    def feed():
-        while (job := take()) is not None:
-            i, scenario = job
-            try:
-                answer = beside(scenario, config, seed)
-            except Exception:           # e.g. a scenario that cannot be sent: planned here,
-                answer = None           # where an error of the plan itself is raised
-            if answer is None:          # that process failed: this one plans the rest
-                with lock:
-                    todo.insert(0, job)
-                return
-            finish(i, *answer)
-
-    helper = threading.Thread(target=feed, daemon=True) if beside is not None else None
-    if helper is not None:
-        helper.start()
-    while (job := take()) is not None:
-        finish(job[0], *timed_plan(job[1], config, seed))
-    if helper is not None:
-        helper.join()
-        while (job := take()) is not None:   # handed back after this process had finished
-            finish(job[0], *timed_plan(job[1], config, seed))
-    return [done[i] for i in range(len(scenarios))]
-
-
-def _say_planned(count: str, name: str, record: dict, seconds: float) -> None:
-    """A line on stderr saying how a plan went (none for a pose that cannot be planned: that
-    is the user's mistake, told in one line after the batch)."""
-    from stepzoo.search.planner.pathfinder import BAD_ENDPOINT
-    if record["cause"] in BAD_ENDPOINT:
-        return
-    st = record["stats"]
-    sys.stderr.write(f"stepzoo plan: {count} {name}: {record['status']} in {seconds:.1f} s "
-                     f"(warm-up {st['warmup_s']:.2f} s, tree search time {st['search_s']:.3f} "
-                     f"s, connection solve time {st['connect_s']:.3f} s)\n")
-    sys.stderr.flush()
-
-
-def _write(out, records, scenarios, batch: bool, pngs) -> None:
-    """Write the plans: one into `out`, or a batch (a folder each and the summary); `pngs`
-    their plan.png where drawn already (else None)."""
+def _write(out, records, scenarios, batch: bool) -> None:
+    """Write the plans: one into `out`, or a batch (a folder each and the summary)."""
     from stepzoo.search.plans.files import write_plan
     if not batch:
-        write_plan(out, records[0], scenarios[0], pngs[0])
+        write_plan(out, records[0], scenarios[0])
         return
-    for record, scenario, png in zip(records, scenarios, pngs):
-        write_plan(out / scenario.name, record, scenario, png)
+    for record, scenario in zip(records, scenarios):
+        write_plan(out / scenario.name, record, scenario)
     rows = [_summary_row(r) for r in records]
     buf = io.StringIO()
     writer = csv.DictWriter(buf, SUMMARY_COLUMNS, lineterminator="\n")

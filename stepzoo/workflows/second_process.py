@@ -3,9 +3,7 @@ second core: the implicit methods' sweep chunks while the pipeline computes the 
 then Figures 1-6 while the pipeline plans (they need only the sweep's tables and the tuned
 config), then the rest of the report once the plans are written. It computes exactly what
 `stepzoo sweep` and `stepzoo report` compute (sweep.compute_chunk, report.sweep_figures,
-report.build); the pipeline writes the chunks, so the sweep folder has one writer. Once it
-has drawn them it plans some of the scenarios, as the pipeline plans the others
-(plan.plan_all); the pipeline writes the plans. It starts
+report.build); the pipeline writes the chunks, so the sweep folder has one writer. It starts
 with the pipeline, so that its imports (plotting, JAX) overlap the sweep and the pipeline
 itself never imports the plotting libraries."""
 from __future__ import annotations
@@ -26,9 +24,8 @@ def _jax_settings() -> dict:
 def _serve(conn, settings: dict) -> None:
     """The second process: JAX set as its parent, the report's modules imported, then the
     jobs ("chunks", (sweep config file, chunk ids)), answered with [(chunk id, tables)],
-    ("figures", (sweep folder, tuned file)), unanswered, ("plan", (scenario, planner config,
-    seed)), answered with plan.timed_plan's (record, seconds, plan.png), and ("report", build's
-    arguments), answered with the index's path; None answers a job that failed."""
+    ("figures", (sweep folder, tuned file)), unanswered, and ("report", build's arguments),
+    answered with the index's path; None answers a job that failed."""
     # Ctrl-C goes to the whole process group: the parent says it was interrupted and ends
     # this process (SIGTERM, silent); a report it was writing leaves a hidden folder, which
     # the next report into that folder removes (results_folder.replacing).
@@ -47,10 +44,7 @@ def _serve(conn, settings: dict) -> None:
             return
         answer: list | str | tuple | None
         try:
-            if kind == "plan":
-                from stepzoo.workflows.plan import timed_plan
-                answer = timed_plan(*args)
-            elif kind == "chunks":
+            if kind == "chunks":
                 from stepzoo.bench.sweep.config import load as load_config
                 from stepzoo.bench.sweep.engine import compute_chunk
                 cfg = load_config(args[0])
@@ -78,8 +72,7 @@ def _serve(conn, settings: dict) -> None:
 class Ahead:
     """The second process of one pipeline: `sweep_runner(config)` is a `run_sweep` runner
     that shares the chunks with it; `figures(sweep, tuned)` hands it the finished sweep
-    folder and tuned file to draw Figures 1-6 from, `plan(scenario, config, seed)` has it
-    plan a scenario (plan.plan_all's `beside`), `report(...)` (report.build's arguments)
+    folder and tuned file to draw Figures 1-6 from, `report(...)` (report.build's arguments)
     has it build the report and returns the index's path, or None where it could not (the
     caller then builds it); `close()` ends it."""
 
@@ -129,12 +122,6 @@ class Ahead:
 
     def figures(self, sweep, tuned) -> None:
         self._send(("figures", (str(sweep), str(tuned))))
-
-    def plan(self, scenario, config, seed) -> tuple[dict, float, bytes | None] | None:
-        """plan.timed_plan's answer, computed in the second process; None where it failed."""
-        if not self._send(("plan", (scenario, config, seed))):
-            return None
-        return self._answer()
 
     def report(self, results: Path, out: Path, tuned_path: Path, plans_dir: Path,
                progress: bool) -> Path | None:
