@@ -15,7 +15,7 @@ import casadi as ca
 import jax.numpy as jnp
 import numpy as np
 
-from stepzoo.dynamics.kinematic import kinematic_bicycle, kinematic_terms
+from stepzoo.dynamics.kinematic import body_slip, kinematic_bicycle, kinematic_terms
 from stepzoo.dynamics.models import steered
 from stepzoo.integrators import integrate, method as zoo_method
 from stepzoo.integrators.methods import TABLEAUS
@@ -582,11 +582,19 @@ def connect(start, goal, *, L, m, bounds=None, N=50, shooting=DEFAULT_SHOOTING,
                       shooting=shooting, steer_rates=solved.steer_rates)
 
 
+def node_steers(inputs, steer_rates, tf) -> np.ndarray:
+    """(N+1,) [rad] the steer at each node 0..N of a steered solution: the inputs' (N, 2)
+    [delta, F] steers at nodes 0..N-1, and the last one ramped on at its rate [rad/s] over
+    an interval of tf / N [s]."""
+    dt = tf / len(inputs)
+    return np.r_[inputs[:, 0], inputs[-1, 0] + steer_rates[-1] * dt]
+
+
 def _disc_centres(corridor: Corridor, poses, steers, L) -> np.ndarray:
     """(n, J, 2) [m] the centres of the corridor's discs of the car at poses (n, 3+) [X, Y,
     theta] and steers (n,) [rad], its body facing theta less its rolling slip."""
     poses = np.asarray(poses, float)
-    body = poses[:, 2] - np.arcsin(np.clip(corridor.Lr * np.tan(steers) / L, -1.0, 1.0))
+    body = poses[:, 2] - body_slip(steers, L, corridor.Lr)
     return poses[:, None, :2] + np.asarray(corridor.offsets)[None, :, None] \
         * np.stack([np.cos(body), np.sin(body)], axis=-1)[:, None, :]
 
@@ -595,8 +603,7 @@ def _touches(corridor: Corridor, solved: _Solution, L, origin) -> bool:
     """Whether a disc of the car touches an obstacle at a node 1..N of the (steered) solution,
     positions relative to `origin` [m]."""
     assert solved.steer_rates is not None
-    dt = solved.tf / len(solved.inputs)
-    steers = np.r_[solved.inputs[1:, 0], solved.inputs[-1, 0] + solved.steer_rates[-1] * dt]
+    steers = node_steers(solved.inputs, solved.steer_rates, solved.tf)[1:]
     centres = _disc_centres(corridor, solved.states[1:], steers, L)
     return bool((corridor.clearance(centres + origin) <= corridor.radius).any())
 

@@ -14,7 +14,7 @@ import numpy as np
 from stepzoo import dynamics
 from stepzoo.dynamics.kinematic import body_slip
 from stepzoo.dynamics.vehicles import limits as vehicle_limits
-from stepzoo.search.planner.connection_ocp import Connection, Corridor, connect
+from stepzoo.search.planner.connection_ocp import Connection, Corridor, connect, node_steers
 from stepzoo.search.planner.endpoints import bad_endpoint, departure_boxed_in, enclosed, walled_off
 from stepzoo.search.planner.expansion import Expander
 from stepzoo.search.world.footprint import Footprint
@@ -203,8 +203,7 @@ class PathFinder:
         (dynamics.kinematic.body_slip), as the car keeping to the path faces."""
         poses = conn.states[:, :3].copy()
         if conn.steer_rates is not None:
-            dt = conn.tf / len(conn.inputs)
-            steer = np.r_[conn.inputs[:, 0], conn.inputs[-1, 0] + conn.steer_rates[-1] * dt]
+            steer = node_steers(conn.inputs, conn.steer_rates, conn.tf)
             poses[:, 2] -= body_slip(steer, self.wheelbase, self.vehicle["Lr"])
         return poses
 

@@ -42,7 +42,7 @@ def _serve(conn, settings: dict) -> None:
             kind, args = conn.recv()
         except EOFError:                # the parent has ended
             return
-        answer: list | str | tuple | None
+        answer: list | str | None
         try:
             if kind == "chunks":
                 from stepzoo.bench.sweep.config import load as load_config
