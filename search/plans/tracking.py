@@ -296,7 +296,17 @@ def _scan(n_steps: int):
             # The offset to the left of the body's forward direction along the path.
             e = side * way
             soft = K_SOFT + jnp.abs(v)
-            forward = (wrap(at("course", j, f) - psi) - jnp.arctan(GAIN_K * e / soft)
+            # Heading term: where the car rolls (below the plant's blend), the steer that holds
+            # the path's curvature fed forward plus the body's heading error; above it, the
+            # controlled axle's course. The course is averaged over SMOOTH_M: where a crawling
+            # plan ramps its steer within a few tens of centimetres, the average spreads the
+            # ramp over a metre, and a car steered by it turned its wheel late, then
+            # over-steered to catch up.
+            rolls = jnp.clip((p["v_blend_high"] - jnp.abs(v))
+                             / (p["v_blend_high"] - p["v_blend_low"]), 0.0, 1.0)
+            aim = (rolls * (at("steer_ff", j, f) + wrap(at("psi_body", j, f) - psi))
+                   + (1 - rolls) * wrap(at("course", j, f) - psi))
+            forward = (aim - jnp.arctan(GAIN_K * e / soft)
                        + front_slip(v, at("kappa", j, f)))
             # The point LOOKAHEAD along the path (its piece's end at most), seen from the rear
             # axle against the direction of travel; the arc's curvature 2 sin(alpha) / l.
