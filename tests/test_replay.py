@@ -2,6 +2,7 @@
 here from the paper's equations, give the replay block's deviation at every path row; a coarse step strays
 farther than the tuned one on the same query; `collides` checks the replayed path densely."""
 import json
+import math
 
 import numpy as np
 import pytest
@@ -331,3 +332,77 @@ def test_path_rows_between_the_connections_nodes_are_what_its_model_drives(tuned
         chord = max(chord, np.hypot(*(straight - drives).T).max())
     assert worst < 1e-5
     assert chord > 1e-3
+
+
+def test_the_replay_checks_the_body_a_reversing_car_faces():
+    """Setting off backwards at a steady steer (rate-limited: the steer a state), the kinematic
+    bicycle's theta starts body_slip beside the body; the body faces psi0 + v tan(delta) / L t
+    throughout (theta's rate, the slip constant), and that body is what the replay checks, as
+    the planner does (Shooter.body_poses): theta checked as the body turned the car's ends
+    0.4 m into walls the planner had cleared by its margin."""
+    from stepzoo.search.plans.replay import drive
+    vehicle = {"m": 1093.3, "Iz": 1791.6, "Lf": 1.156, "Lr": 1.422, "Caf": 129627.6,
+               "Car": 105379.4}
+    n, dt, v, steer = 40, 0.02, -2.0, 0.3
+    seg = {"model": "kinematic", "t0": 0.0, "dt": dt, "v0": v, "move": "reverse", "steps": n,
+           "inputs": {"delta": [steer] * n, "F": [0.0] * n, "delta_rate": [0.0] * n}}
+    _, samples, body = drive([seg], (3.0, 4.0, 0.5), vehicle)
+    t = n * dt * np.arange(len(samples)) / (len(samples) - 1)
+    rate = v * math.tan(steer) / (vehicle["Lf"] + vehicle["Lr"])
+    assert np.abs(body - (0.5 + rate * t)).max() < 1e-8
+    # The samples keep the model's theta, which the goal constrains.
+    slip = math.asin(vehicle["Lr"] * math.tan(steer) / (vehicle["Lf"] + vehicle["Lr"]))
+    assert np.abs(samples[1:, 2] - (body[1:] + slip)).max() < 1e-8
+
+
+def test_body_headings_turn_a_kinematic_segments_rows_back_by_the_rolling_slip():
+    """Rows of a reversing kinematic segment at steer 0.3 + 0.2 t hold theta, body_slip
+    beside the body; body_headings gives theta - body_slip(steer) on them (the first row the
+    first segment's), and leaves a dynamic edge's rows, the joint row included, as they are."""
+    from stepzoo.dynamics.kinematic import body_slip
+    from stepzoo.search.plans.replay import body_headings
+    vehicle = {"Lf": 1.156, "Lr": 1.422}
+    L, n, dt = 2.578, 10, 0.02
+    kin = {"model": "kinematic", "t0": 0.0, "dt": dt, "v0": -2.0, "steps": n,
+           "inputs": {"delta": (0.3 + 0.2 * dt * np.arange(n)).tolist(), "F": [0.0] * n,
+                      "delta_rate": [0.2] * n}}
+    tree = {"model": "dynamic5", "t0": n * dt, "duration": n * dt, "vx": 5.0, "steps": n,
+            "inputs": {"delta": 0.5, "delta_rate": 0.0}}
+    t = np.linspace(0.0, 2 * n * dt, 41)
+    theta = 1.0 + t
+    rows = np.column_stack([t, t, t, theta])
+    steer = 0.3 + 0.2 * t
+    body = body_headings(rows, [kin, tree], vehicle)
+    mine = t <= n * dt + 1e-9
+    assert np.abs(body[mine] - (theta - body_slip(steer, L, 1.422))[mine]).max() < 1e-12
+    assert np.array_equal(body[~mine], theta[~mine])
+    assert body[0] == pytest.approx(1.0 - body_slip(0.3, L, 1.422), abs=1e-12)
+    # Without the rate (instant steering) the planner checks theta as the body: unchanged.
+    instant = {**kin, "inputs": {"delta": kin["inputs"]["delta"], "F": [0.0] * n}}
+    assert np.array_equal(body_headings(rows, [instant, tree], vehicle), theta)
+
+
+def test_a_car_backing_out_beside_a_wall_clears_it_as_the_planner_checked():
+    """Backing out 0.4 m at steer 0.3 rad beside a wall at y = 5 m, the car (centre y = 4 m,
+    discs of radius 0.89 m) keeps 0.11 m at the start and 0.08 m at the least. Its
+    kinematic theta starts body_slip = 0.17 rad from its body: checked as the body, that
+    heading swings the front 0.3 m into the wall (the seven colliding reverse plans)."""
+    from stepzoo.search.plans.replay import drive, safety
+    vehicle = dynamics.vehicle(None)
+    veh = {k: vehicle[k] for k in ("name", "length", "width", "m", "Iz", "Lf", "Lr", "Caf",
+                                   "Car")} | {"wheelbase": vehicle["Lf"] + vehicle["Lr"]}
+    occupied = np.zeros((200, 400), bool)  # 20 x 10 m at 0.05 m/cell
+    occupied[100:102] = True               # the wall, y = 5.0..5.1 m
+    omap = from_array(occupied, 0.05)
+    n, dt = 10, 0.02
+    seg = {"model": "kinematic", "t0": 0.0, "dt": dt, "v0": -2.0, "steps": n, "move": "reverse",
+           "inputs": {"delta": [0.3] * n, "F": [0.0] * n, "delta_rate": [0.0] * n}}
+    start = [10.0, 4.0, 0.0]
+    poses, samples, _ = drive([seg], start, veh, dt * np.arange(n + 1))
+    record = {"start": start, "goal": list(samples[-1]), "params": {"margin": 0.1},
+              "vehicle": veh, "controls": [seg],
+              "path": np.column_stack([dt * np.arange(n + 1), poses]).tolist()}
+    block = replay(record, omap)
+    assert block["collides"] is False
+    assert 0.05 < block["clearance_min_m"] < 0.112
+    assert safety(omap, car_footprint(veh, 0.1), samples)[0]  # theta as the body: a collision

@@ -115,8 +115,9 @@ def replay(plan, omap: OccupancyMap, footprint: Footprint | None = None,
     Against the planned path at its nodes (the planner's integration steps and the
     connection's intervals): max_deviation_m, final_deviation_m [m] (position) and
     max_heading_deviation_rad; collides: the `footprint` (default: the car's own, no margin,
-    covered by discs as the planner covers it) along the replayed path, poses at most
-    CHECK_SPACING_M apart and the straight moves between them checked (first_collision),
+    covered by discs as the planner covers it) along the replayed path, facing the body's
+    heading (`drive`), poses at most CHECK_SPACING_M apart and the straight moves between
+    them checked (first_collision),
     against `omap`; clearance_min_m [m]: the least distance of that disc cover to an obstacle
     along the replay (<= 0 touches); goal_distance_m [m]: replayed end to the goal position.
     A plan without a path gets these as None; `segments`, `nodes`, `samples` count what was
@@ -140,11 +141,11 @@ def replay(plan, omap: OccupancyMap, footprint: Footprint | None = None,
         planned = np.asarray(plan["path"], float)
     if footprint is None:
         footprint = car_footprint(vehicle, margin)
-    replayed, samples = drive(segs, start, vehicle, planned[:, 0])
+    replayed, samples, body = drive(segs, start, vehicle, planned[:, 0])
     gap = np.hypot(*(replayed[:, :2] - planned[:, 1:3]).T)
     turn = np.abs(np.remainder(replayed[:, 2] - planned[:, 3] + math.pi, 2 * math.pi)
                   - math.pi)
-    collides, clearance = safety(omap, footprint, samples)
+    collides, clearance = safety(omap, footprint, np.column_stack([samples[:, :2], body]))
     block.update({
         "max_deviation_m": float(gap.max()),
         "final_deviation_m": float(gap[-1]),
@@ -176,12 +177,15 @@ def car_footprint(vehicle: dict, margin: float | None = None) -> Footprint:
                                   2 * math.ceil((length + grow) / (width + grow)))
 
 
-def drive(segs: list[dict], start, vehicle: dict, times=None) -> tuple[np.ndarray, np.ndarray]:
+def drive(segs: list[dict], start, vehicle: dict,
+          times=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The controls `segs` driven open loop from the pose `start` [X, Y, psi]: (replayed
     poses (K, 3) at `times` [s] (ascending, from the start; default: the segments' steps,
     each joint once), replayed poses (M, 3) at most CHECK_SPACING_M apart, the ends
-    included). A time on a joint is the earlier segment's end; times past the last segment
-    are its end."""
+    included, and the heading (M,) [rad] of the car's body at those: on a rate-limited
+    kinematic segment, whose (X, Y) moves along theta, theta - body_slip at the steer, as
+    the planner checks it; elsewhere psi). A time on a joint is the earlier segment's end;
+    times past the last segment are its end."""
     if times is None:
         times = np.r_[0.0, np.concatenate([
             float(seg["t0"]) + _span(seg) * np.arange(1, int(seg["steps"]) + 1) / int(seg["steps"])
@@ -189,6 +193,7 @@ def drive(segs: list[dict], start, vehicle: dict, times=None) -> tuple[np.ndarra
     times = np.asarray(times, float)
     poses = np.tile(np.asarray(start, float)[:3], (len(times), 1))
     samples = [np.asarray(start, float)[None, :3]]
+    bodies = [np.asarray(start, float)[None, 2]]
     todo = times > 0.0
     state = np.r_[np.asarray(start, float)[:3], 0.0, 0.0]  # [X, Y, psi, vy, r]
 
@@ -198,9 +203,15 @@ def drive(segs: list[dict], start, vehicle: dict, times=None) -> tuple[np.ndarra
         inside = todo & ((times <= t0 + duration) | last)
         x, at, fine = _solve(model, x0, u, p, duration, np.clip(times[inside] - t0, 0.0,
                                                                  duration), speed, steered)
-        poses[inside] = at
+        poses[inside] = at[:, :3]
         todo[inside] = False
-        samples.append(fine)
+        samples.append(fine[:, :3])
+        body = fine[:, 2]
+        if model == "kinematic" and steered:
+            # The kinematic bicycle moves its (X, Y) along theta; the body the planner checked
+            # faces body_slip short of it (PathFinder.connection_poses, Shooter.body_poses).
+            body = body - body_slip(fine[:, 4], p["L"], p["Lr"])
+        bodies.append(body)
         return x
 
     way, body = 0, state[2]  # the last segment's direction of travel, the body's heading
@@ -247,7 +258,30 @@ def drive(segs: list[dict], start, vehicle: dict, times=None) -> tuple[np.ndarra
             body = x[2] - (body_slip(x[4], p["L"], p["Lr"]) if steered else 0.0)
         else:
             raise ValueError(f"unknown control model {seg['model']!r}: dynamic5 or kinematic")
-    return poses, np.vstack(samples)
+    return poses, np.vstack(samples), np.concatenate(bodies)
+
+
+def body_headings(rows, segs: list[dict], vehicle: dict) -> np.ndarray:
+    """(K,) [rad] the heading of the car's body at path rows (K, 4) [t s, X m, Y m, psi rad]
+    driven by the controls `segs`: psi, less body_slip at the steer on a rate-limited
+    kinematic segment, whose psi is the theta its (X, Y) moves along (as the planner checks
+    it); a row on a joint belongs to the earlier segment, the first row to the first.
+    `vehicle`: Lf and Lr [m]."""
+    rows = np.asarray(rows, float)
+    heading = rows[:, 3].copy()
+    for i, seg in enumerate(segs):
+        inputs = seg["inputs"]
+        if seg["model"] != "kinematic" or "delta_rate" not in inputs:
+            continue
+        t0, dt, n = float(seg["t0"]), float(seg["dt"]), int(seg["steps"])
+        begin = t0 - NODE_TIME_TOL_S if i == 0 else t0 + NODE_TIME_TOL_S
+        on = (rows[:, 0] > begin) & (rows[:, 0] <= t0 + n * dt + NODE_TIME_TOL_S)
+        into = np.clip(rows[on, 0] - t0, 0.0, n * dt)
+        k = np.minimum((into / dt).astype(int), n - 1)
+        steer = (np.asarray(inputs["delta"], float)[k]
+                 + np.asarray(inputs["delta_rate"], float)[k] * (into - k * dt))
+        heading[on] -= body_slip(steer, vehicle["Lf"] + vehicle["Lr"], vehicle["Lr"])
+    return heading
 
 
 def _span(seg: dict) -> float:
@@ -259,7 +293,7 @@ def _solve(model: str, x0, u, p, duration, at, speed, steered=False):
     """One smooth piece: `model` (`steered`: its steer a state, driven by the first input)
     from x0 under constant inputs u for `duration` [s]; (end state, poses (len(at), 3) at
     the times `at` [s] from its start, poses (m, 3) at most CHECK_SPACING_M apart for a
-    speed up to `speed` [m/s], the start excluded)."""
+    speed up to `speed` [m/s], the start excluded; both with every state column)."""
     import jax
     import jax.numpy as jnp
     from scipy.integrate import solve_ivp
@@ -277,8 +311,8 @@ def _solve(model: str, x0, u, p, duration, at, speed, steered=False):
     # 10% above the largest speed: a dynamic bicycle's lateral speed adds a little to vx.
     m = max(1, math.ceil(1.1 * speed * duration / CHECK_SPACING_M))
     fine = duration * np.arange(1, m + 1) / m
-    poses = sol.sol(np.asarray(at)).T[:, :3] if len(at) else np.zeros((0, 3))
-    return sol.y[:, -1], poses, sol.sol(fine).T[:, :3]
+    poses = sol.sol(np.asarray(at)).T if len(at) else np.zeros((0, len(sol.y)))
+    return sol.y[:, -1], poses, sol.sol(fine).T
 
 
 @cache
