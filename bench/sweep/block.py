@@ -3,6 +3,7 @@ references along them (kept in a cache for the next method's chunk), the frozen 
 that predict each method's stable step, and the stability test and limit search at them."""
 from __future__ import annotations
 
+import threading
 from typing import NamedTuple
 
 import numpy as np
@@ -58,10 +59,13 @@ class Block:
         self.run = Runner(cfg.spec, steps, self.watch)
 
     def cached(self, key, make):
-        """make(), computed once per (key, block) in the cache."""
+        """make(), computed once per (key, block) in the cache: a chunk computed on another
+        thread (bench.sweep.distributed.threaded) that needs it meanwhile waits for it."""
         key = (key, self.block)
         if key not in self.cache:
-            self.cache[key] = make()
+            with self.cache.setdefault(("lock", key), threading.Lock()):
+                if key not in self.cache:
+                    self.cache[key] = make()
         return self.cache[key]
 
     def reference(self, h: float, n: int, points: Points | None = None):
