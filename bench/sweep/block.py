@@ -196,8 +196,12 @@ class Block:
         from the outcomes grid (B, K) at the config's steps, guided by the predicted limits
         pred (B,) [s]: searched on the real lanes, copied to the padding lanes."""
         cfg, n = self.cfg, self.points.n_real
+        runs = self.stability_runs()
+        # The search needs no more of a candidate than that it is not stable (ModalRuns.judge).
+        probe = runs.probe(meth, settle=True) if isinstance(runs, ModalRuns) else \
+            runs.probe(meth)
         found = limit_search.measured_limit(
-            Outcome(*(a[:n] for a in grid)), self.stability_runs().probe(meth), cfg.hs,
+            Outcome(*(a[:n] for a in grid)), probe, cfg.hs,
             np.asarray(pred, float)[:n], self.h_top, cfg.stability.rel_tol, len(self.points),
             ladder=cfg.stability.rule != "blowup")
         return MeasuredLimit(*(self.padded(a) for a in found))

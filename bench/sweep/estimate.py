@@ -114,6 +114,9 @@ def _method(block: Block, meth) -> dict:
     many = _timed(block, meth, h, n)
     step_s = max(0.0, (many - one) / (n - 1))
     call_s = max(0.0, one - step_s)
+    # The shared work, which another thread may be computing: waited for, not timed.
+    block.along()
+    block.stability_runs()
     calls, steps, run_steps, predict_s, stab_calls, stab_steps = _chunk_work(block, meth)
     # What a stability probe costs besides its calls (judging each run, step by step, in
     # Python), per step of a run, from one probe of the block's lanes at the grid's middle
@@ -162,25 +165,28 @@ def _chunk_work(block: Block, meth) -> tuple[int, int, int, float, int, int]:
     t0 = time.perf_counter()
     pred = np.array([p.h for p in block.predicted(meth)])      # the chunk computes it too
     predict_s = time.perf_counter() - t0
-    asked = []
+    asked = []                 # (candidates [s], which the search's probe settles early)
+    settles = cfg.stability.rule != "blowup" and not meth.solves
 
-    def probe(lanes, hs):
+    def probe(lanes, hs, search=True):
         lanes, hs = np.asarray(lanes), np.asarray(hs, float)
-        asked.append(hs)
         ok = hs <= pred[lanes] * (1 + STAND_IN)
+        asked.append((hs, ~ok if search and settles else np.zeros(len(hs), bool)))
         return limit_search.Outcome(ok, np.where(ok, np.nan, hs), np.ones(len(hs), bool))
 
     n = block.points.n_real                   # the padding lanes are not probed
-    grid = limit_search.at_steps(probe, np.arange(n), np.tile(np.asarray(cfg.hs), (n, 1)).T)
+    grid = limit_search.at_steps(lambda lanes, hs: probe(lanes, hs, search=False),
+                                 np.arange(n), np.tile(np.asarray(cfg.hs), (n, 1)).T)
     measured = limit_search.measured_limit(grid, probe, cfg.hs, pred[:n], block.h_top,
                                            cfg.stability.rel_tol, len(block.points),
                                            ladder=cfg.stability.rule != "blowup")
     if cfg.stability.rule != "blowup":         # the diagnosis probes just above each limit
         h = measured.h_meas * (1 + cfg.stability.rel_tol)
-        asked.append(h[np.isfinite(h) & (h > 0)])
+        h = h[np.isfinite(h) & (h > 0)]
+        asked.append((h, np.zeros(len(h), bool)))
     stab_calls, stab_steps, run_steps, B = 0, 0, 0, len(block.points)
-    for hs in asked:
-        c, s, r = _probe_work(cfg, block.run.max_steps, B, hs)
+    for hs, settled in asked:
+        c, s, r = _probe_work(cfg, block.run.max_steps, B, hs, settled)
         stab_calls, stab_steps, run_steps = stab_calls + c, stab_steps + s, run_steps + r
     c, s = _figure_work(cfg, block.run.max_steps, B, pred[0])
     return (calls + c + stab_calls, steps + s + stab_steps, run_steps, predict_s, stab_calls,
@@ -197,18 +203,23 @@ def _figure_work(cfg, max_steps: int, B: int, limit: float) -> tuple[int, int]:
     return calls, calls * min(max_steps, math.ceil(cfg.horizon / min(hs) - 1e-9))
 
 
-def _probe_work(cfg, max_steps: int, B: int, hs: np.ndarray) -> tuple[int, int, int]:
+def _probe_work(cfg, max_steps: int, B: int, hs: np.ndarray, settled=None
+                ) -> tuple[int, int, int]:
     """(calls, steps of the calls, steps of the runs) of one probe of candidates hs [s]: the
     "blowup" rule runs each candidate twice for `stability.steps`, in calls of B; the
     "modes" rule runs each with its directions, to the stability horizon, in calls of B
-    runs, each call as long as its longest run."""
+    runs, each call as long as its longest run; a candidate `settled` (a search's probe that
+    finds it not stable, ModalRuns.judge) runs the unperturbed state and the modes alone."""
     from stepzoo.bench.sweep.runs.stability_runs import MODES
     if cfg.stability.rule == "blowup":
         calls = 2 * math.ceil(len(hs) / B)
         return calls, calls * cfg.stability.steps, 2 * len(hs) * cfg.stability.steps
     n = np.minimum(np.ceil(cfg.stability_horizon / hs - 1e-9), max_steps).astype(int)
+    d = len(cfg.spec.states)
     # Each of the MODES modes and each state alone (stability_runs.directions), and the
-    # unperturbed run.
-    runs = np.repeat(n, MODES + len(cfg.spec.states) + 1)
-    longest = [int(runs[i: i + B].max()) for i in range(0, len(runs), B)]
-    return len(longest), sum(longest), int(runs.sum())
+    # unperturbed run: where the probe may settle, the modes' runs first, then the others'.
+    settled = np.zeros(len(hs), bool) if settled is None else np.asarray(settled, bool)
+    groups = [np.repeat(n, MODES + d + 1)] if not settled.any() else \
+        [np.repeat(n, MODES + 1), np.repeat(n[~settled], d)]
+    longest = [int(runs[i: i + B].max()) for runs in groups for i in range(0, len(runs), B)]
+    return len(longest), sum(longest), int(sum(runs.sum() for runs in groups))
