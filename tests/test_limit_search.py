@@ -254,3 +254,41 @@ def test_a_search_probe_settles_a_candidate_its_mode_runs_show_unstable(name):
         assert whole.converged.all()
         runs_made = len(h) * (MODES + d + 1)
     assert len(counted) == -(-len(h) * (MODES + 1) // B) + -(-(runs_made - len(h) * (MODES + 1)) // B)
+
+
+@pytest.mark.parametrize("stability_horizon", [0.5, 0.3])
+def test_the_grids_unperturbed_runs_are_its_accuracy_runs(stability_horizon):
+    """Under the "modes" rule a grid step whose accuracy run is as long as its stability run
+    takes that run as its unperturbed one: the same outcomes as running it again, one run
+    fewer per lane. The grid divides the 0.5 s horizon: with the stability horizon 0.5 s
+    every step's lengths agree; with 0.3 s none does, and each runs its own."""
+    import tomllib
+
+    from stepzoo.bench.sweep import chunk_tables
+    from stepzoo.bench.sweep import config as sweep_config
+    from stepzoo.bench.sweep.block import Block
+    from stepzoo.bench.sweep.runs import method_runs
+    raw = tomllib.loads(WHEEL_MODES)
+    raw["stability"] = {"horizon": stability_horizon}
+    cfg = sweep_config.validate(raw, "wheel-settle")
+    block, meth = Block(cfg, 0, {}), cfg.method("rk4")
+    _, _, made = chunk_tables._accuracy_runs(block, meth)
+    H = np.tile(np.asarray(cfg.hs), (len(block.points), 1))
+    lanes = []
+    plain = method_runs.Runner.__call__
+
+    def counting(self, meth, x0, u, p, h, n):
+        lanes.append(len(x0))
+        return plain(self, meth, x0, u, p, h, n)
+
+    whole = block.stable(meth, H)
+    method_runs.Runner.__call__ = counting
+    try:
+        reused = block.stable(meth, H, made)
+    finally:
+        method_runs.Runner.__call__ = plain
+    for a, b in zip(whole, reused):
+        np.testing.assert_array_equal(a, b)
+    B, K = len(block.points), block.stability_runs().delta.shape[1]
+    runs = len(cfg.hs) * B * (K + (stability_horizon != cfg.horizon))
+    assert len(lanes) == -(-runs // B)

@@ -137,14 +137,16 @@ class Block:
             return delta, scales, dt * np.arange(ALONG_SAMPLES + 1), grow
         return self.cached("modal", make)
 
-    def stability_runs(self):
-        """The stability test of the config's [stability] rule."""
+    def stability_runs(self, made: dict | None = None):
+        """The stability test of the config's [stability] rule; under the "modes" rule with
+        the runs `made` from the initial states ({(method, h [s]): (states (B, n+1, d),
+        converged (B,))}), which stand in for its unperturbed runs as long."""
         cfg = self.cfg
         if cfg.stability.rule == "blowup":
             return StabilityRuns(self.run, self.points, self.delta, cfg.stability.steps,
                                  cfg.stability.growth)
         return ModalRuns(self.run, self.points, *self.modal(), cfg.stability_horizon,
-                         cfg.stability.growth)
+                         cfg.stability.growth, made or {})
 
     def diagnose(self, meth, h_meas) -> Diagnosis:
         """Per lane, what fails just above its measured limit h_meas (B,) [s] (at the grid's
@@ -183,11 +185,12 @@ class Block:
             return cfg.stability.h_probe_max
         return max(min(cfg.stability.h_probe_max, cfg.stability_horizon), cfg.hs[-1])
 
-    def stable(self, meth, H) -> Outcome:
-        """Outcomes (B, K) of the stability runs at steps H (B, K) [s], row b at lane b; the
-        real lanes are probed, the padding lanes copy the last real one's."""
+    def stable(self, meth, H, made: dict | None = None) -> Outcome:
+        """Outcomes (B, K) of the stability runs at steps H (B, K) [s], row b at lane b, with
+        the runs already `made` from the initial states (`stability_runs`); the real lanes
+        are probed, the padding lanes copy the last real one's."""
         n = self.points.n_real
-        got = limit_search.at_steps(self.stability_runs().probe(meth), np.arange(n),
+        got = limit_search.at_steps(self.stability_runs(made).probe(meth), np.arange(n),
                                     np.asarray(H, float)[:n].T)
         return Outcome(*(self.padded(a) for a in got))
 

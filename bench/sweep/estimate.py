@@ -165,13 +165,19 @@ def _chunk_work(block: Block, meth) -> tuple[int, int, int, float, int, int]:
     t0 = time.perf_counter()
     pred = np.array([p.h for p in block.predicted(meth)])      # the chunk computes it too
     predict_s = time.perf_counter() - t0
-    asked = []                 # (candidates [s], which the search's probe settles early)
-    settles = cfg.stability.rule != "blowup" and not meth.solves
+    # (candidates [s], which the search's probe settles early, whose unperturbed run the
+    # accuracy runs made)
+    asked = []
+    modes = cfg.stability.rule != "blowup"
+    settles = modes and not meth.solves
+    made = {h for h, n in zip(cfg.hs, n_acc)
+            if modes and n == _steps(cfg, h, block.run.max_steps)}
 
     def probe(lanes, hs, search=True):
         lanes, hs = np.asarray(lanes), np.asarray(hs, float)
         ok = hs <= pred[lanes] * (1 + STAND_IN)
-        asked.append((hs, ~ok if search and settles else np.zeros(len(hs), bool)))
+        asked.append((hs, ~ok if search and settles else np.zeros(len(hs), bool),
+                      np.array([not search and h in made for h in hs], bool)))
         return limit_search.Outcome(ok, np.where(ok, np.nan, hs), np.ones(len(hs), bool))
 
     n = block.points.n_real                   # the padding lanes are not probed
@@ -183,10 +189,10 @@ def _chunk_work(block: Block, meth) -> tuple[int, int, int, float, int, int]:
     if cfg.stability.rule != "blowup":         # the diagnosis probes just above each limit
         h = measured.h_meas * (1 + cfg.stability.rel_tol)
         h = h[np.isfinite(h) & (h > 0)]
-        asked.append((h, np.zeros(len(h), bool)))
+        asked.append((h, np.zeros(len(h), bool), np.zeros(len(h), bool)))
     stab_calls, stab_steps, run_steps, B = 0, 0, 0, len(block.points)
-    for hs, settled in asked:
-        c, s, r = _probe_work(cfg, block.run.max_steps, B, hs, settled)
+    for hs, settled, known in asked:
+        c, s, r = _probe_work(cfg, block.run.max_steps, B, hs, settled, known)
         stab_calls, stab_steps, run_steps = stab_calls + c, stab_steps + s, run_steps + r
     c, s = _figure_work(cfg, block.run.max_steps, B, pred[0])
     return (calls + c + stab_calls, steps + s + stab_steps, run_steps, predict_s, stab_calls,
@@ -203,13 +209,19 @@ def _figure_work(cfg, max_steps: int, B: int, limit: float) -> tuple[int, int]:
     return calls, calls * min(max_steps, math.ceil(cfg.horizon / min(hs) - 1e-9))
 
 
-def _probe_work(cfg, max_steps: int, B: int, hs: np.ndarray, settled=None
+def _steps(cfg, h: float, max_steps: int) -> int:
+    """The steps of a "modes" stability run at h [s] (ModalRuns.steps)."""
+    return min(math.ceil(cfg.stability_horizon / h - 1e-9), max_steps)
+
+
+def _probe_work(cfg, max_steps: int, B: int, hs: np.ndarray, settled=None, known=None
                 ) -> tuple[int, int, int]:
     """(calls, steps of the calls, steps of the runs) of one probe of candidates hs [s]: the
     "blowup" rule runs each candidate twice for `stability.steps`, in calls of B; the
     "modes" rule runs each with its directions, to the stability horizon, in calls of B
     runs, each call as long as its longest run; a candidate `settled` (a search's probe that
-    finds it not stable, ModalRuns.judge) runs the unperturbed state and the modes alone."""
+    finds it not stable, ModalRuns.judge) runs the unperturbed state and the modes alone,
+    one whose unperturbed run is `known` (a grid step's accuracy run) runs its directions."""
     from stepzoo.bench.sweep.runs.stability_runs import MODES
     if cfg.stability.rule == "blowup":
         calls = 2 * math.ceil(len(hs) / B)
@@ -219,7 +231,9 @@ def _probe_work(cfg, max_steps: int, B: int, hs: np.ndarray, settled=None
     # Each of the MODES modes and each state alone (stability_runs.directions), and the
     # unperturbed run: where the probe may settle, the modes' runs first, then the others'.
     settled = np.zeros(len(hs), bool) if settled is None else np.asarray(settled, bool)
-    groups = [np.repeat(n, MODES + d + 1)] if not settled.any() else \
+    known = np.zeros(len(hs), bool) if known is None else np.asarray(known, bool)
+    own = np.where(known, MODES + d, MODES + d + 1)
+    groups = [np.repeat(n, own)] if not settled.any() else \
         [np.repeat(n, MODES + 1), np.repeat(n[~settled], d)]
     longest = [int(runs[i: i + B].max()) for runs in groups for i in range(0, len(runs), B)]
     return len(longest), sum(longest), int(sum(runs.sum() for runs in groups))

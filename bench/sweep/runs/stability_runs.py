@@ -7,7 +7,7 @@ horizon; with a diagnosis of the run (the state and time it departs)."""
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from functools import partial
 from typing import TYPE_CHECKING, NamedTuple
 
@@ -191,6 +191,7 @@ class ModalRuns:
     ref_growth: np.ndarray
     horizon: float
     growth: float
+    made: dict = field(default_factory=dict)
 
     def probe(self, meth, settle: bool = False) -> Probe:
         """The test of candidates as a Probe; with `settle`, a candidate the first runs show
@@ -210,27 +211,37 @@ class ModalRuns:
         """The runs (i, k) (candidate i from its initial state, k = -1, or plus direction k),
         as lanes of their own in calls of the block's size: their states up to the
         candidate's own horizon (n_own (N,) steps), and whether their solves converged
-        there."""
+        there. An unperturbed run `made` already as long (a grid step's accuracy run, by
+        the same method and program) is taken, not run again."""
         B = len(self.points)
         x: list = [None] * len(runs)
         conv = np.zeros(len(runs), bool)
-        for start in range(0, len(runs), B):
-            part = runs[start: start + B]
-            idx = np.resize([lanes[i] for i, _ in part], B)
-            hh = np.resize([h[i] for i, _ in part], B)
+        todo = []
+        for r, (i, k) in enumerate(runs):
+            xs, ok = self.made.get((meth, float(h[i])), (None, None))
+            if k < 0 and xs is not None and xs.shape[1] == n_own[i] + 1:
+                x[r] = xs[lanes[i]]
+                conv[r] = ok[lanes[i]] or np.isfinite(x[r]).all()
+            else:
+                todo.append(r)
+        for start in range(0, len(todo), B):
+            part = todo[start: start + B]
+            idx = np.resize([lanes[runs[r][0]] for r in part], B)
+            hh = np.resize([h[runs[r][0]] for r in part], B)
             x0, u, p = self.points.take(idx)
             dx = np.zeros_like(x0)
-            for r, (i, k) in enumerate(part):
+            for j, r in enumerate(part):
+                i, k = runs[r]
                 if k >= 0:
-                    dx[r] = self.delta[lanes[i], k]
-            n = int(max(n_own[i] for i, _ in part))
+                    dx[j] = self.delta[lanes[i], k]
+            n = int(max(n_own[runs[r][0]] for r in part))
             run = self.runner(meth, x0 + dx, u, p, hh, n)
             self.runner.watch.add("stability_s", run.run_s)
-            for r, (i, _) in enumerate(part):
-                x[start + r] = run.x[r, : n_own[i] + 1]
+            for j, r in enumerate(part):
+                x[r] = run.x[j, : n_own[runs[r][0]] + 1]
                 # A solve that failed leaves NaN from its step on (the driver's contract):
                 # failures past this candidate's horizon are not its own.
-                conv[start + r] = run.converged[r] or np.isfinite(x[start + r]).all()
+                conv[r] = run.converged[j] or np.isfinite(x[r]).all()
         return x, conv
 
     def _retried(self, meth, lanes, h, n_own, xs: dict, cs: dict) -> np.ndarray:
