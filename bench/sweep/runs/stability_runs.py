@@ -218,8 +218,9 @@ class ModalRuns:
         conv = np.zeros(len(runs), bool)
         todo = []
         for r, (i, k) in enumerate(runs):
-            xs, ok = self.made.get((meth, float(h[i])), (None, None))
-            if k < 0 and xs is not None and xs.shape[1] == n_own[i] + 1:
+            xs, ok = self.made.get((meth, float(h[i])), (None, None)) if self.made and k < 0 \
+                else (None, None)
+            if xs is not None and xs.shape[1] == n_own[i] + 1:
                 x[r] = xs[lanes[i]]
                 conv[r] = ok[lanes[i]] or np.isfinite(x[r]).all()
             else:
