@@ -145,7 +145,8 @@ class Block:
         if cfg.stability.rule == "blowup":
             return StabilityRuns(self.run, self.points, self.delta, cfg.stability.steps,
                                  cfg.stability.growth)
-        return ModalRuns(self.run, self.points, *self.modal(), cfg.stability_horizon,
+        delta, scales, ts, grow = self.modal()
+        return ModalRuns(self.run, self.points, delta, scales, ts, grow, cfg.stability_horizon,
                          cfg.stability.growth, made or {})
 
     def diagnose(self, meth, h_meas) -> Diagnosis:

@@ -107,11 +107,12 @@ def _method(block: Block, meth) -> dict:
     block.run(meth, pts.x0, pts.u, pts.p, cfg.hs[0], 1)             # compiles, as the chunk
     compile_s = time.perf_counter() - t0
     # The cost per step from the sweep's longest call (the grid's smallest step, most of a
-    # chunk's steps), past the fixed cost of a call of one step.
+    # chunk's steps; long enough that one call of it is timed), past the fixed cost of a
+    # call of one step.
     h = cfg.hs[0]
     n = max(2, block.run.max_steps)
     one = _timed(block, meth, h, 1)
-    many = _timed(block, meth, h, n)
+    many = _timed(block, meth, h, n, rounds=1)
     step_s = max(0.0, (many - one) / (n - 1))
     call_s = max(0.0, one - step_s)
     # The shared work, which another thread may be computing: waited for, not timed.

@@ -218,11 +218,10 @@ class ModalRuns:
         conv = np.zeros(len(runs), bool)
         todo = []
         for r, (i, k) in enumerate(runs):
-            xs, ok = self.made.get((meth, float(h[i])), (None, None)) if self.made and k < 0 \
-                else (None, None)
-            if xs is not None and xs.shape[1] == n_own[i] + 1:
-                x[r] = xs[lanes[i]]
-                conv[r] = ok[lanes[i]] or np.isfinite(x[r]).all()
+            got = self.made.get((meth, float(h[i]))) if self.made and k < 0 else None
+            if got is not None and got[0].shape[1] == n_own[i] + 1:
+                x[r] = got[0][lanes[i]]
+                conv[r] = got[1][lanes[i]] or np.isfinite(x[r]).all()
             else:
                 todo.append(r)
         for start in range(0, len(todo), B):
