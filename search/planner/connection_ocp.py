@@ -43,6 +43,8 @@ MAX_TRIES = 3          # solves (one per winding and first direction, and one mo
 
 MIN_ROOM = 0.01        # [m] the least room a disc of the corridor gets: a guess touching
 #                        an obstacle leaves the solve a sliver, not an empty set
+ROOM_SHIFTS = (0.25, 0.5, 1.0, 2.0)  # [m] how far a corridor ball's centre may lie from
+ROOM_DIRECTIONS = 8                  # its disc's, in this many directions (_rooms)
 
 
 class Corridor(NamedTuple):
@@ -317,6 +319,21 @@ def _progress(t, runs, plans, a_max):
     return k, tau, v0 * a1 + a_max * a1 ** 2 / 2 + peak * (a2 + a3) - a_max * a3 ** 2 / 2
 
 
+def _speed(t, runs, plans, a_max) -> float:
+    """[m/s] the signed speed at time `t` [s] of driving `runs` at their speed profiles
+    `plans` (from `_profile`): negative backwards."""
+    k, tau, _ = _progress(t, runs, plans, a_max)
+    v0, (t1, t2, _) = plans[k]
+    v = v0 + a_max * min(tau, t1) - a_max * max(tau - t2, 0.0)
+    return runs[k][0] * max(v, 0.0)
+
+
+def _ramp_steers(rates, steer0, rate_max, dt) -> np.ndarray:
+    """(N,) [rad] the steer at the end of each interval of dt [s] ramped from steer0 [rad] at
+    the scaled rates (N,) [1] of rate_max [rad/s] (from `_steer_ramps`)."""
+    return steer0 + np.cumsum(rates) * rate_max * dt
+
+
 def _guess_inputs(N, runs, plans, a_max):
     """Scaled inputs (2, N) [steer sign, acceleration / a_max] at the midpoints of N equal
     intervals of driving `runs` at their speed profiles `plans` (from `_profile`)."""
@@ -350,6 +367,16 @@ def _guess_poses(N, start, radius, runs, plans, a_max):
             left -= q
         poses[i] = pose
     return poses
+
+
+def _guess_states(N, start, radius, guess: _Guess, a_max, steers=None) -> np.ndarray:
+    """(4, N) or with `steers` (N,) [rad] (5, N) states [X, Y, theta, v(, delta)] at the ends
+    of N equal intervals of driving the guess's path from `start` [X, Y, theta] on turns of
+    `radius` [m] at its speed profile: the multiple shooting's states start on the path."""
+    poses = _guess_poses(N, start, radius, guess.runs, guess.plans, a_max)
+    times = np.arange(1, N + 1) * guess.tf / N
+    speeds = [_speed(t, guess.runs, guess.plans, a_max) for t in times]
+    return np.vstack([poses.T, speeds, *([] if steers is None else [steers])])
 
 
 @dataclass(frozen=True)
@@ -440,9 +467,11 @@ def _problem(N: int, shooting: str, method: str, bounded: bool, speed_fixed: boo
                     rows, nx)
 
 
-def _solve(prob, p, lo, hi, tf_range, tf_g, u_g, per_metre=False, room=None) -> _Solution:
-    """One IPOPT solve from the guess (tf_g [s], scaled inputs u_g (2, N)) with parameters p,
-    states 1..N within lo..hi ([X, Y, theta, v]) and t_f within tf_range [s] (steered,
+def _solve(prob, p, lo, hi, tf_range, tf_g, u_g, per_metre=False, room=None,
+           z_g=None) -> _Solution:
+    """One IPOPT solve from the guess (tf_g [s], scaled inputs u_g (2, N), and for multiple
+    shooting the states z_g (nx, N) at nodes 1..N, default the inputs' rollout) with
+    parameters p, states 1..N within lo..hi ([X, Y, theta, v]) and t_f within tf_range [s] (steered,
     `per_metre`: the steer rate bounded per metre below p's v_steer; `room`: (N * discs,)
     [m] how far each disc may lie from its centre in p): (success, status, tf, states,
     inputs)."""
@@ -450,7 +479,8 @@ def _solve(prob, p, lo, hi, tf_range, tf_g, u_g, per_metre=False, room=None) -> 
     x_g = np.r_[tf_g, u_g.ravel(order="F")]
     lbx, ubx = np.r_[tf_range[0], np.full(2 * N, -1.0)], np.r_[tf_range[1], np.ones(2 * N)]
     if prob.shooting == "multiple":
-        z_g = np.asarray(prob.rollout(tf_g, u_g, p))[:, 1:]
+        if z_g is None:
+            z_g = np.asarray(prob.rollout(tf_g, u_g, p))[:, 1:]
         x_g = np.r_[x_g, z_g.ravel(order="F")]
         lbx, ubx = np.r_[lbx, np.tile(lo, N)], np.r_[ubx, np.tile(hi, N)]
         lbg = ubg = np.zeros(nx * N + prob.n_end)
@@ -494,8 +524,9 @@ def connect(start, goal, *, L, m, bounds=None, N=50, shooting=DEFAULT_SHOOTING,
     does not slow to a crawl to turn the wheel, which leaves a kink no car tracks at speed.
     Without max_steer_rate (None, the paper's OCP) the steer is a control. With it, a
     `corridor` keeps the car off the obstacles: at each node each disc of the body lies
-    within the room its guess's disc has (that disc's clearance less its radius, at least
-    MIN_ROOM), so that the solution is as free as the guess where the guess is free.
+    within a ball free of obstacles that holds its guess's disc (`_rooms`: the widest of
+    those centred at or beside the disc; a guess disc touching an obstacle gets MIN_ROOM),
+    so that the solution is as free as the guess where the guess is free.
 
     L [m] wheelbase, m [kg] mass; bounds (Xmin, Xmax, Ymin, Ymax) [m] or None; goal_speed
     [m/s] or None (free); v_min <= v <= v_max [m/s] (v_min < 0 lets the car reverse),
@@ -554,24 +585,31 @@ def connect(start, goal, *, L, m, bounds=None, N=50, shooting=DEFAULT_SHOOTING,
         tf_g = min(max(guess.tf, tf_lo), tf_hi)
         lo = np.array([box[0], box[2], min(start[2], theta_g) - THETA_MARGIN, v_min])
         hi = np.array([box[1], box[3], max(start[2], theta_g) + THETA_MARGIN, v_max])
-        x_start = x0
+        x_start, z_g, steers = x0, None, delta_max * u_g[0]
         if rate_limited:
             u_g[0] = _steer_ramps(u_g[0], steer0, delta_max, max_steer_rate, tf_g / N)
+            steers = _ramp_steers(u_g[0], steer0, max_steer_rate, tf_g / N)
             x_start = np.r_[x0, steer0]
             lo, hi = np.r_[lo, -delta_max], np.r_[hi, delta_max]
+            if shooting == "multiple":
+                # The states start on the guess's path, not on the rollout of its ramped
+                # steer, which lags the path's turns and ends metres off the goal.
+                z_g = _guess_states(N, x0[:3], radius, guess, a_max, steers)
         p = np.r_[x_start, goal_local[:2], theta_g, L, m, delta_max, a_max, limits, v_goal]
-        solved = _solve(prob, p, lo, hi, (tf_lo, tf_hi), tf_g, u_g, steer_speed is not None)
+        solved = _solve(prob, p, lo, hi, (tf_lo, tf_hi), tf_g, u_g, steer_speed is not None,
+                        z_g=z_g)
         solves += 1
         if (kept is not None and corridor is not None and solved.success
                 and _touches(corridor, solved, L, origin)):
-            # The OCP ignores obstacles: solved again, each disc kept within its guess's room.
+            # The OCP ignores obstacles: solved again, each disc kept within a free ball that
+            # holds its guess's disc.
             poses = _guess_poses(N, x0[:3], radius, guess.runs, guess.plans, a_max)
-            centres = _disc_centres(corridor, poses, delta_max * u_g[0], L)
-            room = np.maximum(corridor.clearance(centres + origin) - corridor.radius, MIN_ROOM)
+            centres, room = _rooms(corridor, _disc_centres(corridor, poses, steers, L) + origin)
+            centres -= origin
             p = np.r_[p[:len(p) - len(v_goal)], corridor.Lr, corridor.offsets, centres.ravel(),
                       v_goal]
             solved = _solve(kept, p, lo, hi, (tf_lo, tf_hi), tf_g, u_g,
-                            steer_speed is not None, room.ravel())
+                            steer_speed is not None, room.ravel(), z_g)
             solves += 1
         if solved.success or solves >= MAX_TRIES:
             break
@@ -597,6 +635,27 @@ def _disc_centres(corridor: Corridor, poses, steers, L) -> np.ndarray:
     body = poses[:, 2] - body_slip(steers, L, corridor.Lr)
     return poses[:, None, :2] + np.asarray(corridor.offsets)[None, :, None] \
         * np.stack([np.cos(body), np.sin(body)], axis=-1)[:, None, :]
+
+
+def _rooms(corridor: Corridor, centres) -> tuple[np.ndarray, np.ndarray]:
+    """(centres (..., 2) [m], rooms (...) [m]) of the balls the corridor keeps the discs at
+    `centres` (..., 2) [m] within: each the widest of the balls free of obstacles (its room
+    the clearance of its centre less the disc radius, at least MIN_ROOM) that still hold its
+    disc's centre, centred at the disc or up to ROOM_SHIFTS away from it in ROOM_DIRECTIONS
+    directions: a disc beside a wall may then move away from it as far as the space allows,
+    where a ball about the disc itself would hold it as near the wall as it is."""
+    centres = np.asarray(centres, float)
+    angles = np.arange(ROOM_DIRECTIONS) * 2 * pi / ROOM_DIRECTIONS
+    shifts = np.r_[0.0, np.outer(ROOM_SHIFTS, np.ones(ROOM_DIRECTIONS)).ravel()]
+    ways = np.r_[[[0.0, 0.0]], np.tile(np.column_stack([np.cos(angles), np.sin(angles)]),
+                                       (len(ROOM_SHIFTS), 1))]
+    moved = centres[..., None, :] + shifts[:, None] * ways        # (..., K, 2)
+    room = corridor.clearance(moved) - corridor.radius
+    room[..., 0] = np.maximum(room[..., 0], MIN_ROOM)
+    room = np.where(room >= shifts, room, -np.inf)                  # the disc stays inside
+    best = np.argmax(room, axis=-1)
+    pick = np.take_along_axis(moved, best[..., None, None], axis=-2)[..., 0, :]
+    return pick, np.take_along_axis(room, best[..., None], axis=-1)[..., 0]
 
 
 def _touches(corridor: Corridor, solved: _Solution, L, origin) -> bool:
