@@ -13,6 +13,7 @@ least `SHARE` trajectories per device are shared out among them, one core each: 
 `use_all_cores`."""
 import os
 import re
+import weakref
 from typing import NamedTuple
 
 import jax
@@ -113,24 +114,26 @@ def _stepwise(step, x0, ys0, y_m, state, m, n_steps, max_steps, t0, h):
     return jnp.where(rows <= n_steps, buf, jnp.nan), state
 
 
-def _integrate(method, f, x0, u, p, h, n_steps, t0, max_steps, newton=None):
-    """One trajectory. `method` is a Method's program and `newton` its run_options() (None:
-    its own, compiled in)."""
-    method = method if newton is None else method.running(newton)
+def _integrate(method, f, x0, u, p, h, n_steps, t0, max_steps, newton=None, retry=True):
+    """(One trajectory, whether a nonlinear solve failed). `method` is a Method's program and
+    `newton` its run_options() (None: its own, compiled in); without `retry`, the program
+    leaves the full-Newton retry out (see integrate)."""
+    method = method if newton is None else method.running(newton, retry)
     fun = _bound(f, u, p)
     h = jnp.asarray(h, x0.dtype)
     xs, state = _scan(lambda t, y: method.start(fun, t, y, h),
                       lambda t, y, st: method.step(fun, t, y, h, st),
                       x0, h, method.n_start, n_steps, t0, max_steps)
     ts = t0 + h * jnp.arange(xs.shape[0])
-    return Trajectory(ts, xs, state["evals"], state["converged"])
+    return (Trajectory(ts, xs, state["evals"], state["converged"]),
+            state.get("unsolved", jnp.zeros((), bool)))
 
 
 def _chunk(method, f, x0, u, p, h, n_steps, t0, max_steps, libm):
     """A chunk with the batch last: x0 (d, C), u (nu, C), p leaves (..., C), h (C,) or ().
     Returns xs (C, N+1, d), transposed while the chunk is in cache, evals (C,), converged
-    (C,), and whether a sin or cos argument reached the polynomials' bound (always False
-    with `libm`)."""
+    (C,), whether a sin or cos argument reached the polynomials' bound (always False
+    with `libm`), and whether a nonlinear solve failed."""
     h = jnp.asarray(h, x0.dtype)
     h_axis = -1 if jnp.ndim(h) else None
 
@@ -165,7 +168,8 @@ def _chunk(method, f, x0, u, p, h, n_steps, t0, max_steps, libm):
     # A multistep start returns ys of shape (n_start, d, C) with the batch last as well.
     xs, state = _scan(chunk_start, chunk_step, x0, h, method.n_start, n_steps, t0, max_steps)
     far = jnp.zeros_like(state["evals"], bool).any() if libm else state["far"]
-    return jnp.moveaxis(xs, -1, 0), state["evals"], state["converged"], far
+    unsolved = state["unsolved"].any() if "unsolved" in state else jnp.zeros_like(far)
+    return jnp.moveaxis(xs, -1, 0), state["evals"], state["converged"], far, unsolved
 
 
 def loops_native() -> bool:
@@ -193,20 +197,22 @@ def _split(a, n_chunks, size):
     return jnp.moveaxis(a.reshape((n_chunks, size) + a.shape[1:]), 1, -1)
 
 
-def _batch(method, f, x0, u, p, h, n_steps, t0, max_steps, libm, newton=None):
+def _batch(method, f, x0, u, p, h, n_steps, t0, max_steps, libm, newton=None, retry=True):
     """(Trajectory, whether a chunk met a sin or cos argument beyond the polynomials' bound:
-    then the caller runs again with `libm`); `method` and `newton` as _integrate's."""
-    method = method if newton is None else method.running(newton)
+    then the caller runs again with `libm`, whether a nonlinear solve failed); `method`,
+    `newton` and `retry` as _integrate's."""
+    method = method if newton is None else method.running(newton, retry)
     x0 = jnp.asarray(x0)
     batch = x0.shape[0]
     one = lambda x, uu, pp, hh: _integrate(method, f, x, uu, pp, hh, n_steps, t0, max_steps)
     h_axis = 0 if jnp.ndim(h) else None
     if batch == 1:      # a vmap of one costs more than the plain loop
         first = jax.tree.map(lambda a: jnp.asarray(a)[0], (x0, u, p))
-        tr = jax.tree.map(lambda a: a[None], one(*first, h if h_axis is None else h[0]))
-        return tr, jnp.asarray(False)
+        tr, unsolved = one(*first, h if h_axis is None else h[0])
+        return jax.tree.map(lambda a: a[None], tr), jnp.asarray(False), unsolved
     if batch < SMALL_BATCH:
-        return jax.vmap(one, in_axes=(0, 0, 0, h_axis))(x0, u, p, h), jnp.asarray(False)
+        tr, unsolved = jax.vmap(one, in_axes=(0, 0, 0, h_axis))(x0, u, p, h)
+        return tr, jnp.asarray(False), unsolved.any()
     devices = jax.devices()
     shards = len(devices) if batch >= SHARE * len(devices) else 1
     per_device = -(-batch // shards)
@@ -226,13 +232,13 @@ def _batch(method, f, x0, u, p, h, n_steps, t0, max_steps, libm, newton=None):
         mesh = Mesh(np.array(devices[:shards]), ("chunks",))
         run = jax.shard_map(run, mesh=mesh, in_specs=PartitionSpec("chunks"),
                             out_specs=PartitionSpec("chunks"))
-    xs, evals, converged, far = run(args, h_chunks)
+    xs, evals, converged, far, unsolved = run(args, h_chunks)
     # (chunks, C, N+1, d) -> (B, N+1, d): a reshape, no copy; a transpose of the whole output
     # would copy every state once more.
     xs = xs.reshape((n_chunks * size,) + xs.shape[2:])[:batch]
     ts = _times(t0, h, xs.shape[:2])
     return (Trajectory(ts, xs, evals.reshape(-1)[:batch], converged.reshape(-1)[:batch]),
-            far.any())
+            far.any(), unsolved.any())
 
 
 def _times(t0, h, shape):
@@ -266,14 +272,14 @@ def _in_place(method, f, x0, u, p, h, n_steps, t0, max_steps, libm, size):
            jnp.zeros(batch, bool), jnp.zeros((), bool))
 
     def body(i, out):
-        xs, evals, converged, far = chunk(i)
+        xs, evals, converged, far, _ = chunk(i)
         at = jnp.asarray(starts)[i]
         put = lambda whole, part: lax.dynamic_update_slice_in_dim(whole, part, at, 0)
         return (put(out[0], xs), put(out[1], evals), put(out[2], converged), out[3] | far)
 
     xs, evals, converged, far = lax.fori_loop(0, n_chunks, body, out)
     ts = _times(t0, h, xs.shape[:2])
-    return Trajectory(ts, xs, evals, converged), far
+    return Trajectory(ts, xs, evals, converged), far, jnp.zeros_like(far)
 
 
 def use_all_cores() -> int:
@@ -287,9 +293,37 @@ def use_all_cores() -> int:
 
 _STATIC = ("method", "f", "n_steps", "max_steps")
 _DYNAMIC = ("method", "f", "max_steps")
-_jitted = {(fn, dyn): jax.jit(fn, static_argnames=(_DYNAMIC if dyn else _STATIC) +
+_jitted = {(fn, dyn): jax.jit(fn, static_argnames=(_DYNAMIC if dyn else _STATIC) + ("retry",) +
                               (("libm",) if fn is _batch else ()))
            for fn in (_integrate, _batch) for dyn in (False, True)}
+# Programs (Method.program) a solve of which failed in this process without the full-Newton
+# retry: they are run with it at once from then on.
+_RETRIED: weakref.WeakSet = weakref.WeakSet()
+
+
+def retry_at_once(method) -> None:
+    """Have the driver run `method`'s program with the full-Newton retry from its first run
+    on: for callers that expect failed solves (a sweep probing steps beyond a method's
+    limit), who would otherwise compile both programs."""
+    if method.solves:
+        _RETRIED.add(method.program)
+
+
+def _with_retry_if_needed(method, run, args):
+    """run(retry) -> (result, whether a nonlinear solve failed): run first without the
+    full-Newton retry compiled in, which makes the program about a third smaller to compile,
+    and again with it where a solve failed and the options allow it (Method.retries). A
+    trajectory whose solves all converge takes the same steps either way, so the result is
+    the one the program with the retry gives. Inside a trace, and for programs that needed
+    the retry before, the program with it is run at once."""
+    traced = any(isinstance(a, jax.core.Tracer) for a in jax.tree.leaves(args))
+    if not method.solves or traced or method.program in _RETRIED:
+        return run(True)[0]
+    result, unsolved = run(False)
+    if bool(unsolved) and method.retries():
+        _RETRIED.add(method.program)
+        return run(True)[0]
+    return result
 
 
 def integrate(method, f, x0, u=None, p=None, h=None, n_steps=None, t0=0.0,
@@ -312,8 +346,9 @@ def integrate(method, f, x0, u=None, p=None, h=None, n_steps=None, t0=0.0,
     """
     method, f, x0, scalar = _arguments(method, f, x0, h, n_steps, t0, max_steps, None)
     fn = _jitted[(_integrate, max_steps is not None)]
-    traj = fn(method.program, f, x0, u, p, h, n_steps, t0, max_steps,
-              newton=method.run_options())
+    run = lambda retry: fn(method.program, f, x0, u, p, h, n_steps, t0, max_steps,
+                           newton=method.run_options(), retry=retry)
+    traj = _with_retry_if_needed(method, run, (x0, u, p, h, n_steps, t0))
     return traj._replace(x=traj.x[..., 0]) if scalar else traj
 
 
@@ -339,14 +374,20 @@ def integrate_batch(method, f, x0, u=None, p=None, h=None, n_steps=None, t0=0.0,
     u, p = arguments.shared(u, x0.shape[0]), arguments.shared(p, x0.shape[0])
     fn = _jitted[(_batch, max_steps is not None)]
     program, newton = method.program, method.run_options()
+
+    def run(libm):
+        def attempt(retry):
+            traj, far, unsolved = fn(program, f, x0, u, p, h, n_steps, t0, max_steps,
+                                     libm=libm, newton=newton, retry=retry)
+            return (traj, far), unsolved
+        return _with_retry_if_needed(method, attempt, (x0, u, p, h, n_steps, t0))
+
     try:
-        traj, far = fn(program, f, x0, u, p, h, n_steps, t0, max_steps, libm=False,
-                       newton=newton)
+        traj, far = run(False)
     except (TypeError, ValueError) as err:      # JAX's words for it name neither u nor p
         arguments.explain_batch(err, *given, x0.shape[0])
         raise
-    exact = lambda: fn(program, f, x0, u, p, h, n_steps, t0, max_steps, libm=True,
-                       newton=newton)[0]
+    exact = lambda: run(True)[0]
     if isinstance(far, jax.core.Tracer):
         traj = lax.cond(far, exact, lambda: traj)
     elif far:

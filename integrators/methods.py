@@ -64,12 +64,21 @@ class Method:
     def _option_values(self) -> tuple:
         return tuple(getattr(self.newton, name) for name in RunOptions._fields)
 
-    def running(self, options) -> "Method":
+    def running(self, options, retry: bool = True) -> "Method":
         """This method reading `run_options()`' values (traced inside the driver's program)
-        instead of its own."""
+        instead of its own; without `retry`, its steps and its starter's leave the
+        full-Newton retry out (newton.without_retry)."""
         own, starter = options
-        return replace(self, newton=RunOptions(*own),
-                       starter=None if self.starter is None else self.starter.running(starter))
+        newton = RunOptions(*own) if retry else RunOptions(*own)._replace(max_iter_full=0)
+        return replace(self, newton=newton, starter=None if self.starter is None
+                       else self.starter.running(starter, retry))
+
+    def retries(self) -> bool:
+        """Whether a solve of this method or its starter may retry with full Newton (its
+        options' max_iter_full > 0)."""
+        own = (self.implicit and not self.is_rosenbrock
+               and isinstance(self.newton, NewtonOptions) and self.newton.max_iter_full > 0)
+        return own or (self.starter is not None and self.starter.retries())
 
     @property
     def solves(self) -> bool:
@@ -117,12 +126,14 @@ class Method:
 
     def init_state(self, y0):
         """Evaluations spent, whether every nonlinear solve so far converged, and, where a
-        step solves by Newton's method, the factors it carries to the next (steps.held_state)."""
+        step solves by Newton's method, the factors it carries to the next (steps.held_state)
+        and whether any solve failed (`unsolved`, also from a state already blown up)."""
         # Like y0, so that under shard_map they vary across devices as the steps' counts do.
         state = {"evals": jnp.zeros_like(y0, shape=()),
                  "converged": jnp.ones_like(y0, bool, shape=())}
         if self.implicit and not self.is_rosenbrock:
             state["held"] = steps.held_state(self.scheme, y0)
+            state["unsolved"] = jnp.zeros_like(y0, bool, shape=())
         return state
 
     def step(self, fun, t, y, h, state):
@@ -155,6 +166,8 @@ class Method:
             else jnp.zeros_like(hist)
         state = dict(state, ys=hist, fs=fs, evals=sub["evals"] + (self.steps if slopes else 0),
                      converged=sub["converged"])
+        if "unsolved" in sub and "unsolved" in state:
+            state["unsolved"] = sub["unsolved"]
         return ys, state
 
 

@@ -386,10 +386,10 @@ def newton_solve(residual, solver_of, factorise, held, z0, y_scale, opts: Newton
     Jacobian from the step's start can be too far from the solution's, as at Robertson's
     first step) the solve is retried from z0 with full Newton, the exact Jacobian of the
     residual (`residual_jacobian(z)`, by default forward mode through `residual`)
-    refactorised at every iterate. Each retry costs nothing when every trajectory of the
-    chunk converged. `y_scale` is |y| tiled like z. Returns (z, simplified
-    iterations, full iterations, converged, held, the simplified iteration's last
-    contraction rate)."""
+    refactorised at every iterate (left out of the program where `without_retry(opts)`).
+    Each retry costs nothing when every trajectory of the chunk converged. `y_scale` is |y|
+    tiled like z. Returns (z, simplified iterations, full iterations, converged, held, the
+    simplified iteration's last contraction rate)."""
     def cond(st):
         held, _, tries, ok, _, _ = st
         return any_lane(tries == 0) | (any_lane(~ok) & ~any_lane(held.current))
@@ -409,10 +409,20 @@ def newton_solve(residual, solver_of, factorise, held, z0, y_scale, opts: Newton
     zero = jnp.zeros_like(y_scale, int, shape=())
     held, z1, _, ok1, k1, theta = lax.while_loop(
         cond, body, (held, z0, zero, none, zero, jnp.zeros_like(y_scale, shape=())))
+    if without_retry(opts):
+        return z1, k1, zero, ok1, held, theta
     jac = jax.jacfwd(residual) if residual_jacobian is None else residual_jacobian
     exact = lambda z: factorised(jac(z))
     z2, k2, ok2, _ = _iterate(residual, exact, jnp.where(ok1, z1, z0), y_scale, opts, True, ok1)
     return jnp.where(ok1, z1, z2), k1, k2, ok1 | ok2, held, theta
+
+
+def without_retry(opts) -> bool:
+    """Whether a step compiled with these options leaves the full-Newton retry out: its
+    `max_iter_full` is the number 0 when the step is traced, not a run-time value. A failed
+    solve ends the same either way (the step makes its result NaN), and the program is
+    smaller to compile: the driver's first try (driver.integrate)."""
+    return isinstance(opts.max_iter_full, int) and opts.max_iter_full == 0
 
 
 def keep_next(ok, theta, full, keep):

@@ -105,7 +105,7 @@ def _finish(y, y_next, ok, state, evals, held, keep):
     y_next = jnp.where(ok, y_next, jnp.nan)
     evals = evals + jnp.where(held.current, y.shape[0], 0).astype(evals.dtype)
     return y_next, dict(state, evals=evals, converged=state["converged"] & ~failed,
-                        held=held._replace(keep=keep))
+                        unsolved=state["unsolved"] | ~ok, held=held._replace(keep=keep))
 
 
 def stage_system(tab, fun, t, y, h):

@@ -28,8 +28,8 @@ def traced_fresh(monkeypatch, flags):
     fresh = jax.jit(lambda m, f, x0, u, p, h, n, t0, mx, libm:
                     driver._batch(m, f, x0, u, p, h, n, t0, mx, libm),
                     static_argnames=("m", "f", "n", "mx", "libm"))
-    tr, far = fresh(m=method("rk4"), f=MODEL.rhs, x0=x0, u=u, p=p, h=0.01, n=40, t0=0.0,
-                    mx=None, libm=False)
+    tr, far, _ = fresh(m=method("rk4"), f=MODEL.rhs, x0=x0, u=u, p=p, h=0.01, n=40, t0=0.0,
+                       mx=None, libm=False)
     assert not bool(far)
     return tr
 
@@ -67,12 +67,12 @@ def test_the_last_chunk_overlaps_instead_of_padding(monkeypatch):
     h = rng.uniform(0.005, 0.01, BATCH)
     fresh = jax.jit(lambda x0, u, p, h: driver._batch(method("rk4"), MODEL.rhs, x0, u, p, h,
                                                         30, 0.0, None, False))
-    tr, far = fresh(x0, u, p, h)
+    tr, far, _ = fresh(x0, u, p, h)
     assert not bool(far) and tr.x.shape == (BATCH, 31, 5)
     one = jax.jit(lambda x0, u, p, h: driver._integrate(method("rk4"), MODEL.rhs, x0, u, p, h,
                                                          30, 0.0, None))
     for b in range(BATCH):
-        ref = one(x0[b], u[b], {k: v[b] for k, v in p.items()}, h[b])
+        ref = one(x0[b], u[b], {k: v[b] for k, v in p.items()}, h[b])[0]
         scale = np.abs(np.asarray(ref.x)).max(axis=0)
         assert np.all(np.abs(np.asarray(tr.x[b]) - np.asarray(ref.x)) <= 1e-12 * scale), b
         np.testing.assert_allclose(tr.t[b], ref.t, rtol=1e-15)

@@ -1,13 +1,16 @@
 """Implicit solves never lie: a run either solves its stage equations (and then lands where
 the method's equations, solved to round-off, land) or says it did not (converged False, NaN
 from the failed step on)."""
+import contextlib
+import dataclasses
+
 import jax.numpy as jnp
 import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
 
 from stepzoo.dynamics.problems import detest
-from stepzoo.integrators import integrate, integrate_batch, method
+from stepzoo.integrators import driver, integrate, integrate_batch, method
 from stepzoo.integrators.newton import NewtonOptions
 
 
@@ -257,3 +260,68 @@ def test_transformed_stage_system_solves_as_the_whole_one_does(name):
                                atol=1e-12 * np.max(np.abs(exact)))
     assert float(size) == pytest.approx(1 + np.max(np.abs(h * np.kron(a, jac)).sum(axis=1)),
                                         rel=1e-14)
+
+
+def _new_program(name):
+    """A copy of the zoo's method: a program of its own, nothing compiled or retried yet."""
+    return dataclasses.replace(method(name))
+
+
+def _with_retry(m, f, x0, h, n):
+    """The driver's program with the full-Newton retry compiled in, run directly."""
+    fn = driver._jitted[(driver._integrate, False)]
+    return fn(m.program, f, x0, jnp.zeros(1), {}, h, n, 0.0, None, newton=m.run_options(),
+              retry=True)[0]
+
+
+def test_a_run_whose_solves_converge_runs_one_program_without_the_retry():
+    """Every solve converges by the simplified iteration: one program is compiled (without
+    the full-Newton retry) and its states are the program-with-retry's, bit for bit."""
+    m = _new_program("bdf2")
+    x0 = jnp.array([0.9999, 3.6e-5, 6.4e-5])
+    fn = driver._jitted[(driver._integrate, False)]
+    before = fn._cache_size()
+    tr = integrate(m, robertson, x0, jnp.zeros(1), {}, 0.1, 8)
+    assert fn._cache_size() == before + 1 and m.program not in driver._RETRIED
+    assert bool(tr.converged)
+    assert np.array_equal(np.asarray(tr.x), np.asarray(_with_retry(m, robertson, x0, 0.1, 8).x))
+
+
+def test_a_failed_simplified_solve_runs_again_with_the_full_newton_retry():
+    """Two simplified iterations fail Robertson's first step; the run is made again with the
+    retry, which solves it, and later runs of the program take the retry at once."""
+    m = _new_program("backward_euler").with_newton(max_iter=2)
+    tr = integrate(m, robertson, Y0, jnp.zeros(1), {}, 0.1, 5)
+    assert bool(tr.converged) and m.program in driver._RETRIED
+    assert np.array_equal(np.asarray(tr.x), np.asarray(_with_retry(m, robertson, Y0, 0.1, 5).x))
+    # Without the retry allowed, the failure is the result: no run is made again.
+    fn = driver._jitted[(driver._integrate, False)]
+    lean = _new_program("backward_euler").with_newton(max_iter=2, max_iter_full=0)
+    before = fn._cache_size()
+    assert not bool(integrate(lean, robertson, Y0, jnp.zeros(1), {}, 0.1, 5).converged)
+    assert fn._cache_size() == before + 1 and lean.program not in driver._RETRIED
+
+
+def test_a_solve_failing_from_a_blown_up_state_is_retried_too():
+    """Beyond finfo.max^(1/4) a failed solve leaves `converged` true (the method's own
+    blow-up), but the retry might have solved it: the run is made again with it."""
+    m = _new_program("backward_euler")
+    cubic = lambda t, y, u, p: -y ** 3
+    tr = integrate(m, cubic, jnp.array([1e110]), jnp.zeros(1), {}, 0.1, 2)
+    assert bool(tr.converged) and np.isnan(np.asarray(tr.x)[-1, 0])
+    assert m.program in driver._RETRIED
+
+
+def test_a_sweep_s_runs_carry_the_retry_from_the_first():
+    """A sweep probes steps where solves fail: its runner compiles the program with the
+    retry only, not the one without it first."""
+    from stepzoo.bench.sweep.runs.method_runs import Runner
+    m = _new_program("backward_euler")
+    spec = type("Spec", (), {"rhs": staticmethod(robertson)})()
+    watch = type("Watch", (), {"split": lambda self: contextlib.nullcontext({"run": 0.0})})()
+    fn = driver._jitted[(driver._batch, True)]
+    before = fn._cache_size()
+    run = Runner(spec, 4, watch)(m, np.tile(np.asarray(Y0), (3, 1)), np.zeros((3, 1)), {},
+                                 0.1, 4)
+    assert run.converged.all() and fn._cache_size() == before + 1
+    assert m.program in driver._RETRIED

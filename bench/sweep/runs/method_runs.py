@@ -37,7 +37,8 @@ class Accuracy(NamedTuple):
 class Runner:
     """Runs a method on a model's lanes; every call of a block pads its runs to max_steps
     steps, so that one compiled program serves them all. Compiling goes to watch's
-    compile_s; the caller charges the run."""
+    compile_s; the caller charges the run. A sweep probes steps where solves fail, so its
+    programs carry the full-Newton retry from the first run (driver.retry_at_once)."""
     spec: ModelSpec
     max_steps: int
     watch: Stopwatch
@@ -46,6 +47,8 @@ class Runner:
         """n steps of h [s] (one, or (B,) per lane) from x0 (B, d) with inputs u, params p."""
         import jax.numpy as jnp
         from stepzoo.integrators import integrate_batch
+        from stepzoo.integrators.driver import retry_at_once
+        retry_at_once(meth)
         hb = jnp.broadcast_to(jnp.asarray(h, float), (len(x0),))
         with self.watch.split() as took:
             tr = integrate_batch(meth, self.spec.rhs, jnp.asarray(x0), jnp.asarray(u),
