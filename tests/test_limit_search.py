@@ -197,3 +197,98 @@ def test_the_padding_lanes_of_a_block_are_not_probed(tmp_path, monkeypatch):
         asked.clear()
     assert limits[1][0] == limits[1][1]
     assert limits[1][0] == pytest.approx(limits[0][1], rel=REL_TOL)
+
+
+WHEEL_MODES = """
+name = "wheel-settle"
+model = "quarter_car"
+horizon = 0.5
+methods = ["rk4", "backward_euler"]
+envelope = { v = [10.0, 30.0], T = [-800.0, 0.0] }
+error = { states = ["s"] }
+steps = { h = { min = 0.0005, max = 0.05, num = 4 } }
+timing = { rounds = 1 }
+"""
+
+
+@pytest.mark.parametrize("name", ["rk4", "backward_euler"])
+def test_a_search_probe_settles_a_candidate_its_mode_runs_show_unstable(name):
+    """The "modes" rule's search probe (settle) gives the whole test's outcome, stable and
+    converged, at candidates below and above each lane's limit; an explicit method's
+    unstable candidates run the unperturbed state and the modes alone (MODES + 1 runs, not
+    MODES + d + 1); backward Euler, whose every run converges here, runs every direction."""
+    import tomllib
+
+    from stepzoo.bench.sweep import config as sweep_config
+    from stepzoo.bench.sweep.block import Block
+    from stepzoo.bench.sweep.runs import method_runs
+    from stepzoo.bench.sweep.runs.stability_runs import MODES
+    cfg = sweep_config.validate(tomllib.loads(WHEEL_MODES), "wheel-settle")
+    block = Block(cfg, 0, {})
+    runs, meth = block.stability_runs(), cfg.method(name)
+    pred = np.array([p.h for p in block.predicted(meth)])
+    lanes = np.repeat(np.arange(len(pred)), 4)
+    base = np.where(np.isfinite(pred), pred, 0.01)
+    h = np.repeat(base, 4) * np.tile([0.5, 1.5, 3.0, 8.0], len(pred))
+    counted = []
+    plain = method_runs.Runner.__call__
+
+    def counting(self, meth, x0, u, p, hh, n):
+        counted.append(len(x0))
+        return plain(self, meth, x0, u, p, hh, n)
+
+    whole = runs.runs_at(meth, lanes, h)
+    method_runs.Runner.__call__ = counting
+    try:
+        settled = runs.runs_at(meth, lanes, h, settle=True)
+    finally:
+        method_runs.Runner.__call__ = plain
+    assert np.array_equal(whole.stable, settled.stable)
+    assert np.array_equal(whole.converged, settled.converged)
+    d, B = len(cfg.spec.states), len(block.points)
+    bad = int((~whole.stable).sum())
+    if name == "rk4":
+        assert 0 < bad < len(h)
+        runs_made = len(h) * (MODES + 1) + (len(h) - bad) * d
+    else:
+        assert whole.converged.all()
+        runs_made = len(h) * (MODES + d + 1)
+    assert len(counted) == -(-len(h) * (MODES + 1) // B) + -(-(runs_made - len(h) * (MODES + 1)) // B)
+
+
+@pytest.mark.parametrize("stability_horizon", [0.5, 0.3])
+def test_the_grids_unperturbed_runs_are_its_accuracy_runs(stability_horizon):
+    """Under the "modes" rule a grid step whose accuracy run is as long as its stability run
+    takes that run as its unperturbed one: the same outcomes as running it again, one run
+    fewer per lane. The grid divides the 0.5 s horizon: with the stability horizon 0.5 s
+    every step's lengths agree; with 0.3 s none does, and each runs its own."""
+    import tomllib
+
+    from stepzoo.bench.sweep import chunk_tables
+    from stepzoo.bench.sweep import config as sweep_config
+    from stepzoo.bench.sweep.block import Block
+    from stepzoo.bench.sweep.runs import method_runs
+    raw = tomllib.loads(WHEEL_MODES)
+    raw["stability"] = {"horizon": stability_horizon}
+    cfg = sweep_config.validate(raw, "wheel-settle")
+    block, meth = Block(cfg, 0, {}), cfg.method("rk4")
+    _, _, made = chunk_tables._accuracy_runs(block, meth)
+    H = np.tile(np.asarray(cfg.hs), (len(block.points), 1))
+    lanes = []
+    plain = method_runs.Runner.__call__
+
+    def counting(self, meth, x0, u, p, h, n):
+        lanes.append(len(x0))
+        return plain(self, meth, x0, u, p, h, n)
+
+    whole = block.stable(meth, H)
+    method_runs.Runner.__call__ = counting
+    try:
+        reused = block.stable(meth, H, made)
+    finally:
+        method_runs.Runner.__call__ = plain
+    for a, b in zip(whole, reused):
+        np.testing.assert_array_equal(a, b)
+    B, K = len(block.points), block.stability_runs().delta.shape[1]
+    runs = len(cfg.hs) * B * (K + (stability_horizon != cfg.horizon))
+    assert len(lanes) == -(-runs // B)

@@ -90,7 +90,8 @@ def test_stiff9_sweep_wall_time_estimate(benchmark, tmp_path):
     """The 9-state stiff sweep (the CommonRoad single-track drift model, 10 methods x 36
     points, issues 33 and 35): the wall time it estimated before it started against the wall
     time it took and their ratio, with its CPU time (the machine is shared: CPU time over
-    wall time says how much of it the sweep had)."""
+    wall time says how much of it the sweep had) and the threads it computed its chunks on
+    (one per core)."""
     cfg = sweep_config.load(STIFF9)
     cpu = os.times()
     manifest = benchmark.pedantic(
@@ -104,4 +105,5 @@ def test_stiff9_sweep_wall_time_estimate(benchmark, tmp_path):
         "stiff9_sweep_cpu_s": (after.user + after.system) - (cpu.user + cpu.system),
         "stiff9_sweep_estimate_calibration_s": t["estimate"]["calibration_s"],
         "stiff9_sweep_estimate_over_wall": est / t["wall_s"],
+        "stiff9_sweep_threads": t["estimate"]["workers"],
         "stiff9_sweep_estimate_error": abs(est / t["wall_s"] - 1.0)})

@@ -3,6 +3,7 @@ references along them (kept in a cache for the next method's chunk), the frozen 
 that predict each method's stable step, and the stability test and limit search at them."""
 from __future__ import annotations
 
+import threading
 from typing import NamedTuple
 
 import numpy as np
@@ -58,10 +59,13 @@ class Block:
         self.run = Runner(cfg.spec, steps, self.watch)
 
     def cached(self, key, make):
-        """make(), computed once per (key, block) in the cache."""
+        """make(), computed once per (key, block) in the cache: a chunk computed on another
+        thread (bench.sweep.distributed.threaded) that needs it meanwhile waits for it."""
         key = (key, self.block)
         if key not in self.cache:
-            self.cache[key] = make()
+            with self.cache.setdefault(("lock", key), threading.Lock()):
+                if key not in self.cache:
+                    self.cache[key] = make()
         return self.cache[key]
 
     def reference(self, h: float, n: int, points: Points | None = None):
@@ -133,14 +137,17 @@ class Block:
             return delta, scales, dt * np.arange(ALONG_SAMPLES + 1), grow
         return self.cached("modal", make)
 
-    def stability_runs(self):
-        """The stability test of the config's [stability] rule."""
+    def stability_runs(self, made: dict | None = None):
+        """The stability test of the config's [stability] rule; under the "modes" rule with
+        the runs `made` from the initial states ({(method, h [s]): (states (B, n+1, d),
+        converged (B,))}), which stand in for its unperturbed runs as long."""
         cfg = self.cfg
         if cfg.stability.rule == "blowup":
             return StabilityRuns(self.run, self.points, self.delta, cfg.stability.steps,
                                  cfg.stability.growth)
-        return ModalRuns(self.run, self.points, *self.modal(), cfg.stability_horizon,
-                         cfg.stability.growth)
+        delta, scales, ts, grow = self.modal()
+        return ModalRuns(self.run, self.points, delta, scales, ts, grow, cfg.stability_horizon,
+                         cfg.stability.growth, made or {})
 
     def diagnose(self, meth, h_meas) -> Diagnosis:
         """Per lane, what fails just above its measured limit h_meas (B,) [s] (at the grid's
@@ -179,11 +186,12 @@ class Block:
             return cfg.stability.h_probe_max
         return max(min(cfg.stability.h_probe_max, cfg.stability_horizon), cfg.hs[-1])
 
-    def stable(self, meth, H) -> Outcome:
-        """Outcomes (B, K) of the stability runs at steps H (B, K) [s], row b at lane b; the
-        real lanes are probed, the padding lanes copy the last real one's."""
+    def stable(self, meth, H, made: dict | None = None) -> Outcome:
+        """Outcomes (B, K) of the stability runs at steps H (B, K) [s], row b at lane b, with
+        the runs already `made` from the initial states (`stability_runs`); the real lanes
+        are probed, the padding lanes copy the last real one's."""
         n = self.points.n_real
-        got = limit_search.at_steps(self.stability_runs().probe(meth), np.arange(n),
+        got = limit_search.at_steps(self.stability_runs(made).probe(meth), np.arange(n),
                                     np.asarray(H, float)[:n].T)
         return Outcome(*(self.padded(a) for a in got))
 
@@ -192,8 +200,12 @@ class Block:
         from the outcomes grid (B, K) at the config's steps, guided by the predicted limits
         pred (B,) [s]: searched on the real lanes, copied to the padding lanes."""
         cfg, n = self.cfg, self.points.n_real
+        runs = self.stability_runs()
+        # The search needs no more of a candidate than that it is not stable (ModalRuns.judge).
+        probe = runs.probe(meth, settle=True) if isinstance(runs, ModalRuns) else \
+            runs.probe(meth)
         found = limit_search.measured_limit(
-            Outcome(*(a[:n] for a in grid)), self.stability_runs().probe(meth), cfg.hs,
+            Outcome(*(a[:n] for a in grid)), probe, cfg.hs,
             np.asarray(pred, float)[:n], self.h_top, cfg.stability.rel_tol, len(self.points),
             ladder=cfg.stability.rule != "blowup")
         return MeasuredLimit(*(self.padded(a) for a in found))

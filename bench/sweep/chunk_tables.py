@@ -40,8 +40,9 @@ def method_chunk(block, name: str) -> dict:
     # Compiles the one program of the chunk's runs, accuracy and stability alike, so that
     # the timed accuracy rounds below time the computation alone.
     block.run(meth, points.x0, points.u, points.p, cfg.hs[0], 1)
-    runs, err_scale = _accuracy_runs(block, meth)
-    grid = block.stable(meth, np.tile(np.asarray(cfg.hs), (len(points), 1)))
+    runs, err_scale, made = _accuracy_runs(block, meth)
+    # The accuracy runs are the grid's unperturbed stability runs where they are as long.
+    grid = block.stable(meth, np.tile(np.asarray(cfg.hs), (len(points), 1)), made)
     for j, col in enumerate(runs):
         # The order fit reads the accuracy run alone: a step the stability test calls
         # unstable (the perturbation grew, as it does in a growing exact solution) still
@@ -106,11 +107,12 @@ def _diagnosis(block, diag, lane) -> dict:
             "newton_retried": bool(diag.retried[lane])}
 
 
-def _accuracy_runs(block, meth) -> tuple[list[dict], np.ndarray]:
+def _accuracy_runs(block, meth) -> tuple[list[dict], np.ndarray, dict]:
     """Per grid step, the columns of `runs` for every lane (stability columns to come),
-    and per lane the largest scaled size of the reference's error states. Each run is
-    integrated once; its timing columns are the method's calibration (`_calibrate`)."""
-    cfg, spec, points, out = block.cfg, block.spec, block.points, []
+    per lane the largest scaled size of the reference's error states, and the runs made
+    ({(meth, h): (states (B, n+1, d), converged (B,))}). Each run is integrated once; its
+    timing columns are the method's calibration (`_calibrate`)."""
+    cfg, spec, points, out, made = block.cfg, block.spec, block.points, [], {}
     scale = np.zeros(len(points))
     walls, work = [], []
     for h in cfg.hs:
@@ -119,6 +121,7 @@ def _accuracy_runs(block, meth) -> tuple[list[dict], np.ndarray]:
         # Compiled already (method_chunk): the wall time is the computation's alone.
         acc = accuracy_run(block.run, meth, points, h, n, ref.x, cfg.error.estimate)
         walls.append(acc.run_s)
+        made[meth, h] = (acc.x, acc.converged)
         with block.watch.clock("metrics_s"):
             scale = np.maximum(scale, spec.scaled(ref.x).max(axis=1))
         out.append({"method": meth.name, "h": h, "point": list(points.lanes),
@@ -130,7 +133,7 @@ def _accuracy_runs(block, meth) -> tuple[list[dict], np.ndarray]:
     for col, w in zip(out, work):
         col.update(calibrated(cal, out[j]["n_steps"] * len(points), w / work[j]))
         col["time_s"] = col["time_per_step_s"] * col["n_steps"]
-    return out, scale
+    return out, scale, made
 
 
 def _calibrate(block, meth, walls) -> tuple[list[float], int]:

@@ -1,6 +1,14 @@
-"""Chunks of a sweep as tasks on a Dask cluster (connected through `stepzoo.distributed`):
-grouped by kind, submitted with retries, and handed back as they finish."""
+"""Chunks of a sweep as tasks computed side by side: on this process's threads, one per core
+(`threaded`: JAX runs a compiled program, and XLA compiles one, without Python's lock), or on
+a Dask cluster (connected through `stepzoo.distributed`): grouped by kind, submitted with
+retries, and handed back as they finish."""
 from __future__ import annotations
+
+import ctypes
+import os
+import queue
+import threading
+from collections.abc import Callable, Iterable, Iterator
 
 from stepzoo.distributed import RETRIES
 
@@ -49,3 +57,74 @@ def compute_chunks(cfg, ids: list[str]) -> list[tuple[str, dict]]:
         _caches.clear()            # a long-lived worker keeps only the latest sweep's state
         _caches[cfg.sha256] = {}
     return [(cid, compute_chunk(cfg, cid, _caches[cfg.sha256])) for cid in ids]
+
+
+def cores() -> int:
+    """The cores this process may run on."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:                      # not on Linux
+        return os.cpu_count() or 1
+
+
+class _Stopped(SystemExit):
+    """Raised in a worker thread when the caller stops (Ctrl-C, or another job's error); a
+    SystemExit, which ends a thread without a traceback wherever it lands."""
+
+
+def threaded(jobs: list[Callable[[], Iterable]], workers: int) -> Iterator:
+    """Every item of every job, as the jobs yield them: `workers` threads take the jobs in
+    their order, each the next one as it finishes its own (so jobs given longest first end
+    close together). One worker, or one job, runs here in order. A job's error is raised
+    here; when this generator stops early (an error, Ctrl-C, closed), each worker is
+    stopped at its next Python statement, as Ctrl-C stops the main thread, and joined:
+    no thread outlives it."""
+    if workers <= 1 or len(jobs) <= 1:
+        for job in jobs:
+            yield from job()
+        return
+    todo: queue.SimpleQueue = queue.SimpleQueue()
+    for job in jobs:
+        todo.put(job)
+    out: queue.SimpleQueue = queue.SimpleQueue()
+
+    def work():
+        try:
+            while True:
+                try:
+                    job = todo.get_nowait()
+                except queue.Empty:
+                    return
+                for item in job():
+                    out.put((True, item))
+        except _Stopped:
+            pass
+        except BaseException as err:            # noqa: BLE001  handed to the caller
+            out.put((False, err))
+        finally:
+            out.put((False, None))
+
+    threads = [threading.Thread(target=work, name=f"stepzoo-sweep-{i}", daemon=True)
+               for i in range(min(workers, len(jobs)))]
+    for t in threads:
+        t.start()
+    running = len(threads)
+    try:
+        while running:
+            try:
+                ok, item = out.get(timeout=0.5)
+            except queue.Empty:
+                continue
+            if ok:
+                yield item
+            elif item is None:
+                running -= 1
+            else:
+                raise item
+    finally:
+        for t in threads:
+            if t.is_alive() and t.ident is not None:
+                ctypes.pythonapi.PyThreadState_SetAsyncExc(ctypes.c_ulong(t.ident),
+                                                           ctypes.py_object(_Stopped))
+        for t in threads:
+            t.join()

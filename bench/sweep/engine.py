@@ -16,6 +16,7 @@ import pandas as pd
 
 from stepzoo import environment
 from stepzoo.bench.sweep import chunk_tables
+from stepzoo.bench.sweep import distributed
 from stepzoo.bench.model import frozen_jacobian as frozen
 from stepzoo.bench.sweep import limit_search
 from stepzoo.bench.sweep import metrics
@@ -64,19 +65,35 @@ def compute_chunk(cfg: SweepConfig, chunk_id: str, cache_: dict | None = None) -
 # ---- the results folder -----------------------------------------------------------------
 
 def run_sweep(cfg: SweepConfig, out, resume=False, overwrite=False, progress=True,
-              on_chunk=None, runner=None) -> dict:
+              on_chunk=None, runner=None, workers: int | None = None) -> dict:
     """Compute every missing chunk of `cfg` into `out` and write the tables; returns the
     manifest. `on_chunk(chunk_id)` is called after each chunk is safely on disk. `runner(cfg,
     chunk_ids)`, if given, computes the chunks elsewhere (`bench.sweep.distributed`) and yields
-    (chunk id, tables) as they finish; by default they are computed here, in order. The
-    folder is locked meanwhile: a second sweep into it is refused (`results_folder`)."""
+    (chunk id, tables) as they finish; by default they are computed here, on `workers`
+    threads (default: one per core; `jobs`). The folder is locked meanwhile: a second sweep
+    into it is refused (`results_folder`)."""
     sweep_folder.check_flags(resume, overwrite)
     check_workload(cfg)
     with claim(out, "sweep", overwrite=overwrite):
-        return _fill(cfg, Path(out), resume, overwrite, progress, on_chunk, runner)
+        return _fill(cfg, Path(out), resume, overwrite, progress, on_chunk, runner, workers)
 
 
-def _fill(cfg, out: Path, resume, overwrite, progress, on_chunk, runner) -> dict:
+def jobs(cfg: SweepConfig, todo: list[str], cache: dict, est=None) -> list:
+    """The chunks `todo` as jobs for `distributed.threaded`, each yielding (chunk id, tables):
+    the reference chunks first, then each method's chunks in one job (a thread compiles a
+    method once), the longest first by the estimate `est` where there is one. The jobs share
+    `cache`: a block's references are computed once, by the first chunk that needs them."""
+    kinds: dict[str, list[str]] = {}
+    for cid in todo:
+        kinds.setdefault(cid.rpartition("-b")[0], []).append(cid)
+    cost = lambda kind: 0.0 if est is None or kind not in est.methods else \
+        -est.methods[kind]["chunk_s"]
+    order = sorted(kinds, key=lambda kind: (kind != "reference", cost(kind)))
+    return [lambda ids=kinds[kind]: ((cid, compute_chunk(cfg, cid, cache)) for cid in ids)
+            for kind in order]
+
+
+def _fill(cfg, out: Path, resume, overwrite, progress, on_chunk, runner, workers) -> dict:
     from tqdm import tqdm
     started = time.perf_counter()
     chunks = out / "chunks"
@@ -102,19 +119,24 @@ def _fill(cfg, out: Path, resume, overwrite, progress, on_chunk, runner) -> dict
     todo = [c for c in ids if c not in done]
     # Before a fresh sweep here: its wall time, calibrated on the first block into the cache
     # the chunks read (a cluster's workers, or a resumed sweep, are not estimated).
-    est = estimate(cfg, ref_cache, n_blocks(cfg)) if (progress and runner is None
-                                                      and not done) else None
+    workers = workers or distributed.cores()
+    est = estimate(cfg, ref_cache, n_blocks(cfg), workers) if (progress and runner is None
+                                                               and not done) else None
     if est is not None:
         print(f"stepzoo sweep: {est.says()}", file=sys.stderr, flush=True)
     computed = runner(cfg, todo) if runner is not None else \
-        ((cid, compute_chunk(cfg, cid, ref_cache)) for cid in todo)
-    for cid, tables in tqdm(computed, total=len(todo), desc=f"sweep {cfg.name}", unit="chunk",
-                            file=sys.stderr, disable=not progress):
-        _write_chunk(chunks, cid, tables)
-        done.append(cid)
-        _write_manifest(cfg, out, created, [c for c in ids if c in done], None, complete=False)
-        if on_chunk is not None:
-            on_chunk(cid)
+        distributed.threaded(jobs(cfg, todo, ref_cache, est), workers)
+    try:
+        for cid, tables in tqdm(computed, total=len(todo), desc=f"sweep {cfg.name}",
+                                unit="chunk", file=sys.stderr, disable=not progress):
+            _write_chunk(chunks, cid, tables)
+            done.append(cid)
+            _write_manifest(cfg, out, created, [c for c in ids if c in done], None,
+                            complete=False)
+            if on_chunk is not None:
+                on_chunk(cid)
+    finally:            # stopped early (Ctrl-C, an error): the threads stop with it, now
+        getattr(computed, "close", lambda: None)()
     t0 = time.perf_counter()
     lost = sweep_folder.missing_chunks(ids, chunks)
     if lost:

@@ -25,11 +25,12 @@ class Run(NamedTuple):
 
 class Accuracy(NamedTuple):
     """An accuracy run: its error columns of the runs table (B,) each, evals, converged and
-    run_s as Run's."""
+    run_s as Run's, and its states x (B, n+1, d)."""
     errors: dict
     evals: np.ndarray
     converged: np.ndarray
     run_s: float
+    x: np.ndarray
 
 
 @dataclass(frozen=True)
@@ -66,7 +67,7 @@ def accuracy_run(runner: Runner, meth, points, h: float, n: int, ref: np.ndarray
     runner.watch.add("integration_s", run.run_s)
     with runner.watch.clock("metrics_s"):
         errors = run_errors(runner.spec, run.x, ref, estimate)
-    return Accuracy(errors, run.evals, run.converged, run.run_s)
+    return Accuracy(errors, run.evals, run.converged, run.run_s, run.x)
 
 
 def run_errors(spec, x, ref, estimate: str) -> dict:

@@ -7,7 +7,7 @@ horizon; with a diagnosis of the run (the state and time it departs)."""
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from functools import partial
 from typing import TYPE_CHECKING, NamedTuple
 
@@ -191,98 +191,155 @@ class ModalRuns:
     ref_growth: np.ndarray
     horizon: float
     growth: float
+    made: dict = field(default_factory=dict)
 
-    def probe(self, meth) -> Probe:
-        return partial(self.runs_at, meth)
+    def probe(self, meth, settle: bool = False) -> Probe:
+        """The test of candidates as a Probe; with `settle`, a candidate the first runs show
+        not stable is settled by them (`judge`)."""
+        return partial(self.runs_at, meth, settle=settle)
 
-    def runs_at(self, meth, lanes, h) -> Outcome:
+    def runs_at(self, meth, lanes, h, settle: bool = False) -> Outcome:
         """Outcomes (N,) of candidate steps h (N,) [s] at lanes (N,)."""
-        return self.judge(meth, lanes, h)[0]
+        return self.judge(meth, lanes, h, settle)[0]
 
     def steps(self, h) -> np.ndarray:
         """Steps that reach the stability horizon at h [s] (at most the runner's)."""
         n = np.ceil(self.horizon / np.asarray(h, float) - 1e-9)
         return np.minimum(n, self.runner.max_steps).astype(int)
 
-    def _runs(self, meth, lanes, h, n_own) -> tuple[list, np.ndarray]:
-        """Each candidate's run from the initial state and one per direction, as lanes of
-        their own in calls of the block's size: their states up to the candidate's own
-        horizon (n_own (N,) steps), and whether their solves converged there."""
-        K, B = self.delta.shape[1], len(self.points)
-        runs = [(i, k) for i in range(len(h)) for k in range(-1, K)]   # k = -1: unperturbed
+    def _runs(self, meth, lanes, h, n_own, runs) -> tuple[list, np.ndarray]:
+        """The runs (i, k) (candidate i from its initial state, k = -1, or plus direction k),
+        as lanes of their own in calls of the block's size: their states up to the
+        candidate's own horizon (n_own (N,) steps), and whether their solves converged
+        there. An unperturbed run `made` already as long (a grid step's accuracy run, by
+        the same method and program) is taken, not run again."""
+        B = len(self.points)
         x: list = [None] * len(runs)
         conv = np.zeros(len(runs), bool)
-        for start in range(0, len(runs), B):
-            part = runs[start: start + B]
-            idx = np.resize([lanes[i] for i, _ in part], B)
-            hh = np.resize([h[i] for i, _ in part], B)
+        todo = []
+        for r, (i, k) in enumerate(runs):
+            got = self.made.get((meth, float(h[i]))) if self.made and k < 0 else None
+            if got is not None and got[0].shape[1] == n_own[i] + 1:
+                x[r] = got[0][lanes[i]]
+                conv[r] = got[1][lanes[i]] or np.isfinite(x[r]).all()
+            else:
+                todo.append(r)
+        for start in range(0, len(todo), B):
+            part = todo[start: start + B]
+            idx = np.resize([lanes[runs[r][0]] for r in part], B)
+            hh = np.resize([h[runs[r][0]] for r in part], B)
             x0, u, p = self.points.take(idx)
             dx = np.zeros_like(x0)
-            for r, (i, k) in enumerate(part):
+            for j, r in enumerate(part):
+                i, k = runs[r]
                 if k >= 0:
-                    dx[r] = self.delta[lanes[i], k]
-            n = int(max(n_own[i] for i, _ in part))
+                    dx[j] = self.delta[lanes[i], k]
+            n = int(max(n_own[runs[r][0]] for r in part))
             run = self.runner(meth, x0 + dx, u, p, hh, n)
             self.runner.watch.add("stability_s", run.run_s)
-            for r, (i, _) in enumerate(part):
-                x[start + r] = run.x[r, : n_own[i] + 1]
+            for j, r in enumerate(part):
+                x[r] = run.x[j, : n_own[runs[r][0]] + 1]
                 # A solve that failed leaves NaN from its step on (the driver's contract):
                 # failures past this candidate's horizon are not its own.
-                conv[start + r] = run.converged[r] or np.isfinite(x[start + r]).all()
+                conv[r] = run.converged[j] or np.isfinite(x[r]).all()
         return x, conv
 
-    def judge(self, meth, lanes, h) -> tuple[Outcome, Diagnosis]:
+    def _retried(self, meth, lanes, h, n_own, xs: dict, cs: dict) -> np.ndarray:
+        """Where a candidate's solve failed (cs, by run (i, k), False), all of its runs in xs
+        run again with RETRY_ITERATIONS times the Newton iterations: where every one of
+        those converges, they replace its runs in xs and cs (the solve needed more
+        iterations). Returns which candidates (N,) were so replaced."""
+        retried = np.zeros(len(h), bool)
+        failed = sorted({i for (i, _), c in cs.items() if not c})
+        if failed and meth.solves:
+            again = [(i, k) for i, k in xs if i in failed]
+            x2, conv2 = self._runs(more_iterations(meth), lanes, h, n_own, again)
+            for i in failed:
+                mine = [r for r, (j, _) in enumerate(again) if j == i]
+                if conv2[mine].all():
+                    for r in mine:
+                        xs[again[r]], cs[again[r]] = x2[r], True
+                    retried[i] = True
+        return retried
+
+    def _first_failures(self, lane, h, xs, ks) -> tuple[np.ndarray, float]:
+        """Per direction of ks, the first step where the run from it departs past `growth`
+        (its length where none), and the largest growth over the reference's among them."""
+        base, sc = xs[-1], self.scales[lane]
+        ts = h * np.arange(len(base))
+        slot = np.minimum(np.searchsorted(self.ts, ts), len(self.ts) - 1)
+        first, ratio = np.full(len(ks), len(base)), 0.0
+        for j, k in enumerate(ks):
+            dev = _state_norm(xs[k] - base, sc)
+            allow = np.fmax(1.0, np.nan_to_num(self.ref_growth[lane, k, slot], nan=1.0))
+            with np.errstate(invalid="ignore", divide="ignore"):
+                excess = dev / (dev[0] * allow)
+            bad = ~(excess <= self.growth)
+            ratio = max(ratio, float(np.nanmax(np.where(np.isfinite(excess), excess, np.inf))))
+            if bad.any():
+                first[j] = np.argmax(bad)
+        return first, ratio
+
+    def judge(self, meth, lanes, h, settle: bool = False) -> tuple[Outcome, Diagnosis]:
         """The outcomes (N,) of candidates h (N,) [s] at lanes (N,) and their diagnosis. A
         candidate whose solves failed inside its horizon runs again with RETRY_ITERATIONS
         times the Newton iterations: where that converges, the solve needed more iterations
-        (it is judged by that run, `retried`); where not, the solver failed."""
+        (it is judged by that run, `retried`); where not, the solver failed.
+
+        With `settle` (the limit search's probes), the unperturbed run and the MODES mode
+        directions run first, and a candidate they show not stable is settled by them: for
+        a method that solves nothing, a run past `growth`; for any, a solve that failed
+        also when retried. Its outcome (stable, converged) is then the whole test's; its
+        failure time and diagnosis are of those runs alone."""
         lanes, h = np.asarray(lanes), np.asarray(h, float)
-        N, K1 = len(h), self.delta.shape[1] + 1
-        K = K1 - 1
+        N, K = len(h), self.delta.shape[1]
         n_own = self.steps(h)
-        x, conv = self._runs(meth, lanes, h, n_own)
-        failed = np.array([i for i in range(N) if not conv[i * K1:(i + 1) * K1].all()], int)
-        retried = np.zeros(N, bool)
-        if len(failed) and meth.solves:
-            x2, conv2 = self._runs(more_iterations(meth), lanes[failed], h[failed],
-                                   n_own[failed])
-            for r, i in enumerate(failed):
-                if conv2[r * K1:(r + 1) * K1].all():
-                    x[i * K1:(i + 1) * K1] = x2[r * K1:(r + 1) * K1]
-                    conv[i * K1:(i + 1) * K1] = True
-                    retried[i] = True
-        t0 = time.perf_counter()
         stable, t_fail, converged = np.zeros(N, bool), np.full(N, np.nan), np.zeros(N, bool)
         state, ratio = np.full(N, -1), np.zeros(N)
-        ref = np.nanmax(self.ref_growth[lanes], axis=(1, 2), initial=1.0)
-        for i in range(N):
-            at = i * (K + 1)
-            base, sc = x[at], self.scales[lanes[i]]
-            converged[i] = conv[at: at + K + 1].all()
-            ts = h[i] * np.arange(len(base))
-            first = np.full(K, len(base))
-            for k in range(K):
-                dev = _state_norm(x[at + 1 + k] - base, sc)
-                slot = np.minimum(np.searchsorted(self.ts, ts), len(self.ts) - 1)
-                allow = np.fmax(1.0, np.nan_to_num(self.ref_growth[lanes[i], k, slot], nan=1.0))
-                with np.errstate(invalid="ignore", divide="ignore"):
-                    excess = dev / (dev[0] * allow)
-                bad = ~(excess <= self.growth)
-                ratio[i] = max(ratio[i], float(np.nanmax(np.where(np.isfinite(excess), excess,
-                                                                  np.inf))))
-                if bad.any():
-                    first[k] = np.argmax(bad)
+        todo, xs, cs = list(range(N)), {}, {}
+        if settle and K > MODES:
+            early = [(i, k) for i in todo for k in range(-1, MODES)]
+            x, conv = self._runs(meth, lanes, h, n_own, early)
+            xs, cs = dict(zip(early, x)), dict(zip(early, conv))
+            first_xs, first_cs = dict(xs), dict(cs)
+            self._retried(meth, lanes, h, n_own, first_xs, first_cs)
+            left = []
+            for i in todo:
+                runs = {k: first_xs[i, k] for k in range(-1, MODES)}
+                if not all(first_cs[i, k] for k in range(-1, MODES)):
+                    continue                    # a solve failed, also retried: settled
+                if not meth.solves:
+                    first, _ = self._first_failures(lanes[i], h[i], runs, list(range(MODES)))
+                    if first.min() < len(runs[-1]):
+                        converged[i], t_fail[i] = True, first.min() * h[i]
+                        continue                # a run grew past `growth`: settled
+                left.append(i)
+            todo = left
+        # The candidates not settled: every run (those already made stand), and the retry.
+        rest = [(i, k) for i in todo for k in range(-1, K) if (i, k) not in xs]
+        x, conv = self._runs(meth, lanes, h, n_own, rest)
+        xs = {(i, k): xs.get((i, k)) for i in todo for k in range(-1, K)} | dict(zip(rest, x))
+        cs = {(i, k): cs.get((i, k)) for i in todo for k in range(-1, K)} | dict(zip(rest, conv))
+        retried = self._retried(meth, lanes, h, n_own, xs, cs)
+        t0 = time.perf_counter()
+        for i in todo:
+            base = xs[i, -1]
+            converged[i] = all(cs[i, k] for k in range(-1, K))
+            first, ratio[i] = self._first_failures(lanes[i], h[i],
+                                                   {k: xs[i, k] for k in range(-1, K)},
+                                                   list(range(K)))
             k = int(np.argmin(first))
             if first[k] < len(base):
                 j = first[k]
                 t_fail[i] = j * h[i]
                 with np.errstate(invalid="ignore"):
-                    d = np.abs(x[at + 1 + k][j] - base[j]) / sc
+                    d = np.abs(xs[i, k][j] - base[j]) / self.scales[lanes[i]]
                 # A failed solve's NaN names no state.
                 state[i] = int(np.argmax(np.where(np.isfinite(d), d, np.inf))) \
                     if converged[i] else -1
             stable[i] = first[k] == len(base) and converged[i]
         self.runner.watch.add("stability_s", time.perf_counter() - t0)
+        ref = np.nanmax(self.ref_growth[lanes], axis=(1, 2), initial=1.0)
         return (Outcome(stable, t_fail, converged),
                 Diagnosis(state, t_fail, ratio, ref, retried))
 
