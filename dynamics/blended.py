@@ -38,6 +38,13 @@ def _slip(along, across, v_floor):
     return jnp.arctan(across / jnp.maximum(jnp.abs(along), v_floor))
 
 
+def blend_weight(vx, p):
+    """The dynamic model's weight in the blend at speed vx [m/s]: 0 up to |vx| = v_blend_low,
+    1 from v_blend_high [m/s] (p), linear between."""
+    return jnp.clip((jnp.abs(vx) - p["v_blend_low"]) / (p["v_blend_high"] - p["v_blend_low"]),
+                    0.0, 1.0)
+
+
 def blended_single_track(t, x, u, p):
     """Right-hand side; p: m, Iz, Lf, Lr, Caf, Car, mu, Fzf, Fzr (Fiala tyres), the steering
     and acceleration limits of `vehicles.st_params`, v_blend_low, v_blend_high [m/s]."""
@@ -61,6 +68,5 @@ def blended_single_track(t, x, u, p):
     dr_k = (a * jnp.tan(delta) + vx * ddelta / cd**2) / L
     kinematic = jnp.stack([vx * c - vy_k * s, vx * s + vy_k * c, r_k, a, p["Lr"] * dr_k, dr_k,
                            ddelta])
-    w = jnp.clip((jnp.abs(vx) - p["v_blend_low"]) / (p["v_blend_high"] - p["v_blend_low"]),
-                 0.0, 1.0)
+    w = blend_weight(vx, p)
     return w * dynamic + (1 - w) * kinematic

@@ -11,7 +11,7 @@ from functools import cache
 import numpy as np
 
 from stepzoo import dynamics
-from stepzoo.dynamics.blended import blended_single_track, kinematic_lateral
+from stepzoo.dynamics.blended import blend_weight, blended_single_track, kinematic_lateral
 from stepzoo.search.planner.connection_ocp import A_MAX
 from stepzoo.dynamics.vehicles import G, axle_loads, default_vehicle, st_params, tyre_params
 
@@ -279,9 +279,7 @@ def _scan(n_steps: int):
             grip = p["mu"] * p["Fzf"]
             share = jnp.minimum(p["m"] * p["Lr"] / L * v * v * jnp.abs(kappa) / grip, 0.999)
             y = 1 - jnp.cbrt(1 - share)
-            w = jnp.clip((jnp.abs(v) - p["v_blend_low"])
-                         / (p["v_blend_high"] - p["v_blend_low"]), 0.0, 1.0)
-            return w * jnp.sign(kappa) * jnp.arctan(3 * grip * y / p["Caf"])
+            return blend_weight(v, p) * jnp.sign(kappa) * jnp.arctan(3 * grip * y / p["Caf"])
 
         def control(x, i, k):
             way = ref["way"][k]
@@ -302,8 +300,7 @@ def _scan(n_steps: int):
             # plan ramps its steer within a few tens of centimetres, the average spreads the
             # ramp over a metre, and a car steered by it turned its wheel late, then
             # over-steered to catch up.
-            rolls = jnp.clip((p["v_blend_high"] - jnp.abs(v))
-                             / (p["v_blend_high"] - p["v_blend_low"]), 0.0, 1.0)
+            rolls = 1 - blend_weight(v, p)
             aim = (rolls * (at("steer_ff", j, f) + wrap(at("psi_body", j, f) - psi))
                    + (1 - rolls) * wrap(at("course", j, f) - psi))
             forward = (aim - jnp.arctan(GAIN_K * e / soft)
