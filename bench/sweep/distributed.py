@@ -15,15 +15,20 @@ from stepzoo.distributed import RETRIES
 _caches: dict = {}            # on a worker: config sha256 -> compute_chunk's cache
 
 
+def by_kind(todo: list[str]) -> dict[str, list[str]]:
+    """The chunk ids by their kind (the reference, or one method), in their order."""
+    kinds: dict[str, list[str]] = {}
+    for cid in todo:
+        kinds.setdefault(cid.rpartition("-b")[0], []).append(cid)
+    return kinds
+
+
 def tasks(todo: list[str], slots: int) -> list[list[str]]:
     """The chunk ids grouped into tasks: each kind's chunks (the reference, or one method)
     in at most `slots` runs of consecutive blocks, so a worker compiles a method once for many
     blocks and a task carries seconds of work rather than one block's milliseconds."""
-    kinds: dict[str, list[str]] = {}
-    for cid in todo:
-        kinds.setdefault(cid.rpartition("-b")[0], []).append(cid)
     out = []
-    for ids in kinds.values():
+    for ids in by_kind(todo).values():
         size = -(-len(ids) // min(len(ids), max(slots, 1)))
         out += [ids[i: i + size] for i in range(0, len(ids), size)]
     return out

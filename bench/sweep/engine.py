@@ -83,9 +83,7 @@ def jobs(cfg: SweepConfig, todo: list[str], cache: dict, est=None) -> list:
     the reference chunks first, then each method's chunks in one job (a thread compiles a
     method once), the longest first by the estimate `est` where there is one. The jobs share
     `cache`: a block's references are computed once, by the first chunk that needs them."""
-    kinds: dict[str, list[str]] = {}
-    for cid in todo:
-        kinds.setdefault(cid.rpartition("-b")[0], []).append(cid)
+    kinds = distributed.by_kind(todo)
     cost = lambda kind: 0.0 if est is None or kind not in est.methods else \
         -est.methods[kind]["chunk_s"]
     order = sorted(kinds, key=lambda kind: (kind != "reference", cost(kind)))
