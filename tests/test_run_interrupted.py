@@ -42,7 +42,7 @@ def test_run_interrupted_at_each_stage_keeps_what_it_wrote_and_the_same_command_
         if earlier is not None:
             target = out / earlier
             kept[earlier] = files(target) if target.is_dir() else {"": target.read_bytes()}
-        assert proc.returncode == 130, err[-2000:]
+        assert proc.returncode == 130, f"interrupted at {stage}: {err[-2000:]}"
         assert err.strip().splitlines()[-1] == ("stepzoo run: interrupted; resume: run it "
                                                 "again, the same command (finished sweep "
                                                 "chunks are kept)"), err[-2000:]
