@@ -1,7 +1,9 @@
 """Helpers the test modules share: synthetic result folders with the sweep, tune and plan
 contracts (and the checks of a report built from them), a results folder's tables read back,
-the provenance every manifest records, and the small configs several modules sweep."""
+the provenance every manifest records, the small configs several modules sweep, and a zoo
+method whose runs take the full-Newton retry from the first."""
 import base64
+import dataclasses
 import os
 import shutil
 import subprocess
@@ -24,11 +26,22 @@ from plotly.offline import get_plotlyjs
 
 from stepzoo.bench.sweep.config import load
 from stepzoo.bench.sweep import tables as schema
+from stepzoo.integrators import driver, method
 
 ROOT = Path(__file__).resolve().parents[1]
 
 
 PNG = b"\x89PNG\r\n\x1a\n"
+
+
+def retrying(name: str):
+    """A copy of the zoo's method `name` (a program of its own) that the driver runs with the
+    full-Newton retry compiled in from its first run (driver.retry_at_once): for a test whose
+    solves fail the simplified iteration, one compiled program instead of the one without
+    the retry and then the one with it, which give the same states."""
+    m = dataclasses.replace(method(name))
+    driver.retry_at_once(m)
+    return m
 
 
 # Synthetic methods: (order, stages, limit constant c in h_max = c / |lambda| scale).
