@@ -150,24 +150,34 @@ def test_fast_trig_model_agrees_with_the_model(name):
     assert fast_trig(MODEL.rhs) is fast_trig(MODEL.rhs)    # one static function: one compile
 
 
-@pytest.mark.parametrize("name, max_steps, devices", [("rk4", None, 2), ("ab4", None, 2),
-                                                       ("ab4", 60, 2), ("trapezoidal", None, 2),
-                                                       ("radau_iia5", None, 2)])
-def test_batch_shared_among_host_devices_equals_one_device(tmp_path, name, max_steps, devices):
-    # XLA reads the device count when JAX starts: a fresh interpreter with two devices.
-    # Radau IIA 5 factorises its 15 x 15 stage system in newton's loop: with LAPACK's
-    # there, two devices hung. A run-time step count (ab4, 60) is shared as well.
-    out = tmp_path / "x.npy"
-    n = 40 if max_steps is None else "jax.numpy.asarray(40)"
+SHARED = [("rk4", None), ("ab4", None), ("ab4", 60), ("trapezoidal", None),
+          ("radau_iia5", None)]
+
+
+@pytest.fixture(scope="module")
+def two_devices(tmp_path_factory):
+    """{(name, max_steps): the batch's states} of each SHARED case run on two host devices:
+    one fresh interpreter for them all, since XLA reads the device count when JAX starts."""
+    out = tmp_path_factory.mktemp("shared")
     code = ("import numpy as np, jax; jax.config.update('jax_enable_x64', True); "
             "from tests.test_fast_driver import *; "
-            "assert len(jax.devices()) == 2; x0, u, p, _ = envelope(2 * SHARE + 5, 4); "
-            f"tr = integrate_batch(method({name!r}), MODEL.rhs, x0, u, p, 0.002, {n}, "
-            f"max_steps={max_steps}); assert len(tr.x.sharding.device_set) == {devices}; "
-            f"np.save({str(out)!r}, np.asarray(tr.x))")
+            "assert len(jax.devices()) == 2; x0, u, p, _ = envelope(2 * SHARE + 5, 4)\n"
+            f"for i, (name, max_steps) in enumerate({SHARED!r}):\n"
+            "    n = 40 if max_steps is None else jax.numpy.asarray(40)\n"
+            "    tr = integrate_batch(method(name), MODEL.rhs, x0, u, p, 0.002, n, "
+            "max_steps=max_steps)\n"
+            "    assert len(tr.x.sharding.device_set) == 2, name\n"
+            f"    np.save({str(out)!r} + f'/{{i}}.npy', np.asarray(tr.x))")
     env = dict(os.environ, XLA_FLAGS="--xla_force_host_platform_device_count=2")
-    subprocess.run([sys.executable, "-c", code], env=env, check=True, timeout=300,
+    subprocess.run([sys.executable, "-c", code], env=env, check=True, timeout=600,
                    cwd=os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+    return {case: np.load(out / f"{i}.npy") for i, case in enumerate(SHARED)}
+
+
+@pytest.mark.parametrize("name, max_steps", SHARED)
+def test_batch_shared_among_host_devices_equals_one_device(two_devices, name, max_steps):
+    # Radau IIA 5 factorises its 15 x 15 stage system in newton's loop: with LAPACK's
+    # there, two devices hung. A run-time step count (ab4, 60) is shared as well.
     x0, u, p, _ = envelope(2 * SHARE + 5, 4)
     one = integrate_batch(method(name), MODEL.rhs, x0, u, p, 0.002, 40)
-    assert_close(np.load(out)[:, :41], one.x)
+    assert_close(two_devices[name, max_steps][:, :41], one.x)
