@@ -140,11 +140,13 @@ def test_a_map_query_plans_and_a_walled_off_goal_is_written_as_no_path_exit_1(tm
 def test_a_config_sets_the_integrator_and_overrides_params(tmp_path):
     config = tmp_path / "tuned.toml"
     config.write_text('method = "rk3"\nh = 0.025\nwhy = "a test"\npos_tol_m = 0.01\n'
-                      '[[runners_up]]\nmethod = "rk4"\nh = 0.02\n[planner]\nmindist = 7.5\n')
-    assert run("open_field", "--config", config, "--out", tmp_path / "out") == 0
+                      '[[runners_up]]\nmethod = "rk4"\nh = 0.02\n[planner]\nmindist = 7.5\n'
+                      'improve_expansions = 0\n')
+    assert run("wall_between", "--config", config, "--out", tmp_path / "out") == 0
     record = read(tmp_path / "out")
     assert (record["stats"]["method"], record["stats"]["h"]) == ("rk3", 0.025)
-    assert record["params"]["mindist"] == 7.5 and record["config"]["provenance"] == "a test"
+    assert record["params"]["mindist"] == 7.5 and record["params"]["improve_expansions"] == 0
+    assert record["config"]["provenance"] == "a test"
 
 
 def test_the_shipped_default_is_a_tune_output_stable_across_the_default_envelope():
