@@ -48,10 +48,12 @@ def _count(jaxpr, prim=None) -> int:
 
 
 def _step_jaxpr(name, d):
+    """The jaxpr of a step of `name` on `ring` with d states, from the shapes of the start's
+    state (tracing needs no values; running the start would compile its operations)."""
     m = method(name)
     y, h = jnp.linspace(0.1, 1.0, d), jnp.asarray(0.01)
     fun = lambda t, v: ring(t, v)      # noqa: E731
-    _, state = m.start(fun, 0.0, y, h)
+    state = jax.eval_shape(lambda: m.start(fun, 0.0, y, h)[1])
     return jax.make_jaxpr(lambda v, st: m.step(fun, 0.0, v, h, st))(y, state).jaxpr
 
 
