@@ -136,7 +136,7 @@ def test_the_rows_finite_difference_agrees_and_only_the_rate_limited_plan_is_dri
 
 def plan_on(occupied, start, goal, **params):
     omap = from_array(occupied, 0.5)
-    config = make_config(reverse=1, improve_expansions=100, max_seconds=3600.0, **params)
+    config = make_config(reverse=1, max_seconds=3600.0, **params)
     finder = PathFinder(omap, config, None, 2.0)
     result = finder.plan(start, goal)
     assert result.status == "exact", result.reason
@@ -150,7 +150,8 @@ def test_a_dead_end_is_left_backwards():
     grid = np.zeros((60, 80), bool)
     grid[:, :2] = grid[:, -2:] = grid[:2] = grid[-2:] = True
     grid[:24, 40:] = grid[30:, 40:] = True  # the corridor: rows 24..29 (y 12..15 m), x >= 20 m
-    d, result, rows = plan_on(grid, (34.0, 13.5, 0.0), (8.0, 20.0, math.pi / 2))
+    d, result, rows = plan_on(grid, (34.0, 13.5, 0.0), (8.0, 20.0, math.pi / 2),
+                              improve_expansions=100)
     assert d["cusps"] >= 1
     assert d["reverse_length_m"] >= 10.0  # out of the corridor, whose mouth is 14 m behind
     # The plan's cost is its length, a metre backwards counting reverse_penalty (3) metres,
@@ -165,10 +166,11 @@ def test_a_dead_end_is_left_backwards():
 
 
 def test_an_open_field_is_crossed_forwards():
-    """Goal 25 m ahead, turned a quarter: forwards is the way a driver goes."""
+    """Goal 25 m ahead, turned a quarter: forwards is the way a driver goes, from the first
+    exact path on (no improvement)."""
     grid = np.zeros((80, 100), bool)
     grid[:, :2] = grid[:, -2:] = grid[:2] = grid[-2:] = True
-    d, _, _ = plan_on(grid, (10.0, 20.0, 0.0), (35.0, 28.0, math.pi / 2))
+    d, _, _ = plan_on(grid, (10.0, 20.0, 0.0), (35.0, 28.0, math.pi / 2), improve_expansions=0)
     assert d["reverse_length_m"] == 0.0 and d["cusps"] == 0
 
 
@@ -176,11 +178,12 @@ def test_a_goal_straight_behind_is_reached_forwards_at_5_mps():
     """Goal 25 m straight behind the car, facing its way, in an open field, the tree at
     5 m/s: backing there costs reverse_penalty (3) x 25 = 75 m, a forward loop less, so the
     plan drives forwards. (At reverse_penalty 2 = h_weight each metre backwards left the
-    search order f = g + 2 H unchanged and this plan backed all 25 m.)"""
+    search order f = g + 2 H unchanged and this plan backed all 25 m.) The search's first
+    exact path is the plan: no improvement, which the order alone decides."""
     grid = np.zeros((80, 120), bool)
     grid[:, :2] = grid[:, -2:] = grid[:2] = grid[-2:] = True
     omap = from_array(grid, 0.5)
-    config = make_config(reverse=1, max_seconds=3600.0)
+    config = make_config(reverse=1, improve_expansions=0, max_seconds=3600.0)
     finder = PathFinder(omap, config, None, 5.0)
     result = finder.plan((40.0, 20.0, 0.0), (15.0, 20.0, 0.0))
     assert result.status == "exact", result.reason
