@@ -304,3 +304,29 @@ def test_a_ctrl_c_caught_after_it_left_an_exec_of_source_text_ends_130(tmp_path)
                           capture_output=True, text=True, timeout=120)
     assert done.returncode == 130, done.stderr
     assert done.stderr.strip() == "stepzoo methods: interrupted"
+
+
+def test_a_ctrl_c_in_a_class_being_made_is_one_line_and_130(monkeypatch, capsys):
+    """A Ctrl-C that lands in a descriptor's __set_name__ while a class is made (pydantic's,
+    as `stepzoo run` imports the planner's config at its tune stage) reaches the command as a
+    RuntimeError caused by it on Python 3.11: it is an interruption (one line, 130), not a
+    traceback and exit 1. Other RuntimeErrors still propagate."""
+    from stepzoo.cli import methods
+
+    class Named:
+        def __set_name__(self, owner, name):
+            raise KeyboardInterrupt
+
+    def make_a_class(args):
+        type("Made", (), {"field": Named()})
+
+    monkeypatch.setattr(methods, "main", make_a_class)
+    assert stepzoo(["methods"]) == 130
+    assert capsys.readouterr().err.strip() == "stepzoo methods: interrupted"
+
+    def fail(args):
+        raise RuntimeError("not an interruption")
+
+    monkeypatch.setattr(methods, "main", fail)
+    with pytest.raises(RuntimeError, match="not an interruption"):
+        stepzoo(["methods"])

@@ -236,7 +236,11 @@ def dispatch(args, argv=None) -> int:
         return _fail(args.command, "ran out of memory; use a larger step, a shorter horizon "
                      "or fewer points (--max-memory GIB says what the estimates may take), or "
                      "give the process more memory")
-    except KeyboardInterrupt:
+    except (KeyboardInterrupt, RuntimeError) as err:
+        # Python 3.11 turns a Ctrl-C that lands in a class's __set_name__ (as a module
+        # defining a pydantic model is imported) into a RuntimeError caused by it.
+        if isinstance(err, RuntimeError) and not isinstance(err.__cause__, KeyboardInterrupt):
+            raise
         _drop_redelivery()
         hint = RESUME.get(args.command)
         sys.stderr.write(f"stepzoo {args.command}: interrupted{'; ' + hint if hint else ''}\n")
