@@ -14,6 +14,7 @@ from stepzoo.integrators.multistep import bdf
 from stepzoo.integrators.stability import (a_alpha, a_stable, amplification_empirical,
                                            max_stable_step, ray_exit, region_grid,
                                            stability_intervals)
+from helpers import retrying
 
 pytestmark = pytest.mark.slow      # run first: see tests/conftest.py
 
@@ -153,8 +154,10 @@ def test_a_and_l_stability_hold_numerically_with_the_method_s_own_step(methods_j
     """|amplification(iy)| <= 1 on a dense imaginary grid, and small at -1e6, measured by
     stepping y' = z y: the flags agree with what the step does."""
     y = np.concatenate([np.linspace(0.0, 50.0, 2001), np.geomspace(50.0, 1e6, 400)])
-    on_axis = amplification_empirical(METHODS[name], 1j * y)
-    far = amplification_empirical(METHODS[name], np.array([-1e6]))[0]
+    # One call, in the blocks that the intervals' scans compiled: a point alone is another
+    # program, and a point's value does not depend on its block's other points.
+    amp = amplification_empirical(METHODS[name], np.r_[1j * y, -1e6])
+    on_axis, far = amp[:-1], amp[-1]
     row = methods_json[name]
     assert row["a_stable"] == bool(np.all(on_axis <= 1 + 1e-12) and far <= 1 + 1e-12)
     if row["l_stable"]:
@@ -215,8 +218,9 @@ def test_bdf_blows_up_just_past_the_predicted_step_beyond_its_sector_and_not_far
     f = lambda t, y, u, p: mat @ y
     h_max = max_stable_step(method(name), [lam, lam.conjugate()])
     y0 = jnp.array([1.0, 0.0])
+    m = retrying(name)      # the simplified iteration fails at h = 10
     for h, grows in ((0.98 * h_max, False), (1.02 * h_max, True), (10.0, False)):
-        tr = integrate(method(name), f, y0, None, None, h, 3000)
+        tr = integrate(m, f, y0, None, None, h, 3000)
         assert bool(tr.converged)
         final = float(jnp.linalg.norm(tr.x[-1]))
         assert (final > 1.0) == grows, (name, h / h_max, final)
