@@ -121,11 +121,12 @@ def _lu_factor_loop(mat):
     def column(k, carry):
         a, pivots = carry
         p = jnp.argmax(jnp.where(rows >= k, jnp.abs(a[:, k]), -1))
-        a = a.at[k].set(a[p]).at[p].set(a[k])
+        a = _swap_rows(a, rows, k, p)
         below = rows > k
         lower = jnp.where(below, a[:, k] / a[k, k], 0)
         a = a - jnp.outer(lower, jnp.where(below, a[k], 0))
-        return a.at[:, k].set(jnp.where(below, lower, a[:, k])), pivots.at[k].set(p)
+        a = jnp.where(rows == k, jnp.where(below, lower, a[:, k])[:, None], a)
+        return a, jnp.where(rows == k, p, pivots)
 
     # Pivots like mat's rows, so that under shard_map the loop's carry varies as mat does.
     return lax.fori_loop(0, n - 1, column, (mat, jnp.zeros_like(mat, int, shape=(n,))))
@@ -138,18 +139,26 @@ def _lu_solve_loop(factors, r):
     rows = jnp.arange(n)
 
     def swap(k, x):
-        p = pivots[k]
-        return x.at[k].set(x[p]).at[p].set(x[k])
+        return _swap_rows(x, rows, k, pivots[k])
 
     def forward(i, x):
-        return x.at[i].add(-jnp.dot(jnp.where(rows < i, lu[i], 0), x))
+        return jnp.where(rows == i, x - jnp.dot(jnp.where(rows < i, lu[i], 0), x), x)
 
     def back(j, x):
         i = n - 1 - j
-        return x.at[i].set((x[i] - jnp.dot(jnp.where(rows > i, lu[i], 0), x)) / lu[i, i])
+        xi = (x[i] - jnp.dot(jnp.where(rows > i, lu[i], 0), x)) / lu[i, i]
+        return jnp.where(rows == i, xi, x)
 
     x = lax.fori_loop(0, n - 1, swap, r)
     return lax.fori_loop(0, n, back, lax.fori_loop(0, n, forward, x))
+
+
+def _swap_rows(a, rows, k, p):
+    """a (a matrix or vector) with rows k and p exchanged, by selection: `.at[].set` with an
+    index that varies across a vmapped batch is a scatter, and a loop holding a scatter is
+    not compiled into one native function by XLA:CPU."""
+    mask = lambda i: (rows == i).reshape((-1,) + (1,) * (a.ndim - 1))
+    return jnp.where(mask(k), a[p], jnp.where(mask(p), a[k], a))
 
 
 def _swap(rows, k, p):
@@ -184,7 +193,14 @@ def lu_solve(factors, r):
 
 def _size(mat):
     """1 + |mat - I|_inf: the size against which a residual is judged."""
-    return 1.0 + jnp.max(jnp.sum(jnp.abs(mat - jnp.eye(mat.shape[0], dtype=mat.dtype)), axis=1))
+    return 1.0 + inf_norm(mat - jnp.eye(mat.shape[0], dtype=mat.dtype))
+
+
+def inf_norm(mat):
+    """max_i sum_j |mat_ij|, the sum written out over the columns: XLA:CPU makes a reduction
+    of a batch of matrices a library call, and a loop holding one is not compiled as one
+    native function."""
+    return jnp.max(sum(jnp.abs(mat[:, j]) for j in range(mat.shape[1])))
 
 
 def factorised(mat):
@@ -259,7 +275,7 @@ class Stages(NamedTuple):
                 im = (h * float(mu.imag)) * jac
                 re = jnp.block([[re, im], [-im, re]])
             blocks.append(inverse(re))
-        return blocks, 1.0 + h * a_norm * jnp.max(jnp.sum(jnp.abs(jac), axis=1))
+        return blocks, 1.0 + h * a_norm * inf_norm(jac)
 
     def solver(self, fac):
         """(solve, size) of `factors`' result, solve(r) = (I - h A (x) J)^-1 r."""

@@ -122,7 +122,11 @@ def stage_system(tab, fun, t, y, h):
         return jax.vmap(lambda ci, zi: fun(t + ci * h, y + zi))(c, z.reshape(s, d))
 
     def residual(z):
-        return z - h * (a @ stage_f(z)).reshape(-1)
+        # Sums with the coefficients as constants, not a product with A: XLA:CPU makes that
+        # product a library call, and a loop holding one is not compiled as one function.
+        fz = stage_f(z)
+        return z - h * jnp.concatenate([weighted(row, fz) if np.any(row) else 0.0 * fz[0]
+                                        for row in tab.a])
 
     def residual_jacobian(z):
         jacs = jax.vmap(lambda ci, zi: jacobian(fun, t + ci * h, y + zi))(c, z.reshape(s, d))
