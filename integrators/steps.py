@@ -157,7 +157,7 @@ def implicit_rk_step(tab, opts, fun, t, y, h, state):
     if np.linalg.matrix_rank(tab.a) == s:
         # y + h b^T F = y + b^T A^-1 Z: no evaluation of f, whose h*lambda-sized values
         # would cancel badly on stiff problems.
-        y_next = y + jnp.asarray(np.linalg.solve(tab.a.T, tab.b), y.dtype) @ zz
+        y_next = y + weighted(np.linalg.solve(tab.a.T, tab.b), zz)
     else:
         y_next = y + h * (jnp.asarray(tab.b, y.dtype) @ stage_f(z))
         evals = evals + s
