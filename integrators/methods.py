@@ -73,19 +73,22 @@ class Method:
         return replace(self, newton=newton, starter=None if self.starter is None
                        else self.starter.running(starter, retry))
 
+    def _solvers(self) -> list["Method"]:
+        """This method and its starter, those of them whose steps solve by Newton's method."""
+        chain = [self] if self.starter is None else [self, *self.starter._solvers()]
+        return [m for m in chain if m.implicit and not m.is_rosenbrock]
+
     def retries(self) -> bool:
         """Whether a solve of this method or its starter may retry with full Newton (its
         options' max_iter_full > 0)."""
-        own = (self.implicit and not self.is_rosenbrock
-               and isinstance(self.newton, NewtonOptions) and self.newton.max_iter_full > 0)
-        return own or (self.starter is not None and self.starter.retries())
+        return any(isinstance(m.newton, NewtonOptions) and m.newton.max_iter_full > 0
+                   for m in self._solvers())
 
     @property
     def solves(self) -> bool:
         """Whether a step of it or of its starter solves nonlinear equations by Newton's
         method (implicit, not Rosenbrock): the ones `newton` acts on."""
-        own = self.implicit and not self.is_rosenbrock
-        return own or (self.starter is not None and self.starter.solves)
+        return bool(self._solvers())
 
     @property
     def is_multistep(self) -> bool:

@@ -147,6 +147,38 @@ def test_a_config_sets_the_integrator_and_overrides_params(tmp_path):
     assert record["params"]["mindist"] == 7.5 and record["config"]["provenance"] == "a test"
 
 
+def test_a_finished_batch_is_kept_only_for_the_same_planner_seed_and_intact_files(tmp_path):
+    """`stepzoo run` run again keeps its plans (workflows.plan.finished) only where the folder
+    holds every scenario planned with the same method, h, parameters and seed, its files
+    intact; anything else is planned again."""
+    import shutil
+
+    from stepzoo.workflows import plan as plan_cmd
+    config = tmp_path / "tuned.toml"
+    config.write_text('method = "rk4"\nh = 0.02\nwhy = "a test"\npos_tol_m = 0.1\n'
+                      "[planner]\nimprove_expansions = 0\n")
+    other = tmp_path / "other.toml"
+    other.write_text(config.read_text().replace("improve_expansions = 0",
+                                                "improve_expansions = 1"))
+    scenarios = [load_scenario("wall_between")]
+    out = tmp_path / "plans"
+    records = plan_cmd.plan(scenarios, out, config, 3, batch=True)
+    planned = json.loads(json.dumps(records))
+    assert plan_cmd.finished(out, load_config(config), 3, scenarios) == planned
+    assert plan_cmd.finished(out, load_config(config), 4, scenarios) is None
+    assert plan_cmd.finished(out, load_config(other), 3, scenarios) is None
+    assert plan_cmd.finished(out, load_config(config), 3,
+                             [*scenarios, load_scenario("street")]) is None
+    damaged = tmp_path / "damaged"
+    shutil.copytree(out, damaged)
+    (damaged / "wall_between" / "plan.json").write_text('{"status": "ex')
+    assert plan_cmd.finished(damaged, load_config(config), 3, scenarios) is None
+    (damaged / "wall_between" / "plan.json").write_bytes(
+        (out / "wall_between" / "plan.json").read_bytes())
+    (damaged / "wall_between" / "map.npy").unlink()
+    assert plan_cmd.finished(damaged, load_config(config), 3, scenarios) is None
+
+
 def test_the_shipped_default_is_a_tune_output_stable_across_the_default_envelope():
     """The shipped (method, h) came from `stepzoo tune` on the default envelope: it says so,
     and it is inside its method's stability limit, with the tuning margin, at the stiffest

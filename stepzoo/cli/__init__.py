@@ -40,7 +40,8 @@ LONG = ("run", "sweep", "tune", "plan", "plan-bench", "report")
 INTEGRATE = ("run", "simulate", "sweep", "tune", "plan", "plan-bench", "report", "serve")
 # A command that resumes where an interrupted call stopped, and how.
 RESUME = {"sweep": "resume with --resume", "plan-bench": "resume with --resume",
-          "run": "resume: run it again, the same command (finished sweep chunks are kept)"}
+          "run": "resume: run it again, the same command (finished sweep chunks and plans are "
+          "kept)"}
 INTERRUPTED = 130          # the shell's status for a command ended by Ctrl-C (128 + SIGINT)
 EXIT_STATUSES = """exit status:
   0    success
@@ -153,15 +154,30 @@ def _redeliver_ctrl_c(unraisable, default=sys.unraisablehook) -> None:
     """sys.unraisablehook for the command: a Ctrl-C whose KeyboardInterrupt was raised inside
     a garbage-collector callback (JAX has one) cannot propagate and was lost, so the command
     ran on to its end; the signal is delivered again, to land where the command can stop."""
-    if isinstance(unraisable.exc_value, KeyboardInterrupt):
-        # From another thread, a moment later: delivered now, its handler would run inside
-        # this hook, where its KeyboardInterrupt would be lost again.
-        timer = threading.Timer(0.01, _thread.interrupt_main, (signal.SIGINT,))
-        timer.daemon = True
-        _REDELIVERY.append(timer)
-        timer.start()
-    else:
+    if not isinstance(unraisable.exc_value, KeyboardInterrupt):
         default(unraisable)
+        return
+    while True:
+        # From another thread, a moment later: delivered now, its handler would run inside
+        # this hook, where its KeyboardInterrupt would be lost again. On a loaded machine the
+        # moment can pass before this hook returns (start() waits for the thread): the
+        # redelivery then lands here, and is made again.
+        try:
+            timer = threading.Timer(0.01, _thread.interrupt_main, (signal.SIGINT,))
+            timer.daemon = True
+            _REDELIVERY.append(timer)
+            timer.start()
+            return
+        except KeyboardInterrupt:
+            continue
+
+
+def _forget_escaped_interrupt() -> None:
+    """CPython marks a KeyboardInterrupt that left an exec() of source text (a namedtuple's
+    or a dataclass's methods being made, as the command imports) as unhandled even when the
+    command then caught it (Ctrl-C, or `serve` stopped), and `python -m stepzoo` then ends by
+    SIGINT (status -2) whatever the command returned; an exec that completes clears the mark."""
+    exec("pass")
 
 
 def _drop_redelivery() -> None:
@@ -181,7 +197,9 @@ def main(argv=None) -> int:
         chosen = None
     # Before any subcommand module is imported: XLA reads its flags when JAX starts.
     os.environ["XLA_FLAGS"] = with_xla_option(os.environ.get("XLA_FLAGS", ""))
-    return dispatch(build_parser(chosen).parse_args(argv), argv)
+    code = dispatch(build_parser(chosen).parse_args(argv), argv)
+    _forget_escaped_interrupt()
+    return code
 
 
 def dispatch(args, argv=None) -> int:
@@ -219,7 +237,11 @@ def dispatch(args, argv=None) -> int:
         return _fail(args.command, "ran out of memory; use a larger step, a shorter horizon "
                      "or fewer points (--max-memory GIB says what the estimates may take), or "
                      "give the process more memory")
-    except KeyboardInterrupt:
+    except (KeyboardInterrupt, RuntimeError) as err:
+        # Python 3.11 turns a Ctrl-C that lands in a class's __set_name__ (as a module
+        # defining a pydantic model is imported) into a RuntimeError caused by it.
+        if isinstance(err, RuntimeError) and not isinstance(err.__cause__, KeyboardInterrupt):
+            raise
         _drop_redelivery()
         hint = RESUME.get(args.command)
         sys.stderr.write(f"stepzoo {args.command}: interrupted{'; ' + hint if hint else ''}\n")

@@ -93,10 +93,11 @@ class Ahead:
         of references; the second process's chunks follow this one's, or are computed here
         where it failed."""
         def run(cfg, todo):
+            from stepzoo.bench.sweep.distributed import by_kind
             from stepzoo.bench.sweep.engine import compute_chunk
             from stepzoo.integrators import method
-            kind = lambda cid: cid.rpartition("-b")[0]
-            theirs = [c for c in todo if kind(c) != "reference" and method(kind(c)).implicit]
+            theirs = [c for kind, ids in by_kind(todo).items()
+                      if kind != "reference" and method(kind).implicit for c in ids]
             sent = bool(theirs) and self._send(("chunks", (str(config), theirs)))
             cache = {}
             for cid in todo:

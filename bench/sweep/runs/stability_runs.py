@@ -296,25 +296,11 @@ class ModalRuns:
         n_own = self.steps(h)
         stable, t_fail, converged = np.zeros(N, bool), np.full(N, np.nan), np.zeros(N, bool)
         state, ratio = np.full(N, -1), np.zeros(N)
-        todo, xs, cs = list(range(N)), {}, {}
+        todo = list(range(N))
+        xs: dict = {}           # (candidate, direction) -> its run
+        cs: dict = {}           # (candidate, direction) -> whether its solves converged
         if settle and K > MODES:
-            early = [(i, k) for i in todo for k in range(-1, MODES)]
-            x, conv = self._runs(meth, lanes, h, n_own, early)
-            xs, cs = dict(zip(early, x)), dict(zip(early, conv))
-            first_xs, first_cs = dict(xs), dict(cs)
-            self._retried(meth, lanes, h, n_own, first_xs, first_cs)
-            left = []
-            for i in todo:
-                runs = {k: first_xs[i, k] for k in range(-1, MODES)}
-                if not all(first_cs[i, k] for k in range(-1, MODES)):
-                    continue                    # a solve failed, also retried: settled
-                if not meth.solves:
-                    first, _ = self._first_failures(lanes[i], h[i], runs, list(range(MODES)))
-                    if first.min() < len(runs[-1]):
-                        converged[i], t_fail[i] = True, first.min() * h[i]
-                        continue                # a run grew past `growth`: settled
-                left.append(i)
-            todo = left
+            todo, xs, cs = self._settle(meth, lanes, h, n_own, converged, t_fail)
         # The candidates not settled: every run (those already made stand), and the retry.
         rest = [(i, k) for i in todo for k in range(-1, K) if (i, k) not in xs]
         x, conv = self._runs(meth, lanes, h, n_own, rest)
@@ -342,6 +328,28 @@ class ModalRuns:
         ref = np.nanmax(self.ref_growth[lanes], axis=(1, 2), initial=1.0)
         return (Outcome(stable, t_fail, converged),
                 Diagnosis(state, t_fail, ratio, ref, retried))
+
+    def _settle(self, meth, lanes, h, n_own, converged, t_fail) -> tuple[list[int], dict, dict]:
+        """The unperturbed run and the MODES mode directions of every candidate, and the
+        candidates they settle (judge's `settle`) marked in `converged` and `t_fail`: the
+        candidates left, and those runs (before any retry) with their convergence."""
+        early = [(i, k) for i in range(len(h)) for k in range(-1, MODES)]
+        x, conv = self._runs(meth, lanes, h, n_own, early)
+        xs, cs = dict(zip(early, x)), dict(zip(early, conv))
+        first_xs, first_cs = dict(xs), dict(cs)
+        self._retried(meth, lanes, h, n_own, first_xs, first_cs)
+        left = []
+        for i in range(len(h)):
+            runs = {k: first_xs[i, k] for k in range(-1, MODES)}
+            if not all(first_cs[i, k] for k in range(-1, MODES)):
+                continue                    # a solve failed, also retried: settled
+            if not meth.solves:
+                first, _ = self._first_failures(lanes[i], h[i], runs, list(range(MODES)))
+                if first.min() < len(runs[-1]):
+                    converged[i], t_fail[i] = True, first.min() * h[i]
+                    continue                # a run grew past `growth`: settled
+            left.append(i)
+        return left, xs, cs
 
 
 def reference_growth(solve, points, base: np.ndarray, delta: np.ndarray,
