@@ -39,9 +39,21 @@ def grid_files(tmp_path):
 
 
 @pytest.fixture(scope="module")
-def planned(tmp_path_factory):
+def unclocked(tmp_path_factory):
+    """The shipped planner config with a budget the clock never cuts (a few anytime
+    improvements, up to 10 minutes): its plans are the same on a loaded machine."""
+    shipped = load_config()
+    config = tmp_path_factory.mktemp("config") / "tuned.toml"
+    config.write_text(f'method = "{shipped.method}"\nh = {shipped.h!r}\nwhy = "a test"\n'
+                      "pos_tol_m = 0.1\n[planner]\nimprove_expansions = 30\n"
+                      "max_seconds = 600.0\n")
+    return config
+
+
+@pytest.fixture(scope="module")
+def planned(tmp_path_factory, unclocked):
     out = tmp_path_factory.mktemp("plan")
-    assert run("obstacles_between", "--out", out) == 0
+    assert run("obstacles_between", "--config", unclocked, "--out", out) == 0
     return out
 
 
@@ -89,8 +101,9 @@ def test_plan_png_shows_black_obstacles_a_blue_tree_and_a_red_path(planned):
     assert np.sum((r < 30) & (g < 30) & (b < 30)) > 2000     # black obstacles
 
 
-def test_the_same_command_gives_the_same_path(planned, tmp_path):
-    assert run("obstacles_between", "--out", tmp_path) == 0
+def test_the_same_command_gives_the_same_path(planned, unclocked, tmp_path):
+    assert run("obstacles_between", "--config", unclocked, "--out", tmp_path) == 0
+    assert read(tmp_path)["stats"]["budget_bound"] is None
     assert read(tmp_path)["path"] == read(planned)["path"]
     assert read(tmp_path)["tree"] == read(planned)["tree"]
 
