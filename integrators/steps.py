@@ -122,7 +122,11 @@ def stage_system(tab, fun, t, y, h):
         return jax.vmap(lambda ci, zi: fun(t + ci * h, y + zi))(c, z.reshape(s, d))
 
     def residual(z):
-        return z - h * (a @ stage_f(z)).reshape(-1)
+        # Sums with the coefficients as constants, not a product with A: XLA:CPU makes that
+        # product a library call, and a loop holding one is not compiled as one function.
+        fz = stage_f(z)
+        return z - h * jnp.concatenate([weighted(row, fz) if np.any(row) else 0.0 * fz[0]
+                                        for row in tab.a])
 
     def residual_jacobian(z):
         jacs = jax.vmap(lambda ci, zi: jacobian(fun, t + ci * h, y + zi))(c, z.reshape(s, d))
@@ -153,7 +157,7 @@ def implicit_rk_step(tab, opts, fun, t, y, h, state):
     if np.linalg.matrix_rank(tab.a) == s:
         # y + h b^T F = y + b^T A^-1 Z: no evaluation of f, whose h*lambda-sized values
         # would cancel badly on stiff problems.
-        y_next = y + jnp.asarray(np.linalg.solve(tab.a.T, tab.b), y.dtype) @ zz
+        y_next = y + weighted(np.linalg.solve(tab.a.T, tab.b), zz)
     else:
         y_next = y + h * (jnp.asarray(tab.b, y.dtype) @ stage_f(z))
         evals = evals + s

@@ -278,9 +278,10 @@ def test_a_connection_that_would_collide_is_kept_within_its_guess_room():
 
 def test_a_rate_limited_guess_starts_its_states_on_the_path():
     """Seeded near-goal problems (2-12 m, any headings, 0-5 m/s, the wheel already turned),
-    one IPOPT solve each: the multiple shooting's states started on the guess's path solve
-    at least 27 of 30; started on the rollout of the guess's ramped steer, which lags the
-    path's turns and ends metres off the goal, 20 of 30 solved."""
+    one IPOPT solve each: the multiple shooting's states started on the guess's path (the
+    crawl guess, or before it the path's poses with a ramped steer) solve at least 27 of
+    30; started on the rollout of the guess's ramped steer, which lags the path's turns and
+    ends metres off the goal, 20 of 30 solved."""
     from stepzoo.search.planner import connection_ocp
     rng = np.random.default_rng(1)
     solved = 0
@@ -370,3 +371,57 @@ def test_the_corridor_turns_each_guess_disc_with_the_guess_steer(monkeypatch):
     step = 0.32 * 30.0 / 50                     # the rate limit over the longest interval
     for steers in seen:
         assert np.abs(np.diff(steers)).max() <= step
+
+
+def test_a_rate_limited_connection_ends_with_the_body_on_the_goal_heading():
+    """The kinematic car's body faces theta less body_slip at its steer: a connection that
+    arrives turning (a goal 6 m ahead and 4 m to the left, facing left, from 3 m/s) ends with
+    its body, not theta, on the goal's heading, its wheel still turned; without Lr (the
+    rear axle's point) theta ends there."""
+    from stepzoo.dynamics.kinematic import body_slip
+    from stepzoo.search.planner.connection_ocp import node_steers
+    start, goal = [0.0, 0.0, 0.0, 3.0], np.array([6.0, 4.0, pi_ / 2])
+    limits = dict(L=L, m=M, max_steer_rate=0.32, max_lateral_acceleration=9.2)
+    conn = connect(start, goal, Lr=CAR["Lr"], **limits)
+    steer = node_steers(conn.inputs, conn.steer_rates, conn.tf)[-1]
+    body = conn.states[-1, 2] - body_slip(steer, L, CAR["Lr"])
+    assert conn.success and abs(steer) > 0.1
+    assert np.abs(conn.states[-1, :2] - goal[:2]).max() < 1e-6
+    assert body == pytest.approx(goal[2], abs=1e-6)
+    axle = connect(start, goal, **limits)
+    assert axle.success and axle.states[-1, 2] == pytest.approx(goal[2], abs=1e-6)
+
+
+def test_the_rate_limited_guess_is_a_motion_of_the_car():
+    """_crawl_guess drives each Dubins word from rest at its first steer: at its turns'
+    steers, the wheel turned at the rate limit standing. Its states at N+1 equal times are
+    a motion of the steered kinematic bicycle: driven from each node under the guess's
+    interval rates (steer rate, acceleration), each interval ends within 1 cm of the next
+    node at N = 200 (the nodes sample a finer table: the gap shrinks as N grows), every
+    steer rate within the limit; it ends at the goal at rest, the wheel straight."""
+    from stepzoo.search.planner.connection_ocp import _crawl_guess
+    radius, start, goal = L, np.zeros(3), np.array([8.0, 6.0, 2.5])
+    for segs in dubins_paths(start, goal, radius)[:3]:
+        gaps = {}
+        for N in (50, 200):
+            tf, Z = _crawl_guess(N, start, 0.0, segs[0][0] * pi_ / 4, segs, radius, pi_ / 4,
+                                 0.32, A_MAX, 25.0, 0.0, 9.2, None)
+            dt, gap = tf / N, 0.0
+            rates = np.diff(Z[3:], axis=1) / dt
+            assert np.abs(rates[1]).max() <= 0.32 + 1e-9
+            for k in range(N):
+                x = jnp.asarray(np.r_[Z[:4, k], Z[4, k]])
+                traj = integrate(method("rk4"), _steered_rhs, x, jnp.asarray(rates[::-1, k]),
+                                 {"L": L, "m": M}, dt / 20, 20)
+                gap = max(gap, float(np.abs(np.asarray(traj.x[-1, :2]) - Z[:2, k + 1]).max()))
+            gaps[N] = gap
+            np.testing.assert_allclose(Z[:, -1], np.r_[goal[:2], Z[2, -1], 0.0, 0.0],
+                                       atol=1e-9)
+            assert np.sin((Z[2, -1] - goal[2]) / 2) == pytest.approx(0, abs=1e-9)
+        assert gaps[200] < 0.01 and gaps[200] < gaps[50] / 4
+
+
+def _steered_rhs(t, x, u, p):
+    """The kinematic bicycle with its steer a state, driven by u = [steer rate, acceleration]
+    ([rad/s, m/s^2])."""
+    return jnp.r_[kinematic_bicycle(t, x[:4], jnp.r_[x[4], u[1] * p["m"]], p), u[0]]

@@ -234,6 +234,53 @@ def test_lu_solves_as_numpy_does_batched_and_with_row_swaps():
                                    atol=1e-12)
 
 
+def test_inverse_as_numpy_does_batched_and_with_row_swaps():
+    """newton.inverse (Gauss-Jordan, the kept iteration matrices above order SMALL: up to
+    58 for Radau IIA 5's complex pair at 29 states) under vmap with the batch last, against
+    numpy.linalg.inv, on the matrices of the test above."""
+    import jax
+
+    from stepzoo.integrators.newton import inverse
+    rng = np.random.default_rng(7)
+    invert = jax.vmap(inverse, in_axes=-1, out_axes=-1)
+    for n in (1, 2, 9, 18, 58):
+        a = 2 * rng.normal(size=(16, n, n)) / np.sqrt(n) + 4 * np.eye(n)
+        a[:8] = np.eye(n)[::-1] + 0.1 * a[:8]
+        assert np.max(np.linalg.cond(a)) < 1000
+        x = np.asarray(invert(jnp.asarray(a.transpose(1, 2, 0)))).transpose(2, 0, 1)
+        np.testing.assert_allclose(x, np.linalg.inv(a), rtol=0, atol=1e-12)
+
+
+def test_kept_factors_and_iterations_compile_without_library_calls():
+    """What an implicit step runs in its loops, at 29 states over a chunk of 64 lanes (Radau
+    IIA 5's inverses of orders 29 and 58, its stage residual and the iteration's error
+    norms) compiles without scatters and custom fusions (XLA:CPU's library calls, such as
+    its YNNPACK dots and reductions): a while loop holding one is not compiled into one
+    native function, and then every operation of every step is a separate call."""
+    import jax
+
+    from stepzoo.integrators import method
+    from stepzoo.integrators.newton import Stages, largest
+    from stepzoo.integrators.steps import stage_system
+    tab = method("radau_iia5").scheme
+    stages = Stages.of(tab.a)
+    d, lanes = 29, 64
+    rng = np.random.default_rng(3)
+    fun = lambda t, y: -y + 0.1 * jnp.sin(y)
+
+    def step_parts(jac, y, z):
+        blocks, size = stages.factors(0.01, jac, 1.0)
+        residual = stage_system(tab, fun, 0.0, y, 0.01)[1]
+        dz = stages.solver((blocks, size))[0](residual(z))
+        return largest(jnp.abs(dz)) + largest(jnp.abs(z)) / size
+
+    args = (rng.normal(size=(lanes, d, d)), rng.normal(size=(lanes, d)),
+            rng.normal(size=(lanes, 3 * d)))
+    text = jax.jit(jax.vmap(step_parts)).lower(*args).compile().as_text()
+    for call in ("scatter(", "kind=kCustom", "custom-call("):
+        assert call not in text, call
+
+
 @pytest.mark.parametrize("name", ["trapezoidal", "backward_euler", "bdf3"])
 def test_unrolled_elimination_steps_as_the_looped_one_does(monkeypatch, name):
     """Robertson's steps with the unrolled elimination land where the looped one's

@@ -39,9 +39,21 @@ def grid_files(tmp_path):
 
 
 @pytest.fixture(scope="module")
-def planned(tmp_path_factory):
+def unclocked(tmp_path_factory):
+    """The shipped planner config with a budget the clock never cuts (a few anytime
+    improvements, up to 10 minutes): its plans are the same on a loaded machine."""
+    shipped = load_config()
+    config = tmp_path_factory.mktemp("config") / "tuned.toml"
+    config.write_text(f'method = "{shipped.method}"\nh = {shipped.h!r}\nwhy = "a test"\n'
+                      "pos_tol_m = 0.1\n[planner]\nimprove_expansions = 30\n"
+                      "max_seconds = 600.0\n")
+    return config
+
+
+@pytest.fixture(scope="module")
+def planned(tmp_path_factory, unclocked):
     out = tmp_path_factory.mktemp("plan")
-    assert run("obstacles_between", "--out", out) == 0
+    assert run("obstacles_between", "--config", unclocked, "--out", out) == 0
     return out
 
 
@@ -89,8 +101,9 @@ def test_plan_png_shows_black_obstacles_a_blue_tree_and_a_red_path(planned):
     assert np.sum((r < 30) & (g < 30) & (b < 30)) > 2000     # black obstacles
 
 
-def test_the_same_command_gives_the_same_path(planned, tmp_path):
-    assert run("obstacles_between", "--out", tmp_path) == 0
+def test_the_same_command_gives_the_same_path(planned, unclocked, tmp_path):
+    assert run("obstacles_between", "--config", unclocked, "--out", tmp_path) == 0
+    assert read(tmp_path)["stats"]["budget_bound"] is None
     assert read(tmp_path)["path"] == read(planned)["path"]
     assert read(tmp_path)["tree"] == read(planned)["tree"]
 
@@ -147,6 +160,38 @@ def test_a_config_sets_the_integrator_and_overrides_params(tmp_path):
     assert (record["stats"]["method"], record["stats"]["h"]) == ("rk3", 0.025)
     assert record["params"]["mindist"] == 7.5 and record["params"]["improve_expansions"] == 0
     assert record["config"]["provenance"] == "a test"
+
+
+def test_a_finished_batch_is_kept_only_for_the_same_planner_seed_and_intact_files(tmp_path):
+    """`stepzoo run` run again keeps its plans (workflows.plan.finished) only where the folder
+    holds every scenario planned with the same method, h, parameters and seed, its files
+    intact; anything else is planned again."""
+    import shutil
+
+    from stepzoo.workflows import plan as plan_cmd
+    config = tmp_path / "tuned.toml"
+    config.write_text('method = "rk4"\nh = 0.02\nwhy = "a test"\npos_tol_m = 0.1\n'
+                      "[planner]\nimprove_expansions = 0\n")
+    other = tmp_path / "other.toml"
+    other.write_text(config.read_text().replace("improve_expansions = 0",
+                                                "improve_expansions = 1"))
+    scenarios = [load_scenario("wall_between")]
+    out = tmp_path / "plans"
+    records = plan_cmd.plan(scenarios, out, config, 3, batch=True)
+    planned = json.loads(json.dumps(records))
+    assert plan_cmd.finished(out, load_config(config), 3, scenarios) == planned
+    assert plan_cmd.finished(out, load_config(config), 4, scenarios) is None
+    assert plan_cmd.finished(out, load_config(other), 3, scenarios) is None
+    assert plan_cmd.finished(out, load_config(config), 3,
+                             [*scenarios, load_scenario("street")]) is None
+    damaged = tmp_path / "damaged"
+    shutil.copytree(out, damaged)
+    (damaged / "wall_between" / "plan.json").write_text('{"status": "ex')
+    assert plan_cmd.finished(damaged, load_config(config), 3, scenarios) is None
+    (damaged / "wall_between" / "plan.json").write_bytes(
+        (out / "wall_between" / "plan.json").read_bytes())
+    (damaged / "wall_between" / "map.npy").unlink()
+    assert plan_cmd.finished(damaged, load_config(config), 3, scenarios) is None
 
 
 def test_the_shipped_default_is_a_tune_output_stable_across_the_default_envelope():

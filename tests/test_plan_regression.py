@@ -119,6 +119,18 @@ def test_plan_json_has_the_keys_of_the_plan_schema_in_its_order(fresh):
         assert list(record["stats"]) == [k for k in STATS_KEYS if k not in TIMINGS]
 
 
+def test_every_exact_plan_ends_with_the_body_on_the_goal_heading(fresh):
+    """The plan's last row holds the connection's theta, which a car keeping to the path
+    faces less body_slip at its steer (replay.body_headings): that body, not theta, stands
+    at the goal's heading (before, wall_between's ended 0.58 rad off it)."""
+    from stepzoo.search.plans.replay import body_headings
+    for name, record in fresh.items():
+        if record["status"] != "exact":
+            continue
+        body = body_headings(record["path"], record["controls"], record["vehicle"])[-1]
+        assert abs(math.sin((body - record["goal"][2]) / 2)) < 1e-6, name
+
+
 def test_the_cases_cover_what_they_claim(fresh):
     assert all(fresh[n]["stats"]["budget_bound"] is None for n in CASES)
     assert [fresh[n]["status"] for n in CASES] == ["exact"] * 4 + ["no_path"]

@@ -287,7 +287,7 @@ def test_ctrl_c_stops_a_run_with_one_line_and_status_130(tiny_sweep, tmp_path):
     stdout, err = proc.communicate(timeout=120)
     assert proc.returncode == 130 and stdout == ""
     assert one_line(err) == ("stepzoo run: interrupted; resume: run it again, the same "
-                             "command (finished sweep chunks are kept)")
+                             "command (finished sweep chunks and plans are kept)")
 
 
 def report_files(folder) -> dict:

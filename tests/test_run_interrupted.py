@@ -1,7 +1,8 @@
 """`stepzoo run` interrupted by Ctrl-C at each of its stages: each time one line and exit 130,
 every file an earlier stage finished kept as it was, and the same command then finishes the
-run. Apart from test_faults.py, which it belongs with, because it runs the whole pipeline
-five times: as a file of its own pytest-xdist runs it beside the others."""
+run, keeping the finished sweep and plans. Apart from test_faults.py, which it belongs with,
+because it runs the whole pipeline five times: as a file of its own pytest-xdist runs it
+beside the others."""
 import random
 import signal
 import subprocess
@@ -33,7 +34,7 @@ def test_run_interrupted_at_each_stage_keeps_what_it_wrote_and_the_same_command_
         proc = subprocess.Popen(argv, cwd=ROOT, stdout=subprocess.DEVNULL,
                                 stderr=subprocess.PIPE, text=True)
         try:
-            until_line(proc, stage)
+            until_line(proc, stage, timeout=900)       # a loaded machine: minutes
             time.sleep(rng.uniform(0.0, 0.5))
             proc.send_signal(signal.SIGINT)
             _, err = proc.communicate(timeout=300)
@@ -45,13 +46,15 @@ def test_run_interrupted_at_each_stage_keeps_what_it_wrote_and_the_same_command_
         assert proc.returncode == 130, f"interrupted at {stage}: {err[-2000:]}"
         assert err.strip().splitlines()[-1] == ("stepzoo run: interrupted; resume: run it "
                                                 "again, the same command (finished sweep "
-                                                "chunks are kept)"), err[-2000:]
+                                                "chunks and plans are kept)"), err[-2000:]
         assert "Traceback" not in err
     sweep_before = kept["sweep"]
     done = subprocess.run(argv, cwd=ROOT, capture_output=True, text=True, timeout=600)
     assert done.returncode == 0, done.stderr[-2000:]
     assert (out / "report" / "index.html").is_file()
-    # The finished sweep's tables were kept, not computed again.
+    # The finished sweep's tables and the finished plans were kept, not computed again.
     now = files(out / "sweep")
     for name in ("runs.parquet", "limits.parquet", "config.toml"):
         assert now[Path(name)] == sweep_before[Path(name)], name
+    assert files(out / "plans") == kept["plans"]
+    assert "plans kept" in done.stderr

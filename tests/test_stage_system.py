@@ -69,6 +69,9 @@ def test_a_fully_implicit_step_holds_f_the_same_number_of_times_whatever_its_sta
 @pytest.mark.parametrize("name", ["radau_iia5", "backward_euler", "trapezoidal", "bdf3"])
 def test_a_step_s_traced_size_does_not_grow_with_the_states_above_the_unrolled_order(name):
     """Above newton.SMALL states every elimination is a loop, so a model written on arrays
-    gives a step of one size at 9 and at 29 states: nothing is unrolled over the states."""
+    gives a step of about one size at 9 and at 29 states: nothing is unrolled over the
+    states. Only the norms' halvings (newton.halved) grow, a level each time the states
+    double: Radau IIA 5 from 1198 to 1268 equations, where a sum unrolled over the columns
+    of its Jacobian made 1314 into 1634."""
     small, large = _count(_step_jaxpr(name, 9)), _count(_step_jaxpr(name, 29))
-    assert large <= small, (small, large)
+    assert large <= 1.1 * small, (small, large)

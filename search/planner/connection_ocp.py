@@ -45,6 +45,10 @@ MIN_ROOM = 0.01        # [m] the least room a disc of the corridor gets: a guess
 #                        an obstacle leaves the solve a sliver, not an empty set
 ROOM_SHIFTS = (0.25, 0.5, 1.0, 2.0)  # [m] how far a corridor ball's centre may lie from
 ROOM_DIRECTIONS = 8                  # its disc's, in this many directions (_rooms)
+CRAWL_DT = 0.005         # [s] the time step the crawl guess is built on (_crawl_guess)
+CRAWL_MAX_STEPS = 24000  # its steps at most: 120 s
+CRAWL_SNAP_M = 1e-3      # [m] it is at a joint of its path this close to it
+CRAWL_SPACING_M = 0.02   # [m] between the path's poses it interpolates
 
 
 class Corridor(NamedTuple):
@@ -319,15 +323,6 @@ def _progress(t, runs, plans, a_max):
     return k, tau, v0 * a1 + a_max * a1 ** 2 / 2 + peak * (a2 + a3) - a_max * a3 ** 2 / 2
 
 
-def _speed(t, runs, plans, a_max) -> float:
-    """[m/s] the signed speed at time `t` [s] of driving `runs` at their speed profiles
-    `plans` (from `_profile`): negative backwards."""
-    k, tau, _ = _progress(t, runs, plans, a_max)
-    v0, (t1, t2, _) = plans[k]
-    v = v0 + a_max * min(tau, t1) - a_max * max(tau - t2, 0.0)
-    return runs[k][0] * max(v, 0.0)
-
-
 def _ramp_steers(rates, steer0, rate_max, dt) -> np.ndarray:
     """(N,) [rad] the steer at the end of each interval of dt [s] ramped from steer0 [rad] at
     the scaled rates (N,) [1] of rate_max [rad/s] (from `_steer_ramps`)."""
@@ -369,21 +364,12 @@ def _guess_poses(N, start, radius, runs, plans, a_max):
     return poses
 
 
-def _guess_states(N, start, radius, guess: _Guess, a_max, steers=None) -> np.ndarray:
-    """(4, N) or with `steers` (N,) [rad] (5, N) states [X, Y, theta, v(, delta)] at the ends
-    of N equal intervals of driving the guess's path from `start` [X, Y, theta] on turns of
-    `radius` [m] at its speed profile: the multiple shooting's states start on the path."""
-    poses = _guess_poses(N, start, radius, guess.runs, guess.plans, a_max)
-    times = np.arange(1, N + 1) * guess.tf / N
-    speeds = [_speed(t, guess.runs, guess.plans, a_max) for t in times]
-    return np.vstack([poses.T, speeds, *([] if steers is None else [steers])])
-
-
 @dataclass(frozen=True)
 class _Problem:
     """A built IPOPT solver and the maps from its variables to the connection."""
     solver: ca.Function   # nlpsol: x = [T, vec(U)(, vec(Z))], p = [x0, goal, L, m, d_max,
-    #                       a_max(, rate_max, a_lat, v_steer)(, v_goal)]; g = [defects
+    #                       a_max(, rate_max, a_lat, v_steer, Lr)(, the corridor's Lr,
+    #                       offsets, centres)(, v_goal)]; g = [defects
     #                       (multiple), end, state rows (single), lateral acceleration / a_lat
     #                       and the steer rate per metre (steered)]
     rollout: ca.Function  # (T, U, p) -> states (nx, N+1) simulated from x0
@@ -414,10 +400,10 @@ def _problem(N: int, shooting: str, method: str, bounded: bool, speed_fixed: boo
     the squared distance of each of that many discs of the car's body (Lr and their offsets
     parameters) at each node 1..N from a parametrised centre, whose bounds the solve sets."""
     nx = 4 + steered
-    k = nx + 7                    # parameters before (rate_max, a_lat, v_steer), the discs'
-    #                               (Lr, offsets, centres (2, N * discs)) and v_goal
+    k = nx + 7                    # parameters before (rate_max, a_lat, v_steer, Lr), the
+    #                               discs' (Lr, offsets, centres (2, N * discs)) and v_goal
     n_discs = (1 + discs + 2 * N * discs) if discs else 0
-    p = ca.MX.sym("p", k + 3 * steered + n_discs + speed_fixed)
+    p = ca.MX.sym("p", k + 4 * steered + n_discs + speed_fixed)
     x0, goal, L, m, d_max, a_max = p[:nx], p[nx:nx + 3], p[nx + 3], p[nx + 4], p[nx + 5], \
         p[nx + 6]
     T, U = ca.MX.sym("T"), ca.MX.sym("U", 2, N)
@@ -432,7 +418,12 @@ def _problem(N: int, shooting: str, method: str, bounded: bool, speed_fixed: boo
         x, states, g = ca.veccat(T, U), rollout, []
     else:
         raise ValueError(f"shooting must be 'single' or 'multiple', not {shooting!r}")
-    g.append(states[:3, -1] - goal)
+    if steered:
+        # The goal heading is the body's: theta less the rolling slip at the end steer
+        # (dynamics.kinematic.body_slip), Lr [m] from the rear axle to (X, Y).
+        g.append(ca.vertcat(states[:2, -1], _body(states[:, -1:], L, p[k + 3])) - goal)
+    else:
+        g.append(states[:3, -1] - goal)
     if speed_fixed:
         g.append(states[3, -1] - p[-1])
     rows = slice(0 if bounded else 2, nx)
@@ -448,10 +439,10 @@ def _problem(N: int, shooting: str, method: str, bounded: bool, speed_fixed: boo
     if discs:
         # The body faces theta less the rolling slip asin(Lr tan(delta) / L)
         # (dynamics.kinematic.body_slip); each disc centre lies its offset along the body.
-        c = k + 3
-        Lr, offsets = p[c], p[c + 1:c + 1 + discs]
+        c = k + 4
+        offsets = p[c + 1:c + 1 + discs]
         centres = ca.reshape(p[c + 1 + discs:c + n_discs], 2, N * discs)
-        body = states[2, 1:] - ca.asin(Lr * ca.tan(states[4, 1:]) / L)
+        body = _body(states[:, 1:], L, p[c])
         along = ca.repmat(offsets.T, 1, N)                       # disc fastest
         cx, cy, heading = (ca.reshape(ca.repmat(row, discs, 1), 1, N * discs)
                            for row in (states[0, 1:], states[1, 1:], body))
@@ -465,6 +456,12 @@ def _problem(N: int, shooting: str, method: str, bounded: bool, speed_fixed: boo
     return _Problem(solver, ca.Function("rollout", [T, U, p], [rollout]),
                     ca.Function("path", [x, p], [states, inputs]), shooting, 3 + speed_fixed,
                     rows, nx)
+
+
+def _body(states, L, Lr):
+    """The body's heading [rad] at steered states (5, n) [X, Y, theta, v, delta]: theta less
+    asin(Lr tan(delta) / L) (dynamics.kinematic.body_slip), L and Lr [m]."""
+    return states[2, :] - ca.asin(Lr * ca.tan(states[4, :]) / L)
 
 
 def _solve(prob, p, lo, hi, tf_range, tf_g, u_g, per_metre=False, room=None,
@@ -499,6 +496,8 @@ def _solve(prob, p, lo, hi, tf_range, tf_g, u_g, per_metre=False, room=None,
     # goal (, v_goal): v_goal is the last parameter when the speed is fixed
     target = np.r_[p[nx:nx + 3], p[len(p) - (prob.n_end - 3):]]
     end = states[-1, :len(target)] - target
+    if nx == 5:  # steered: the goal heading is the body's (_body)
+        end[2] -= float(body_slip(states[-1, 4], p[nx + 3], p[nx + 10]))
     success = bool(stats["success"]) and float(np.abs(end).max()) < END_TOL
     rates = None
     if nx == 5:
@@ -512,7 +511,7 @@ def connect(start, goal, *, L, m, bounds=None, N=50, shooting=DEFAULT_SHOOTING,
             method=DEFAULT_METHOD, goal_speed=None, v_max=25.0, delta_max=pi / 4,
             a_max=A_MAX, tf_bounds=None, v_min=0.0, paths=None, steer0=0.0,
             max_steer_rate=None, max_lateral_acceleration=None,
-            steer_speed=None, corridor: Corridor | None = None) -> Connection:
+            steer_speed=None, Lr=0.0, corridor: Corridor | None = None) -> Connection:
     """Minimum-time connection from `start` [X, Y, theta, v] to `goal` [X, Y, theta]
     ([m, m, rad, m/s]), N piecewise-constant input intervals of dt = t_f/N.
 
@@ -522,6 +521,9 @@ def connect(start, goal, *, L, m, bounds=None, N=50, shooting=DEFAULT_SHOOTING,
     `steer_speed` [m/s] (default: no bound per metre) the steer turns at most max_steer_rate /
     steer_speed per metre (STANDSTILL_RATE of its rate at a standstill): a minimum-time car
     does not slow to a crawl to turn the wheel, which leaves a kink no car tracks at speed.
+    With it the goal's heading is the body's: the car ends with theta - asin(Lr tan(delta)
+    / L) (dynamics.kinematic.body_slip; Lr [m] from the rear axle to (X, Y)) on it, its end
+    steer free (0, the default, is the rear axle's point: theta).
     Without max_steer_rate (None, the paper's OCP) the steer is a control. With it, a
     `corridor` keeps the car off the obstacles: at each node each disc of the body lies
     within a ball free of obstacles that holds its guess's disc (`_rooms`: the widest of
@@ -557,7 +559,7 @@ def connect(start, goal, *, L, m, bounds=None, N=50, shooting=DEFAULT_SHOOTING,
     origin = start[:2]
     x0 = np.array([0.0, 0.0, start[2], start[3]])
     limits = ([max_steer_rate, max_lateral_acceleration,
-               1.0 if steer_speed is None else steer_speed] if rate_limited else [])
+               1.0 if steer_speed is None else steer_speed, Lr] if rate_limited else [])
     box = (np.array([-np.inf, np.inf, -np.inf, np.inf]) if bounds is None
            else np.asarray(bounds, dtype=float) - np.repeat(origin, 2))
     v_goal = [] if goal_speed is None else [goal_speed]
@@ -586,15 +588,25 @@ def connect(start, goal, *, L, m, bounds=None, N=50, shooting=DEFAULT_SHOOTING,
         lo = np.array([box[0], box[2], min(start[2], theta_g) - THETA_MARGIN, v_min])
         hi = np.array([box[1], box[3], max(start[2], theta_g) + THETA_MARGIN, v_max])
         x_start, z_g, steers = x0, None, delta_max * u_g[0]
+        poses = None
         if rate_limited:
-            u_g[0] = _steer_ramps(u_g[0], steer0, delta_max, max_steer_rate, tf_g / N)
-            steers = _ramp_steers(u_g[0], steer0, max_steer_rate, tf_g / N)
             x_start = np.r_[x0, steer0]
             lo, hi = np.r_[lo, -delta_max], np.r_[hi, delta_max]
             if shooting == "multiple":
-                # The states start on the guess's path, not on the rollout of its ramped
-                # steer, which lags the path's turns and ends metres off the goal.
-                z_g = _guess_states(N, x0[:3], radius, guess, a_max, steers)
+                # The states start on a guess the car can drive (_crawl_guess): the path at
+                # its turns' steers, the wheel turned standing.
+                tf_g, z_g = _crawl_guess(N, x0[:3], x0[3], steer0,
+                                         [(sign, way * q) for way, run in guess.runs
+                                          for sign, q in run], radius, delta_max,
+                                         max_steer_rate, a_max, v_max, -v_min,
+                                         max_lateral_acceleration, goal_speed)
+                tf_g = min(max(tf_g, tf_lo), tf_hi)
+                u_g = np.clip(np.diff(z_g[3:], axis=1)
+                              / (np.c_[[a_max, max_steer_rate]] * tf_g / N), -1.0, 1.0)[::-1]
+                z_g, poses, steers = z_g[:, 1:], z_g[:3, 1:].T, z_g[4, 1:]
+            else:
+                u_g[0] = _steer_ramps(u_g[0], steer0, delta_max, max_steer_rate, tf_g / N)
+                steers = _ramp_steers(u_g[0], steer0, max_steer_rate, tf_g / N)
         p = np.r_[x_start, goal_local[:2], theta_g, L, m, delta_max, a_max, limits, v_goal]
         solved = _solve(prob, p, lo, hi, (tf_lo, tf_hi), tf_g, u_g, steer_speed is not None,
                         z_g=z_g)
@@ -603,7 +615,8 @@ def connect(start, goal, *, L, m, bounds=None, N=50, shooting=DEFAULT_SHOOTING,
                 and _touches(corridor, solved, L, origin)):
             # The OCP ignores obstacles: solved again, each disc kept within a free ball that
             # holds its guess's disc.
-            poses = _guess_poses(N, x0[:3], radius, guess.runs, guess.plans, a_max)
+            if poses is None:
+                poses = _guess_poses(N, x0[:3], radius, guess.runs, guess.plans, a_max)
             centres, room = _rooms(corridor, _disc_centres(corridor, poses, steers, L) + origin)
             centres -= origin
             p = np.r_[p[:len(p) - len(v_goal)], corridor.Lr, corridor.offsets, centres.ravel(),
@@ -683,3 +696,65 @@ def resimulate(conn: Connection, *, L, m, refine=10) -> np.ndarray:
         rows.append(np.asarray(traj.x[1:, :4]))
         x = traj.x[-1]
     return np.concatenate(rows)
+
+
+
+def _crawl_guess(N, start, v0, steer0, segs, radius, delta_max, rate_max, a_max, v_fwd, v_back,
+                 a_lat, v_goal, dt=CRAWL_DT) -> tuple[float, np.ndarray]:
+    """(t_f [s], states (5, N+1) [X, Y, theta, v, delta] at N+1 equal times) of a guess the
+    rate-limited car can drive: the path `segs` (turn sign, signed length [m]) of turning
+    radius `radius` [m] from pose `start` [X, Y, theta], each segment at its steer (sign *
+    delta_max [rad]), the wheel turned at rate_max [rad/s] standing where the path's steer
+    or its direction changes (the car brakes to rest there at a_max [m/s^2]), at most
+    v_fwd (v_back backwards) [m/s] and sqrt(a_lat radius) on turns. From speed v0 [m/s] and
+    steer steer0 [rad] it brakes along the path until its steer is the first segment's. A
+    path that ends turning ends at rest, the wheel then turned straight standing (the body
+    on the path's end heading); one that ends straight ends at v_goal [m/s] if given. Only
+    where it sets off moving at another steer does its state leave the kinematic bicycle's
+    motion (a guess at the path's poses with the steer ramped as fast as it may lags the
+    path's turns and ends metres off the goal)."""
+    segs = [(sign, q) for sign, q in segs if q != 0] or [(0, 0.0)]
+    ends = np.cumsum([abs(q) for _, q in segs])
+    steer_of = [sign * delta_max for sign, _ in segs]
+    way_of = [1 if q >= 0 else -1 for _, q in segs]
+    cap = [min(v_fwd if way > 0 else v_back, math.sqrt(a_lat * radius) if sign else np.inf)
+           for (sign, _), way in zip(segs, way_of)]
+    last = len(segs) - 1
+    stops = [steer_of[i + 1] != steer_of[i] or way_of[i + 1] != way_of[i]
+             for i in range(last)] + [steer_of[last] != 0 or v_goal is not None]
+    end_speed = [0.0] * last + [0.0 if steer_of[last] != 0 or v_goal is None else abs(v_goal)]
+    s, u, delta, i = 0.0, max(v0 * way_of[0], 0.0), float(steer0), 0
+    rows, step = [(0.0, s, u * way_of[0], delta)], rate_max * dt
+    while len(rows) < CRAWL_MAX_STEPS:
+        arrived = i == last and s >= ends[last]
+        target = 0.0 if arrived else steer_of[i]
+        delta += float(np.clip(target - delta, -step, step))
+        if arrived:
+            if delta == 0.0 or u > 0.0:
+                rows.append((rows[-1][0] + dt, s, u * way_of[i], delta))
+                break
+        elif abs(delta - steer_of[i]) > 1e-12:
+            u = max(u - a_max * dt, 0.0)    # braking until the wheel is turned
+        else:
+            room = max(ends[i] - s, 0.0)
+            limit = math.sqrt(end_speed[i] ** 2 + 2 * a_max * room) if stops[i] else cap[i]
+            u = min(u + a_max * dt, cap[i], limit)
+        if not arrived:
+            s += u * dt
+            if s >= ends[i] - CRAWL_SNAP_M:
+                if stops[i] and u <= end_speed[i] + math.sqrt(2 * a_max * CRAWL_SNAP_M) \
+                        + a_max * dt:
+                    s, u = ends[i], end_speed[i]
+                if s >= ends[i] and i < last:
+                    i += 1
+        rows.append((rows[-1][0] + dt, s, u * way_of[i], delta))
+    table = np.array(rows)
+    poses = path_poses(start, segs, radius, CRAWL_SPACING_M)
+    along = np.r_[0.0, np.cumsum(np.hypot(*np.diff(poses[:, :2], axis=0).T))]
+    along *= ends[-1] / along[-1] if along[-1] > 0 else 1.0
+    times = np.linspace(0.0, table[-1, 0], N + 1)
+    at = np.interp(times, table[:, 0], table[:, 1])
+    return float(table[-1, 0]), np.vstack([
+        np.interp(at, along, poses[:, 0]), np.interp(at, along, poses[:, 1]),
+        np.interp(at, along, poses[:, 2]), np.interp(times, table[:, 0], table[:, 2]),
+        np.interp(times, table[:, 0], table[:, 3])])

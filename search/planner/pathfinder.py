@@ -178,10 +178,11 @@ class PathFinder:
         pose, its guesses driving `paths` (connect's); (connection, '' or why not). With
         reverse gear the OCP lets the speed go down to -tight_vx; rate-limited, it starts at the
         node's steer and bounds the steer rate and the lateral acceleration by the planned
-        limits (the OCP may slow down to turn tighter: its steer limit is delta_max)."""
+        limits (the OCP may slow down to turn tighter: its steer limit is delta_max) and ends
+        with the car's body, not theta, on the goal's heading."""
         prm = self.config.params
         limits = ({"steer0": steer, "max_steer_rate": self.steer_rate,
-                   "max_lateral_acceleration": self.lateral_limit}
+                   "max_lateral_acceleration": self.lateral_limit, "Lr": self.vehicle["Lr"]}
                   if self.rate_limited else {})
         speed = self.vx if speed is None else speed
         if self.rate_limited:

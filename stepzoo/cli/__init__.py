@@ -40,7 +40,8 @@ LONG = ("run", "sweep", "tune", "plan", "plan-bench", "report")
 INTEGRATE = ("run", "simulate", "sweep", "tune", "plan", "plan-bench", "report", "serve")
 # A command that resumes where an interrupted call stopped, and how.
 RESUME = {"sweep": "resume with --resume", "plan-bench": "resume with --resume",
-          "run": "resume: run it again, the same command (finished sweep chunks are kept)"}
+          "run": "resume: run it again, the same command (finished sweep chunks and plans are "
+          "kept)"}
 INTERRUPTED = 130          # the shell's status for a command ended by Ctrl-C (128 + SIGINT)
 EXIT_STATUSES = """exit status:
   0    success

@@ -59,8 +59,16 @@ def stages(out: Path, config: Path, pos_tol: float, margin: float, seed: int,
                                               runner=ahead.sweep_runner(config)), sweep)
 
     def plan():
-        records = plan_cmd.plan([load_scenario(n) for n in builtin_names()], plans, tuned, seed,
-                                batch=True, progress=progress)
+        from stepzoo.search.planner.config import load_config
+        scenarios = [load_scenario(n) for n in builtin_names()]
+        records = plan_cmd.finished(plans, load_config(tuned), seed, scenarios)
+        if records is not None:
+            # The stage's own output: stderr under `run`, nothing when quiet.
+            print("plans kept: the folder holds every built-in scenario planned with this "
+                  "tuned step, its parameters and this seed")
+        else:
+            records = plan_cmd.plan(scenarios, plans, tuned, seed, batch=True,
+                                    progress=progress)
         plan_cmd.show(records, plans, True)
         return plan_cmd.status(records)
 

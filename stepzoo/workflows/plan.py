@@ -111,6 +111,39 @@ def plan(scenarios, out, config=None, seed: int = 0, *, reverse: bool = False,
     return records
 
 
+def finished(out, config, seed: int, scenarios) -> list[dict] | None:
+    """The records of the batch `plan` finished in the folder `out` for these scenarios with
+    this planner (the loaded config's method, h and parameters) and seed, read back from
+    its plan.json files (how `stepzoo run` keeps its plans when run again); None where
+    anything differs, or a file is missing or damaged."""
+    import numpy as np
+    out = Path(out)
+    try:
+        manifest = json.loads((out / "manifest.json").read_text())
+        if (manifest.get("written_by") != "plan" or manifest.get("seed") != seed
+                or manifest.get("scenarios") != [s.name for s in scenarios]
+                or not {"summary.csv", "summary.json"} <= {p.name for p in out.iterdir()}):
+            return None
+        params = json.loads(to_json(config.params.model_dump()))
+        records = []
+        for s in scenarios:
+            record = json.loads((out / s.name / "plan.json").read_text())
+            same = (record["params"] == params and record["stats"]["seed"] == seed
+                    and (record["config"]["method"], record["config"]["h"]) ==
+                    (config.method, config.h)
+                    and record["start"] == [float(v) for v in s.start]
+                    and record["goal"] == [float(v) for v in s.goal]
+                    and (record["speed"], record["goal_speed"]) == (s.speed, s.goal_speed)
+                    and (out / s.name / "plan.png").is_file()
+                    and np.array_equal(np.load(out / s.name / "map.npy"), s.omap.occupied))
+            if not same:
+                return None
+            records.append(record)
+        return records
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
+
+
 def _plan_one(scenario, config, seed, count: str, progress: bool) -> dict:
     """plan_scenario, then a line on stderr saying how it went (none for a pose that cannot
     be planned: that is the user's mistake, told in one line after the batch)."""

@@ -296,7 +296,9 @@ class ModalRuns:
         n_own = self.steps(h)
         stable, t_fail, converged = np.zeros(N, bool), np.full(N, np.nan), np.zeros(N, bool)
         state, ratio = np.full(N, -1), np.zeros(N)
-        todo, xs, cs = list(range(N)), {}, {}
+        todo = list(range(N))
+        xs: dict = {}           # (candidate, direction) -> its run
+        cs: dict = {}           # (candidate, direction) -> whether its solves converged
         if settle and K > MODES:
             todo, xs, cs = self._settle(meth, lanes, h, n_own, converged, t_fail)
         # The candidates not settled: every run (those already made stand), and the retry.
@@ -327,7 +329,7 @@ class ModalRuns:
         return (Outcome(stable, t_fail, converged),
                 Diagnosis(state, t_fail, ratio, ref, retried))
 
-    def _settle(self, meth, lanes, h, n_own, converged, t_fail) -> tuple[list, dict, dict]:
+    def _settle(self, meth, lanes, h, n_own, converged, t_fail) -> tuple[list[int], dict, dict]:
         """The unperturbed run and the MODES mode directions of every candidate, and the
         candidates they settle (judge's `settle`) marked in `converged` and `t_fail`: the
         candidates left, and those runs (before any retry) with their convergence."""
