@@ -698,7 +698,6 @@ def resimulate(conn: Connection, *, L, m, refine=10) -> np.ndarray:
     return np.concatenate(rows)
 
 
-
 def _crawl_guess(N, start, v0, steer0, segs, radius, delta_max, rate_max, a_max, v_fwd, v_back,
                  a_lat, v_goal, dt=CRAWL_DT) -> tuple[float, np.ndarray]:
     """(t_f [s], states (5, N+1) [X, Y, theta, v, delta] at N+1 equal times) of a guess the
