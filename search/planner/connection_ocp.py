@@ -401,11 +401,14 @@ STALLED = "Stalled"
 
 class _StallWatch(ca.Callback):
     """IPOPT's iteration callback: stops the solve of `solver` (set after it is built) once
-    SHORT_STEPS of its iterations took a primal step below SHORT_STEP (its live stats)."""
+    SHORT_STEPS of its iterations took a primal step below SHORT_STEP (its live stats, read
+    only from the SHORT_STEPS-th iteration on: `calls`, reset before each solve, counts
+    them)."""
 
     def __init__(self, name: str):
         ca.Callback.__init__(self)
         self.solver: ca.Function | None = None
+        self.calls = 0
         self.construct(name, {})
 
     def get_n_in(self):
@@ -424,6 +427,9 @@ class _StallWatch(ca.Callback):
         return ca.Sparsity(0, 0)   # it reads the stats, not the iterate
 
     def eval(self, arg):
+        self.calls += 1
+        if self.calls < SHORT_STEPS:
+            return [0]
         assert self.solver is not None
         alpha = self.solver.stats()["iterations"]["alpha_pr"]
         return [int(sum(a < SHORT_STEP for a in alpha) >= SHORT_STEPS)]
@@ -532,6 +538,7 @@ def _solve(prob, p, lo, hi, tf_range, tf_g, u_g, per_metre=False, room=None,
                                              else np.inf)]
     if room is not None:
         lbg, ubg = np.r_[lbg, np.full(len(room), -np.inf)], np.r_[ubg, np.square(room)]
+    prob.watch.calls = 0
     sol = prob.solver(x0=x_g, p=p, lbx=lbx, ubx=ubx, lbg=lbg, ubg=ubg)
     stats = prob.solver.stats()
     states, inputs = (np.asarray(a).T.copy() for a in prob.path(sol["x"], p))
