@@ -409,7 +409,8 @@ def _fill(seg: dict, states: np.ndarray, vehicle: dict, spacing: float) -> np.nd
         size = max(size, FILL_LEAST)
     pad = np.r_[owner, np.full(size - owner.size, owner[0])]
     step = np.r_[frac, np.ones(size - owner.size)] * h
+    # Sliced in NumPy: a JAX slice compiles a program per segment's size.
     x1 = np.asarray(integrate_batch(FILL_METHOD, rhs, x[pad].astype(float),
-                                    u[pad].astype(float), p, step, 1).x[:owner.size, 1])
+                                    u[pad].astype(float), p, step, 1).x)[:owner.size, 1]
     t = float(seg["t0"]) + (owner + frac) * h
     return np.column_stack([t, x1[:, :3]])

@@ -235,7 +235,8 @@ def track(rows, start, vehicle: dict, kinematic=None) -> dict:
     x0 = np.r_[start, v0, *kinematic_lateral(v0, delta0, p), delta0]
     with jax.enable_x64(True):
         out = _scan(max(n_steps, LEAST_STEPS))(x0, arrays, n_pieces, p)
-        poses, dev, done = (np.asarray(a)[:n_steps] for a in (out[0][:, :3], out[1], out[2]))
+        poses, dev, done = (np.asarray(a)[:n_steps] for a in out[:3])
+    poses = poses[:, :3]
     # Up to the step it finished (and one more: the stopped pose).
     n = int(np.argmax(done)) + 1 if done.any() else len(done)
     return {"poses": poses[:n], "deviation": dev[:n], "done": bool(done.any()),
