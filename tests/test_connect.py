@@ -425,3 +425,16 @@ def _steered_rhs(t, x, u, p):
     """The kinematic bicycle with its steer a state, driven by u = [steer rate, acceleration]
     ([rad/s, m/s^2])."""
     return jnp.r_[kinematic_bicycle(t, x[:4], jnp.r_[x[4], u[1] * p["m"]], p), u[0]]
+
+
+def test_a_solve_whose_line_search_keeps_cutting_the_step_is_given_up(monkeypatch):
+    """The stall watch stops IPOPT once SHORT_STEPS of its iterations took a primal step
+    below SHORT_STEP: counted short at every step (SHORT_STEP above 1), a problem that
+    otherwise solves is given up after that many iterations, status STALLED."""
+    from stepzoo.search.planner import connection_ocp
+    start, goal = [0, 0, 0, 0], [30, 0, 0]
+    assert connect(start, goal, L=L, m=M).success
+    monkeypatch.setattr(connection_ocp, "SHORT_STEP", 1.5)
+    monkeypatch.setattr(connection_ocp, "SHORT_STEPS", 2)
+    c = connect(start, goal, L=L, m=M)
+    assert not c.success and c.status == connection_ocp.STALLED

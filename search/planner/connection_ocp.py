@@ -367,6 +367,7 @@ def _guess_poses(N, start, radius, runs, plans, a_max):
 @dataclass(frozen=True)
 class _Problem:
     """A built IPOPT solver and the maps from its variables to the connection."""
+    watch: "_StallWatch"  # its iteration callback
     solver: ca.Function   # nlpsol: x = [T, vec(U)(, vec(Z))], p = [x0, goal, L, m, d_max,
     #                       a_max(, rate_max, a_lat, v_steer, Lr)(, the corridor's Lr,
     #                       offsets, centres)(, v_goal)]; g = [defects
@@ -389,6 +390,49 @@ IPOPT_OPTIONS: dict[str, int | str] = {"print_level": 0, "sb": "yes", "max_iter"
                                        "fast_step_computation": "yes"}
 ADAPTIVE_MU: dict[str, int | str] = {"mu_strategy": "adaptive",
                                      "adaptive_mu_globalization": "kkt-error"}
+# A solve whose line search cut the primal step below SHORT_STEP this many times is given up
+# (status STALLED): the solves that went on to max_iter took such steps in most iterations,
+# several trial points each, while no converged solve took as many (the study:
+# docs/studies/plan-success-2026-11-28f.md).
+SHORT_STEP = 0.1   # [1] of the full primal step
+SHORT_STEPS = 40   # [1]
+STALLED = "Stalled"
+
+
+class _StallWatch(ca.Callback):
+    """IPOPT's iteration callback: stops the solve of `solver` (set after it is built) once
+    SHORT_STEPS of its iterations took a primal step below SHORT_STEP (its live stats, read
+    only from the SHORT_STEPS-th iteration on: `calls`, reset before each solve, counts
+    them)."""
+
+    def __init__(self, name: str):
+        ca.Callback.__init__(self)
+        self.solver: ca.Function | None = None
+        self.calls = 0
+        self.construct(name, {})
+
+    def get_n_in(self):
+        return ca.nlpsol_n_out()
+
+    def get_n_out(self):
+        return 1
+
+    def get_name_in(self, i):
+        return ca.nlpsol_out(i)
+
+    def get_name_out(self, i):
+        return "stop"
+
+    def get_sparsity_in(self, i):
+        return ca.Sparsity(0, 0)   # it reads the stats, not the iterate
+
+    def eval(self, arg):
+        self.calls += 1
+        if self.calls < SHORT_STEPS:
+            return [0]
+        assert self.solver is not None
+        alpha = self.solver.stats()["iterations"]["alpha_pr"]
+        return [int(sum(a < SHORT_STEP for a in alpha) >= SHORT_STEPS)]
 
 
 @cache
@@ -449,11 +493,15 @@ def _problem(N: int, shooting: str, method: str, bounded: bool, speed_fixed: boo
         g.append(ca.vec((cx + along * ca.cos(heading) - centres[0, :]) ** 2
                         + (cy + along * ca.sin(heading) - centres[1, :]) ** 2))
     ipopt = {**IPOPT_OPTIONS, **ADAPTIVE_MU} if shooting == "multiple" else IPOPT_OPTIONS
-    solver = ca.nlpsol(f"connect_{shooting}{N}{'_steered' * steered}", "ipopt",
+    name = f"connect_{shooting}{N}{'_steered' * steered}"
+    watch = _StallWatch(f"{name}_watch")
+    solver = ca.nlpsol(name, "ipopt",
                        # casadi's stub takes SX alone; nlpsol takes MX as well
                        {"x": x, "p": p, "f": T, "g": ca.vertcat(*g)},  # type: ignore[dict-item]
-                       {"expand": True, "print_time": False, "ipopt": ipopt})
-    return _Problem(solver, ca.Function("rollout", [T, U, p], [rollout]),
+                       {"expand": True, "print_time": False, "ipopt": ipopt,
+                        "iteration_callback": watch})
+    watch.solver = solver
+    return _Problem(watch, solver, ca.Function("rollout", [T, U, p], [rollout]),
                     ca.Function("path", [x, p], [states, inputs]), shooting, 3 + speed_fixed,
                     rows, nx)
 
@@ -490,6 +538,7 @@ def _solve(prob, p, lo, hi, tf_range, tf_g, u_g, per_metre=False, room=None,
                                              else np.inf)]
     if room is not None:
         lbg, ubg = np.r_[lbg, np.full(len(room), -np.inf)], np.r_[ubg, np.square(room)]
+    prob.watch.calls = 0
     sol = prob.solver(x0=x_g, p=p, lbx=lbx, ubx=ubx, lbg=lbg, ubg=ubg)
     stats = prob.solver.stats()
     states, inputs = (np.asarray(a).T.copy() for a in prob.path(sol["x"], p))
@@ -503,7 +552,8 @@ def _solve(prob, p, lo, hi, tf_range, tf_g, u_g, per_metre=False, room=None,
     if nx == 5:
         rates = inputs[:, 0].copy()
         inputs[:, 0] = states[:-1, 4]
-    return _Solution(success, str(stats["return_status"]), float(sol["x"][0]), states[:, :4],
+    status = STALLED if stats["return_status"] == "User_Requested_Stop" else stats["return_status"]
+    return _Solution(success, str(status), float(sol["x"][0]), states[:, :4],
                      inputs, rates)
 
 
