@@ -407,6 +407,7 @@ def _spied_on_worker(task):
     return _ON_WORKER(task)
 
 
+@pytest.mark.e2e       # a Dask cluster: make test-e2e
 def test_a_bench_on_a_dask_cluster_gives_the_in_process_table(folder, benched, tmp_path,
                                                                monkeypatch):
     distributed = pytest.importorskip("dask.distributed")

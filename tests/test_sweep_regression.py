@@ -10,8 +10,12 @@ in exact arithmetic (an eigenvalue's imaginary part, a binding state's weight) i
 alone, which has no relative size: every float also passes within an absolute tolerance, a
 1e-9 of its column's largest magnitude (the size its rounding is made of). An error
 column is a difference of two states of size up to ~30 m, so its last bits are absolute:
-err* columns pass within 1e-12. A run past its stability limit multiplies every rounding by
-its growth, so the errors of the rows a table marks unstable agree to UNSTABLE_RTOL only.
+err* columns pass within 1e-12. A fitted order is a slope through log errors whose
+smallest lie a few thousand roundings above zero: it agrees to FIT_RTOL. A run past its stability limit multiplies every rounding by
+its growth, and the growing mode may start at the size of a rounding: the errors of the
+rows a table marks unstable agree to UNSTABLE_RTOL only (without XLA's machine-code
+optimisation, as `make test` compiles, one moved by 8.3e-6; a changed growth, another method
+or step, moves them by orders of magnitude).
 To record new tables after an intended change, run this file with
 STEPZOO_RECORD_REGRESSION=1 (the tests then write them and skip)."""
 import json
@@ -32,7 +36,7 @@ from stepzoo.bench.sweep.config import load
 ROOT = Path(__file__).resolve().parents[1]
 DATA = ROOT / "tests" / "data" / "sweep_regression"
 RECORD = os.environ.get("STEPZOO_RECORD_REGRESSION") == "1"
-RTOL, ERR_ATOL, UNSTABLE_RTOL = 1e-9, 1e-12, 1e-6
+RTOL, ERR_ATOL, FIT_RTOL, UNSTABLE_RTOL = 1e-9, 1e-12, 1e-6, 1e-3
 
 
 def _tables(folder: Path) -> dict[str, pd.DataFrame]:
@@ -70,7 +74,8 @@ def _check(fresh: dict[str, pd.DataFrame], stored: Path):
                 a, b = a.astype(float), b.astype(float)
                 grown = unstable if col.startswith("err") else np.zeros(len(a), bool)
                 atol = column_atol(col, b[~grown])
-                np.testing.assert_allclose(a[~grown], b[~grown], rtol=RTOL, atol=atol,
+                rtol = FIT_RTOL if "order" in col else RTOL
+                np.testing.assert_allclose(a[~grown], b[~grown], rtol=rtol, atol=atol,
                                            equal_nan=True, err_msg=where)
                 np.testing.assert_allclose(a[grown], b[grown], rtol=UNSTABLE_RTOL,
                                            atol=ERR_ATOL, equal_nan=True,
