@@ -63,3 +63,26 @@ def test_issue_targets_are_formed_from_the_figures_they_name():
     # Every target that is a ratio is one run.py forms (the others are figures).
     assert {t for t in run.TARGETS if "_vs_" in t} <= set(ratios)
     assert tables.met(0.8, (">=", 0.8)) == "yes" and tables.met(20.5, ("<=", 20.0)) == "no"
+
+
+def test_make_runs_warm_check_reads_the_tuned_choice_and_counts_new_cache_entries(tmp_path):
+    """bench_make_run's warm-run check: the (method, h) each run's tuned.toml records, equal
+    only where both are; the entries a run adds to the compilation cache folder."""
+    from stepzoo.bench.perf.bench_make_run import _programs, tuned_choice
+    for side, method in (("cold", "heun"), ("warm", "midpoint"), ("again", "heun")):
+        (tmp_path / side).mkdir()
+        (tmp_path / side / "tuned.toml").write_text(
+            f'# written by stepzoo tune\nmethod = "{method}"\nh = 0.012578616352201259\n'
+            'why = "a tie"\n')
+    assert tuned_choice(tmp_path / "cold") == ("heun", 0.012578616352201259)
+    assert tuned_choice(tmp_path / "cold") != tuned_choice(tmp_path / "warm")
+    assert tuned_choice(tmp_path / "cold") == tuned_choice(tmp_path / "again")
+    cache = tmp_path / "cache"
+    assert _programs(cache) == 0
+    cache.mkdir()
+    for name in ("jit__batch-1", "jit__batch-2", "jit_run-3"):
+        (cache / name).write_bytes(b"x")
+    assert _programs(cache) == 3
+    # A warm run that tuned another choice is named as worse; more new programs too.
+    assert run.higher_is_better("make_run_warm_same_tuned")
+    assert not run.higher_is_better("make_run_warm_new_programs")

@@ -171,3 +171,18 @@ def test_a_writer_out_of_step_with_the_plan_schema_is_refused():
     assert list(ordered(dict(reversed(row.items())), STATS_KEYS, "stats")) == list(STATS_KEYS)
     with pytest.raises(ValueError, match=r"missing \['n_steps'\], undeclared \['extra'\]"):
         ordered({**{k: 0 for k in list(STATS_KEYS)[:-1]}, "extra": 1}, STATS_KEYS, "stats")
+
+
+def test_tree_polylines_keep_each_edges_ends_and_evenly_spread_rows_in_the_trees_order():
+    """plan.json's tree: edge i's polyline is edge i's [X, Y] at TREE_POINTS rows spread
+    evenly (both ends, no row twice), rounded to centimetres, whatever the mix of lengths."""
+    from stepzoo.search.plans.files import TREE_POINTS, tree_polylines
+    rng = np.random.default_rng(3)
+    lengths = [2, 41, 1, 41, 7, 3, 41, 6, 2]
+    tree = [rng.uniform(-50, 50, (n, 5)) for n in lengths]
+    lines = tree_polylines(typing.cast(typing.Any, type("R", (), {"tree": tree})))
+    assert len(lines) == len(tree)
+    for edge, line in zip(tree, lines):
+        rows = sorted({round(k * (len(edge) - 1) / (TREE_POINTS - 1))
+                       for k in range(TREE_POINTS)})
+        assert line == np.round(edge[rows, :2], 2).tolist()

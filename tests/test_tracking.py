@@ -313,3 +313,52 @@ def test_a_plan_without_a_path_has_a_tracking_block_of_nulls():
     assert block == {"controller": "stanley", "model": "single_track_fiala",
                      "max_deviation_m": None, "final_deviation_m": None, "collides": None,
                      "clearance_min_m": None}
+
+
+def test_the_shared_program_sizes_give_the_rows_and_the_tracking_of_the_plans_own(
+        monkeypatch):
+    """The path rows filled in between nodes, padded to FILL_LEAST, and the closed loop,
+    compiled for more periods and rows than a plan needs (LEAST_STEPS, LEAST_ROWS: so that
+    plans share programs), are bit for bit those of the plan's own power-of-two sizes, and
+    the tracked car gets the plan's own time allowed (the periods past it cut off)."""
+    import stepzoo.integrators as zoo
+    from stepzoo.search.planner.config import load_config, with_params
+    from stepzoo.search.planner.pathfinder import PathFinder
+    from stepzoo.search.plans import replay as R
+    from stepzoo.search.world.scenarios import load_scenario
+    scenario = load_scenario("wall_between")
+    config = with_params(load_config(), improve_expansions=0, max_seconds=3600.0)
+    finder = PathFinder(scenario.omap, config, scenario.vehicle, scenario.speed)
+    result = finder.plan(scenario.start, scenario.goal, scenario.goal_speed, seed=0)
+    batches = []
+    run = zoo.integrate_batch
+    monkeypatch.setattr(zoo, "integrate_batch",
+                        lambda method, f, x0, *a: batches.append(len(x0)) or run(method, f, x0, *a))
+    shared = R.model_rows(result, finder.vehicle, 0.05)
+    small, least = R.FILL_SMALL, R.FILL_LEAST
+    monkeypatch.setattr(R, "FILL_LEAST", small)
+    own = R.model_rows(result, finder.vehicle, 0.05)
+    assert any(small < n < least for n in batches[len(batches) // 2:])
+    assert np.array_equal(shared, own)
+    start, kinematic = result.start, T.kinematic_rows(own, R.controls(result))
+    lengths, scan = [], T._scan
+    monkeypatch.setattr(T, "_scan", lambda n: lengths.append(n) or scan(n))
+    # Sizes above this plan's own, whatever the defaults: the extra periods are cut off.
+    monkeypatch.setattr(T, "LEAST_STEPS", 65536)
+    monkeypatch.setattr(T, "LEAST_ROWS", 8192)
+    tracked = track(own, start, finder.vehicle, kinematic)
+    monkeypatch.setattr(T, "LEAST_STEPS", 1024)
+    monkeypatch.setattr(T, "LEAST_ROWS", 256)
+    alone = track(own, start, finder.vehicle, kinematic)
+    assert lengths[1] < lengths[0] and alone["done"]
+    for key in ("poses", "deviation", "end"):
+        assert np.array_equal(tracked[key], alone[key]), key
+    assert tracked["done"] == alone["done"]
+    # A time allowed shorter than the plan needs: the car is cut off there, not at the
+    # compiled length.
+    bucket = T._bucket
+    monkeypatch.setattr(T, "_bucket", lambda n, least: 1024 if least == 1024 else
+                        bucket(n, least))
+    monkeypatch.setattr(T, "LEAST_STEPS", 65536)
+    short = track(own, start, finder.vehicle, kinematic)
+    assert not short["done"] and len(short["poses"]) == 1024

@@ -210,7 +210,8 @@ LOWER_RATIOS = ("sweep_vs_driver", "sweep_warm_vs_cold")    # times over times
 
 
 def higher_is_better(name: str) -> bool:
-    return (name.endswith(("steps_per_s", "steps_per_s_median", "runs_per_s", "solved", "exact"))
+    return (name.endswith(("steps_per_s", "steps_per_s_median", "runs_per_s", "solved", "exact",
+                           "same_tuned"))
             or ("_vs_" in name and name not in LOWER_RATIOS
                 and not name.startswith(("connect_", "plan_"))))
 

@@ -32,11 +32,17 @@ def path_rows(result: PlanResult, vehicle: dict) -> np.ndarray:
 
 
 def tree_polylines(result: PlanResult) -> list:
-    """Every tree edge as a few [X, Y] points [m], rounded to centimetres."""
-    out = []
-    for edge in result.tree:
-        keep = np.unique(np.linspace(0, len(edge) - 1, TREE_POINTS).round().astype(int))
-        out.append(np.round(edge[keep, :2], 2).tolist())
+    """Every tree edge as a few [X, Y] points [m] (TREE_POINTS spread evenly over its
+    states, ends included), rounded to centimetres; edges of one length in one array."""
+    out: list = [None] * len(result.tree)
+    by_length: dict[int, list[int]] = {}
+    for i, edge in enumerate(result.tree):
+        by_length.setdefault(len(edge), []).append(i)
+    for n, edges in by_length.items():
+        keep = np.unique(np.linspace(0, n - 1, TREE_POINTS).round().astype(int))
+        points = np.round(np.stack([result.tree[i][keep, :2] for i in edges]), 2).tolist()
+        for i, line in zip(edges, points):
+            out[i] = line
     return out
 
 

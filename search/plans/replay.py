@@ -20,6 +20,9 @@ from stepzoo.search.planner.pathfinder import PlanResult
 
 METHOD, RTOL, ATOL = "DOP853", 1e-10, 1e-12
 FILL_METHOD = CONNECT_METHOD  # one step of it from a node gives the path rows between nodes
+# Batches of the rows filled in between nodes: up to FILL_SMALL rows on the driver's small
+# batch path, larger ones padded to FILL_LEAST rows at least (one program for most segments).
+FILL_SMALL, FILL_LEAST = 16, 512
 CHECK_SPACING_M = 0.05  # [m] at most between the replayed poses checked for collision
 # [s] a planned node is the path row this close in time to its step: plan.json rounds times
 # to 1e-6 s, and the rows filled in between nodes are far more than this apart.
@@ -399,11 +402,15 @@ def _fill(seg: dict, states: np.ndarray, vehicle: dict, spacing: float) -> np.nd
     if steered:
         x = np.column_stack([x, steer])
     rhs = steered_rhs(dynamics.model(model).rhs) if steered else dynamics.model(model).rhs
-    # Padded to a power of two: the driver compiles once per batch size.
+    # Padded to a power of two, and above FILL_SMALL to FILL_LEAST at least: the driver
+    # compiles once per batch size, and most segments then share one program.
     size = 1 << max(4, math.ceil(math.log2(owner.size)))
+    if size > FILL_SMALL:
+        size = max(size, FILL_LEAST)
     pad = np.r_[owner, np.full(size - owner.size, owner[0])]
     step = np.r_[frac, np.ones(size - owner.size)] * h
+    # Sliced in NumPy: a JAX slice compiles a program per segment's size.
     x1 = np.asarray(integrate_batch(FILL_METHOD, rhs, x[pad].astype(float),
-                                    u[pad].astype(float), p, step, 1).x[:owner.size, 1])
+                                    u[pad].astype(float), p, step, 1).x)[:owner.size, 1]
     t = float(seg["t0"]) + (owner + frac) * h
     return np.column_stack([t, x1[:, :3]])

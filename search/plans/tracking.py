@@ -56,6 +56,10 @@ SPACING_M = 0.05      # [m] between the reference's points along the path
 SMOOTH_M = 1.0        # [m] the path's heading is averaged over this length
 WINDOW = 16           # path segments searched ahead of the last nearest one per step
 CHECK_SPACING_M = 0.05  # [m] at most between the tracked poses checked for collision
+# The closed loop is compiled for at least this many control periods and reference rows:
+# plans of the built-in scenarios' sizes then share one program, whose compiling costs far
+# more than running the extra periods (cut off: the time allowed stays the plan's own).
+LEAST_STEPS, LEAST_ROWS = 16384, 4096
 
 
 def plant_params(vehicle: dict) -> dict:
@@ -208,7 +212,7 @@ def track(rows, start, vehicle: dict, kinematic=None) -> dict:
     p = plant_params(vehicle)
     ref = reference(rows, p, kinematic)
     n_rows, n_pieces = len(ref["P"]), len(ref["first"])
-    size, n_p = _bucket(n_rows + WINDOW + 1, 256), _bucket(n_pieces, 4)
+    size, n_p = _bucket(n_rows + WINDOW + 1, LEAST_ROWS), _bucket(n_pieces, 4)
     pad = lambda a: np.concatenate([a, np.repeat(a[-1:], size - len(a), axis=0)])
     arrays = {k: pad(v) for k, v in ref.items() if k not in ("first", "last", "way")}
     for k in ("first", "last", "way"):
@@ -219,7 +223,7 @@ def track(rows, start, vehicle: dict, kinematic=None) -> dict:
     driven = float(np.sum(SPACING_M / np.maximum(ref["speed"], V_CAP_MIN)))  # at its speeds
     allowed = max(float(rows[-1, 0] - rows[0, 0]), driven) + n_pieces * (
         2 * v_max / A_BRAKE + 2.0) + 5.0
-    n_steps = _bucket(math.ceil(allowed / H_S), 1024)
+    n_steps = _bucket(math.ceil(allowed / H_S), 1024)   # the control periods allowed
     # At the start pose at the plan's first speed, the wheel turned (before moving off, as
     # the planner's driver turns it) to the controller's first command for a car on its path,
     # the lateral motion the rolling car's at that steer.
@@ -230,8 +234,9 @@ def track(rows, start, vehicle: dict, kinematic=None) -> dict:
         else ref["steer_ff"][0], p["delta_min"], p["delta_max"]))
     x0 = np.r_[start, v0, *kinematic_lateral(v0, delta0, p), delta0]
     with jax.enable_x64(True):
-        out = _scan(n_steps)(x0, arrays, n_pieces, p)
-        poses, dev, done = (np.asarray(a) for a in (out[0][:, :3], out[1], out[2]))
+        out = _scan(max(n_steps, LEAST_STEPS))(x0, arrays, n_pieces, p)
+        poses, dev, done = (np.asarray(a)[:n_steps] for a in out[:3])
+    poses = poses[:, :3]
     # Up to the step it finished (and one more: the stopped pose).
     n = int(np.argmax(done)) + 1 if done.any() else len(done)
     return {"poses": poses[:n], "deviation": dev[:n], "done": bool(done.any()),

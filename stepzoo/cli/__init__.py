@@ -189,6 +189,10 @@ def _drop_redelivery() -> None:
 
 
 def main(argv=None) -> int:
+    """The `stepzoo` command on `argv` (default: this process's arguments, and then, as
+    the process's own entry point, a command stopped by Ctrl-C ends the process); returns
+    its exit status."""
+    process = argv is None
     signal.signal(signal.SIGPIPE, signal.SIG_DFL)       # `stepzoo ... | head` ends quietly
     sys.unraisablehook = _redeliver_ctrl_c
     argv = sys.argv[1:] if argv is None else argv
@@ -199,7 +203,22 @@ def main(argv=None) -> int:
     os.environ["XLA_FLAGS"] = with_xla_option(os.environ.get("XLA_FLAGS", ""))
     code = dispatch(build_parser(chosen).parse_args(argv), argv)
     _forget_escaped_interrupt()
+    if code == INTERRUPTED and process:
+        _end_interrupted()
     return code
+
+
+def _end_interrupted() -> None:
+    """End the process at once with INTERRUPTED, its output flushed: a Ctrl-C that landed
+    while XLA compiled leaves XLA's threads running, and the interpreter's exit, tearing
+    down JAX beside them, then ended the command by SIGSEGV after it said it was
+    interrupted. What the command wrote was finished or removed as the Ctrl-C unwound it."""
+    for stream in (sys.stdout, sys.stderr):
+        try:
+            stream.flush()
+        except (OSError, ValueError):   # a closed pipe: nothing more reaches it anyway
+            pass
+    os._exit(INTERRUPTED)
 
 
 def dispatch(args, argv=None) -> int:
