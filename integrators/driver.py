@@ -42,6 +42,11 @@ CHUNK_IMPLICIT = 64
 # ... except that up to this many per device run as one chunk: two small chunks cost a second
 # compile and run no faster.
 ONE_CHUNK_IMPLICIT = 256
+# ... and at most as many as hold this many bytes of the largest matrix a step factorises:
+# XLA:CPU compiles the step loop as one native function only while its cost model counts
+# fewer bytes in the loop than the threshold (the command's 1e8), and the full-Newton
+# retry's elimination counts that matrix some tens of times.
+SYSTEM_BYTES = 2 << 20
 # Below this many trajectories a plain vmap of the one-trajectory loop beats the chunks (their
 # bookkeeping is not repaid). A single trajectory runs without a batch axis: a vmap of one
 # still costs more than the plain loop.
@@ -188,6 +193,15 @@ def chunk_size(method) -> int:
     return CHUNK if loops_native() else CHUNK_CALLS
 
 
+def implicit_lanes(method, d: int, itemsize: int) -> int:
+    """The most trajectories an implicit method's chunk of d-state ones may hold
+    (SYSTEM_BYTES): its full-Newton retry factorises the whole stage system, of order
+    stages x d, for a fully implicit tableau, a d x d matrix otherwise."""
+    whole_system = not getattr(method.scheme, "diagonally_implicit", True)
+    order = d * (method.stages if whole_system else 1)
+    return max(SYSTEM_BYTES // (order * order * itemsize), 1)
+
+
 def _split(a, n_chunks, size):
     """(B, ...) -> (n_chunks, ..., size), padding the batch with copies of its first row."""
     a = jnp.asarray(a)
@@ -216,8 +230,12 @@ def _batch(method, f, x0, u, p, h, n_steps, t0, max_steps, libm, newton=None, re
     devices = jax.devices()
     shards = len(devices) if batch >= SHARE * len(devices) else 1
     per_device = -(-batch // shards)
-    whole = method.implicit and per_device <= ONE_CHUNK_IMPLICIT
-    size = per_device if whole else min(chunk_size(method), per_device)
+    size = chunk_size(method)
+    lanes = implicit_lanes(method, x0.shape[1], x0.dtype.itemsize) if method.implicit else 0
+    while size > CHUNK and size > lanes and method.implicit:
+        size //= 2
+    whole = method.implicit and per_device <= min(ONE_CHUNK_IMPLICIT, max(lanes, size))
+    size = per_device if whole else min(size, per_device)
     if shards == 1 and not method.implicit:
         return _in_place(method, f, x0, u, p, h, n_steps, t0, max_steps, libm, size)
     n_chunks = -(-batch // (size * shards)) * shards

@@ -133,7 +133,10 @@ def _lu_factor_loop(mat):
 
 
 def _lu_solve_loop(factors, r):
-    """mat^-1 r from `_lu_factor_loop(mat)`, a loop over the rows."""
+    """mat^-1 r from `_lu_factor_loop(mat)`, a loop over the rows. Each row's product with
+    x is a sum by `halved`, not a dot: XLA:CPU makes a float32 dot over a batch a library
+    call (YNNPACK), and then the full-Newton retry's loop, and the step loop around it, are
+    not compiled as one native function."""
     lu, pivots = factors
     n = lu.shape[0]
     rows = jnp.arange(n)
@@ -142,15 +145,20 @@ def _lu_solve_loop(factors, r):
         return _swap_rows(x, rows, k, pivots[k])
 
     def forward(i, x):
-        return jnp.where(rows == i, x - jnp.dot(jnp.where(rows < i, lu[i], 0), x), x)
+        return jnp.where(rows == i, x - _row_times(jnp.where(rows < i, lu[i], 0), x), x)
 
     def back(j, x):
         i = n - 1 - j
-        xi = (x[i] - jnp.dot(jnp.where(rows > i, lu[i], 0), x)) / lu[i, i]
+        xi = (x[i] - _row_times(jnp.where(rows > i, lu[i], 0), x)) / lu[i, i]
         return jnp.where(rows == i, xi, x)
 
     x = lax.fori_loop(0, n - 1, swap, r)
     return lax.fori_loop(0, n, back, lax.fori_loop(0, n, forward, x))
+
+
+def _row_times(row, x):
+    """row @ x (x a vector, or a matrix whose rows row weighs) as `halved` sums."""
+    return halved(row.reshape((-1,) + (1,) * (x.ndim - 1)) * x, jnp.add)
 
 
 def _swap_rows(a, rows, k, p):

@@ -1,5 +1,8 @@
 """Without the command's XLA loop option the library runs bigger chunks (driver.chunk_size),
 with the same trajectories to round-off; it only reads XLA_FLAGS."""
+import re
+from collections import Counter
+
 import jax
 import numpy as np
 import pytest
@@ -78,3 +81,21 @@ def test_the_last_chunk_overlaps_instead_of_padding(monkeypatch):
         np.testing.assert_allclose(tr.t[b], ref.t, rtol=1e-15)
     np.testing.assert_array_equal(tr.evals, np.full(BATCH, 4.0 * 30))
     assert bool(np.all(tr.converged))
+
+
+@pytest.mark.parametrize("d, chunk", [(9, driver.CHUNK_IMPLICIT), (29, 32)])
+def test_implicit_chunks_hold_at_most_system_bytes_of_the_retry_matrix(d, chunk):
+    """Radau IIA 5's full-Newton retry factorises its whole 3d x 3d stage system: at 29
+    states (order 87, 61 kB a trajectory in float64) a chunk of 64 made the step loop count
+    more bytes than XLA's threshold, which then ran it operation by operation; its chunks
+    are 32 there, and stay CHUNK_IMPLICIT at 9 states (whose results the regression tables
+    hold)."""
+    batch, n = 2 * driver.ONE_CHUNK_IMPLICIT + 3, 3 * d        # chunks on one device or two
+    x0 = np.zeros((batch, d))
+    fn = jax.jit(lambda x0: driver._batch(method("radau_iia5"), lambda t, x, u, p: -x, x0,
+                                          np.zeros((batch, 1)), np.zeros(batch), 0.01, 2,
+                                          0.0, None, False))
+    # The stage values of a chunk's lanes, (lanes, 3d), are its most common 3d-long rows.
+    rows = Counter(re.findall(rf"tensor<(\d+)x{n}xf64>", fn.lower(x0).as_text()))
+    assert int(rows.most_common(1)[0][0]) == chunk, rows
+    assert chunk * n * n * 8 <= driver.SYSTEM_BYTES

@@ -281,6 +281,27 @@ def test_kept_factors_and_iterations_compile_without_library_calls():
         assert call not in text, call
 
 
+def test_full_newton_retry_compiles_without_library_calls_in_float32():
+    """The full-Newton retry's elimination and solve of Radau IIA 5's whole stage system at
+    29 states (order 87) over a chunk of 64 lanes, in float32 as `make bench` runs it,
+    compile without custom fusions: XLA:CPU made the looped substitution's dots YNNPACK
+    calls, and the retry program's step loop then ran operation by operation."""
+    import jax
+
+    from stepzoo.integrators.newton import factorised
+    n, lanes = 87, 64
+    rng = np.random.default_rng(4)
+    mat = (np.eye(n) + 0.1 * rng.normal(size=(lanes, n, n))).astype(np.float32)
+    r = rng.normal(size=(lanes, n)).astype(np.float32)
+    solve = jax.jit(jax.vmap(lambda m, v: factorised(m)[0](v)))
+    text = solve.lower(mat, r).compile().as_text()
+    for call in ("scatter(", "kind=kCustom", "custom-call("):
+        assert call not in text, call
+    x = np.asarray(solve(mat, r), float)
+    want = np.linalg.solve(mat.astype(float), r.astype(float)[..., None])[..., 0]
+    assert np.max(np.abs(x - want)) <= 1e-4 * np.max(np.abs(want))
+
+
 @pytest.mark.parametrize("name", ["trapezoidal", "backward_euler", "bdf3"])
 def test_unrolled_elimination_steps_as_the_looped_one_does(monkeypatch, name):
     """Robertson's steps with the unrolled elimination land where the looped one's
