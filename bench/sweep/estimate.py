@@ -12,6 +12,7 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import dataclass
+from functools import partial
 
 import numpy as np
 
@@ -70,11 +71,19 @@ def estimate(cfg, cache: dict, blocks: int, workers: int = 1) -> Estimate:
                 block.modal()
         yield "", took["wall"] - took["compile"]
 
-    # Each method with its own block (its own stopwatch), sharing the cache.
-    calibrate = lambda name: [(name, _method(Block(cfg, 0, cache), cfg.method(name)))]
-    got = dict(distributed.threaded(
-        [shared, *(lambda name=name: calibrate(name) for name in cfg.methods)], workers))
-    shared_s = got.pop("")
+    # Each method with its own block (its own stopwatch), sharing the cache: every program
+    # compiled first, then the calls timed, so that no timed call waits on another thread's
+    # tracing or compiling (which held a one-step call up to 0.7 s).
+    own = {name: Block(cfg, 0, cache) for name in cfg.methods}
+    compiled = dict(distributed.threaded(
+        [shared, *(lambda name=name: _compile(own[name], cfg.method(name), name)
+                   for name in cfg.methods)], workers))
+    shared_s = compiled.pop("")
+
+    def timing(name: str):
+        yield name, _method(own[name], cfg.method(name), compiled[name])
+
+    got = dict(distributed.threaded([partial(timing, name) for name in cfg.methods], workers))
     methods = {name: got[name] for name in cfg.methods}
     calibration = time.perf_counter() - started
     # Block 0's shared work and compiling are done; the rest is the chunks' runs, and the
@@ -100,12 +109,23 @@ def schedule(durations, workers: int) -> float:
     return max(ends)
 
 
-def _method(block: Block, meth) -> dict:
-    """A method's calibration and its chunk's counted calls and steps."""
+def _compile(block: Block, meth, name: str):
+    """(name, the wall time [s] of the method's compiling call), as the chunk makes it, and
+    its stability probe's at the grid's middle step."""
     cfg, pts = block.cfg, block.points
     t0 = time.perf_counter()
-    block.run(meth, pts.x0, pts.u, pts.p, cfg.hs[0], 1)             # compiles, as the chunk
+    block.run(meth, pts.x0, pts.u, pts.p, cfg.hs[0], 1)
     compile_s = time.perf_counter() - t0
+    block.along()
+    block.stability_runs()
+    block.stable(meth, np.full((len(pts), 1), cfg.hs[len(cfg.hs) // 2]))
+    yield name, compile_s
+
+
+def _method(block: Block, meth, compile_s: float) -> dict:
+    """A method's calibration, its programs compiled (`compile_s` [s] its compiling call),
+    and its chunk's counted calls and steps."""
+    cfg, pts = block.cfg, block.points
     # The cost per step from the sweep's longest call (the grid's smallest step, most of a
     # chunk's steps; long enough that one call of it is timed), past the fixed cost of a
     # call of one step.
