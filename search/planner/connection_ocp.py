@@ -397,6 +397,9 @@ ADAPTIVE_MU: dict[str, int | str] = {"mu_strategy": "adaptive",
 SHORT_STEP = 0.1   # [1] of the full primal step
 SHORT_STEPS = 40   # [1]
 STALLED = "Stalled"
+# The parameters before a steered problem's limits (rate_max, a_lat, v_steer, Lr), after its
+# nx states x0: the goal [X, Y, theta], L, m, d_max, a_max.
+LIMITS_AT = 7
 
 
 class _StallWatch(ca.Callback):
@@ -444,7 +447,7 @@ def _problem(N: int, shooting: str, method: str, bounded: bool, speed_fixed: boo
     the squared distance of each of that many discs of the car's body (Lr and their offsets
     parameters) at each node 1..N from a parametrised centre, whose bounds the solve sets."""
     nx = 4 + steered
-    k = nx + 7                    # parameters before (rate_max, a_lat, v_steer, Lr), the
+    k = nx + LIMITS_AT            # parameters before (rate_max, a_lat, v_steer, Lr), the
     #                               discs' (Lr, offsets, centres (2, N * discs)) and v_goal
     n_discs = (1 + discs + 2 * N * discs) if discs else 0
     p = ca.MX.sym("p", k + 4 * steered + n_discs + speed_fixed)
@@ -546,7 +549,8 @@ def _solve(prob, p, lo, hi, tf_range, tf_g, u_g, per_metre=False, room=None,
     target = np.r_[p[nx:nx + 3], p[len(p) - (prob.n_end - 3):]]
     end = states[-1, :len(target)] - target
     if nx == 5:  # steered: the goal heading is the body's (_body)
-        end[2] -= float(body_slip(states[-1, 4], p[nx + 3], p[nx + 10]))
+        L, Lr = p[nx + 3], p[nx + LIMITS_AT + 3]      # as _problem reads them
+        end[2] -= float(body_slip(states[-1, 4], L, Lr))
     success = bool(stats["success"]) and float(np.abs(end).max()) < END_TOL
     rates = None
     if nx == 5:
