@@ -111,7 +111,8 @@ def schedule(durations, workers: int) -> float:
 
 def _compile(block: Block, meth, name: str):
     """(name, the wall time [s] of the method's compiling call), as the chunk makes it, and
-    its stability probe's at the grid's middle step."""
+    its stability probe's at the grid's middle step, once the shared work it needs (which
+    another thread may be computing) is there."""
     cfg, pts = block.cfg, block.points
     t0 = time.perf_counter()
     block.run(meth, pts.x0, pts.u, pts.p, cfg.hs[0], 1)
@@ -135,9 +136,6 @@ def _method(block: Block, meth, compile_s: float) -> dict:
     many = _timed(block, meth, h, n, rounds=1)
     step_s = max(0.0, (many - one) / (n - 1))
     call_s = max(0.0, one - step_s)
-    # The shared work, which another thread may be computing: waited for, not timed.
-    block.along()
-    block.stability_runs()
     calls, steps, run_steps, predict_s, stab_calls, stab_steps = _chunk_work(block, meth)
     # What a stability probe costs besides its calls (judging each run, step by step, in
     # Python), per step of a run, from one probe of the block's lanes at the grid's middle
