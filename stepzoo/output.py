@@ -1,8 +1,37 @@
-"""Writing results: tables as text or JSON to stdout, and atomic file writes."""
+"""Writing results: tables as text or JSON to stdout, a user's prints kept off it, and atomic
+file writes."""
+import contextlib
 import json
 import os
+import sys
 import tempfile
+import threading
 from pathlib import Path
+
+_LOCK = threading.Lock()
+_DEPTH = 0
+_SAVED = None
+
+
+@contextlib.contextmanager
+def prints_to_stderr():
+    """While inside, print() goes to stderr, so that stdout holds the command's output alone
+    (--format json). Safe when several threads (a sweep compiling methods side by side, each
+    tracing the user's model) enter and leave in any order: the first in saves stdout and
+    the last out puts it back, where nested contextlib.redirect_stdout calls leaving out of
+    order would leave stdout pointing at stderr for the rest of the command."""
+    global _DEPTH, _SAVED
+    with _LOCK:
+        if _DEPTH == 0:
+            _SAVED, sys.stdout = sys.stdout, sys.stderr
+        _DEPTH += 1
+    try:
+        yield
+    finally:
+        with _LOCK:
+            _DEPTH -= 1
+            if _DEPTH == 0:
+                sys.stdout, _SAVED = _SAVED, None
 
 
 def atomic_write(path, data: bytes | str) -> Path:

@@ -213,6 +213,42 @@ def test_prints_of_a_model_leave_json_alone_and_an_unread_parameter_is_a_warning
     assert "tracing f" in captured.err
 
 
+def test_threads_tracing_a_printing_model_leave_stdout_where_it_was(capsys):
+    """Two threads trace the user's model side by side (a sweep compiles its methods so) and
+    leave in the other order than they came: the command's stdout is stdout again after
+    both, not stderr (stdout pointing at stderr lost a sweep's summary from stdout)."""
+    import sys
+    import threading
+    from stepzoo.output import prints_to_stderr
+    stdout = sys.stdout
+    a_in, b_in, a_out = threading.Event(), threading.Event(), threading.Event()
+
+    def first():
+        with prints_to_stderr():
+            print("first traces")
+            a_in.set()
+            b_in.wait(5)
+        a_out.set()
+
+    def second():
+        a_in.wait(5)
+        with prints_to_stderr():
+            b_in.set()
+            a_out.wait(5)
+            print("second traces")
+
+    threads = [threading.Thread(target=first), threading.Thread(target=second)]
+    for thread in threads:
+        thread.start()
+    for thread in threads:
+        thread.join(10)
+    assert a_out.is_set() and sys.stdout is stdout
+    print("the command's output")
+    captured = capsys.readouterr()
+    assert captured.out == "the command's output\n"
+    assert captured.err == "first traces\nsecond traces\n"
+
+
 def test_a_batch_parameter_of_the_wrong_length_is_named():
     from stepzoo.integrators import integrate_batch
     f = lambda t, x, u, p: -p["k"] * x

@@ -3,14 +3,13 @@ returns a casadi.Function) or a file written by casadi.Function.save, made a JAX
 side (dynamics.casadi_model) that the sweep uses as any JAX model."""
 from __future__ import annotations
 
-import contextlib
 import hashlib
 import re
-import sys
 from pathlib import Path
 
 from stepzoo.bench.model.spec import import_user_module
 from stepzoo.errors import UsageError
+from stepzoo.output import prints_to_stderr
 
 FUNCTION_REF = re.compile(r"^[A-Za-z_][\w.]*:[A-Za-z_]\w*$")
 _CONVERTED: dict = {}     # one right-hand side per (function, sizes): one compilation
@@ -40,7 +39,7 @@ def casadi_function(ref: str, folder: Path, source: str):
     try:
         # What the factory prints goes to stderr: stdout carries the command's output
         # (--format json).
-        with contextlib.redirect_stdout(sys.stderr):
+        with prints_to_stderr():
             fn = make()
     except Exception as err:   # the user's code failing: one line
         raise UsageError(f"{source}: calling {ref}() failed: {type(err).__name__}: "

@@ -10,7 +10,6 @@ tables are flattened with dotted names ("tyre.r_w") and handed to a user's f nes
 from __future__ import annotations
 
 import ast
-import contextlib
 import functools
 import hashlib
 import importlib
@@ -24,6 +23,7 @@ from typing import Callable
 import numpy as np
 
 from stepzoo.errors import UsageError
+from stepzoo.output import prints_to_stderr
 
 # The built-in bicycle's error states: its lateral velocity and yaw rate. X, Y and psi
 # integrate them and drift even in exact runs, so they never count toward blow-up.
@@ -294,7 +294,7 @@ def import_user_module(module_name: str, folder: Path, source: str, key: str):
     that names it (rhs, casadi), for the messages."""
     sys.path.insert(0, str(folder))
     try:
-        with _prints_to_stderr():
+        with prints_to_stderr():
             module = importlib.import_module(module_name)
     except ModuleNotFoundError as err:
         raise UsageError(f"{source}: model.{key} names module {module_name!r}, which is not in "
@@ -331,14 +331,6 @@ def _shadowed(module, module_name: str, folder: Path, source: str, key: str):
                      "of its own")
 
 
-@contextlib.contextmanager
-def _prints_to_stderr():
-    """The user's code may print (while imported, and each time JAX traces it): that goes
-    to stderr, so that stdout holds the command's output alone (--format json)."""
-    with contextlib.redirect_stdout(sys.stderr):
-        yield
-
-
 class _Quiet:
     """A user's f(t, x, u, p) whose prints go to stderr. Equal to, and hashed as, another of
     the same f, and pickled (for a Dask worker) as f itself: JAX's compiled programs, cached
@@ -349,7 +341,7 @@ class _Quiet:
         functools.update_wrapper(self, fn)
 
     def __call__(self, t, x, u, p):
-        with _prints_to_stderr():
+        with prints_to_stderr():
             return self.fn(t, x, u, p)
 
     def __eq__(self, other):
