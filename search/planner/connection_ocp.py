@@ -767,7 +767,7 @@ def _crawl_guess(N, start, v0, steer0, segs, radius, delta_max, rate_max, a_max,
     motion (a guess at the path's poses with the steer ramped as fast as it may lags the
     path's turns and ends metres off the goal)."""
     segs = [(sign, q) for sign, q in segs if q != 0] or [(0, 0.0)]
-    ends = np.cumsum([abs(q) for _, q in segs])
+    ends = np.cumsum([abs(q) for _, q in segs]).tolist()   # floats: the loop is scalar Python
     steer_of = [sign * delta_max for sign, _ in segs]
     way_of = [1 if q >= 0 else -1 for _, q in segs]
     cap = [min(v_fwd if way > 0 else v_back, math.sqrt(a_lat * radius) if sign else np.inf)
@@ -781,7 +781,7 @@ def _crawl_guess(N, start, v0, steer0, segs, radius, delta_max, rate_max, a_max,
     while len(rows) < CRAWL_MAX_STEPS:
         arrived = i == last and s >= ends[last]
         target = 0.0 if arrived else steer_of[i]
-        delta += float(np.clip(target - delta, -step, step))
+        delta += min(max(target - delta, -step), step)
         if arrived:
             if delta == 0.0 or u > 0.0:
                 rows.append((rows[-1][0] + dt, s, u * way_of[i], delta))

@@ -297,18 +297,12 @@ def _solve(model: str, x0, u, p, duration, at, speed, steered=False):
     from x0 under constant inputs u for `duration` [s]; (end state, poses (len(at), 3) at
     the times `at` [s] from its start, poses (m, 3) at most CHECK_SPACING_M apart for a
     speed up to `speed` [m/s], the start excluded; both with every state column)."""
-    import jax
-    import jax.numpy as jnp
     from scipy.integrate import solve_ivp
-    fun = _rhs(model, steered)
-    # The replay is the float64 truth whatever precision the caller computes in: float64 in
-    # this block only, no global setting changed.
-    with jax.enable_x64(True):
-        # JAX arrays once here: converting Python numbers at every call would double its cost.
-        u, pv = jnp.asarray(u, float), {k: jnp.asarray(v, float) for k, v in p.items()}
-        sol = solve_ivp(lambda t, x: np.asarray(fun(t, x, u, pv)), (0.0, duration),
-                        np.asarray(x0, float), method=METHOD, rtol=RTOL, atol=ATOL,
-                        dense_output=True)
+    keys = tuple(sorted(p))
+    fun = _rhs(model, steered, len(x0), len(u), keys)
+    u, pv = [float(v) for v in u], [float(p[k]) for k in keys]
+    sol = solve_ivp(lambda t, x: fun(t, x, u, pv), (0.0, duration), np.asarray(x0, float),
+                    method=METHOD, rtol=RTOL, atol=ATOL, dense_output=True)
     if not sol.success:
         raise RuntimeError(f"replay of a {model} segment failed: {sol.message}")
     # 10% above the largest speed: a dynamic bicycle's lateral speed adds a little to vx.
@@ -319,12 +313,13 @@ def _solve(model: str, x0, u, p, duration, at, speed, steered=False):
 
 
 @cache
-def _rhs(model: str, steered: bool = False):
-    """The model's right-hand side (`steered`: with the steer a state), compiled once (per
-    precision: _solve calls it in float64)."""
-    import jax
+def _rhs(model: str, steered: bool, n: int, k: int, keys: tuple):
+    """The model's float64 right-hand side (`steered`: with the steer a state) as plain Python
+    float code, g(t, x, u, pv) with x of n and u of k floats and pv the parameters' values in
+    the order of `keys`; built once."""
+    from stepzoo.search.plans.scalar_code import scalar_function
     rhs = dynamics.model(model).rhs
-    return jax.jit(steered_rhs(rhs) if steered else rhs)
+    return scalar_function(steered_rhs(rhs) if steered else rhs, n, k, keys)
 
 
 def _params(model: str, vehicle: dict) -> dict:
