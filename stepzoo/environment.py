@@ -79,13 +79,20 @@ def machine() -> dict:
 
 def packages() -> dict:
     """Installed versions of PACKAGES (None where one is not installed)."""
-    out: dict[str, str | None] = {}
+    return dict(_versions())
+
+
+@cache
+def _versions() -> tuple:
+    """(name, version or None) of PACKAGES, read once a process: a sweep writes its manifest
+    after every chunk, and reading the installed packages' metadata is most of that."""
+    out = []
     for name in PACKAGES:
         try:
-            out[name] = version(name)
+            out.append((name, version(name)))
         except PackageNotFoundError:
-            out[name] = None
-    return out
+            out.append((name, None))
+    return tuple(out)
 
 
 def jax_runtime() -> dict:
