@@ -410,3 +410,18 @@ def until_line(proc, words: str, timeout: float = 300) -> None:
         if words in line:
             return
     raise AssertionError(f"{words!r} did not come in {timeout} s")
+
+
+# [s] a plan's wall times: they measure the machine, not the plan.
+TIMINGS = ("search_s", "connect_s", "warmup_s", "first_solution_s", "solution_s")
+
+
+def without_timings(record: dict) -> dict:
+    """plan.json's content (or a plan's record) less its wall times."""
+    record = json.loads(json.dumps(record))
+    stats = record["stats"]
+    for key in TIMINGS:
+        stats.pop(key)
+    for step in stats["progress"]:
+        step.pop("t_s")
+    return record

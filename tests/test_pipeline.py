@@ -12,7 +12,8 @@ from pathlib import Path
 
 import pandas as pd
 import pytest
-from helpers import TABLES, TIMED, TINY_SWEEP, check_provenance, check_report, read_tables
+from helpers import (TABLES, TIMED, TINY_SWEEP, check_provenance, check_report, read_tables,
+                     without_timings)
 
 from stepzoo.cli import main as stepzoo
 from stepzoo.integrators import METHODS
@@ -218,3 +219,66 @@ def test_the_second_process_computes_the_chunks_the_sweep_would(tmp_path):
             pd.testing.assert_frame_equal(chunk[name].drop(columns=timed),
                                           here[name].drop(columns=timed), check_exact=True,
                                           obj=name)
+
+
+class _Fails:
+    """A `beside` (plan.plan_all's) that takes a scenario and then fails, as a process that
+    died does (`start` True), or cannot take it (`start` False)."""
+
+    def __init__(self, takes: bool):
+        self.takes, self.asked = takes, 0
+
+    def start(self, *job):
+        self.asked += 1
+        return self.takes
+
+    def ready(self):
+        return True
+
+    def answer(self):
+        return None
+
+
+class _Spy:
+    """A `beside` passing the jobs on to `inner` and noting whether each answer came."""
+
+    def __init__(self, inner):
+        self.inner, self.answered = inner, []
+
+    def start(self, *job):
+        return self.inner.start(*job)
+
+    def ready(self):
+        return self.inner.ready()
+
+    def answer(self):
+        got = self.inner.answer()
+        self.answered.append(got is not None)
+        return got
+
+
+def test_scenarios_planned_beside_are_the_plans_made_here():
+    """The run shares its scenarios with the second process (plan.plan_all, no thread): each
+    plan, in the scenarios' order, equals the one planned here but for its wall times, and so
+    does the plan.png each process draws of its own; a scenario the second process does not
+    plan (it answers None, as when it has died, or cannot take it) is planned here."""
+    from stepzoo.search.planner.config import load_config
+    from stepzoo.search.world.scenarios import load_scenario
+    from stepzoo.workflows.plan import plan_all
+    from stepzoo.workflows.second_process import Ahead
+    # The regression plans' config: no clock budget, so a plan is the same however loaded.
+    config = load_config(ROOT / "tests" / "data" / "plan_regression" / "config.toml")
+    scenario = load_scenario("wall_between")
+    ahead = Ahead()
+    try:
+        spy = _Spy(ahead)
+        shared = plan_all([scenario, scenario], config, 0, False, spy)
+    finally:
+        ahead.close()
+    assert spy.answered == [True]       # the second process planned the second one
+    here, there = [(without_timings(r), png) for r, png in shared]
+    assert here[1].startswith(b"\x89PNG") and there == here
+    for takes in (True, False):
+        fails = _Fails(takes)
+        (record, png), = plan_all([scenario], config, 0, False, fails)
+        assert fails.asked == 1 and (without_timings(record), png) == here

@@ -29,6 +29,7 @@ import sys
 from pathlib import Path
 
 import pytest
+from helpers import TIMINGS, without_timings
 
 from stepzoo.cli import main
 from stepzoo.search.plans.schema import PLAN_KEYS, STATS_KEYS
@@ -46,8 +47,6 @@ CASES = {"wall_between": ["wall_between"], "berlin_06": BERLIN,
 # Floats agree to a relative RTOL, or within ATOL [m, rad, s, m/s: plan.json's units]: far
 # above a rounding of the maps' largest coordinates, far below what a changed plan moves.
 RTOL, ATOL = 1e-9, 1e-9
-# [s] wall times: they measure the machine, not the plan.
-TIMINGS = ("search_s", "connect_s", "warmup_s", "first_solution_s", "solution_s")
 PLATFORM = DATA / "platform.json"
 pytestmark = pytest.mark.e2e
 
@@ -101,17 +100,6 @@ def same_rounding(fresh):
         pytest.skip(f"the stored plans were recorded where floating point rounds otherwise "
                     f"({recorded['recorded_on']}): plans part on a flipped comparison; "
                     f"record them here to compare: python tests/test_plan_regression.py")
-
-
-def without_timings(record: dict) -> dict:
-    """plan.json's content less its wall times."""
-    record = json.loads(json.dumps(record))
-    stats = record["stats"]
-    for key in TIMINGS:
-        stats.pop(key)
-    for step in stats["progress"]:
-        step.pop("t_s")
-    return record
 
 
 def plan(name: str, out: Path) -> dict:

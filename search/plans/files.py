@@ -152,10 +152,11 @@ def render_png(record: dict, scenario: Scenario) -> bytes:
     return buf.getvalue()
 
 
-def write_plan(out_dir, record: dict, scenario: Scenario) -> Path:
-    """Write plan.json, plan.png and map.npy into out_dir; returns the plan.json path."""
+def write_plan(out_dir, record: dict, scenario: Scenario, png: bytes | None = None) -> Path:
+    """Write plan.json, plan.png (`png`, or drawn here) and map.npy into out_dir; returns the
+    plan.json path."""
     out_dir = Path(out_dir)
-    png = render_png(record, scenario)
+    png = render_png(record, scenario) if png is None else png
     buf = io.BytesIO()
     np.save(buf, np.asarray(scenario.omap.occupied, dtype=bool))
     atomic_write(out_dir / "map.npy", buf.getvalue())

@@ -68,7 +68,7 @@ def stages(out: Path, config: Path, pos_tol: float, margin: float, seed: int,
                   "tuned step, its parameters and this seed")
         else:
             records = plan_cmd.plan(scenarios, plans, tuned, seed, batch=True,
-                                    progress=progress)
+                                    progress=progress, beside=ahead)
         plan_cmd.show(records, plans, True)
         return plan_cmd.status(records)
 
@@ -107,9 +107,9 @@ def run(out="results", config=None, pos_tol: float = 0.1, margin: float = DEFAUL
                          f"run `stepzoo sweep {config} --out DIR`, then `stepzoo tune DIR --tol "
                          "E --out tuned.toml`")
     with claim(out, "run"):
-        # A second process (stepzoo.workflows.second_process) computes some of the sweep's chunks,
-        # draws
-        # Figures 1-6 while the plans run, and builds the report.
+        # A second process (stepzoo.workflows.second_process) computes some of the sweep's
+        # chunks, draws Figures 1-6 and then plans some of the scenarios while this process
+        # plans the others, and builds the report.
         from stepzoo.workflows.second_process import Ahead
         ahead = Ahead()
         try:

@@ -67,11 +67,13 @@ def _summary_row(record):
 
 
 def plan(scenarios, out, config=None, seed: int = 0, *, reverse: bool = False,
-         scheduler=None, batch: bool | None = None, progress: bool = False) -> list[dict]:
+         scheduler=None, batch: bool | None = None, progress: bool = False,
+         beside=None) -> list[dict]:
     """Plan each scenario with the planner config file `config` (default: the shipped one;
     `reverse` allows reverse gear) and planner seed `seed`, and write the plans and a
     manifest into the folder `out`; returns their records. On the Dask cluster at
-    `scheduler` if given; `progress`: a line per plan of a batch on stderr. A batch (default:
+    `scheduler` if given; else here, sharing the scenarios with `beside` if given (see
+    `plan_all`); `progress`: a line per plan of a batch on stderr. A batch (default:
     more than one scenario) writes a folder per scenario and summary.csv/json; a single plan
     goes into `out` itself. `stepzoo plan` and `stepzoo run` call it, e.g.
     `plan([load_scenario("street")], "plans")`."""
@@ -91,19 +93,19 @@ def plan(scenarios, out, config=None, seed: int = 0, *, reverse: bool = False,
                              "nothing to plan, give a goal elsewhere")
     if scheduler is None:
         # A line per plan of a batch; one plan's own result line follows at once.
-        records = [_plan_one(s, config, seed, f"[{i}/{len(scenarios)}]",
-                             progress and len(scenarios) > 1)
-                   for i, s in enumerate(scenarios, 1)]
+        planned = plan_all(scenarios, config, seed, progress and len(scenarios) > 1, beside)
+        records, pngs = [r for r, _ in planned], [png for _, png in planned]
     else:
         from stepzoo.distributed import connect, gather_in_order
         with connect(scheduler) as client:
             records = gather_in_order(client, _plan_on_worker, scenarios, config, seed)
+        pngs = [None] * len(records)
     for record in records:
         if record["cause"] in BAD_ENDPOINT:
             # The poses are the user's input: no plan is written for a pose that cannot be.
             raise UsageError(f"{record['reason']}; choose a pose in free space on the map")
     with claim(out, "plan"):
-        _write(out, records, scenarios, batch)
+        _write(out, records, scenarios, batch, pngs)
         environment.write_manifest(out, "plan", started, {
             "scenarios": [r["scenario"] for r in records], "seed": seed,
             "config": config.source, "method": config.method, "h": config.h,
@@ -144,30 +146,94 @@ def finished(out, config, seed: int, scenarios) -> list[dict] | None:
         return None
 
 
-def _plan_one(scenario, config, seed, count: str, progress: bool) -> dict:
-    """plan_scenario, then a line on stderr saying how it went (none for a pose that cannot
-    be planned: that is the user's mistake, told in one line after the batch)."""
+def timed_plan(scenario, config, seed) -> tuple[dict, float, bytes | None]:
+    """(plan_scenario's record, its wall time [s], its plan.png, None for a pose that cannot
+    be planned): drawn by the process that planned it."""
     from stepzoo.search.planner.pathfinder import BAD_ENDPOINT
+    from stepzoo.search.plans.files import render_png
     t0 = time.perf_counter()
     record = plan_scenario(scenario, config, seed)
-    if progress and record["cause"] not in BAD_ENDPOINT:
-        st = record["stats"]
-        sys.stderr.write(f"stepzoo plan: {count} {scenario.name}: {record['status']} in "
-                         f"{time.perf_counter() - t0:.1f} s (warm-up {st['warmup_s']:.2f} s, "
-                         f"tree search time {st['search_s']:.3f} s, connection solve time "
-                         f"{st['connect_s']:.3f} s)\n")
-        sys.stderr.flush()
-    return record
+    seconds = time.perf_counter() - t0
+    return (record, seconds,
+            None if record["cause"] in BAD_ENDPOINT else render_png(record, scenario))
 
 
-def _write(out, records, scenarios, batch: bool) -> None:
-    """Write the plans: one into `out`, or a batch (a folder each and the summary)."""
+def plan_all(scenarios, config, seed, progress: bool,
+             beside=None) -> list[tuple[dict, bytes | None]]:
+    """(plan_scenario's record, its plan.png) of each scenario (timed_plan's), in their
+    order, each followed by a line on stderr if `progress`. Without `beside` they are planned
+    here in turn. With it (another process: `beside.start(scenario, config, seed)` has it
+    plan a scenario, False where it cannot; `beside.ready()` says whether its answer has
+    come; `beside.answer()` waits for it: timed_plan's answer, or None where that failed)
+    this process plans the scenarios from the first on and hands that one the last not yet
+    taken, one at a time, looking for its answer between its own plans (no thread: a Ctrl-C
+    meets this process in its own work or its wait): two cores plan at once. A plan depends
+    only on its scenario, config and seed (and, through a clock budget, on the processor
+    time it gets), not on the process that makes it; one that `beside` could not make is
+    made here, and from then on all are."""
+    todo = list(range(len(scenarios)))
+    done: dict[int, tuple[dict, bytes | None]] = {}
+    away = None         # the scenario `beside` plans
+
+    def finish(i, record, seconds, png):
+        done[i] = record, png
+        if progress:
+            _say_planned(f"[{i + 1}/{len(scenarios)}]", scenarios[i].name, record, seconds)
+
+    def hand():
+        nonlocal away, beside
+        if beside is not None and away is None and todo:
+            away = todo.pop()
+            if not beside.start(scenarios[away], config, seed):
+                todo.append(away)
+                away, beside = None, None
+
+    def collect(wait: bool):
+        nonlocal away, beside
+        if away is None or not (wait or beside.ready()):
+            return
+        i, answer, away = away, beside.answer(), None
+        if answer is None:              # that process failed: this one plans the rest
+            todo.insert(0, i)
+            beside = None
+        else:
+            finish(i, *answer)
+
+    hand()
+    while todo:
+        i = todo.pop(0)
+        finish(i, *timed_plan(scenarios[i], config, seed))
+        collect(wait=False)
+        hand()
+    collect(wait=True)
+    while todo:                         # handed back after this process had finished
+        i = todo.pop(0)
+        finish(i, *timed_plan(scenarios[i], config, seed))
+    return [done[i] for i in range(len(scenarios))]
+
+
+def _say_planned(count: str, name: str, record: dict, seconds: float) -> None:
+    """A line on stderr saying how a plan went (none for a pose that cannot be planned: that
+    is the user's mistake, told in one line after the batch)."""
+    from stepzoo.search.planner.pathfinder import BAD_ENDPOINT
+    if record["cause"] in BAD_ENDPOINT:
+        return
+    st = record["stats"]
+    sys.stderr.write(f"stepzoo plan: {count} {name}: {record['status']} in {seconds:.1f} s "
+                     f"(warm-up {st['warmup_s']:.2f} s, tree search time {st['search_s']:.3f} "
+                     f"s, connection solve time {st['connect_s']:.3f} s)\n")
+    sys.stderr.flush()
+
+
+def _write(out, records, scenarios, batch: bool, pngs) -> None:
+    """Write the plans: one into `out`, or a batch (a folder each and the summary); `pngs`
+    their plan.png where drawn already (else None)."""
     from stepzoo.search.plans.files import write_plan
     if not batch:
-        write_plan(out, records[0], scenarios[0])
+        write_plan(out, records[0], scenarios[0], pngs[0])
         return
-    for record, scenario in zip(records, scenarios):
-        write_plan(out / scenario.name, record, scenario)
+    for record, scenario, png in zip(records, scenarios, pngs):
+        write_plan(out / scenario.name, record, scenario, png)
     rows = [_summary_row(r) for r in records]
     buf = io.StringIO()
     writer = csv.DictWriter(buf, SUMMARY_COLUMNS, lineterminator="\n")

@@ -3,7 +3,9 @@ second core: the implicit methods' sweep chunks while the pipeline computes the 
 then Figures 1-6 while the pipeline plans (they need only the sweep's tables and the tuned
 config), then the rest of the report once the plans are written. It computes exactly what
 `stepzoo sweep` and `stepzoo report` compute (sweep.compute_chunk, report.sweep_figures,
-report.build); the pipeline writes the chunks, so the sweep folder has one writer. It starts
+report.build); the pipeline writes the chunks, so the sweep folder has one writer. Once it
+has drawn them it plans some of the built-in scenarios, as the pipeline plans the others
+(plan.plan_all); the pipeline writes the plans. It starts
 with the pipeline, so that its imports (plotting, JAX) overlap the sweep and the pipeline
 itself never imports the plotting libraries."""
 from __future__ import annotations
@@ -24,8 +26,10 @@ def _jax_settings() -> dict:
 def _serve(conn, settings: dict) -> None:
     """The second process: JAX set as its parent, the report's modules imported, then the
     jobs ("chunks", (sweep config file, chunk ids)), answered with [(chunk id, tables)],
-    ("figures", (sweep folder, tuned file)), unanswered, and ("report", build's arguments),
-    answered with the index's path; None answers a job that failed."""
+    ("figures", (sweep folder, tuned file)), unanswered, ("plan", (built-in scenario's name,
+    planner config, seed)), answered with plan.timed_plan's (record, seconds, plan.png), and
+    ("report", build's arguments), answered with the index's path; None answers a job that
+    failed."""
     # Ctrl-C goes to the whole process group: the parent says it was interrupted and ends
     # this process (SIGTERM, silent); a report it was writing leaves a hidden folder, which
     # the next report into that folder removes (results_folder.replacing).
@@ -42,9 +46,13 @@ def _serve(conn, settings: dict) -> None:
             kind, args = conn.recv()
         except EOFError:                # the parent has ended
             return
-        answer: list | str | None
+        answer: list | str | tuple | None
         try:
-            if kind == "chunks":
+            if kind == "plan":
+                from stepzoo.search.world.scenarios import load_scenario
+                from stepzoo.workflows.plan import timed_plan
+                answer = timed_plan(load_scenario(args[0]), *args[1:])
+            elif kind == "chunks":
                 from stepzoo.bench.sweep.config import load as load_config
                 from stepzoo.bench.sweep.engine import compute_chunk
                 cfg = load_config(args[0])
@@ -72,7 +80,8 @@ def _serve(conn, settings: dict) -> None:
 class Ahead:
     """The second process of one pipeline: `sweep_runner(config)` is a `run_sweep` runner
     that shares the chunks with it; `figures(sweep, tuned)` hands it the finished sweep
-    folder and tuned file to draw Figures 1-6 from, `report(...)` (report.build's arguments)
+    folder and tuned file to draw Figures 1-6 from, `start`, `ready` and `answer` have it
+    plan a built-in scenario (plan.plan_all's `beside`), `report(...)` (report.build's arguments)
     has it build the report and returns the index's path, or None where it could not (the
     caller then builds it); `close()` ends it."""
 
@@ -123,6 +132,24 @@ class Ahead:
 
     def figures(self, sweep, tuned) -> None:
         self._send(("figures", (str(sweep), str(tuned))))
+
+    def start(self, scenario, config, seed) -> bool:
+        """Has the process plan `scenario`, a built-in one (sent by name: a small message,
+        which the pipe takes while the process still draws); False where it cannot."""
+        from stepzoo.search.world.scenarios import builtin_names
+        return scenario.name in builtin_names() and self._send(
+            ("plan", (scenario.name, config, seed)))
+
+    def ready(self) -> bool:
+        """Whether an answer has come (or the process has died: `answer` then says None)."""
+        try:
+            return self._conn.poll()
+        except OSError:
+            return True
+
+    def answer(self):
+        """The answer to the last job, waited for; None where the process failed."""
+        return self._answer()
 
     def report(self, results: Path, out: Path, tuned_path: Path, plans_dir: Path,
                progress: bool) -> Path | None:
