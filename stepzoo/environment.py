@@ -86,7 +86,7 @@ def packages() -> dict:
 def _versions() -> tuple:
     """(name, version or None) of PACKAGES, read once a process: a sweep writes its manifest
     after every chunk, and reading the installed packages' metadata is most of that."""
-    out = []
+    out: list[tuple[str, str | None]] = []
     for name in PACKAGES:
         try:
             out.append((name, version(name)))
