@@ -438,3 +438,22 @@ def test_a_solve_whose_line_search_keeps_cutting_the_step_is_given_up(monkeypatc
     monkeypatch.setattr(connection_ocp, "SHORT_STEPS", 2)
     c = connect(start, goal, L=L, m=M)
     assert not c.success and c.status == connection_ocp.STALLED
+
+
+def test_a_ctrl_c_during_a_solve_stops_it_and_comes_out_of_connect(monkeypatch):
+    """A KeyboardInterrupt raised in IPOPT's iteration callback (the one place Python runs
+    during a solve, so where a Ctrl-C lands) stops the solve at once and comes out of
+    connect, where CasADi swallowed it and solved on; the next solve runs as usual."""
+    from stepzoo.search.planner import connection_ocp
+    calls = []
+
+    def interrupted(self):
+        calls.append(1)
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(connection_ocp._StallWatch, "_stop", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        connect([0, 0, 0, 0], [30, 5, 0.5], L=L, m=M)
+    assert len(calls) == 1
+    monkeypatch.undo()
+    assert connect([0, 0, 0, 0], [30, 5, 0.5], L=L, m=M).success

@@ -406,12 +406,12 @@ class _StallWatch(ca.Callback):
     """IPOPT's iteration callback: stops the solve of `solver` (set after it is built) once
     SHORT_STEPS of its iterations took a primal step below SHORT_STEP (its live stats, read
     only from the SHORT_STEPS-th iteration on: `calls`, reset before each solve, counts
-    them)."""
+    them), or at once on a Ctrl-C (`interrupted`, reset before each solve)."""
 
     def __init__(self, name: str):
         ca.Callback.__init__(self)
         self.solver: ca.Function | None = None
-        self.calls = 0
+        self.calls, self.interrupted = 0, False
         self.construct(name, {})
 
     def get_n_in(self):
@@ -430,6 +430,16 @@ class _StallWatch(ca.Callback):
         return ca.Sparsity(0, 0)   # it reads the stats, not the iterate
 
     def eval(self, arg):
+        # The one place Python runs during a solve, so where a Ctrl-C's KeyboardInterrupt is
+        # raised; CasADi would swallow it and go on solving: it stops the solve, and _solve
+        # raises it again.
+        try:
+            return self._stop()
+        except KeyboardInterrupt:
+            self.interrupted = True
+            return [1]
+
+    def _stop(self):
         self.calls += 1
         if self.calls < SHORT_STEPS:
             return [0]
@@ -541,8 +551,10 @@ def _solve(prob, p, lo, hi, tf_range, tf_g, u_g, per_metre=False, room=None,
                                              else np.inf)]
     if room is not None:
         lbg, ubg = np.r_[lbg, np.full(len(room), -np.inf)], np.r_[ubg, np.square(room)]
-    prob.watch.calls = 0
+    prob.watch.calls, prob.watch.interrupted = 0, False
     sol = prob.solver(x0=x_g, p=p, lbx=lbx, ubx=ubx, lbg=lbg, ubg=ubg)
+    if prob.watch.interrupted:
+        raise KeyboardInterrupt
     stats = prob.solver.stats()
     states, inputs = (np.asarray(a).T.copy() for a in prob.path(sol["x"], p))
     # goal (, v_goal): v_goal is the last parameter when the speed is fixed
