@@ -402,6 +402,11 @@ STALLED = "Stalled"
 LIMITS_AT = 7
 
 
+# IPOPT's status where an exception not its own (CasADi's KeyboardInterruptException: these
+# solves' expanded functions raise no other) ended a solve.
+INTERRUPTED = "NonIpopt_Exception_Thrown"
+
+
 class _StallWatch(ca.Callback):
     """IPOPT's iteration callback: stops the solve of `solver` (set after it is built) once
     SHORT_STEPS of its iterations took a primal step below SHORT_STEP (its live stats, read
@@ -553,7 +558,9 @@ def _solve(prob, p, lo, hi, tf_range, tf_g, u_g, per_metre=False, room=None,
         lbg, ubg = np.r_[lbg, np.full(len(room), -np.inf)], np.r_[ubg, np.square(room)]
     prob.watch.calls, prob.watch.interrupted = 0, False
     sol = prob.solver(x0=x_g, p=p, lbx=lbx, ubx=ubx, lbg=lbg, ubg=ubg)
-    if prob.watch.interrupted:
+    # A Ctrl-C met by CasADi's own interrupt check (as it evaluates the functions) ends the
+    # solve by a KeyboardInterruptException, which it does not pass on: the status says it.
+    if prob.watch.interrupted or prob.solver.stats()["return_status"] == INTERRUPTED:
         raise KeyboardInterrupt
     stats = prob.solver.stats()
     states, inputs = (np.asarray(a).T.copy() for a in prob.path(sol["x"], p))
