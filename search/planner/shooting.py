@@ -3,6 +3,7 @@ shootings of one expansion integrated in one vectorised call of the zoo's driver
 its travelled distance g, its distance H to the destination and its validity verdict."""
 from typing import NamedTuple
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 
@@ -80,6 +81,7 @@ class Shooter:
         # compiles once per (method, batch, n_steps).
         self.p = {k: jnp.full((batch,), float(v)) for k, v in p.items()}
         self.scalars = {k: float(v) for k, v in p.items()}
+        self.programs: dict = {}   # integrate_together's, by tuple of shooters
 
     @property
     def duration(self) -> float:
@@ -107,8 +109,12 @@ class Shooter:
         """(B, 5) states and (B,) end steers (and, rate-limited, (B,) start steers, NaN: from a
         standstill) -> (B, N+1, 5) trajectories (kinematic and rate-limited, from a
         standstill: psi the body's heading in x0, the kinematic theta in the trajectories)."""
-        # NumPy arguments go straight into the jitted driver; jnp conversions here would each
-        # be a separate dispatch, costing more than the integration itself.
+        return integrate_together([(self, x0, steer, steer0)])[0]
+
+    def model_inputs(self, x0, steer, steer0=None) -> tuple[np.ndarray, np.ndarray]:
+        """The model's initial states and inputs of `integrate`'s shootings: (B, d) and (B, m)
+        NumPy arrays (NumPy arguments go straight into the jitted driver; jnp conversions
+        here would each be a separate dispatch, costing more than the integration itself)."""
         x0, steer = np.asarray(x0, float), np.asarray(steer, float)
         B = len(x0)
         if self.kinematic:
@@ -126,8 +132,18 @@ class Shooter:
             x0, inputs = np.column_stack([x0, steer0]), ((steer - steer0) / self.duration)[:, None]
         if self.kinematic:
             inputs = np.column_stack([inputs, np.zeros(B)])            # [delta or rate, F = 0]
-        x = np.asarray(integrate_batch(self.method, self.rhs, x0, inputs, self.p, self.h,
-                                       self.n_steps).x)
+        return x0, inputs
+
+    def run(self, x0, inputs):
+        """The model's trajectories (B, N+1, d) from `model_inputs`' (x0, inputs): one call of
+        the zoo's driver, traceable (integrate_together jits several shooters' together)."""
+        return integrate_batch(self.method, self.rhs, x0, inputs, self.p, self.h,
+                               self.n_steps).x
+
+    def poses(self, x) -> np.ndarray:
+        """(B, N+1, 5) [X, Y, psi, vy, r] from the model's trajectories `x` (B, N+1, d): the
+        kinematic bicycle's lateral states reported as 0."""
+        x = np.asarray(x)
         if not self.kinematic:
             return x[..., :5]
         out = np.zeros((*x.shape[:2], 5))
@@ -179,6 +195,13 @@ class Shooter:
         """Shoot from `state` (5,), or from one state per point (B, 5), at steer `steer0`
         [rad] (one or (B,); NaN: from a standstill), towards each of `points` (B, 2) [m]."""
         start = np.broadcast_to(np.asarray(state, float), (self.batch, 5))
+        return self.shoot_steers(start, self.aim(start, points, steer0), destination, steer0,
+                                 settle)
+
+    def aim(self, state, points, steer0=0.0) -> np.ndarray:
+        """(B,) [rad] the end steers of shootings from `state` (5,) or (B, 5) at steer `steer0`
+        towards `points` (B, 2) [m]: pure pursuit, within the steer rate's reach."""
+        start = np.broadcast_to(np.asarray(state, float), (self.batch, 5))
         if self.reverse:
             # Backwards, the car follows the circle of curvature -tan(delta)/L relative to
             # its direction of travel psi + pi: pure pursuit on the flipped pose, negated.
@@ -186,18 +209,29 @@ class Shooter:
             steer = -pure_pursuit(flipped, points, self.wheelbase, self.delta_max)
         else:
             steer = pure_pursuit(start, points, self.wheelbase, self.delta_max)
-        return self.shoot_steers(start, self.end_steers(steer0, steer), destination, steer0,
-                                 settle)
+        return self.end_steers(steer0, steer)
 
     def shoot_steers(self, state, steer, destination, steer0=0.0, settle=None) -> Shots:
         """Shoot from `state` (5,), or one state per steer (B, 5), at steer `steer0` [rad]
         (rate-limited; NaN: from a standstill), to the end steers `steer` (B,) [rad]; the
         shootings `settle` (B,) bool start at the lateral steady state of their steer
         (`settled`)."""
+        start = self.launch(state, steer, steer0, settle)
+        return self.shots(self.integrate(start, steer, steer0), steer, steer0, destination)
+
+    def launch(self, state, steer, steer0=0.0, settle=None) -> np.ndarray:
+        """(B, 5) the start states of `shoot_steers`' shootings."""
         start = np.broadcast_to(np.asarray(state, float), (self.batch, 5))
         if settle is not None:
             start = self.settled(start, self.start_steers(steer0, steer), settle)
-        states = self.integrate(start, steer, steer0)
+        return start
+
+    def shots(self, states, steer, steer0, destination) -> Shots:
+        """The Shots of shootings integrated to `states` (K, N+1, 5), to end steers `steer`
+        (K,) [rad] from `steer0` (one or (K,); NaN: from a standstill), towards `destination`
+        [X, Y, ...] [m]: distances, and validity against the checker."""
+        steer = np.asarray(steer, float)
+        steer0 = np.broadcast_to(np.asarray(steer0, float), steer.shape)
         # A blown-up shooting is a result (an invalid one), so its overflow warnings are noise;
         # first_collision treats non-finite poses as collisions, so it needs no branch either.
         with np.errstate(invalid="ignore", over="ignore"):
@@ -222,3 +256,18 @@ class Shooter:
         valid = free == rows
         steer0 = steer if self.rate is None else self.start_steers(steer0, steer)
         return Shots(states, steer, steer0, travelled[:, -1], H, valid, free, travelled)
+
+
+def integrate_together(requests) -> list[np.ndarray]:
+    """[(B, N+1, 5) trajectories] of each request (shooter, x0 (B, 5), steer (B,), steer0) as
+    that shooter's `integrate` gives them, all integrated in one call of one compiled program
+    (the same shootings to rounding: each trajectory is its own in the driver's batch)."""
+    shooters = tuple(r[0] for r in requests)
+    # One program per tuple, kept by its first shooter (each shooter's parameters compiled
+    # in): one dispatch and one transfer back for the whole tuple.
+    programs = shooters[0].programs
+    if shooters not in programs:
+        programs[shooters] = jax.jit(lambda args: [s.run(*a) for s, a in zip(shooters, args)])
+    args = [shooter.model_inputs(x0, steer, steer0) for shooter, x0, steer, steer0 in requests]
+    xs = jax.device_get(programs[shooters](args))
+    return [shooter.poses(x) for shooter, x in zip(shooters, xs)]
