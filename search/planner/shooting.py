@@ -1,6 +1,7 @@
 """Shooting (paper Algorithm 3): the pure-pursuit steer angle towards each selected point, all
 shootings of one expansion integrated in one vectorised call of the zoo's driver, and for each
 its travelled distance g, its distance H to the destination and its validity verdict."""
+from functools import partial
 from typing import NamedTuple
 
 import jax
@@ -73,6 +74,7 @@ class Shooter:
         self.rhs = self.model.rhs if self.rate is None else steered(self.model.rhs)
         self.checker = checker
         self.method = method(method_name)
+        self.method_name = method_name
         self.h, self.n_steps, self.batch, self.delta_max = h, n_steps, batch, delta_max
         p = self.model.params(vehicle, vx)
         self.wheelbase = p["Lf"] + p["Lr"]
@@ -81,7 +83,6 @@ class Shooter:
         # compiles once per (method, batch, n_steps).
         self.p = {k: jnp.full((batch,), float(v)) for k, v in p.items()}
         self.scalars = {k: float(v) for k, v in p.items()}
-        self.programs: dict = {}   # integrate_together's, by tuple of shooters
 
     @property
     def duration(self) -> float:
@@ -133,12 +134,6 @@ class Shooter:
         if self.kinematic:
             inputs = np.column_stack([inputs, np.zeros(B)])            # [delta or rate, F = 0]
         return x0, inputs
-
-    def run(self, x0, inputs):
-        """The model's trajectories (B, N+1, d) from `model_inputs`' (x0, inputs): one call of
-        the zoo's driver, traceable (integrate_together jits several shooters' together)."""
-        return integrate_batch(self.method, self.rhs, x0, inputs, self.p, self.h,
-                               self.n_steps).x
 
     def poses(self, x) -> np.ndarray:
         """(B, N+1, 5) [X, Y, psi, vy, r] from the model's trajectories `x` (B, N+1, d): the
@@ -262,12 +257,19 @@ def integrate_together(requests) -> list[np.ndarray]:
     """[(B, N+1, 5) trajectories] of each request (shooter, x0 (B, 5), steer (B,), steer0) as
     that shooter's `integrate` gives them, all integrated in one call of one compiled program
     (the same shootings to rounding: each trajectory is its own in the driver's batch)."""
-    shooters = tuple(r[0] for r in requests)
-    # One program per tuple, kept by its first shooter (each shooter's parameters compiled
-    # in): one dispatch and one transfer back for the whole tuple.
-    programs = shooters[0].programs
-    if shooters not in programs:
-        programs[shooters] = jax.jit(lambda args: [s.run(*a) for s, a in zip(shooters, args)])
-    args = [shooter.model_inputs(x0, steer, steer0) for shooter, x0, steer, steer0 in requests]
-    xs = jax.device_get(programs[shooters](args))
+    shooters = [r[0] for r in requests]
+    # Compiled once per (method, rhs, steps) of each shooter and the shapes, as the driver
+    # compiles one call: shooters of other finders with the same models share the program.
+    static = tuple((s.method_name, s.rhs, s.n_steps) for s in shooters)
+    args = [(*shooter.model_inputs(x0, steer, steer0), shooter.p, shooter.h)
+            for shooter, x0, steer, steer0 in requests]
+    xs = jax.device_get(_together(static, args))
     return [shooter.poses(x) for shooter, x in zip(shooters, xs)]
+
+
+@partial(jax.jit, static_argnums=0)
+def _together(static, args):
+    """The driver's trajectories of each (x0, inputs, p, h) of `args` with its (method, rhs,
+    n_steps) of `static`, traced into one program."""
+    return [integrate_batch(method_name, rhs, x0, u, p, h, n_steps).x
+            for (method_name, rhs, n_steps), (x0, u, p, h) in zip(static, args)]
