@@ -27,6 +27,12 @@ from jax.custom_batching import custom_vmap
 # Jacobians' do: Radau IIA 5 then no longer showed its order on DETEST A2 at h = 1/8, where
 # the Newton tolerance is near its error (see the implicit-speed study of 2026-11-28).
 THETA_KEEP = 1e-3
+# The same for systems of more than SMALL states, whose Jacobian costs d evaluations and whose
+# iteration matrices the looped elimination inverts (RADAU5's advice where Jacobians are
+# costly): with THETA_KEEP the CommonRoad 29-state model, whose fresh Jacobian's iteration
+# contracts more slowly than that, renewed both at every step
+# (docs/studies/radau-d29-2026-11-29.md).
+THETA_KEEP_LARGE = 0.1
 
 
 @dataclass(frozen=True)
@@ -38,7 +44,8 @@ class NewtonOptions:
     At most `max_iter` simplified iterations, then, where they fail, at most `max_iter_full`
     of the full-Newton retry (0: none). A step whose simplified iteration contracted at a
     rate of at most `keep` keeps its Jacobian's factors for the next step (RADAU5's WORK(3);
-    below 0: never kept). The driver passes them at run time (Method.run_options): other
+    below 0: never kept), `keep_large` in place of `keep` for systems of more than SMALL
+    states. The driver passes them at run time (Method.run_options): other
     options need no other compiled program."""
     rtol: float = 1e-10
     atol: float = 1e-10
@@ -46,9 +53,11 @@ class NewtonOptions:
     max_iter: int = 10
     max_iter_full: int = 40
     keep: float = THETA_KEEP
+    keep_large: float = THETA_KEEP_LARGE
 
     def __post_init__(self):
-        for name in ("rtol", "atol", "res_tol", "max_iter", "max_iter_full", "keep"):
+        for name in ("rtol", "atol", "res_tol", "max_iter", "max_iter_full", "keep",
+                     "keep_large"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, Real):
                 raise TypeError(f"NewtonOptions.{name} must be a number, got {value!r}")
@@ -71,7 +80,17 @@ class RunOptions(NamedTuple):
     max_iter: object
     max_iter_full: object
     keep: object
+    keep_large: object
 
+
+# The first iteration whose rate (theta_k, k >= 1) forecasts a solve's failure. The first
+# rate, of the increment after the one from the start, measures how far off the start was as
+# much as how fast the iteration contracts, and can be far slower than the rates after it;
+# forecast from it (RADAU5's rule) over the many orders of magnitude between a start of
+# zeros and a tolerance near round-off, it gave up solves that converge well within the
+# limit (docs/studies/radau-d29-2026-11-29.md). A diverging iteration (theta >= 1) still
+# ends at k = 1.
+FORECAST_FROM = 2
 
 # Increments this many ulps of the iterate are round-off: the iteration has converged as far
 # as the arithmetic allows, whatever the rate estimate says (it is noise at that level).
@@ -377,10 +396,12 @@ def _iterate(residual, solver, z0, y_scale, opts, fresh, done0):
         settled = noise | (later & (((theta < 1) & (theta / (1 - theta) * n <= 1)) |
                                     (small & (theta >= 1))))
         ok = finite & settled & (noise | (res <= opts.res_tol))
-        # Iterations left after this one at the current rate cannot reach the tolerance.
+        # Iterations left after this one at the current rate cannot reach the tolerance,
+        # forecast from the second rate on: the first (k = 1) holds the start's transient,
+        # which can be slower than the iteration's own rate (FORECAST_FROM).
         # Full Newton converges faster than linearly once close: no such forecast for it.
-        hopeless = later & ~small & ((theta >= 1) |
-                                     (theta ** (limit - 1 - k) / (1 - theta) * n > 1))
+        forecast = (k >= FORECAST_FROM) & (theta ** (limit - 1 - k) / (1 - theta) * n > 1)
+        hopeless = later & ~small & ((theta >= 1) | forecast)
         hopeless = hopeless & (not fresh)
         done = ok | ~finite | hopeless
         return z - dz, k + 1, n, done, ok, jnp.where(later, theta, 0)
@@ -478,7 +499,8 @@ def without_retry(opts) -> bool:
     return isinstance(opts.max_iter_full, int) and opts.max_iter_full == 0
 
 
-def keep_next(ok, theta, full, keep):
-    """Whether the next step may keep this step's factors: its solves converged by the
-    simplified iteration alone, contracting at a rate of at most `keep` (NewtonOptions)."""
-    return ok & (full == 0) & (theta <= keep)
+def keep_next(ok, theta, full, opts, d: int):
+    """Whether the next step of a d-state system may keep this step's factors: its solves
+    converged by the simplified iteration alone, contracting at a rate of at most `keep`,
+    or `keep_large` above SMALL states (NewtonOptions)."""
+    return ok & (full == 0) & (theta <= (opts.keep if d <= SMALL else opts.keep_large))

@@ -161,7 +161,7 @@ def implicit_rk_step(tab, opts, fun, t, y, h, state):
     else:
         y_next = y + h * (jnp.asarray(tab.b, y.dtype) @ stage_f(z))
         evals = evals + s
-    return _finish(y, y_next, ok, state, evals, held, keep_next(ok, theta, k2, opts.keep))
+    return _finish(y, y_next, ok, state, evals, held, keep_next(ok, theta, k2, opts, d))
 
 
 def _dirk_step(tab, opts, fun, t, y, h, state, held, factorise):
@@ -192,7 +192,8 @@ def _dirk_step(tab, opts, fun, t, y, h, state, held, factorise):
         y_next = known + z          # the last stage is the solution: no cancellation
     else:
         y_next = y + h * weighted(tab.b, ks)
-    return _finish(y, y_next, ok, state, evals, held, keep_next(ok, theta, full, opts.keep))
+    keep = keep_next(ok, theta, full, opts, y.shape[0])
+    return _finish(y, y_next, ok, state, evals, held, keep)
 
 
 def rosenbrock_step(ros, fun, t, y, h, state):
@@ -252,7 +253,7 @@ def multistep_step(lmm, opts, fun, t, y, h, state):
             lambda v: v - (h * bk) * fun(t_next, v) - known, solver, factorise, held,
             jnp.tensordot(jnp.asarray(lmm.predictor, y.dtype), ys, 1), jnp.abs(y), opts)
         y_next, state = _finish(y, y_next, ok, state, evals + k1 + k2 * (1 + d), held,
-                                keep_next(ok, theta, k2, opts.keep))
+                                keep_next(ok, theta, k2, opts, d))
     ys = jnp.concatenate([ys[1:], y_next[None]])
     if lmm.uses_slopes:
         fs = jnp.concatenate([fs[1:], fun(t_next, y_next)[None]])

@@ -85,3 +85,47 @@ def test_a_float32_state_stays_float32_in_chunks(name):
     assert bool(tr.converged.all())
     ref = integrate_batch(name, MODEL.rhs, x0, u, p, H_S, N_STEPS).x[:, :21]
     np.testing.assert_allclose(np.asarray(tr.x), np.asarray(ref), rtol=1e-4, atol=1e-4)
+
+
+
+def nine_a2(t, y, u, p):
+    """Nine copies of DETEST A2, y' = -y^3/2, exact y = y0 / sqrt(1 + y0^2 t): a system of
+    more than newton.SMALL states, whose steps keep their factors at rates up to keep_large."""
+    return -0.5 * y ** 3
+
+
+Y9 = np.linspace(0.5, 1.0, 9)
+
+
+def test_above_small_states_keep_large_decides_whether_factors_are_kept():
+    """Backward Euler at 9 states: with keep (the small systems' rate) set to never, the
+    steps still keep their factors and save evaluations (a Jacobian is 9 of them, an
+    iteration 1); with keep_large set to never, every step takes a new Jacobian. Both runs
+    are one program (run-time options) and land within the Newton tolerance (1e-10 a step)
+    of each other."""
+    h, n = 0.05, 80
+    run = lambda **kw: integrate(method("backward_euler").with_newton(**kw), nine_a2,
+                                 jnp.asarray(Y9), h=h, n_steps=n)
+    kept, fresh = run(keep=-1.0), run(keep_large=-1.0)
+    assert bool(kept.converged) and bool(fresh.converged)
+    assert np.max(np.abs(np.asarray(kept.x) - np.asarray(fresh.x))) <= n * 1e-10
+    assert float(fresh.evals) >= 9 * n and float(kept.evals) < 0.6 * float(fresh.evals)
+
+
+def test_radau_iia5_with_kept_factors_has_the_error_of_new_ones_at_each_step_size():
+    """Radau IIA 5 on nine_a2 over [0, 20], h = 2, 1, 1/2, with the default options (keep_large)
+    and with new factors at every step: the errors against the exact solution differ by at
+    most the accumulated Newton tolerance (n steps of 1e-10), so the kept factors keep
+    the method's convergence (its order on A2 itself: test_newton). One program for every
+    run (run-time options and step count)."""
+    exact = Y9 / np.sqrt(1 + Y9 ** 2 * 20.0)
+    for h in (2.0, 1.0, 0.5):
+        n = int(round(20 / h))
+        run = lambda **kw: integrate(method("radau_iia5").with_newton(**kw), nine_a2,
+                                     jnp.asarray(Y9), h=h, n_steps=n, max_steps=40)  # noqa: B023
+        kept, fresh = run(), run(keep_large=-1.0)
+        assert bool(kept.converged) and bool(fresh.converged)
+        xk, xf = np.asarray(kept.x[:n + 1]), np.asarray(fresh.x[:n + 1])
+        assert np.max(np.abs(xk - xf)) <= n * 1e-10
+        err_k, err_f = np.max(np.abs(xk[n] - exact)), np.max(np.abs(xf[n] - exact))
+        assert abs(err_k - err_f) <= n * 1e-10 < 0.2 * err_f, h

@@ -311,9 +311,11 @@ def test_unrolled_elimination_steps_as_the_looped_one_does(monkeypatch, name):
     from stepzoo.integrators import newton
     n = STEPS["trapezoidal"] if name == "trapezoidal" else 30
     # From Robertson's start the simplified iteration fails: the retry from the first run.
-    ours = integrate(retrying(name), robertson, Y0, jnp.zeros(1), {}, 0.1, n)
+    # SMALL = 0 makes 3 states "large" to the kept factors' rule too: one rate for both.
+    same = lambda: retrying(name).with_newton(keep_large=newton.THETA_KEEP)
+    ours = integrate(same(), robertson, Y0, jnp.zeros(1), {}, 0.1, n)
     monkeypatch.setattr(newton, "SMALL", 0)
-    looped = integrate(retrying(name), robertson, Y0, jnp.zeros(1), {}, 0.1, n + 1)
+    looped = integrate(same(), robertson, Y0, jnp.zeros(1), {}, 0.1, n + 1)
     assert bool(ours.converged) and bool(looped.converged)
     x, ref = np.asarray(ours.x), np.asarray(looped.x[:n + 1])
     assert np.max(np.abs(x - ref) / (1 + np.abs(ref))) <= 1e-10
@@ -402,3 +404,38 @@ def test_a_sweep_s_runs_carry_the_retry_from_the_first():
                                  0.1, 4)
     assert run.converged.all() and fn._cache_size() == before + 1
     assert m.program in driver._RETRIED
+
+
+def _iterate_on_errors(rate_far, rate_near, near=0.5):
+    """newton._iterate on the fixed-point map z -> 1 - rate(e) e, e = 1 - z the error (the
+    identity as the iteration matrix, so the increment is the residual z - 1 + rate(e) e):
+    the error shrinks by `rate_far` while above `near`, then by `rate_near`. Tolerance
+    1e-10 on a start of zeros: ten orders of magnitude to go."""
+    from stepzoo.integrators.newton import _iterate
+
+    def residual(z):
+        e = 1.0 - z
+        return -(e - jnp.where(jnp.abs(e) > near, rate_far, rate_near) * e)
+
+    opts = NewtonOptions()
+    ident = (lambda r: r), jnp.asarray(1.0)
+    return _iterate(residual, ident, jnp.zeros(1), jnp.zeros(1), opts, False,
+                    jnp.asarray(False))
+
+
+def test_a_slow_first_rate_does_not_give_up_a_solve_that_converges_within_the_limit():
+    """Errors 1, 0.3, 3e-4, 3e-7, ...: the first rate (0.43, of the increments 0.7 and 0.3)
+    forecast over the eight iterations left reaches 1e-10 nowhere near; the rates after it
+    (1e-3) do within five. The solve converges to the tolerance (newton.FORECAST_FROM)."""
+    z, k, ok, theta = _iterate_on_errors(0.3, 1e-3)
+    assert bool(ok) and int(k) <= 6
+    assert abs(1.0 - float(z[0])) <= 1e-10
+    assert float(theta) <= 2e-3
+
+
+def test_a_solve_that_keeps_a_slow_rate_is_still_given_up_early():
+    """A rate of 0.5 throughout cannot take 1 to 1e-10 in ten iterations: the forecast gives
+    up at the third iterate, not at the iteration limit."""
+    _, k, ok, theta = _iterate_on_errors(0.5, 0.5)
+    assert not bool(ok) and int(k) == 3
+    assert float(theta) == pytest.approx(0.5)
