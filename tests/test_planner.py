@@ -520,3 +520,27 @@ def test_street_queries_plan_exact_paths_that_the_dense_check_accepts(qid):
     assert d["max_curvature_1pm"] <= 1.1 * np.tan(np.pi / 4) / wheelbase
     assert d["max_steer_rate_radps"] <= 1.25 * limits["max_steer_rate"]
     assert d["max_lateral_acceleration_mps2"] <= 1.15 * limits["max_lateral_acceleration"]
+
+
+def test_one_call_integrates_the_tree_tight_and_reverse_moves_as_separate_calls_do():
+    """An expansion integrates the tree's moves (the dynamic bicycle at 5 m/s), its tight
+    moves and its reverse moves (the kinematic bicycle at 2 m/s, forwards and backwards) in
+    one compiled call (integrate_together): each shooting is the one the zoo's driver gives
+    for that shooter alone, to rounding, from a moving node and from a standstill (NaN)."""
+    from stepzoo.integrators import integrate_batch
+    from stepzoo.search.planner.shooting import integrate_together
+    recorder = Recorder()
+    kinds = [dict(vx=5.0), dict(vx=2.0, tight=True), dict(vx=2.0, reverse=True)]
+    shooters = [Shooter(recorder, None, k.pop("vx"), "midpoint", 0.02, 30, 4, 0.75,
+                        max_steer_rate=0.32, **k) for k in kinds]
+    start = np.array([[3.0, -1.0, 0.4, 0.1, 0.05], [0.0, 2.0, -2.0, 0.0, 0.0],
+                      [1.0, 1.0, 3.0, -0.2, 0.1], [5.0, 0.0, 0.0, 0.0, 0.0]])
+    steer, steer0 = np.array([-0.6, -0.1, 0.3, 0.7]), np.array([-0.4, np.nan, 0.2, np.nan])
+    together = integrate_together([(s, start, steer, steer0) for s in shooters])
+    for shooter, states in zip(shooters, together):
+        x0, inputs = shooter.model_inputs(start, steer, steer0)
+        alone = shooter.poses(integrate_batch(shooter.method, shooter.rhs, x0, inputs,
+                                              shooter.p, shooter.h, shooter.n_steps).x)
+        assert states.shape == (4, 31, 5)
+        assert states == pytest.approx(alone, rel=1e-12, abs=1e-12)
+        assert np.ptp(states[:, -1, 0]) > 1.0    # the shootings went their own ways

@@ -1,7 +1,7 @@
 """An expansion of the tree (paper Algorithms 2 and 3): from each of a batch of nodes, shoot
 towards the point-selector arc and seeded random points (and, with reverse gear, backwards;
-once the search has widened, tight moves at a fan of steers), all in one integration call
-per gear, and add every end in a new pruning cell as a child."""
+where a move collides or once the search has widened, tight moves at a fan of steers), all
+in one integration call, and add every end in a new pruning cell as a child."""
 from __future__ import annotations
 
 import math
@@ -9,7 +9,7 @@ import math
 import numpy as np
 
 from stepzoo.search.planner.point_selector import point_selector, random_points
-from stepzoo.search.planner.shooting import Shots
+from stepzoo.search.planner.shooting import Shots, integrate_together
 
 PREFIX_FRACTION = 4     # a colliding shooting's free first part is kept from 1/4 of its rows
 # [rad] the car changes between the tree's speed and tight_speed only with its steer within
@@ -48,6 +48,7 @@ class Expander:
         gears = [(1, s.f.shooter)]
         if s.f.back_shooter is not None:
             gears.append((-1, s.f.back_shooter))
+        requests = []
         for direction, shooter in gears:
             aims = []
             for node, random in zip(rows, self.filled(randoms)):
@@ -64,8 +65,21 @@ class Expander:
             if s.f.rate_limited and direction > 0:
                 settle = standing | (ways < 0) | np.repeat(tree.tight[rows], self.per)
             # From a standstill the car sets off from its body's heading.
-            shots = shooter.shoot(np.where(standing[:, None], body, states), np.vstack(aims),
-                                  s.goal, np.where(standing, np.nan, steers), settle)
+            start = np.where(standing[:, None], body, states)
+            steer0 = np.where(standing, np.nan, steers)
+            steer = shooter.aim(start, np.vstack(aims), steer0)
+            requests.append((shooter, shooter.launch(start, steer, steer0, settle), steer,
+                             steer0))
+        # Tight moves (below) are shot from every node of the batch in the same call as the
+        # tree's moves, before it is known which nodes take them: one call of the driver per
+        # expansion, the unused ones dropped.
+        speculate = s.prm.tight_moves and (s.f.rate_limited or s.result.widened)
+        if speculate:
+            requests.append(self.tight_request(rows))
+        trajectories = integrate_together(requests)
+        for (direction, shooter), (_, _, steer, steer0), states in zip(gears, requests,
+                                                                      trajectories):
+            shots = shooter.shots(states, steer, steer0, s.goal)
             if direction > 0 and s.f.rate_limited:
                 # From a tight move's node the car speeds up only with its wheel near straight.
                 slow = np.repeat(tree.tight[rows], self.per)
@@ -77,28 +91,39 @@ class Expander:
         # speed may not turn in time), from every node once the tree exhausted, and along
         # chains of tight moves; once a node is reached by the tree's own move, the tree goes
         # on alone.
-        tight = [i for k, i in enumerate(nodes)
+        tight = [k for k, i in enumerate(nodes)
                  if i < s.widened_at or tree.tight[i]
                  or (cramped[k] and s.prm.tight_moves and s.f.rate_limited
                      and (tree.direction[i] != 1 or abs(tree.steer[i]) <= SPEED_CHANGE_STEER))]
         if tight:
-            rows = self.filled(tight)
-            shooter = s.f.tight_shooter
-            standing = tree.direction[rows] != 1    # from the start or a cusp
-            steers = np.repeat(tree.steer[rows], self.per)
-            steers[np.repeat(standing, self.per)] = np.nan
-            limit = shooter.delta_max
-            fan = np.tile(np.linspace(-limit, limit, self.per), len(rows))
-            if shooter.rate is not None:
-                # Rate-limited, the fan spans the steers one shooting can reach.
-                reach = shooter.rate * shooter.duration
-                near = np.clip(steers + np.tile(np.linspace(-reach, reach, self.per), len(rows)),
-                               -limit, limit)
-                fan = np.where(np.isnan(steers), fan, near)
-            start = np.where(standing[:, None], s.body_states(rows), tree.states[rows])
-            shots = shooter.shoot_steers(np.repeat(start, self.per, axis=0), fan, s.goal, steers)
-            new += self.add_all(tight, 1, shots, tight=True)
+            assert speculate, "tight moves are shot only where the search may take them"
+            shooter, _, steer, steer0 = requests[-1]
+            # The shootings of the nodes that take them, each node's block of `per`.
+            pick = (np.array(tight)[:, None] * self.per + np.arange(self.per)).ravel()
+            shots = shooter.shots(trajectories[-1][pick], steer[pick], steer0[pick], s.goal)
+            new += self.add_all([nodes[k] for k in tight], 1, shots, tight=True)
         return new
+
+    def tight_request(self, rows) -> tuple:
+        """(tight_shooter, start states, end steers, start steers) of the tight moves from each
+        node of `rows` (batch_nodes of them): a fan of `per` steers out to full lock, or
+        rate-limited, the steers one shooting can reach from the node's."""
+        s, tree = self.s, self.s.tree
+        shooter = s.f.tight_shooter
+        standing = tree.direction[rows] != 1    # from the start or a cusp
+        steers = np.repeat(tree.steer[rows], self.per)
+        steers[np.repeat(standing, self.per)] = np.nan
+        limit = shooter.delta_max
+        fan = np.tile(np.linspace(-limit, limit, self.per), len(rows))
+        if shooter.rate is not None:
+            # Rate-limited, the fan spans the steers one shooting can reach.
+            reach = shooter.rate * shooter.duration
+            near = np.clip(steers + np.tile(np.linspace(-reach, reach, self.per), len(rows)),
+                           -limit, limit)
+            fan = np.where(np.isnan(steers), fan, near)
+        start = np.where(standing[:, None], s.body_states(rows), tree.states[rows])
+        start = np.repeat(start, self.per, axis=0)
+        return shooter, shooter.launch(start, fan, steers), fan, steers
 
     def filled(self, items: list) -> list:
         """`items` (at most batch_nodes) filled up to batch_nodes with copies of its last: a

@@ -23,7 +23,7 @@ from stepzoo.search.world.maps import SUBDIV, OccupancyMap
 from stepzoo.search.planner.status import (BAD_ENDPOINT, BOXED_IN, Cause, PlannerStatus,
                                         PlanResult)
 from stepzoo.search.planner.config import PlannerConfig
-from stepzoo.search.planner.shooting import Shooter
+from stepzoo.search.planner.shooting import Shooter, integrate_together
 from stepzoo.search.planner.termination import Progress, Termination, default_termination
 from stepzoo.search.planner.tree import Tree
 from stepzoo.search.planner.connection import IMPROVE_TOL, Connector
@@ -102,13 +102,14 @@ class PathFinder:
         """Compile the driver and build the OCP once, so timed plans measure planning [s]."""
         t0 = perf_counter()
         batch = self.shooter.batch
+        # The shooters an expansion integrates together (Expander.expand).
         shooters = [self.shooter]
         if self.back_shooter is not None:
             shooters.append(self.back_shooter)
         if self.rate_limited and self.config.params.tight_moves:
             shooters.append(self.tight_shooter)   # it shoots wherever a tree move collides
-        for shooter in shooters:
-            shooter.integrate(np.zeros((batch, 5)), np.zeros(batch), np.zeros(batch))
+        integrate_together([(shooter, np.zeros((batch, 5)), np.zeros(batch), np.zeros(batch))
+                            for shooter in shooters])
         self.connect(np.array([0.0, 0.0, 0.0, 0.0, 0.0]), np.array([8.0, 2.0, 0.0]),
                      1.0 if goal_speed_fixed else None, bounds=(-50.0, 50.0, -50.0, 50.0))
         return perf_counter() - t0

@@ -1,8 +1,10 @@
 """Shooting (paper Algorithm 3): the pure-pursuit steer angle towards each selected point, all
 shootings of one expansion integrated in one vectorised call of the zoo's driver, and for each
 its travelled distance g, its distance H to the destination and its validity verdict."""
+from functools import partial
 from typing import NamedTuple
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 
@@ -72,6 +74,7 @@ class Shooter:
         self.rhs = self.model.rhs if self.rate is None else steered(self.model.rhs)
         self.checker = checker
         self.method = method(method_name)
+        self.method_name = method_name
         self.h, self.n_steps, self.batch, self.delta_max = h, n_steps, batch, delta_max
         p = self.model.params(vehicle, vx)
         self.wheelbase = p["Lf"] + p["Lr"]
@@ -107,8 +110,12 @@ class Shooter:
         """(B, 5) states and (B,) end steers (and, rate-limited, (B,) start steers, NaN: from a
         standstill) -> (B, N+1, 5) trajectories (kinematic and rate-limited, from a
         standstill: psi the body's heading in x0, the kinematic theta in the trajectories)."""
-        # NumPy arguments go straight into the jitted driver; jnp conversions here would each
-        # be a separate dispatch, costing more than the integration itself.
+        return integrate_together([(self, x0, steer, steer0)])[0]
+
+    def model_inputs(self, x0, steer, steer0=None) -> tuple[np.ndarray, np.ndarray]:
+        """The model's initial states and inputs of `integrate`'s shootings: (B, d) and (B, m)
+        NumPy arrays (NumPy arguments go straight into the jitted driver; jnp conversions
+        here would each be a separate dispatch, costing more than the integration itself)."""
         x0, steer = np.asarray(x0, float), np.asarray(steer, float)
         B = len(x0)
         if self.kinematic:
@@ -126,8 +133,12 @@ class Shooter:
             x0, inputs = np.column_stack([x0, steer0]), ((steer - steer0) / self.duration)[:, None]
         if self.kinematic:
             inputs = np.column_stack([inputs, np.zeros(B)])            # [delta or rate, F = 0]
-        x = np.asarray(integrate_batch(self.method, self.rhs, x0, inputs, self.p, self.h,
-                                       self.n_steps).x)
+        return x0, inputs
+
+    def poses(self, x) -> np.ndarray:
+        """(B, N+1, 5) [X, Y, psi, vy, r] from the model's trajectories `x` (B, N+1, d): the
+        kinematic bicycle's lateral states reported as 0."""
+        x = np.asarray(x)
         if not self.kinematic:
             return x[..., :5]
         out = np.zeros((*x.shape[:2], 5))
@@ -179,6 +190,13 @@ class Shooter:
         """Shoot from `state` (5,), or from one state per point (B, 5), at steer `steer0`
         [rad] (one or (B,); NaN: from a standstill), towards each of `points` (B, 2) [m]."""
         start = np.broadcast_to(np.asarray(state, float), (self.batch, 5))
+        return self.shoot_steers(start, self.aim(start, points, steer0), destination, steer0,
+                                 settle)
+
+    def aim(self, state, points, steer0=0.0) -> np.ndarray:
+        """(B,) [rad] the end steers of shootings from `state` (5,) or (B, 5) at steer `steer0`
+        towards `points` (B, 2) [m]: pure pursuit, within the steer rate's reach."""
+        start = np.broadcast_to(np.asarray(state, float), (self.batch, 5))
         if self.reverse:
             # Backwards, the car follows the circle of curvature -tan(delta)/L relative to
             # its direction of travel psi + pi: pure pursuit on the flipped pose, negated.
@@ -186,18 +204,29 @@ class Shooter:
             steer = -pure_pursuit(flipped, points, self.wheelbase, self.delta_max)
         else:
             steer = pure_pursuit(start, points, self.wheelbase, self.delta_max)
-        return self.shoot_steers(start, self.end_steers(steer0, steer), destination, steer0,
-                                 settle)
+        return self.end_steers(steer0, steer)
 
     def shoot_steers(self, state, steer, destination, steer0=0.0, settle=None) -> Shots:
         """Shoot from `state` (5,), or one state per steer (B, 5), at steer `steer0` [rad]
         (rate-limited; NaN: from a standstill), to the end steers `steer` (B,) [rad]; the
         shootings `settle` (B,) bool start at the lateral steady state of their steer
         (`settled`)."""
+        start = self.launch(state, steer, steer0, settle)
+        return self.shots(self.integrate(start, steer, steer0), steer, steer0, destination)
+
+    def launch(self, state, steer, steer0=0.0, settle=None) -> np.ndarray:
+        """(B, 5) the start states of `shoot_steers`' shootings."""
         start = np.broadcast_to(np.asarray(state, float), (self.batch, 5))
         if settle is not None:
             start = self.settled(start, self.start_steers(steer0, steer), settle)
-        states = self.integrate(start, steer, steer0)
+        return start
+
+    def shots(self, states, steer, steer0, destination) -> Shots:
+        """The Shots of shootings integrated to `states` (K, N+1, 5), to end steers `steer`
+        (K,) [rad] from `steer0` (one or (K,); NaN: from a standstill), towards `destination`
+        [X, Y, ...] [m]: distances, and validity against the checker."""
+        steer = np.asarray(steer, float)
+        steer0 = np.broadcast_to(np.asarray(steer0, float), steer.shape)
         # A blown-up shooting is a result (an invalid one), so its overflow warnings are noise;
         # first_collision treats non-finite poses as collisions, so it needs no branch either.
         with np.errstate(invalid="ignore", over="ignore"):
@@ -222,3 +251,25 @@ class Shooter:
         valid = free == rows
         steer0 = steer if self.rate is None else self.start_steers(steer0, steer)
         return Shots(states, steer, steer0, travelled[:, -1], H, valid, free, travelled)
+
+
+def integrate_together(requests) -> list[np.ndarray]:
+    """[(B, N+1, 5) trajectories] of each request (shooter, x0 (B, 5), steer (B,), steer0) as
+    that shooter's `integrate` gives them, all integrated in one call of one compiled program
+    (the same shootings to rounding: each trajectory is its own in the driver's batch)."""
+    shooters = [r[0] for r in requests]
+    # Compiled once per (method, rhs, steps) of each shooter and the shapes, as the driver
+    # compiles one call: shooters of other finders with the same models share the program.
+    static = tuple((s.method_name, s.rhs, s.n_steps) for s in shooters)
+    args = [(*shooter.model_inputs(x0, steer, steer0), shooter.p, shooter.h)
+            for shooter, x0, steer, steer0 in requests]
+    xs = jax.device_get(_together(static, args))
+    return [shooter.poses(x) for shooter, x in zip(shooters, xs)]
+
+
+@partial(jax.jit, static_argnums=0)
+def _together(static, args):
+    """The driver's trajectories of each (x0, inputs, p, h) of `args` with its (method, rhs,
+    n_steps) of `static`, traced into one program."""
+    return [integrate_batch(method_name, rhs, x0, u, p, h, n_steps).x
+            for (method_name, rhs, n_steps), (x0, u, p, h) in zip(static, args)]

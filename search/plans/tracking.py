@@ -27,18 +27,16 @@ H_S = 0.01            # [s] integration step and control period (zero-order hold
 # (k_soft + v)); on the kinematic car the front axle's cross-track error then decays at rate k.
 GAIN_K = 2.0          # [1/s] cross-track gain k
 K_SOFT = 1.0          # [m/s] softening: the cross-track term stays bounded as the car stops
-# Backwards, the rear axle's path-following law (Samson's rear-wheel feedback, as surveyed by
-# Paden et al., 'A Survey of Motion Planning and Control Techniques for Self-driving Urban
-# Vehicles', IEEE T-IV 1, 2016, sec. V-A): the rear axle, which the steer does not move
-# sideways, is held on its path by the curvature kappa cos(e_psi) / (1 - kappa e) - K_PSI
-# sign(v) e_psi - K_E sinc(e_psi) e, with the plan's own curvature fed forward. Its Lyapunov
-# function K_E e^2 / 2 + e_psi^2 / 2 falls whichever way the car drives; linearised over
-# distance, s^2 + K_PSI s + K_E = 0. With K_PSI = 2 / l and K_E = 2 / l^2 it is pure pursuit
-# of the point l behind (damping 0.71) on a straight line, but needs no point ahead: pure
-# pursuit aimed at the end of a piece shorter than l from aside, at full lock, where a cusp
-# leaves a backwards piece of half a metre.
-REAR_LENGTH_M = 2.0   # [m] the loop's length scale l: about a wheelbase
-REAR_LENGTH_S = 0.6   # [s] ... per speed: the loop's time scale l / v stays the same
+# Backwards, pure pursuit of the rear axle (Coulter, 'Implementation of the Pure Pursuit Path
+# Tracking Algorithm', CMU-RI-TR-92-01; reversing as in Nav2's Regulated Pure Pursuit): the
+# rear axle, which the steer does not move sideways, follows the arc through a point
+# LOOKAHEAD ahead along its path. The kinematic car's rear axle turns at tan(delta) / L
+# whichever way it goes, so backwards this is forward pure pursuit mirrored: linearised, its
+# offset obeys s^2 + 2 v / l s + 2 v^2 / l^2 = 0 (damping 0.71), and on a circle it settles on
+# the path, where the previous law (Stanley's terms on the rear axle plus a heading term)
+# fought the plan's body slip at every cusp and strayed up to 1 m.
+LOOKAHEAD_M = 2.0     # [m] least lookahead: about a wheelbase
+LOOKAHEAD_S = 0.6     # [s] lookahead per speed: the loop's time scale l / v stays the same
 STEER_SHARE = 0.5     # the share of the steer rate the path may ask for per metre at speed
 A_CAP = 2.0           # [m/s^2] braking towards a speed the steer rate or the grip caps
 GRIP_SHARE = 0.6      # the share of the tyres' friction mu g the path's turns may ask for
@@ -56,7 +54,6 @@ END_TOL_M = 0.02      # [m] a piece is done when its end is this close along the
 V_BLEND = (1.0, 2.0)  # [m/s] the plant blends from kinematic to dynamic between these speeds
 SPACING_M = 0.05      # [m] between the reference's points along the path
 SMOOTH_M = 1.0        # [m] the path's heading is averaged over this length
-HEADING_BLEND_M = 2.0  # [m] a piece's body heading set off from where the last one ended
 WINDOW = 16           # path segments searched ahead of the last nearest one per step
 CHECK_SPACING_M = 0.05  # [m] at most between the tracked poses checked for collision
 # The closed loop is compiled for at least this many control periods and reference rows:
@@ -118,7 +115,6 @@ def reference(rows, p: dict, kinematic=None) -> dict:
     out: dict[str, list] = {k: [] for k in ("P", "C", "course", "psi_body", "steer_ff", "kappa",
                                             "speed", "accel", "left")}
     first, last, ways = [], [], []
-    before = None      # [rad] the body heading where the previous piece ended
     for a, b, way in pieces(rows):
         # Resampled evenly along the path: rows closer than their rounding would make the
         # differences below noise.
@@ -128,33 +124,19 @@ def reference(rows, p: dict, kinematic=None) -> dict:
         seg = np.column_stack([np.interp(s, along, rows[a:b + 1, k]) for k in range(3)])
         t, xy = seg[:, 0], seg[:, 1:3]
         d = np.diff(s)
-        travel = np.unwrap(np.arctan2(*_slope(xy, s).T[::-1]))
-        kappa = way * _slope(travel, s) if len(s) > 2 else np.zeros(len(s))
+        travel = np.unwrap(np.arctan2(*np.gradient(xy, s, axis=0).T[::-1]))
+        kappa = way * np.gradient(travel, s) if len(s) > 2 else np.zeros(len(s))
         beta = np.arcsin(np.clip(Lr * kappa, -sin_beta_max, sin_beta_max))
-        # A piece's first and last rows are the model's of their neighbours: at a cusp the row
-        # is the next move's first, whose model may be the other one (the kinematic and the
-        # dynamic headings differ there by the rolling car's slip, up to 0.5 rad at full
-        # lock), and an end's outlier weighs half the average there.
-        model = kinematic[a:b + 1].astype(float)
-        if len(model) > 2:
-            model[0], model[-1] = model[1], model[-2]
-        rolling = np.interp(s, along, model) > 0.5
+        rolling = np.interp(s, along, kinematic[a:b + 1].astype(float)) > 0.5
         facing = travel + (np.pi if way < 0 else 0.0)
         planned = np.interp(s, along, np.unwrap(rows[a:b + 1, 3]))
         planned += 2 * np.pi * np.round((facing[0] - planned[0]) / (2 * np.pi))
         # Averaged over SMOOTH_M: a kink where the plan hands a slipping car's heading to the
         # kinematic bicycle becomes a turn a car can drive.
         psi_body = _smooth(np.where(rolling, facing - beta, planned))
-        if before is not None:
-            # At a cusp the car stands still and its heading cannot jump; the plan's can, by
-            # the difference of the two models' body slips (a tree move at speed into a
-            # kinematic reverse move): the jump is taken out over HEADING_BLEND_M.
-            jump = np.remainder(before - psi_body[0] + np.pi, 2 * np.pi) - np.pi
-            psi_body = psi_body + jump * np.clip(1 - s / HEADING_BLEND_M, 0.0, 1.0)
-        before = psi_body[-1]
         offset = Lf if way > 0 else -Lr
         axle = xy + offset * np.column_stack([np.cos(psi_body), np.sin(psi_body)])
-        course = _smooth(np.unwrap(np.arctan2(*_slope(axle, s).T[::-1])))
+        course = _smooth(np.unwrap(np.arctan2(*np.gradient(axle, s, axis=0).T[::-1])))
         dt = np.diff(t)
         v = np.where(dt > 0, d / np.where(dt > 0, dt, 1.0), 0.0)
         speed = steering_speed(np.r_[v, v[-1:]], s, np.arctan(L * _smooth(kappa)),
@@ -190,13 +172,6 @@ def steering_speed(speed, s, steer, rate: float, kappa=None, lateral: float = ma
     for i in range(len(s) - 2, -1, -1):
         cap[i] = min(cap[i], math.sqrt(cap[i + 1] ** 2 + 2 * A_CAP * ds[i]))
     return np.minimum(speed, cap)
-
-
-def _slope(a, s):
-    """d a / d s along the first axis, second-order accurate at the ends too: the first-order
-    ends made a circle's first and last curvature half its own, and the car set off with
-    half the steer."""
-    return np.gradient(a, s, axis=0, edge_order=2 if len(s) > 2 else 1)
 
 
 def _smooth(a):
@@ -335,14 +310,15 @@ def _scan(n_steps: int):
                    + (1 - rolls) * wrap(at("course", j, f) - psi))
             forward = (aim - jnp.arctan(GAIN_K * e / soft)
                        + front_slip(v, at("kappa", j, f)))
-            # The rear axle's law on the path's own curvature (the steer that holds it, fed
-            # forward, is the rear axle's curvature tan(delta) / L) and its heading there.
-            length = jnp.maximum(REAR_LENGTH_M, REAR_LENGTH_S * jnp.abs(v))
-            kappa_r = jnp.tan(at("steer_ff", j, f)) / L
-            e_psi = wrap(psi - at("psi_body", j, f))
-            curvature = (kappa_r * jnp.cos(e_psi) / jnp.maximum(1 - kappa_r * e, 0.5)
-                         - 2 / length * way * e_psi - 2 / length**2 * jnp.sinc(e_psi / jnp.pi) * e)
-            backward = jnp.arctan(L * curvature)
+            # The point LOOKAHEAD along the path (its piece's end at most), seen from the rear
+            # axle against the direction of travel; the arc's curvature 2 sin(alpha) / l.
+            ahead_m = jnp.maximum(LOOKAHEAD_M, LOOKAHEAD_S * jnp.abs(v))
+            ahead = j + jnp.round(ahead_m / SPACING_M).astype(int)
+            goal = jnp.where(ahead < hi, at("C", jnp.minimum(ahead, hi - 1), f), ref["C"][hi])
+            gap = goal - axle
+            alpha = wrap(jnp.arctan2(gap[1], gap[0]) - psi - jnp.pi)
+            reach_m = jnp.maximum(jnp.hypot(gap[0], gap[1]), 1e-6)
+            backward = -jnp.arctan(2 * L * jnp.sin(alpha) / reach_m)
             steer = jnp.clip(jnp.where(way > 0, forward, backward), p["delta_min"],
                              p["delta_max"])
             # The plan's speed, or less where braking at A_BRAKE must start to stop at the
