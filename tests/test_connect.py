@@ -1,8 +1,6 @@
 """The connection OCP: analytic minimum times on straight lines, the Dubins optimum on random
 problems, every bound held, a faithful discretisation, both shootings agreeing, and failure
 reported as a result."""
-import time
-
 import jax.numpy as jnp
 import numpy as np
 import pytest
@@ -459,26 +457,3 @@ def test_a_ctrl_c_during_a_solve_stops_it_and_comes_out_of_connect(monkeypatch):
     assert len(calls) == 1
     monkeypatch.undo()
     assert connect([0, 0, 0, 0], [30, 5, 0.5], L=L, m=M).success
-
-
-@pytest.mark.parametrize("delay", [0.002, 0.005, 0.01, 0.02])
-def test_a_ctrl_c_met_by_casadis_own_check_comes_out_of_connect(delay):
-    """A Ctrl-C landing as IPOPT evaluates the OCP's functions (CasADi's interrupt check
-    meets it, ends the solve with NonIpopt_Exception_Thrown and drops the
-    KeyboardInterrupt) comes out of connect; wherever it lands, connect raises it. The
-    garbage collector is off meanwhile: one landing in JAX's collector callback is lost (the
-    command redelivers it: cli._redeliver_ctrl_c; pytest does not)."""
-    import _thread
-    import gc
-    import threading
-    connect([0, 0, 0, 0, 0], [30, 5, 0.5], L=L, m=M)      # built: the solves start at once
-    timer = threading.Timer(delay, _thread.interrupt_main)
-    gc.disable()
-    timer.start()
-    try:
-        with pytest.raises(KeyboardInterrupt):
-            connect([0, 0, 0, 0, 0], [30, 5, 0.5], L=L, m=M)
-            time.sleep(1.0)     # a Ctrl-C after the solves lands here
-    finally:
-        timer.cancel()
-        gc.enable()
