@@ -35,7 +35,8 @@ def test_plan_all(benchmark, tmp_path):
 # time since the request arrived.
 SEARCH_STARTS = """
 import json, sys, time
-from stepzoo.cli import plan as cmd_plan, serve as cmd_serve
+from stepzoo.cli import serve as cmd_serve
+from stepzoo.workflows import plan as cmd_plan
 answer, arrived = cmd_serve._answer, [0.0]
 def timed_answer(connection, *rest):
     arrived[0] = time.process_time()
