@@ -558,11 +558,11 @@ def _solve(prob, p, lo, hi, tf_range, tf_g, u_g, per_metre=False, room=None,
         lbg, ubg = np.r_[lbg, np.full(len(room), -np.inf)], np.r_[ubg, np.square(room)]
     prob.watch.calls, prob.watch.interrupted = 0, False
     sol = prob.solver(x0=x_g, p=p, lbx=lbx, ubx=ubx, lbg=lbg, ubg=ubg)
+    stats = prob.solver.stats()
     # A Ctrl-C met by CasADi's own interrupt check (as it evaluates the functions) ends the
     # solve by a KeyboardInterruptException, which it does not pass on: the status says it.
-    if prob.watch.interrupted or prob.solver.stats()["return_status"] == INTERRUPTED:
+    if prob.watch.interrupted or stats["return_status"] == INTERRUPTED:
         raise KeyboardInterrupt
-    stats = prob.solver.stats()
     states, inputs = (np.asarray(a).T.copy() for a in prob.path(sol["x"], p))
     # goal (, v_goal): v_goal is the last parameter when the speed is fixed
     target = np.r_[p[nx:nx + 3], p[len(p) - (prob.n_end - 3):]]
