@@ -200,15 +200,14 @@ def plan_all(scenarios, config, seed, progress: bool,
             finish(i, *answer)
 
     hand()
-    while todo:
+    while todo or away is not None:
+        if not todo:                    # this process is done: wait for the other's plan
+            collect(wait=True)          # (one it failed comes back to `todo`)
+            continue
         i = todo.pop(0)
         finish(i, *timed_plan(scenarios[i], config, seed))
         collect(wait=False)
         hand()
-    collect(wait=True)
-    while todo:                         # handed back after this process had finished
-        i = todo.pop(0)
-        finish(i, *timed_plan(scenarios[i], config, seed))
     return [done[i] for i in range(len(scenarios))]
 
 
