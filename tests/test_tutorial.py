@@ -135,9 +135,11 @@ def test_verdict_prints_the_page_s_rows_per_point(loop):
 def test_tune_and_the_exports_carry_the_same_numbers(loop):
     folder, out = loop
     tuned = tomllib.loads((folder / "tuned.toml").read_text())
-    assert (tuned["method"], tuned["h"]) == ("heun", 0.025)      # the page's choice by evals
-    rk4, = [r for r in tuned["runners_up"] if r["method"] == "rk4"]
-    # acados has no Heun: the cheapest qualifying method it has, rk4, at rk4's tuned step.
+    # The page's choice by evals: the A-stable trapezoidal rule at the sweep's largest step.
+    assert (tuned["method"], tuned["h"]) == ("trapezoidal", 1 / 12)
+    runner = {r["method"]: r for r in tuned["runners_up"]}
+    rk4, heun = runner["rk4"], runner["heun"]
+    # acados has no trapezoidal rule: the cheapest qualifying method it has, rk4, at rk4's step.
     for prefix in ("# acados:", "ocp.solver_options.", "v         5      rk4",
                    "v         15     rk4"):
         page = {line for line in PAGE.splitlines() if line.startswith(prefix)}
@@ -151,8 +153,12 @@ def test_tune_and_the_exports_carry_the_same_numbers(loop):
     # acados runs rk4, so its block has rk4's schedule, as `--to acados` prints it.
     assert acados["schedule"]["v"][0]["h_safe_s"] == rk4["h"]
     assert {r["method"] for r in acados["schedule"]["v"]} == {"rk4"}
-    assert "schedule" not in diffrax                      # diffrax runs the tuned heun
-    assert (exported["method"], exported["h"], diffrax["dt0"]) == ("heun", 0.025, 0.025)
+    # diffrax has no trapezoidal rule either: it runs heun, the next qualifying method.
+    assert (diffrax["method"], diffrax["dt0"]) == ("heun", heun["h"]) == ("heun", 0.025)
+    assert {r["method"] for r in diffrax["schedule"]["v"]} == {"heun"}
+    assert (exported["method"], exported["h"]) == ("trapezoidal", 1 / 12)
+    # A-stable: no limit measured anywhere, so the tuned schedule's stable step is unbounded.
+    assert all(r["h_stable_s"] is None for r in exported["schedule"]["v"])
     schedule = pd.read_csv(folder / "exported" / "schedule.csv")
     page_schedule = [line for line in PAGE.splitlines()
                      if line.startswith(("v,", "ddelta,", "variable,value"))]
@@ -161,12 +167,18 @@ def test_tune_and_the_exports_carry_the_same_numbers(loop):
     # for the page's 0.0007511192950669).
     pd.testing.assert_frame_equal(schedule, pd.read_csv(io.StringIO("\n".join(page_schedule))),
                                   check_exact=False, rtol=1e-9, atol=1e-12)
-    # h_stable_s is (1 - margin) x the smallest measured limit of the tuned method there.
+    # h_stable_s is (1 - margin) x the smallest measured limit of the method there: inf for
+    # the tuned trapezoidal rule, 0.8 x heun's own limits in the diffrax block.
     limits = pd.read_csv(folder / "sweep" / "limits.csv")
-    heun = limits[limits["method"] == "heun"]
-    for _, row in schedule.iterrows():
-        h_meas = heun.loc[heun[row["variable"]] == row["value"], "h_meas"].min()
-        assert row["h_stable_s"] == pytest.approx((1 - tuned["margin"]) * h_meas, rel=1e-12)
+    assert np.isinf(schedule["h_stable_s"]).all()
+    for method, rows in (("trapezoidal", schedule.to_dict("records")),
+                         ("heun", [dict(r, variable="v") for r in diffrax["schedule"]["v"]])):
+        of = limits[limits["method"] == method]
+        for row in rows:
+            h_meas = of.loc[of[row["variable"]] == row["value"], "h_meas"].min()
+            stable = row["h_stable_s"]
+            assert (np.inf if stable is None else stable) == pytest.approx(
+                (1 - tuned["margin"]) * h_meas, rel=1e-12)
 
 
 def test_the_diffrax_snippet_ends_where_stepzoo_s_own_step_does(loop, capsys):
