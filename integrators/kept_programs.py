@@ -1,0 +1,201 @@
+"""The driver's programs kept across processes: a program traced once (`jax.export`) is
+written into a folder the caller names (`keep_in`), and a later process that runs the same
+program loads it instead of tracing the method and the model again; XLA's own persistent
+cache then serves its compilation. Off until `keep_in` is called (the `stepzoo` command
+keeps them beside JAX's compilation cache).
+
+A program is kept only where its key holds everything that decides it: the source of every
+module of the stepzoo package (its models, methods and driver), the zoo's method by name
+(a Method of the registry, not a user's), the right-hand side as a function of stepzoo's by
+its module, name and captured values (a user's function, or one capturing what the key
+cannot name, is traced as before), the static arguments, the shapes, dtypes and weak types
+of the run-time ones, and JAX's version, settings, devices and XLA_FLAGS. What it cannot
+name is a stepzoo module changed at run time (a patched global): the key is its source."""
+from __future__ import annotations
+
+import dataclasses
+import functools
+import hashlib
+import os
+import pickle
+import threading
+import types
+from pathlib import Path
+
+import jax
+import jaxlib
+import numpy as np
+from jax import export
+from jax.sharding import Mesh, NamedSharding, PartitionSpec
+
+_folder: Path | None = None
+_loaded: dict[str, object] = {}   # key -> jitted call of the kept program, in this process
+_refused: set[str] = set()        # keys whose program cannot be exported (a callback, say)
+_lock = threading.Lock()
+
+
+class Unnamed(Exception):
+    """A value the key cannot name: the program is traced, not kept."""
+
+
+def keep_in(folder) -> None:
+    """Keep the driver's programs in `folder` (created when first written); None: keep none."""
+    global _folder
+    _folder = None if folder is None else Path(folder)
+
+
+def folder() -> Path | None:
+    """Where programs are kept (None: nowhere)."""
+    return _folder
+
+
+@functools.cache
+def library_source() -> str:
+    """sha256 of the source of every module of the stepzoo package (path and text)."""
+    import stepzoo
+    digest = hashlib.sha256()
+    roots = list(stepzoo.__path__)
+    for name in ("dynamics", "integrators", "bench", "search", "reports"):
+        spec = __import__("importlib").util.find_spec(f"stepzoo.{name}")
+        if spec is not None and spec.submodule_search_locations:
+            roots += list(spec.submodule_search_locations)
+    for root in sorted(set(roots)):
+        for path in sorted(Path(root).rglob("*.py")):
+            digest.update(str(path.relative_to(root)).encode())
+            digest.update(path.read_bytes())
+    return digest.hexdigest()
+
+
+def name_of(value) -> str:
+    """A text that names `value` for the key, equal for equal values across processes;
+    raises Unnamed for what it cannot name (a function or type not of stepzoo's)."""
+    if value is None or isinstance(value, (bool, int, str, bytes)):
+        return f"{type(value).__name__}:{value!r}"
+    if isinstance(value, float):
+        return f"float:{value.hex()}"
+    if isinstance(value, (tuple, list)):
+        kind = type(value)
+        if kind not in (tuple, list):
+            _ours(kind.__module__, value)      # a NamedTuple of stepzoo's
+        return f"{kind.__module__}.{kind.__qualname__}({','.join(name_of(v) for v in value)})"
+    if isinstance(value, dict):
+        items = sorted((name_of(k), name_of(v)) for k, v in value.items())
+        return "dict(" + ",".join(f"{k}={v}" for k, v in items) + ")"
+    if isinstance(value, (np.ndarray, np.generic, jax.Array)):
+        if isinstance(value, jax.core.Tracer):
+            raise Unnamed("a traced value")
+        a = np.asarray(value)
+        return f"array:{a.dtype}:{a.shape}:{hashlib.sha256(a.tobytes()).hexdigest()}"
+    if isinstance(value, functools.partial):
+        return (f"partial({name_of(value.func)},{name_of(value.args)},"
+                f"{name_of(value.keywords)})")
+    if isinstance(value, types.FunctionType):
+        _ours(value.__module__, value)
+        cells = tuple(c.cell_contents for c in value.__closure__ or ())
+        return (f"function:{value.__module__}.{value.__qualname__}({name_of(cells)},"
+                f"{name_of(value.__defaults__)},{name_of(value.__kwdefaults__)})")
+    if isinstance(value, type):
+        _ours(value.__module__, value)
+        return f"type:{value.__module__}.{value.__qualname__}"
+    if dataclasses.is_dataclass(value):
+        kind = type(value)
+        _ours(kind.__module__, value)
+        fields = {field.name: getattr(value, field.name) for field in dataclasses.fields(value)}
+        return f"{kind.__module__}.{kind.__qualname__}{name_of(fields)}"
+    raise Unnamed(f"a {type(value).__name__}")
+
+
+def _ours(module: str, value) -> None:
+    if module != "stepzoo" and not module.startswith("stepzoo."):
+        raise Unnamed(f"{value!r} is not stepzoo's")
+
+
+def _aval(leaf) -> str:
+    a = jax.numpy.asarray(leaf) if not hasattr(leaf, "dtype") else leaf
+    weak = isinstance(leaf, (bool, int, float, complex)) or bool(getattr(leaf, "weak_type", False))
+    return f"{a.dtype}{tuple(a.shape)}{'w' * weak}"
+
+
+def key(fn_name: str, program, f, static: dict, dynamic: tuple) -> str:
+    """The key of the program `fn_name` of the driver for the zoo method `program`, the
+    right-hand side `f`, the static arguments `static` and the run-time arguments `dynamic`
+    (a pytree); raises Unnamed where it cannot name one."""
+    from stepzoo.integrators.methods import METHODS
+    if METHODS.get(getattr(program, "name", None)) is not program:
+        raise Unnamed("a method not of the zoo's registry")
+    leaves, tree = jax.tree.flatten(dynamic)
+    if any(isinstance(leaf, jax.core.Tracer) for leaf in leaves):
+        raise Unnamed("a traced argument")
+    parts = [library_source(), jax.__version__, jaxlib.__version__, jax.default_backend(),
+             str(len(jax.devices())), str(jax.config.jax_enable_x64),
+             os.environ.get("XLA_FLAGS", ""), fn_name,
+             program.name, name_of(f), name_of(static), str(tree),
+             ",".join(_aval(leaf) for leaf in leaves)]
+    return hashlib.sha256("\n".join(parts).encode()).hexdigest()
+
+
+def call(fn, fn_name: str, program, f, static: dict, args: tuple, kwargs: dict):
+    """fn(program, f, *args, **kwargs, **static) (fn a jitted driver function whose
+    static arguments are program, f and `static`'s), through the program kept under its key
+    where one is, else traced, kept and run; where the key cannot name an argument, or
+    nothing is kept, plain fn."""
+    place = _folder
+    plain = lambda: fn(program, f, *args, **kwargs, **static)
+    if place is None:
+        return plain()
+    try:
+        k = key(fn_name, program, f, static, (args, kwargs))
+    except Unnamed:
+        return plain()
+    run = _loaded.get(k)
+    if run is None and k not in _refused:
+        run = _load(place / f"{k}.pkl")
+        if run is None:
+            run = _export(place / f"{k}.pkl", fn, program, f, static, args, kwargs)
+        with _lock:
+            if run is None:
+                _refused.add(k)
+            else:
+                _loaded[k] = run
+    if run is None:
+        return plain()
+    return run(args, kwargs)
+
+
+def _runner(exported):
+    """A call of the exported program on (args, kwargs), on as many devices as it was
+    exported for (a batch shared among cores runs on each of them)."""
+    jitted = jax.jit(exported.call)
+    if exported.nr_devices == 1:
+        return lambda args, kwargs: jitted(*args, **kwargs)
+    everywhere = NamedSharding(Mesh(np.array(jax.devices()[:exported.nr_devices]), ("d",)),
+                               PartitionSpec())
+    return lambda args, kwargs: jitted(*jax.device_put(args, everywhere),
+                                       **jax.device_put(kwargs, everywhere))
+
+
+def _load(path: Path):
+    try:
+        exported = pickle.loads(path.read_bytes())
+    except (OSError, pickle.UnpicklingError, EOFError, AttributeError, TypeError):
+        return None
+    return _runner(exported)
+
+
+def _export(path: Path, fn, program, f, static, args, kwargs):
+    """Trace and export the program, write it to `path` (atomically) and return its runner;
+    None where JAX cannot export it."""
+    try:
+        exported = export.export(fn)(program, f, *args, **kwargs, **static)
+    except Exception:   # noqa: BLE001 (what JAX cannot export is traced as before)
+        return None
+    # The vjp is made on request from the function, which is not kept.
+    blob = pickle.dumps(dataclasses.replace(exported, _get_vjp=None))
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = path.with_name(f"{path.name}.{os.getpid()}.{threading.get_ident()}.tmp")
+        tmp.write_bytes(blob)
+        os.replace(tmp, path)
+    except OSError:
+        pass
+    return _runner(exported)
