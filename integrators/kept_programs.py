@@ -16,6 +16,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 import hashlib
+import importlib.util
 import os
 import pickle
 import threading
@@ -51,18 +52,23 @@ def folder() -> Path | None:
 
 @functools.cache
 def library_source() -> str:
-    """sha256 of the source of every module of the stepzoo package (path and text)."""
+    """sha256 of the source of every module of the stepzoo package (source_digest)."""
     import stepzoo
-    digest = hashlib.sha256()
     roots = list(stepzoo.__path__)
     for name in ("dynamics", "integrators", "bench", "search", "reports"):
-        spec = __import__("importlib").util.find_spec(f"stepzoo.{name}")
+        spec = importlib.util.find_spec(f"stepzoo.{name}")
         if spec is not None and spec.submodule_search_locations:
             roots += list(spec.submodule_search_locations)
-    for root in sorted(set(roots)):
+    return source_digest(roots)
+
+
+def source_digest(roots) -> str:
+    """sha256 of every .py file under the folders `roots`: its path in its folder and text."""
+    digest = hashlib.sha256()
+    for root in sorted({str(root) for root in roots}):
         for path in sorted(Path(root).rglob("*.py")):
-            digest.update(str(path.relative_to(root)).encode())
-            digest.update(path.read_bytes())
+            digest.update(str(path.relative_to(root)).encode() + b"\0")
+            digest.update(hashlib.sha256(path.read_bytes()).digest())
     return digest.hexdigest()
 
 
