@@ -32,6 +32,10 @@ from jax.sharding import Mesh, NamedSharding, PartitionSpec
 _folder: Path | None = None
 _loaded: dict[str, object] = {}   # key -> jitted call of the kept program, in this process
 _refused: set[str] = set()        # keys whose program cannot be exported (a callback, say)
+# (driver function, program, f, static, tree, types) -> key, or None where the key cannot
+# name them: in a process these objects stand for themselves, as jax.jit's own cache holds
+# (a function, a Method are static arguments by identity), so each is named once.
+_keys: dict[tuple, str | None] = {}
 _lock = threading.Lock()
 
 
@@ -117,27 +121,47 @@ def _ours(module: str, value) -> None:
 
 
 def _aval(leaf) -> str:
-    a = jax.numpy.asarray(leaf) if not hasattr(leaf, "dtype") else leaf
-    weak = isinstance(leaf, (bool, int, float, complex)) or bool(getattr(leaf, "weak_type", False))
-    return f"{a.dtype}{tuple(a.shape)}{'w' * weak}"
+    """A run-time argument's shape, dtype and weak type (a Python number's dtype is JAX's
+    for its type under the x64 setting, which the key holds)."""
+    if isinstance(leaf, (bool, int, float, complex)):
+        return f"{type(leaf).__name__}w"
+    weak = "w" if getattr(leaf, "weak_type", False) else ""
+    return f"{leaf.dtype}{tuple(leaf.shape)}{weak}"
 
 
-def key(fn_name: str, program, f, static: dict, dynamic: tuple) -> str:
+def key(fn_name: str, program, f, static: dict, dynamic) -> str:
     """The key of the program `fn_name` of the driver for the zoo method `program`, the
     right-hand side `f`, the static arguments `static` and the run-time arguments `dynamic`
     (a pytree); raises Unnamed where it cannot name one."""
+    leaves, tree = jax.tree.flatten(dynamic)
+    return _key(fn_name, program, f, static, str(tree), [_aval(leaf) for leaf in leaves])
+
+
+def _key(fn_name: str, program, f, static: dict, tree: str, types: list) -> str:
     from stepzoo.integrators.methods import METHODS
     if METHODS.get(getattr(program, "name", None)) is not program:
         raise Unnamed("a method not of the zoo's registry")
-    leaves, tree = jax.tree.flatten(dynamic)
-    if any(isinstance(leaf, jax.core.Tracer) for leaf in leaves):
-        raise Unnamed("a traced argument")
     parts = [library_source(), jax.__version__, jaxlib.__version__, jax.default_backend(),
              str(len(jax.devices())), str(jax.config.jax_enable_x64),
-             os.environ.get("XLA_FLAGS", ""), fn_name,
-             program.name, name_of(f), name_of(static), str(tree),
-             ",".join(_aval(leaf) for leaf in leaves)]
+             os.environ.get("XLA_FLAGS", ""), fn_name, program.name, name_of(f),
+             name_of(static), tree, ",".join(types)]
     return hashlib.sha256("\n".join(parts).encode()).hexdigest()
+
+
+def _key_of(fn_name: str, program, f, static: dict, dynamic) -> str | None:
+    """key(...), named once a process for these objects and types; None where it cannot
+    name one, or an argument is traced."""
+    leaves, tree = jax.tree.flatten(dynamic)
+    if any(isinstance(leaf, jax.core.Tracer) for leaf in leaves):
+        return None
+    types = [_aval(leaf) for leaf in leaves]
+    seen = (fn_name, program, f, tuple(sorted(static.items())), tree, tuple(types))
+    if seen not in _keys:
+        try:
+            _keys[seen] = _key(fn_name, program, f, static, str(tree), types)
+        except Unnamed:
+            _keys[seen] = None
+    return _keys[seen]
 
 
 def call(fn, fn_name: str, program, f, static: dict, args: tuple, kwargs: dict):
@@ -149,9 +173,8 @@ def call(fn, fn_name: str, program, f, static: dict, args: tuple, kwargs: dict):
     plain = lambda: fn(program, f, *args, **kwargs, **static)
     if place is None:
         return plain()
-    try:
-        k = key(fn_name, program, f, static, (args, kwargs))
-    except Unnamed:
+    k = _key_of(fn_name, program, f, static, (args, kwargs))
+    if k is None:
         return plain()
     run = _loaded.get(k)
     if run is None and k not in _refused:

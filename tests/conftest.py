@@ -77,5 +77,6 @@ def _no_kept_programs():
     kept_programs.keep_in(None)
     kept_programs._loaded.clear()
     kept_programs._refused.clear()
+    kept_programs._keys.clear()
     yield
     kept_programs.keep_in(None)

@@ -24,6 +24,7 @@ def kept(tmp_path, monkeypatch):
     """Programs kept in tmp_path for the test, none loaded in this process yet."""
     monkeypatch.setattr(kept_programs, "_loaded", {})
     monkeypatch.setattr(kept_programs, "_refused", set())
+    monkeypatch.setattr(kept_programs, "_keys", {})
     kept_programs.keep_in(tmp_path)
     yield tmp_path
     kept_programs.keep_in(None)
