@@ -10,7 +10,8 @@ module of the stepzoo package (its models, methods and driver), the zoo's method
 its module, name and captured values (a user's function, or one capturing what the key
 cannot name, is traced as before), the static arguments, the shapes, dtypes and weak types
 of the run-time ones, and JAX's version, settings, devices and XLA_FLAGS. What it cannot
-name is a stepzoo module changed at run time (a patched global): the key is its source."""
+name is a stepzoo module changed at run time (a patched global): the key is its source.
+Modules a function captures are named by name (JAX's and NumPy's versions are in the key)."""
 from __future__ import annotations
 
 import dataclasses
@@ -104,6 +105,8 @@ def name_of(value) -> str:
         cells = tuple(c.cell_contents for c in value.__closure__ or ())
         return (f"function:{value.__module__}.{value.__qualname__}({name_of(cells)},"
                 f"{name_of(value.__defaults__)},{name_of(value.__kwdefaults__)})")
+    if isinstance(value, types.ModuleType):      # by name: their versions are in the key
+        return f"module:{value.__name__}"
     if isinstance(value, type):
         _ours(value.__module__, value)
         return f"type:{value.__module__}.{value.__qualname__}"
@@ -141,7 +144,8 @@ def _key(fn_name: str, program, f, static: dict, tree: str, types: list) -> str:
     from stepzoo.integrators.methods import METHODS
     if METHODS.get(getattr(program, "name", None)) is not program:
         raise Unnamed("a method not of the zoo's registry")
-    parts = [library_source(), jax.__version__, jaxlib.__version__, jax.default_backend(),
+    parts = [library_source(), jax.__version__, jaxlib.__version__, np.__version__,
+             jax.default_backend(),
              str(len(jax.devices())), str(jax.config.jax_enable_x64),
              os.environ.get("XLA_FLAGS", ""), fn_name, program.name, name_of(f),
              name_of(static), tree, ",".join(types)]
