@@ -351,8 +351,8 @@ def _run(fn, program, f, args, n_steps, t0, max_steps, dynamic, static):
     dyn = max_steps is not None
     dynamic = dict(dynamic, t0=t0, **({"n_steps": n_steps} if dyn else {}))
     static = dict(static, max_steps=max_steps, **({} if dyn else {"n_steps": n_steps}))
-    return kept_programs.call(_jitted[(fn, dyn)], fn.__name__, program, f, static, args,
-                              dynamic)
+    return kept_programs.call(_jitted[(fn, dyn)], f"driver.{fn.__name__}", (program, f), static,
+                              args, dynamic)
 
 
 def integrate(method, f, x0, u=None, p=None, h=None, n_steps=None, t0=0.0,

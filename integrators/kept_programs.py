@@ -30,6 +30,7 @@ import numpy as np
 from jax import export
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
+METHODS_MODULE = "stepzoo.integrators.methods"
 _folder: Path | None = None
 _loaded: dict[str, object] = {}   # key -> jitted call of the kept program, in this process
 _refused: set[str] = set()        # keys whose program cannot be exported (a callback, say)
@@ -105,6 +106,11 @@ def name_of(value) -> str:
         cells = tuple(c.cell_contents for c in value.__closure__ or ())
         return (f"function:{value.__module__}.{value.__qualname__}({name_of(cells)},"
                 f"{name_of(value.__defaults__)},{name_of(value.__kwdefaults__)})")
+    if type(value).__name__ == "Method" and type(value).__module__ == METHODS_MODULE:
+        from stepzoo.integrators.methods import METHODS
+        if METHODS.get(value.name) is not value:
+            raise Unnamed(f"the method {value.name!r} is not the zoo's registry's")
+        return f"method:{value.name}"
     if isinstance(value, types.ModuleType):      # by name: their versions are in the key
         return f"module:{value.__name__}"
     if isinstance(value, type):
@@ -132,59 +138,62 @@ def _aval(leaf) -> str:
     return f"{leaf.dtype}{tuple(leaf.shape)}{weak}"
 
 
-def key(fn_name: str, program, f, static: dict, dynamic) -> str:
-    """The key of the program `fn_name` of the driver for the zoo method `program`, the
-    right-hand side `f`, the static arguments `static` and the run-time arguments `dynamic`
+def key(fn_name: str, lead: tuple, static: dict, dynamic) -> str:
+    """The key of the program of the function named `fn_name` with the static arguments
+    `lead` (positional, first) and `static` (keywords) and the run-time arguments `dynamic`
     (a pytree); raises Unnamed where it cannot name one."""
     leaves, tree = jax.tree.flatten(dynamic)
-    return _key(fn_name, program, f, static, str(tree), [_aval(leaf) for leaf in leaves])
+    return _key(fn_name, lead, static, str(tree), [_aval(leaf) for leaf in leaves])
 
 
-def _key(fn_name: str, program, f, static: dict, tree: str, types: list) -> str:
-    from stepzoo.integrators.methods import METHODS
-    if METHODS.get(getattr(program, "name", None)) is not program:
-        raise Unnamed("a method not of the zoo's registry")
+def _key(fn_name: str, lead: tuple, static: dict, tree: str, types: list) -> str:
     parts = [library_source(), jax.__version__, jaxlib.__version__, np.__version__,
-             jax.default_backend(),
-             str(len(jax.devices())), str(jax.config.jax_enable_x64),
-             os.environ.get("XLA_FLAGS", ""), fn_name, program.name, name_of(f),
-             name_of(static), tree, ",".join(types)]
+             jax.default_backend(), str(len(jax.devices())), str(jax.config.jax_enable_x64),
+             os.environ.get("XLA_FLAGS", ""), fn_name, name_of(lead), name_of(static), tree,
+             ",".join(types)]
     return hashlib.sha256("\n".join(parts).encode()).hexdigest()
 
 
-def _key_of(fn_name: str, program, f, static: dict, dynamic) -> str | None:
-    """key(...), named once a process for these objects and types; None where it cannot
-    name one, or an argument is traced."""
+def _key_of(fn_name: str, lead: tuple, static: dict, dynamic) -> str | None:
+    """key(...), named once a process for these objects and argument types; None where it
+    cannot name one, or an argument is traced."""
     leaves, tree = jax.tree.flatten(dynamic)
-    if any(isinstance(leaf, jax.core.Tracer) for leaf in leaves):
-        return None
-    types = [_aval(leaf) for leaf in leaves]
-    seen = (fn_name, program, f, tuple(sorted(static.items())), tree, tuple(types))
-    if seen not in _keys:
+    types = []
+    for leaf in leaves:
+        if isinstance(leaf, (bool, int, float, complex)):
+            types.append(type(leaf))
+        elif isinstance(leaf, jax.core.Tracer):
+            return None
+        else:
+            types.append((leaf.shape, leaf.dtype, getattr(leaf, "weak_type", False)))
+    seen = (fn_name, lead, tuple(sorted(static.items())), tree, tuple(types))
+    k = _keys.get(seen, "")
+    if k == "":
         try:
-            _keys[seen] = _key(fn_name, program, f, static, str(tree), types)
+            k = _key(fn_name, lead, static, str(tree), [_aval(leaf) for leaf in leaves])
         except Unnamed:
-            _keys[seen] = None
-    return _keys[seen]
+            k = None
+        _keys[seen] = k
+    return k
 
 
-def call(fn, fn_name: str, program, f, static: dict, args: tuple, kwargs: dict):
-    """fn(program, f, *args, **kwargs, **static) (fn a jitted driver function whose
-    static arguments are program, f and `static`'s), through the program kept under its key
-    where one is, else traced, kept and run; where the key cannot name an argument, or
-    nothing is kept, plain fn."""
+def call(fn, fn_name: str, lead: tuple, static: dict, args: tuple, kwargs: dict):
+    """fn(*lead, *args, **kwargs, **static), fn a function jitted with `lead` (its first
+    positional arguments) and `static`'s keywords static: through the program kept under
+    its key where one is, else traced, kept and run; where the key cannot name an argument,
+    or nothing is kept, plain fn."""
     place = _folder
-    plain = lambda: fn(program, f, *args, **kwargs, **static)
+    plain = lambda: fn(*lead, *args, **kwargs, **static)
     if place is None:
         return plain()
-    k = _key_of(fn_name, program, f, static, (args, kwargs))
+    k = _key_of(fn_name, lead, static, (args, kwargs))
     if k is None:
         return plain()
     run = _loaded.get(k)
     if run is None and k not in _refused:
         run = _load(place / f"{k}.pkl")
         if run is None:
-            run = _export(place / f"{k}.pkl", fn, program, f, static, args, kwargs)
+            run = _export(place / f"{k}.pkl", fn, lead, static, args, kwargs)
         with _lock:
             if run is None:
                 _refused.add(k)
@@ -215,11 +224,11 @@ def _load(path: Path):
     return _runner(exported)
 
 
-def _export(path: Path, fn, program, f, static, args, kwargs):
+def _export(path: Path, fn, lead, static, args, kwargs):
     """Trace and export the program, write it to `path` (atomically) and return its runner;
     None where JAX cannot export it."""
     try:
-        exported = export.export(fn)(program, f, *args, **kwargs, **static)
+        exported = export.export(fn)(*lead, *args, **kwargs, **static)
     except Exception:   # noqa: BLE001 (what JAX cannot export is traced as before)
         return None
     # The vjp is made on request from the function, which is not kept.

@@ -82,6 +82,9 @@ def test_what_the_key_cannot_name_is_traced_and_not_kept(kept):
     integrate_batch(custom, kinematic_bicycle, np.ones((3, 4)), np.zeros((3, 2)), P, 0.1, 5)
     assert list(kept.glob("*.pkl")) == []
     with pytest.raises(kept_programs.Unnamed):
+        kept_programs.name_of(custom)
+    assert kept_programs.name_of(METHODS["rk4"]) == "method:rk4"
+    with pytest.raises(kept_programs.Unnamed):
         kept_programs.name_of(own_model)
     with pytest.raises(kept_programs.Unnamed):   # a stepzoo closure over a user's function
         kept_programs.name_of(arguments.scalar_rhs(own_model))
@@ -91,7 +94,7 @@ def _key(f=kinematic_bicycle, name="rk4", x0=None, static=None):
     x0 = np.zeros((3, 4)) if x0 is None else x0
     static = {"n_steps": 5, "max_steps": None, "libm": False, "retry": True} \
         if static is None else static
-    return kept_programs.key("_batch", method(name).program, f, static,
+    return kept_programs.key("driver._batch", (method(name).program, f), static,
                              ((x0, np.zeros((3, 2)), P, 0.1), {"t0": 0.0}))
 
 
@@ -118,3 +121,30 @@ def test_the_source_digest_changes_when_a_module_changes(tmp_path):
     changed = kept_programs.source_digest([tmp_path])
     model.rename(tmp_path / "dynamics" / "other.py")
     assert len({before, changed, kept_programs.source_digest([tmp_path])}) == 3
+
+
+def test_the_planners_shootings_from_a_kept_program_are_the_traced_ones(kept, monkeypatch):
+    """integrate_together (the tree's moves in one call) through a kept program: the same
+    trajectories bit for bit, loaded in a 'new process' without exporting again."""
+    from stepzoo.search.planner.pathfinder import PathFinder
+    from stepzoo.search.planner.config import load_config
+    from stepzoo.search.planner.shooting import integrate_together
+    from stepzoo.search.world.scenarios import load_scenario
+    scenario = load_scenario("wall_between")
+    finder = PathFinder(scenario.omap, load_config(None), scenario.vehicle, scenario.speed)
+    rng = np.random.default_rng(5)
+    batch = finder.shooter.batch
+    start = np.column_stack([rng.normal(size=(batch, 2)) * 3, rng.normal(size=batch),
+                             np.zeros((batch, 2))])
+    shooters = [finder.shooter, finder.tight_shooter]
+    requests = [(s, start, 0.3 * rng.normal(size=batch), np.zeros(batch)) for s in shooters]
+    kept_programs.keep_in(None)
+    plain = integrate_together(requests)
+    kept_programs.keep_in(kept)
+    first = integrate_together(requests)
+    assert len(list(kept.glob("*.pkl"))) == 1
+    monkeypatch.setattr(kept_programs, "_loaded", {})
+    monkeypatch.setattr(kept_programs, "_export", lambda *a: pytest.fail("exported again"))
+    loaded = integrate_together(requests)
+    assert all(np.array_equal(a, b, equal_nan=True) and np.array_equal(a, c, equal_nan=True)
+               for a, b, c in zip(plain, first, loaded))
