@@ -1,8 +1,9 @@
-"""The driver's programs kept across processes: a program traced once (`jax.export`) is
-written into a folder the caller names (`keep_in`), and a later process that runs the same
-program loads it instead of tracing the method and the model again; XLA's own persistent
-cache then serves its compilation. Off until `keep_in` is called (the `stepzoo` command
-keeps them beside JAX's compilation cache).
+"""Traced programs kept across processes (the driver's, and the planner's call of the tree's
+moves): a program traced once (`jax.export`) is written into a folder the caller names
+(`keep_in`), and a later process that runs the same program loads it instead of tracing the
+method and the model again; XLA's own persistent cache then serves its compilation. Off until
+`keep_in` is called (the `stepzoo` command keeps them beside JAX's compilation cache, a
+folder of the user's that it trusts as XLA's: a kept file is read with pickle).
 
 A program is kept only where its key holds everything that decides it: the source of every
 module of the stepzoo package (its models, methods and driver), the zoo's method by name
@@ -23,6 +24,7 @@ import pickle
 import threading
 import types
 from pathlib import Path
+from typing import Any, Callable
 
 import jax
 import jaxlib
@@ -30,13 +32,13 @@ import numpy as np
 from jax import export
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
-METHODS_MODULE = "stepzoo.integrators.methods"
 _folder: Path | None = None
-_loaded: dict[str, object] = {}   # key -> jitted call of the kept program, in this process
+# key -> a call of the kept program on (args, kwargs), in this process
+_loaded: dict[str, Callable[[tuple, dict], Any]] = {}
 _refused: set[str] = set()        # keys whose program cannot be exported (a callback, say)
-# (driver function, program, f, static, tree, types) -> key, or None where the key cannot
-# name them: in a process these objects stand for themselves, as jax.jit's own cache holds
-# (a function, a Method are static arguments by identity), so each is named once.
+# (function name, static arguments, tree, argument types) -> key, or None where the key
+# cannot name them: in a process these objects stand for themselves, as jax.jit's own cache
+# holds them (a function, a Method are static arguments by identity), so each is named once.
 _keys: dict[tuple, str | None] = {}
 _lock = threading.Lock()
 
@@ -86,7 +88,7 @@ def name_of(value) -> str:
     if isinstance(value, float):
         return f"float:{value.hex()}"
     if isinstance(value, (tuple, list)):
-        kind = type(value)
+        kind: type = type(value)
         if kind not in (tuple, list):
             _ours(kind.__module__, value)      # a NamedTuple of stepzoo's
         return f"{kind.__module__}.{kind.__qualname__}({','.join(name_of(v) for v in value)})"
@@ -106,8 +108,8 @@ def name_of(value) -> str:
         cells = tuple(c.cell_contents for c in value.__closure__ or ())
         return (f"function:{value.__module__}.{value.__qualname__}({name_of(cells)},"
                 f"{name_of(value.__defaults__)},{name_of(value.__kwdefaults__)})")
-    if type(value).__name__ == "Method" and type(value).__module__ == METHODS_MODULE:
-        from stepzoo.integrators.methods import METHODS
+    from stepzoo.integrators.methods import METHODS, Method
+    if isinstance(value, Method):
         if METHODS.get(value.name) is not value:
             raise Unnamed(f"the method {value.name!r} is not the zoo's registry's")
         return f"method:{value.name}"
@@ -117,7 +119,7 @@ def name_of(value) -> str:
         _ours(value.__module__, value)
         return f"type:{value.__module__}.{value.__qualname__}"
     if dataclasses.is_dataclass(value):
-        kind = type(value)
+        kind = type(value)  # type: ignore[assignment]
         _ours(kind.__module__, value)
         fields = {field.name: getattr(value, field.name) for field in dataclasses.fields(value)}
         return f"{kind.__module__}.{kind.__qualname__}{name_of(fields)}"
@@ -148,9 +150,9 @@ def key(fn_name: str, lead: tuple, static: dict, dynamic) -> str:
 
 def _key(fn_name: str, lead: tuple, static: dict, tree: str, types: list) -> str:
     parts = [library_source(), jax.__version__, jaxlib.__version__, np.__version__,
-             jax.default_backend(), str(len(jax.devices())), str(jax.config.jax_enable_x64),
-             os.environ.get("XLA_FLAGS", ""), fn_name, name_of(lead), name_of(static), tree,
-             ",".join(types)]
+             jax.default_backend(), str(len(jax.devices())),
+             str(jax.config.read("jax_enable_x64")), os.environ.get("XLA_FLAGS", ""), fn_name,
+             name_of(lead), name_of(static), tree, ",".join(types)]
     return hashlib.sha256("\n".join(parts).encode()).hexdigest()
 
 
@@ -158,7 +160,7 @@ def _key_of(fn_name: str, lead: tuple, static: dict, dynamic) -> str | None:
     """key(...), named once a process for these objects and argument types; None where it
     cannot name one, or an argument is traced."""
     leaves, tree = jax.tree.flatten(dynamic)
-    types = []
+    types: list = []
     for leaf in leaves:
         if isinstance(leaf, (bool, int, float, complex)):
             types.append(type(leaf))
