@@ -22,7 +22,7 @@ import numpy as np
 from jax import lax
 from jax.sharding import Mesh, PartitionSpec
 
-from stepzoo.integrators import arguments
+from stepzoo.integrators import arguments, kept_programs
 from stepzoo.integrators.fast_trig import flagged_trig
 
 # The constants below were chosen by measurement; the numbers are in
@@ -344,6 +344,17 @@ def _with_retry_if_needed(method, run, args):
     return result
 
 
+def _run(fn, program, f, args, n_steps, t0, max_steps, dynamic, static):
+    """fn (_integrate or _batch) jitted, on `args` (x0, u, p, h), the step count, t0 and
+    max_steps, with the run-time keywords `dynamic` and the static ones `static`: through the
+    programs kept across processes (kept_programs) where that is on."""
+    dyn = max_steps is not None
+    dynamic = dict(dynamic, t0=t0, **({"n_steps": n_steps} if dyn else {}))
+    static = dict(static, max_steps=max_steps, **({} if dyn else {"n_steps": n_steps}))
+    return kept_programs.call(_jitted[(fn, dyn)], f"driver.{fn.__name__}", (program, f), static,
+                              args, dynamic)
+
+
 def integrate(method, f, x0, u=None, p=None, h=None, n_steps=None, t0=0.0,
               max_steps=None) -> Trajectory:
     """Integrate dx/dt = f(t, x, u, p) from (t0, x0) with `n_steps` steps of size h [s].
@@ -363,9 +374,8 @@ def integrate(method, f, x0, u=None, p=None, h=None, n_steps=None, t0=0.0,
     (1001, 2)
     """
     method, f, x0, scalar = _arguments(method, f, x0, h, n_steps, t0, max_steps, None)
-    fn = _jitted[(_integrate, max_steps is not None)]
-    run = lambda retry: fn(method.program, f, x0, u, p, h, n_steps, t0, max_steps,
-                           newton=method.run_options(), retry=retry)
+    run = lambda retry: _run(_integrate, method.program, f, (x0, u, p, h), n_steps, t0,
+                             max_steps, dict(newton=method.run_options()), dict(retry=retry))
     traj = _with_retry_if_needed(method, run, (x0, u, p, h, n_steps, t0))
     return traj._replace(x=traj.x[..., 0]) if scalar else traj
 
@@ -390,13 +400,13 @@ def integrate_batch(method, f, x0, u=None, p=None, h=None, n_steps=None, t0=0.0,
     method, f, x0, scalar = _arguments(method, f, x0, h, n_steps, t0, max_steps, True)
     given = (u, p)
     u, p = arguments.shared(u, x0.shape[0]), arguments.shared(p, x0.shape[0])
-    fn = _jitted[(_batch, max_steps is not None)]
     program, newton = method.program, method.run_options()
 
     def run(libm):
         def attempt(retry):
-            traj, far, unsolved = fn(program, f, x0, u, p, h, n_steps, t0, max_steps,
-                                     libm=libm, newton=newton, retry=retry)
+            traj, far, unsolved = _run(_batch, program, f, (x0, u, p, h), n_steps, t0,
+                                       max_steps, dict(newton=newton),
+                                       dict(libm=libm, retry=retry))
             return (traj, far), unsolved
         return _with_retry_if_needed(method, attempt, (x0, u, p, h, n_steps, t0))
 

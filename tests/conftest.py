@@ -66,3 +66,17 @@ def pytest_collection_modifyitems(items):
         module = item.getparent(pytest.Module)
         return module is not None and module.get_closest_marker("slow") is not None
     items.sort(key=lambda item: not slow(item))
+
+
+@pytest.fixture(autouse=True)
+def _no_kept_programs():
+    """Each test starts with the driver's programs traced in its own process, as the library
+    does by default: a command run in-process (main) keeps them (kept_programs) for its test
+    only, so a test that patches a model or method is never served a program kept before."""
+    from stepzoo.integrators import kept_programs
+    kept_programs.keep_in(None)
+    kept_programs._loaded.clear()
+    kept_programs._refused.clear()
+    kept_programs._keys.clear()
+    yield
+    kept_programs.keep_in(None)

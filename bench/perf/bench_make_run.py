@@ -30,8 +30,9 @@ def _cpu_s() -> float:
 
 
 def _programs(cache: Path) -> int:
-    """The entries of a JAX compilation cache folder (0 where it is not there)."""
-    return len(list(cache.iterdir())) if cache.is_dir() else 0
+    """The entries (files) of a JAX compilation cache folder (0 where it is not there); the
+    folder of the driver's traced programs in it is not one."""
+    return sum(entry.is_file() for entry in cache.iterdir()) if cache.is_dir() else 0
 
 
 def tuned_choice(out: Path) -> tuple:

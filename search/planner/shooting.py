@@ -12,7 +12,7 @@ from stepzoo import dynamics
 from stepzoo.dynamics.kinematic import body_slip
 from stepzoo.dynamics.linear import lateral_matrix
 from stepzoo.dynamics.models import steered
-from stepzoo.integrators import integrate_batch, method
+from stepzoo.integrators import integrate_batch, kept_programs, method
 from stepzoo.search.world.validity import ValidityChecker
 
 
@@ -263,7 +263,10 @@ def integrate_together(requests) -> list[np.ndarray]:
     static = tuple((s.method_name, s.rhs, s.n_steps) for s in shooters)
     args = [(*shooter.model_inputs(x0, steer, steer0), shooter.p, shooter.h)
             for shooter, x0, steer, steer0 in requests]
-    xs = jax.device_get(_together(static, args))
+    # Kept across processes where the command keeps the driver's programs (a warm start-up
+    # then traces none of the shooters' models and methods).
+    xs = jax.device_get(kept_programs.call(_together, "shooting._together", (static,), {},
+                                           (args,), {}))
     return [shooter.poses(x) for shooter, x in zip(shooters, xs)]
 
 

@@ -81,6 +81,9 @@ def with_xla_option(flags: str) -> str:
     return f"{flags} --xla_backend_extra_options={XLA_OPTION}".strip()
 
 
+KEPT_FOLDER = "stepzoo-programs"   # in the compilation cache folder: the traced programs
+
+
 def compilation_cache_dir() -> Path | None:
     """Where the command keeps JAX's compiled programs between runs: STEPZOO_CACHE_DIR, else
     the user's cache folder (XDG_CACHE_HOME, else ~/.cache) /stepzoo/jax; None when
@@ -108,6 +111,10 @@ def configure_jax(platform: str | None) -> None:
         # The planner's programs each compile faster than JAX's default caching threshold,
         # yet together they are most of a plan's start-up.
         jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
+        # The driver's traced programs beside them: a repeated command neither compiles nor
+        # traces its methods and models again (integrators.kept_programs).
+        from stepzoo.integrators import kept_programs
+        kept_programs.keep_in(cache / KEPT_FOLDER)
 
 
 class _Parser(argparse.ArgumentParser):

@@ -16,11 +16,16 @@ from pathlib import Path
 
 
 def _jax_settings() -> dict:
-    """This process's JAX settings that change what the figures' runs compute or load."""
+    """This process's JAX settings that change what the figures' runs compute or load, and
+    where it keeps the driver's programs (integrators.kept_programs)."""
     import jax
-    return {name: getattr(jax.config, name) for name in (
+    from stepzoo.integrators import kept_programs
+    return {**{name: getattr(jax.config, name) for name in (
         "jax_enable_x64", "jax_platforms", "jax_compilation_cache_dir",
-        "jax_persistent_cache_min_compile_time_secs")}
+        "jax_persistent_cache_min_compile_time_secs")}, KEPT: kept_programs.folder()}
+
+
+KEPT = "kept_programs"
 
 
 def _serve(conn, settings: dict) -> None:
@@ -35,6 +40,9 @@ def _serve(conn, settings: dict) -> None:
     # the next report into that folder removes (results_folder.replacing).
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     import jax
+    from stepzoo.integrators import kept_programs
+    settings = dict(settings)
+    kept_programs.keep_in(settings.pop(KEPT))
     for name, value in settings.items():
         jax.config.update(name, value)
     from stepzoo.workflows import report
