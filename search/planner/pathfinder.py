@@ -19,6 +19,7 @@ from stepzoo.search.planner.endpoints import bad_endpoint, departure_boxed_in, e
 from stepzoo.search.planner.expansion import Expander
 from stepzoo.search.world.footprint import Footprint
 from stepzoo.search.planner.guide import Guide, corridors
+from stepzoo.search.planner.heading_lattice import HeadingLattice
 from stepzoo.search.world.maps import SUBDIV, OccupancyMap
 from stepzoo.search.planner.status import (BAD_ENDPOINT, BOXED_IN, Cause, PlannerStatus,
                                         PlanResult)
@@ -37,6 +38,9 @@ REFINE = 2              # times the pruning cells are halved when the heap empti
 # one 0.8 s edge can change it by, so a node whose steer can still turn is not pruned by one
 # in its cell whose steer cannot.
 STEER_CELL = 0.3
+# [m] with tie_break = "cell", f is compared in steps of this: far below any length a plan
+# tells apart, far above the rounding of a sum of edges (about 1e-13 m).
+F_QUANTUM = 2.0 ** -20
 OCTILE_EXCESS = 1.0824  # the 8-connected lattice metric's largest ratio to Euclidean length
 
 
@@ -243,9 +247,12 @@ class Search:
         self.prm = prm = finder.config.params
         self.cell_xy, self.cell_heading, self.level = prm.cell_xy, prm.cell_heading, 0
         self.radius = finder.turn_radius()
+        heading = (HeadingLattice(finder.omap, goal, finder.footprint, self.radius,
+                                  prm.reverse_penalty if prm.reverse else None)
+                   if prm.guide == "heading" else None)
         self.guide = Guide(finder.omap, finder.corridors(), goal,
                            finder.vehicle["width"] / 2 + prm.margin, prm.connect_radius,
-                           self.radius, bool(prm.reverse))
+                           self.radius, bool(prm.reverse), heading)
         root = np.array([*start, 0.0, 0.0])
         self.tree = Tree()
         self.tree.add([None], states=root, parent=-1, g=0.0,
@@ -254,6 +261,7 @@ class Search:
                       car=self.guide.car_bound(start[None]), steer=0.0, steer0=0.0, direction=0,
                       tight=False)
         self.widened_at = 0   # nodes below this id were there when the search widened
+        self.pushed = 0       # heap entries made (tie_break = "inserted")
         self.seen = {self.cell(root, 0)}
         self.best = math.inf
         self.expander, self.connector = Expander(self), Connector(self)
@@ -306,8 +314,7 @@ class Search:
 
     def run(self) -> PlanResult:
         prm, res = self.prm, self.result
-        heap = [(self.order([0])[0], 0, 0)]  # (f, order, node): ties go to the older
-        self.pushed = 1
+        heap = self.entries([0])
         if self.tree.H[0] <= prm.mindist:
             self.connector.try_connect()
         ended, stall = "", 0
@@ -343,9 +350,8 @@ class Search:
             res.expansions += len(nodes)
             stall += len(nodes)
             new = self.expander.expand(nodes)
-            for i, f in zip(new, self.order(new)):
-                heapq.heappush(heap, (f, self.pushed, i))
-                self.pushed += 1
+            for entry in self.entries(new):
+                heapq.heappush(heap, entry)
             if (self.tree.H[new] <= prm.mindist).any() and self.connector.try_connect():
                 stall = 0
         return self.finish(ended)
@@ -404,12 +410,27 @@ class Search:
 
     def requeue(self) -> list:
         """Every node queued again; returns the new heap."""
-        heap = []
-        for i, f in enumerate(self.order(np.arange(len(self.tree)))):
-            heap.append((f, self.pushed, i))
-            self.pushed += 1
+        heap = self.entries(range(len(self.tree)))
         heapq.heapify(heap)
         return heap
+
+    def entries(self, nodes) -> list[tuple]:
+        """The heap entries of `nodes`: (f, tie, node), f = order's. With tie_break =
+        "inserted" (the paper's planner here), f as computed and ties to the older entry; with
+        "cell", f rounded down to F_QUANTUM and ties to the lesser pruning cell: siblings often
+        have the same f but for the last bits of their edges' lengths (the same duration at one
+        speed), so a rounding of the integration (another XLA option, another machine) would
+        reorder them and grow another tree."""
+        nodes = list(nodes)
+        f = self.order(nodes)
+        if self.prm.tie_break == "inserted":
+            first = self.pushed
+            self.pushed += len(nodes)
+            return list(zip(f, range(first, self.pushed), nodes))
+        t = self.tree
+        return [(math.floor(v / F_QUANTUM) * F_QUANTUM if math.isfinite(v) else v,
+                 self.cell(t.states[i], int(t.direction[i]), float(t.steer[i])), i)
+                for v, i in zip(f, nodes)]
 
     def pop(self, heap, most) -> list[int]:
         """Up to `most` nodes off the heap, best f first, skipping those that cannot beat the
