@@ -54,8 +54,10 @@ class HeadingLattice:
         self.step, self.spacing = step, self.stride * step
         self.length = MOVE_SPACINGS * self.spacing
         self.bin = 2 * math.pi / HEADINGS
-        # The tightest turn a move takes: its heading change rounded up to whole cells.
-        self.turns = math.ceil(self.length / (radius * self.bin))
+        # The tightest turn a move takes: its heading change rounded down to whole cells, so
+        # no move turns tighter than the car (rounded up, the lattice turned a car beside the
+        # goal but facing across it onto the goal's heading in one move the car cannot drive).
+        self.turns = max(1, math.floor(self.length / (radius * self.bin)))
         # A disc centre is within step / sqrt(2) of its nearest lattice point.
         distance = fine_distance(omap.occupied, self.sub) * step
         free = (distance >= footprint.radius - step / math.sqrt(2)) & (distance > 0)
@@ -127,18 +129,25 @@ class HeadingLattice:
         return np.concatenate(src), np.concatenate(dst), np.concatenate(cost)
 
     def _solve(self, src, dst, cost) -> np.ndarray:
-        """(HEADINGS, rows, cols) [m] the cost to go: Dijkstra from the goal's states (the
-        two heading cells and four lattice points about it) along the moves reversed."""
+        """(HEADINGS, rows, cols) [m] the cost to go: Dijkstra along the moves reversed from
+        the goal's states: the two heading cells about its heading at the lattice points
+        within a spacing of it that lie at or behind it (a car a spacing ahead of the goal,
+        facing its way, has passed it)."""
         n = int(np.prod(self.shape))
         graph = coo_matrix((cost, (dst, src)), shape=(n, n)).tocsr()   # reversed moves
         _, rows, cols = self.shape
-        gy, gx = self._coarse(self.goal[None])
+        gy, gx = (v[0] for v in self._coarse(self.goal[None]))
         k = (self.goal[2] / self.bin) % HEADINGS
-        goals = {(int(math.floor(k) + dk) % HEADINGS, min(max(int(math.floor(gy[0]) + dr), 0),
-                                                          rows - 1),
-                  min(max(int(math.floor(gx[0]) + dc), 0), cols - 1))
-                 for dk in (0, 1) for dr in (0, 1) for dc in (0, 1)}
+        ahead = np.array([math.cos(self.goal[2]), math.sin(self.goal[2])])
+        goals = set()
+        for r in range(max(0, math.floor(gy) - 1), min(rows, math.floor(gy) + 3)):
+            for c in range(max(0, math.floor(gx) - 1), min(cols, math.floor(gx) + 3)):
+                offset = np.array([c - gx, r - gy])
+                if math.hypot(*offset) <= 1 and offset @ ahead <= 1e-9:
+                    goals |= {(int(math.floor(k) + dk) % HEADINGS, r, c) for dk in (0, 1)}
         index = [np.ravel_multi_index(g, self.shape) for g in sorted(goals)]
+        if not index:
+            return np.full(self.shape, np.inf)
         return dijkstra(graph, directed=True, indices=index, min_only=True).reshape(self.shape)
 
     def _coarse(self, poses) -> tuple[np.ndarray, np.ndarray]:
