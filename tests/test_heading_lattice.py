@@ -140,3 +140,9 @@ def test_the_rounded_f_keeps_the_order_of_f_that_differ_by_more_than_its_step():
                       g=[5.0, 5.0 - 2 * F_QUANTUM, 5.0 + 0.25], H=30.0, rest=30.0, guide=30.0,
                       car=0.0, steer=0.0, steer0=0.0, direction=1, tight=False)
     assert popped(s, list(rows)) == [rows[1], rows[0], rows[2]]
+
+
+def test_a_pose_that_reaches_nothing_has_no_descent():
+    omap = from_array(dead_end(), 1.5)
+    lattice = HeadingLattice(omap, np.array([75.0, 15.0, math.pi]), FOOTPRINT, RADIUS)
+    assert lattice.descend(np.array([60.0, 15.0, math.pi]), 4.0) is None

@@ -187,9 +187,10 @@ class HeadingLattice:
         """[m] (X, Y) `distance` [m] down the cost to go from the pose's best lattice state
         (at's), forwards along the moves that keep to it, or where they stop; None where no
         state near the pose reaches the goal."""
-        k, r, c, _ = (int(v[0]) for v in self._state(np.asarray(pose, float)[None]))
-        if not np.isfinite(self.cost[k, r, c]):
+        k, r, c, value = (v[0] for v in self._state(np.asarray(pose, float)[None]))
+        if not np.isfinite(value):
             return None
+        k, r, c = int(k), int(r), int(c)
         _, rows, cols = self.shape
         travelled = 0.0
         while travelled < distance and self.cost[k, r, c] > 0:
