@@ -19,7 +19,7 @@ from stepzoo.search.proofs.car_bounds import dubins_length
 from stepzoo.search.world.footprint import Footprint
 from stepzoo.search.world.maps import from_array
 
-FOOTPRINT = Footprint.from_vehicle(4.8, 2.0, 6)   # a BMW 320i + 0.1 m margin, as planned
+FOOTPRINT = Footprint.from_vehicle(4.8, 2.0, 6)   # about a BMW 320i (4.5 x 1.6 m) + margin
 RADIUS = 2.58                                      # [m] its tightest turn at 2 m/s
 
 
