@@ -1,8 +1,10 @@
-"""The heading guide (search/planner/heading_lattice.py) and the search's tie-break: the
+"""The heading guide (search/planner/heading_lattice.py), the search's tie-break and its
+narrow cells: the
 lattice's cost to go agrees with the obstacle-blind Dubins length in the open (computed by
 car_bounds, independently of the lattice) and exceeds it where walls forbid the turn, which
 the 2-D geodesic cannot tell; equal f are ordered the same whatever order they were queued
-in, and whatever the last bits of f."""
+in, and whatever the last bits of f; a door keeps nodes a pruning cell of the open would
+merge."""
 import heapq
 import math
 
@@ -98,10 +100,12 @@ def test_the_descent_follows_the_cost_to_go_into_the_dead_end_facing_in():
     assert 52.0 <= point[0] <= 56.0 and abs(point[1] - 15.0) <= 0.75
 
 
-def search(tie_break: str) -> Search:
-    """A search on a small open map, not run: its tree and heap key are what is tested."""
-    config = make_config(max_seconds=3600.0, tie_break=tie_break)
-    finder = PathFinder(from_array(np.zeros((40, 80), bool), 0.5), config, None, 4.0)
+def search(tie_break: str, occupied=None, **params) -> Search:
+    """A search on a small map (default: open, 40 x 20 m), not run: its tree, heap key and
+    cells are what is tested."""
+    config = make_config(max_seconds=3600.0, tie_break=tie_break, **params)
+    occupied = np.zeros((40, 80), bool) if occupied is None else occupied
+    finder = PathFinder(from_array(occupied, 0.5), config, None, 4.0)
     start, goal = np.array([4.0, 10.0, 0.0]), np.array([36.0, 10.0, 0.0])
     result = PlanResult(PlannerStatus.NO_PATH, "", start, goal, config.h, 4.0)
     return Search(finder, start, goal, None, np.random.default_rng(0), result, expansions(1))
@@ -146,3 +150,17 @@ def test_a_pose_that_reaches_nothing_has_no_descent():
     omap = from_array(dead_end(), 1.5)
     lattice = HeadingLattice(omap, np.array([75.0, 15.0, math.pi]), FOOTPRINT, RADIUS)
     assert lattice.descend(np.array([60.0, 15.0, math.pi]), 4.0) is None
+
+
+@pytest.mark.parametrize("narrow", [0.0, 2.0])
+def test_in_a_door_the_pruning_cells_are_halved_and_in_the_open_not(narrow):
+    occupied = np.zeros((40, 80), bool)
+    occupied[:, 40:42] = True
+    occupied[17:23, 40:42] = False                  # a door 3 m wide at x 20-21 m, y 8.5-11.5 m
+    s = search("cell", occupied, narrow_cell_m=narrow)
+    def apart(a, b):
+        return s.cell(np.array(a), 1) != s.cell(np.array(b), 1)
+    # 0.5 m and 0.2 rad apart: one cell of 1 m and pi/8, two of half that.
+    assert apart([20.2, 10.0, 0.0], [20.7, 10.0, 0.0]) == (narrow > 0)
+    assert apart([20.2, 10.0, 0.1], [20.2, 10.0, 0.3]) == (narrow > 0)
+    assert not apart([10.2, 15.0, 0.1], [10.7, 15.0, 0.3])

@@ -215,13 +215,15 @@ class PathFinder:
 
 
 class Cell(NamedTuple):
-    """A pruning cell: position and heading cell indices, and the direction of travel (with
-    reverse gear; else 0)."""
+    """A pruning cell: position and heading cell indices, the direction of travel (with
+    reverse gear; else 0), the steer cell (rate-limited; else 0), and 1 for a cell of half
+    the size (narrow_cell_m)."""
     x: int
     y: int
     heading: int
     direction: int
     steer: int
+    fine: int = 0
 
 
 class Search:
@@ -269,14 +271,19 @@ class Search:
         result.lower_bound_m = self.bound(0)
 
     def cell(self, state, direction, steer=0.0) -> Cell:
-        """Pruning cell of a state: position cells of cell_xy, heading cells of cell_heading,
-        with reverse gear the direction it was reached in (as Hybrid A*), and rate-limited the
+        """Pruning cell of a state: position cells of cell_xy, heading cells of cell_heading
+        (both halved, `fine`, where the state's clearance is below narrow_cell_m), with
+        reverse gear the direction it was reached in (as Hybrid A*), and rate-limited the
         steer [rad] at it in cells of STEER_CELL."""
         heading = state[2] % (2 * math.pi)
-        return Cell(math.floor(state[0] / self.cell_xy), math.floor(state[1] / self.cell_xy),
-                    math.floor(heading / self.cell_heading),
+        size, turn, fine = self.cell_xy, self.cell_heading, 0
+        narrow = self.prm.narrow_cell_m
+        if narrow and self.f.omap.clearance_at(state[0], state[1]) < narrow:
+            size, turn, fine = size / 2, turn / 2, 1
+        return Cell(math.floor(state[0] / size), math.floor(state[1] / size),
+                    math.floor(heading / turn),
                     direction if self.prm.reverse else 0,
-                    math.floor(steer / STEER_CELL + 0.5) if self.f.rate_limited else 0)
+                    math.floor(steer / STEER_CELL + 0.5) if self.f.rate_limited else 0, fine)
 
     def body_states(self, nodes) -> np.ndarray:
         """(n, 5) the states of `nodes` with psi the car body's heading (Shooter.body_states):
