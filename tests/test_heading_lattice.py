@@ -164,3 +164,18 @@ def test_in_a_door_the_pruning_cells_are_halved_and_in_the_open_not(narrow):
     assert apart([20.2, 10.0, 0.0], [20.7, 10.0, 0.0]) == (narrow > 0)
     assert apart([20.2, 10.0, 0.1], [20.2, 10.0, 0.3]) == (narrow > 0)
     assert not apart([10.2, 15.0, 0.1], [10.7, 15.0, 0.3])
+
+
+def test_no_connection_sets_off_from_a_node_steered_past_the_speed_change_steer():
+    s = search("inserted")
+    called = []
+    s.f.connect = lambda node, *args, **kw: (called.append(kw["steer"]), (None, "recorded"))[1]
+    goal = s.goal
+    near = np.array([[goal[0] - 5.0, goal[1], 0.0, 0.0, 0.0]] * 3)
+    s.tree.add([None] * 3, states=near, parent=0, g=30.0, H=5.0, rest=5.0, guide=5.0, car=5.0,
+               steer=[0.5, 0.1, -0.5], steer0=0.0, direction=1, tight=[False, False, True])
+    s.connector.try_connect()
+    # The tree's move at 0.5 rad is skipped (its curvature would step into the connection's);
+    # the one at 0.1 rad and the tight move (the connection's own model and speed) are tried.
+    assert sorted(called) == [-0.5, 0.1]
+    assert s.connector.attempts() == 2 and any("steer past" in f for f in s.connector.failures)
