@@ -100,12 +100,12 @@ def test_the_descent_follows_the_cost_to_go_into_the_dead_end_facing_in():
     assert 52.0 <= point[0] <= 56.0 and abs(point[1] - 15.0) <= 0.75
 
 
-def search(tie_break: str, occupied=None, **params) -> Search:
+def search(tie_break: str, occupied=None, vx=4.0, **params) -> Search:
     """A search on a small map (default: open, 40 x 20 m), not run: its tree, heap key and
     cells are what is tested."""
     config = make_config(max_seconds=3600.0, tie_break=tie_break, **params)
     occupied = np.zeros((40, 80), bool) if occupied is None else occupied
-    finder = PathFinder(from_array(occupied, 0.5), config, None, 4.0)
+    finder = PathFinder(from_array(occupied, 0.5), config, None, vx)
     start, goal = np.array([4.0, 10.0, 0.0]), np.array([36.0, 10.0, 0.0])
     result = PlanResult(PlannerStatus.NO_PATH, "", start, goal, config.h, 4.0)
     return Search(finder, start, goal, None, np.random.default_rng(0), result, expansions(1))
@@ -166,8 +166,9 @@ def test_in_a_door_the_pruning_cells_are_halved_and_in_the_open_not(narrow):
     assert not apart([10.2, 15.0, 0.1], [10.7, 15.0, 0.3])
 
 
-def test_no_connection_sets_off_from_a_node_steered_past_the_speed_change_steer():
-    s = search("inserted")
+@pytest.mark.parametrize("vx", [4.0, 2.0])
+def test_no_connection_sets_off_from_a_node_steered_past_the_speed_change_steer(vx):
+    s = search("inserted", vx=vx)
     called = []
     s.f.connect = lambda node, *args, **kw: (called.append(kw["steer"]), (None, "recorded"))[1]
     goal = s.goal
@@ -175,7 +176,13 @@ def test_no_connection_sets_off_from_a_node_steered_past_the_speed_change_steer(
     s.tree.add([None] * 3, states=near, parent=0, g=30.0, H=5.0, rest=5.0, guide=5.0, car=5.0,
                steer=[0.5, 0.1, -0.5], steer0=0.0, direction=1, tight=[False, False, True])
     s.connector.try_connect()
-    # The tree's move at 0.5 rad is skipped (its curvature would step into the connection's);
-    # the one at 0.1 rad and the tight move (the connection's own model and speed) are tried.
-    assert sorted(called) == [-0.5, 0.1]
-    assert s.connector.attempts() == 2 and any("steer past" in f for f in s.connector.failures)
+    if vx > 2.0:
+        # The tree's move at 0.5 rad is skipped (its curvature would step into the
+        # connection's); the one at 0.1 rad and the tight move (the connection's own model
+        # and speed) are tried.
+        assert sorted(called) == [-0.5, 0.1]
+        assert s.connector.attempts() == 2
+        assert any("steer past" in f for f in s.connector.failures)
+    else:
+        # At the tight moves' speed the tree's edges meet the connection without a step.
+        assert sorted(called) == [-0.5, 0.1, 0.5]

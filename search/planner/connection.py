@@ -96,12 +96,13 @@ class Connector:
             if key[i] >= s.best * (1 - IMPROVE_TOL):
                 continue
             self.tried.add(i)
-            if (s.f.rate_limited and not tree.tight[i] and tree.direction[i] >= 0
-                    and abs(tree.steer[i]) > SPEED_CHANGE_STEER):
-                # The connection drives the kinematic bicycle: at the tree's speed and a steer
-                # this large the dynamic bicycle turns on a wider circle, and the path's
-                # curvature would step where the connection sets off (as between speeds,
-                # expansion.SPEED_CHANGE_STEER), a steer jump the car cannot drive.
+            if (s.f.rate_limited and s.f.vx > s.f.tight_vx and not tree.tight[i]
+                    and tree.direction[i] >= 0 and abs(tree.steer[i]) > SPEED_CHANGE_STEER):
+                # The connection drives the kinematic bicycle: at the tree's speed (above the
+                # tight moves') and a steer this large the dynamic bicycle turns on a wider
+                # circle, and the path's curvature would step where the connection sets off
+                # (as between speeds, expansion.SPEED_CHANGE_STEER), a steer jump the car
+                # cannot drive.
                 self.cheap.add(i)
                 self.failures.append(f"steer past {SPEED_CHANGE_STEER:g} rad at the tree's speed")
                 continue
