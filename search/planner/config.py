@@ -105,6 +105,24 @@ class PlannerParams(Schema):
         "max_steer_rate (tree edges are steer ramps, the connection's control is the steer "
         "rate) and the curvature by its max_lateral_acceleration at the planned speed; "
         "instant: each edge at one constant steer set at once, as the paper [1]"))
+    guide: Literal["geodesic", "heading"] = Field("geodesic", description=(
+        "the search's guide H: geodesic, the 2-D lattice geodesic to the goal (positions only; "
+        "near the goal the larger of it and the Dubins or Reeds-Shepp length), as the paper's "
+        "planner here has it; heading, the larger of that and the cost to go over an (x, y, "
+        "heading) lattice of the car's turns solved from the goal (search/planner/"
+        "heading_lattice.py), which leads the tree to the goal and through doors facing the "
+        "way it must [1]"))
+    tie_break: Literal["inserted", "cell"] = Field("inserted", description=(
+        "which of two nodes of equal f the search expands first: inserted, the older (f as "
+        "computed, so f that differ in their last bits only are ordered by that rounding), as "
+        "the paper's planner here has it; cell, f compared in steps of 2^-20 m and ties to the "
+        "lesser pruning cell, so a rounding of the integration does not reorder siblings [1]"))
+    narrow_cell_m: Annotated[float, quantity(
+        "a clearance", "m", "0 turns it off; beyond 10 m nearly every cell of a street is "
+        "halved", ge=0.0, le=10.0)] = Field(0.0, description=(
+            "pruning cells are halved (position and heading) where the car's centre is less "
+            "than this from an obstacle: in a door one node per cell cannot hold the "
+            "alignment the door needs (0: off, as the paper's planner here) [m]"))
     tight_speed: Annotated[float, quantity(
         "a speed", "m/s", "a walking pace to a slow roll: below 0.5 m/s a move covers less than "
         "a pruning cell; above 5 m/s it is no longer tighter than the tree's", ge=0.5,

@@ -11,6 +11,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from stepzoo.search.planner.connection_ocp import dubins_paths, guess_paths, path_poses
+from stepzoo.search.planner.expansion import SPEED_CHANGE_STEER
 from stepzoo.search.planner.status import Cause
 
 if TYPE_CHECKING:
@@ -27,7 +28,9 @@ class Connector:
     def __init__(self, search: Search) -> None:
         self.s = search
         self.tried: set[int] = set()
-        self.cheap: set[int] = set()  # tried nodes whose every Dubins path collides: no OCP
+        # Tried nodes no OCP was called for: every Dubins path collides, or the steer is too
+        # large to connect at the tree's speed.
+        self.cheap: set[int] = set()
         self.failures: list[str] = []
         self.seconds = 0.0            # [s] wall time of the OCP solves
 
@@ -93,6 +96,16 @@ class Connector:
             if key[i] >= s.best * (1 - IMPROVE_TOL):
                 continue
             self.tried.add(i)
+            if (s.f.rate_limited and s.f.vx > s.f.tight_vx and not tree.tight[i]
+                    and tree.direction[i] >= 0 and abs(tree.steer[i]) > SPEED_CHANGE_STEER):
+                # The connection drives the kinematic bicycle: at the tree's speed (above the
+                # tight moves') and a steer this large the dynamic bicycle turns on a wider
+                # circle, and the path's curvature would step where the connection sets off
+                # (as between speeds, expansion.SPEED_CHANGE_STEER), a steer jump the car
+                # cannot drive.
+                self.cheap.add(i)
+                self.failures.append(f"steer past {SPEED_CHANGE_STEER:g} rad at the tree's speed")
+                continue
             # The OCP ignores obstacles: started from a free path it more often stays free
             # (rate-limited; the paper's planner tries every word's guess).
             words = guess_paths(tree.states[i][:3], s.goal[:3], s.radius, prm.reverse)

@@ -11,6 +11,7 @@ from scipy.ndimage import label, minimum_filter
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import dijkstra
 
+from stepzoo.search.planner.heading_lattice import HeadingLattice
 from stepzoo.search.proofs.car_bounds import dubins_length, reeds_shepp_length
 from stepzoo.search.world.maps import SUBDIV, OccupancyMap
 
@@ -84,12 +85,14 @@ def guide_field(omap: OccupancyMap, labels: np.ndarray, goal, plain: np.ndarray,
 
 
 class Guide:
-    """The fields of one goal and the bounds read from them for the tree's nodes."""
+    """The fields of one goal and the bounds read from them for the tree's nodes; with a
+    `heading` lattice (heading_lattice.HeadingLattice) the guide reads the pose's heading too."""
 
     def __init__(self, omap: OccupancyMap, labels: np.ndarray, goal, room: float,
-                 near_m: float, radius: float, reverse: bool):
+                 near_m: float, radius: float, reverse: bool,
+                 heading: HeadingLattice | None = None):
         self.omap, self.goal, self.radius, self.reverse = omap, goal, radius, reverse
-        self.near_m = near_m
+        self.near_m, self.heading = near_m, heading
         self.geodesic = geodesic(omap, labels, goal)
         self.field = guide_field(omap, labels, goal, self.geodesic, room, near_m)
 
@@ -102,9 +105,16 @@ class Guide:
                                         (xy[:, 1] - omap.origin[1]) / step)
         return (self.geodesic if field is None else field)[row, col]
 
-    def guide(self, xy) -> np.ndarray:
-        """(K,) [m] the guide field at points (K, 2+)."""
-        return self.rest(xy, self.field)
+    def guide(self, poses) -> np.ndarray:
+        """(K,) [m] the guide field at poses (K, 3+); with a heading lattice, the larger of it
+        and the lattice's cost to go (inf there: the guide field plus the lattice's largest
+        finite cost, after every pose the lattice leads)."""
+        field = self.rest(poses, self.field)
+        if self.heading is None:
+            return field
+        lattice = self.heading.at(poses)
+        far = self.heading.largest + field
+        return np.where(np.isfinite(lattice), np.maximum(field, lattice), far)
 
     def car_bound(self, poses) -> np.ndarray:
         """(K,) [m] the shortest path of the car from poses (K, 3+) to the goal ignoring
@@ -120,7 +130,12 @@ class Guide:
 
     def descend(self, state, distance: float) -> np.ndarray:
         """[m] the lattice point `distance` [m] down the guide field from the state's
-        (steepest descent), or where the descent stops."""
+        (steepest descent), or where the descent stops; with a heading lattice, down its cost
+        to go from the state's pose where it leads."""
+        if self.heading is not None:
+            point = self.heading.descend(state, distance)
+            if point is not None:
+                return point
         omap = self.omap
         step = omap.resolution / SUBDIV
         cols, rows = omap.nearest_lattice((state[0] - omap.origin[0]) / step,

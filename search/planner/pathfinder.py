@@ -19,6 +19,7 @@ from stepzoo.search.planner.endpoints import bad_endpoint, departure_boxed_in, e
 from stepzoo.search.planner.expansion import Expander
 from stepzoo.search.world.footprint import Footprint
 from stepzoo.search.planner.guide import Guide, corridors
+from stepzoo.search.planner.heading_lattice import HeadingLattice
 from stepzoo.search.world.maps import SUBDIV, OccupancyMap
 from stepzoo.search.planner.status import (BAD_ENDPOINT, BOXED_IN, Cause, PlannerStatus,
                                         PlanResult)
@@ -37,6 +38,9 @@ REFINE = 2              # times the pruning cells are halved when the heap empti
 # one 0.8 s edge can change it by, so a node whose steer can still turn is not pruned by one
 # in its cell whose steer cannot.
 STEER_CELL = 0.3
+# [m] with tie_break = "cell", f is compared in steps of this: far below any length a plan
+# tells apart, far above the rounding of a sum of edges (about 1e-13 m).
+F_QUANTUM = 2.0 ** -20
 OCTILE_EXCESS = 1.0824  # the 8-connected lattice metric's largest ratio to Euclidean length
 
 
@@ -211,13 +215,15 @@ class PathFinder:
 
 
 class Cell(NamedTuple):
-    """A pruning cell: position and heading cell indices, and the direction of travel (with
-    reverse gear; else 0)."""
+    """A pruning cell: position and heading cell indices, the direction of travel (with
+    reverse gear; else 0), the steer cell (rate-limited; else 0), and 1 for a cell of half
+    the size (narrow_cell_m)."""
     x: int
     y: int
     heading: int
     direction: int
     steer: int
+    fine: int = 0
 
 
 class Search:
@@ -243,9 +249,12 @@ class Search:
         self.prm = prm = finder.config.params
         self.cell_xy, self.cell_heading, self.level = prm.cell_xy, prm.cell_heading, 0
         self.radius = finder.turn_radius()
+        heading = (HeadingLattice(finder.omap, goal, finder.footprint, self.radius,
+                                  prm.reverse_penalty if prm.reverse else None)
+                   if prm.guide == "heading" else None)
         self.guide = Guide(finder.omap, finder.corridors(), goal,
                            finder.vehicle["width"] / 2 + prm.margin, prm.connect_radius,
-                           self.radius, bool(prm.reverse))
+                           self.radius, bool(prm.reverse), heading)
         root = np.array([*start, 0.0, 0.0])
         self.tree = Tree()
         self.tree.add([None], states=root, parent=-1, g=0.0,
@@ -254,6 +263,7 @@ class Search:
                       car=self.guide.car_bound(start[None]), steer=0.0, steer0=0.0, direction=0,
                       tight=False)
         self.widened_at = 0   # nodes below this id were there when the search widened
+        self.pushed = 0       # heap entries made (tie_break = "inserted")
         self.seen = {self.cell(root, 0)}
         self.best = math.inf
         self.expander, self.connector = Expander(self), Connector(self)
@@ -261,14 +271,19 @@ class Search:
         result.lower_bound_m = self.bound(0)
 
     def cell(self, state, direction, steer=0.0) -> Cell:
-        """Pruning cell of a state: position cells of cell_xy, heading cells of cell_heading,
-        with reverse gear the direction it was reached in (as Hybrid A*), and rate-limited the
+        """Pruning cell of a state: position cells of cell_xy, heading cells of cell_heading
+        (both halved, `fine`, where the state's clearance is below narrow_cell_m), with
+        reverse gear the direction it was reached in (as Hybrid A*), and rate-limited the
         steer [rad] at it in cells of STEER_CELL."""
         heading = state[2] % (2 * math.pi)
-        return Cell(math.floor(state[0] / self.cell_xy), math.floor(state[1] / self.cell_xy),
-                    math.floor(heading / self.cell_heading),
+        size, turn, fine = self.cell_xy, self.cell_heading, 0
+        narrow = self.prm.narrow_cell_m
+        if narrow and self.f.omap.clearance_at(state[0], state[1]) < narrow:
+            size, turn, fine = size / 2, turn / 2, 1
+        return Cell(math.floor(state[0] / size), math.floor(state[1] / size),
+                    math.floor(heading / turn),
                     direction if self.prm.reverse else 0,
-                    math.floor(steer / STEER_CELL + 0.5) if self.f.rate_limited else 0)
+                    math.floor(steer / STEER_CELL + 0.5) if self.f.rate_limited else 0, fine)
 
     def body_states(self, nodes) -> np.ndarray:
         """(n, 5) the states of `nodes` with psi the car body's heading (Shooter.body_states):
@@ -306,8 +321,7 @@ class Search:
 
     def run(self) -> PlanResult:
         prm, res = self.prm, self.result
-        heap = [(self.order([0])[0], 0, 0)]  # (f, order, node): ties go to the older
-        self.pushed = 1
+        heap = self.entries([0])
         if self.tree.H[0] <= prm.mindist:
             self.connector.try_connect()
         ended, stall = "", 0
@@ -343,9 +357,8 @@ class Search:
             res.expansions += len(nodes)
             stall += len(nodes)
             new = self.expander.expand(nodes)
-            for i, f in zip(new, self.order(new)):
-                heapq.heappush(heap, (f, self.pushed, i))
-                self.pushed += 1
+            for entry in self.entries(new):
+                heapq.heappush(heap, entry)
             if (self.tree.H[new] <= prm.mindist).any() and self.connector.try_connect():
                 stall = 0
         return self.finish(ended)
@@ -404,12 +417,27 @@ class Search:
 
     def requeue(self) -> list:
         """Every node queued again; returns the new heap."""
-        heap = []
-        for i, f in enumerate(self.order(np.arange(len(self.tree)))):
-            heap.append((f, self.pushed, i))
-            self.pushed += 1
+        heap = self.entries(range(len(self.tree)))
         heapq.heapify(heap)
         return heap
+
+    def entries(self, nodes) -> list[tuple]:
+        """The heap entries of `nodes`: (f, tie, node), f = order's. With tie_break =
+        "inserted" (the paper's planner here), f as computed and ties to the older entry; with
+        "cell", f rounded down to F_QUANTUM and ties to the lesser pruning cell: siblings often
+        have the same f but for the last bits of their edges' lengths (the same duration at one
+        speed), so a rounding of the integration (another XLA option, another machine) would
+        reorder them and grow another tree."""
+        nodes = list(nodes)
+        f = self.order(nodes)
+        if self.prm.tie_break == "inserted":
+            first = self.pushed
+            self.pushed += len(nodes)
+            return list(zip(f, range(first, self.pushed), nodes))
+        t = self.tree
+        return [(math.floor(v / F_QUANTUM) * F_QUANTUM if math.isfinite(v) else v,
+                 self.cell(t.states[i], int(t.direction[i]), float(t.steer[i])), i)
+                for v, i in zip(f, nodes)]
 
     def pop(self, heap, most) -> list[int]:
         """Up to `most` nodes off the heap, best f first, skipping those that cannot beat the
