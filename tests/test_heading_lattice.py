@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 
 from stepzoo.search.planner.config import make_config
+from stepzoo.search.planner.expansion import SPEED_CHANGE_STEER
 from stepzoo.search.planner.guide import Guide, corridors
 from stepzoo.search.planner.heading_lattice import HeadingLattice
 from stepzoo.search.planner.pathfinder import F_QUANTUM, PathFinder, Search
@@ -166,9 +167,12 @@ def test_in_a_door_the_pruning_cells_are_halved_and_in_the_open_not(narrow):
     assert not apart([10.2, 15.0, 0.1], [10.7, 15.0, 0.3])
 
 
-@pytest.mark.parametrize("vx", [4.0, 2.0])
-def test_no_connection_sets_off_from_a_node_steered_past_the_speed_change_steer(vx):
-    s = search("inserted", vx=vx)
+@pytest.mark.parametrize("vx,steer_max", [(4.0, SPEED_CHANGE_STEER), (2.0, SPEED_CHANGE_STEER),
+                                         (4.0, None)])
+def test_no_connection_sets_off_from_a_node_steered_past_the_speed_change_steer(vx, steer_max):
+    """With connect_steer_max at SPEED_CHANGE_STEER; None: the default, which turns it off."""
+    s = search("inserted", vx=vx, **({} if steer_max is None else
+                                     {"connect_steer_max": steer_max}))
     called = []
     s.f.connect = lambda node, *args, **kw: (called.append(kw["steer"]), (None, "recorded"))[1]
     goal = s.goal
@@ -176,7 +180,7 @@ def test_no_connection_sets_off_from_a_node_steered_past_the_speed_change_steer(
     s.tree.add([None] * 3, states=near, parent=0, g=30.0, H=5.0, rest=5.0, guide=5.0, car=5.0,
                steer=[0.5, 0.1, -0.5], steer0=0.0, direction=1, tight=[False, False, True])
     s.connector.try_connect()
-    if vx > 2.0:
+    if vx > 2.0 and steer_max is not None:
         # The tree's move at 0.5 rad is skipped (its curvature would step into the
         # connection's); the one at 0.1 rad and the tight move (the connection's own model
         # and speed) are tried.
@@ -184,5 +188,6 @@ def test_no_connection_sets_off_from_a_node_steered_past_the_speed_change_steer(
         assert s.connector.attempts() == 2
         assert any("steer past" in f for f in s.connector.failures)
     else:
-        # At the tight moves' speed the tree's edges meet the connection without a step.
+        # At the tight moves' speed the tree's edges meet the connection without a step;
+        # by default every node is tried, as the paper's planner here.
         assert sorted(called) == [-0.5, 0.1, 0.5]

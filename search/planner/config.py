@@ -123,6 +123,14 @@ class PlannerParams(Schema):
             "pruning cells are halved (position and heading) where the car's centre is less "
             "than this from an obstacle: in a door one node per cell cannot hold the "
             "alignment the door needs (0: off, as the paper's planner here) [m]"))
+    connect_steer_max: Annotated[float, quantity(
+        "a steer angle", "rad", "0.3 is where the dynamic bicycle's circle parts from the "
+        "kinematic one's (expansion.SPEED_CHANGE_STEER); at or above the steer limit it is off",
+        ge=0.0, le=1.6)] = Field(1.6, description=(
+            "no connection sets off from a node of the tree's own moves, where they drive "
+            "faster than its tight moves, steered past this: the kinematic connection would "
+            "meet the dynamic edge with a step in curvature, a steer jump the car cannot drive "
+            "(1.6: off, as the paper's planner here) [rad]"))
     tight_speed: Annotated[float, quantity(
         "a speed", "m/s", "a walking pace to a slow roll: below 0.5 m/s a move covers less than "
         "a pruning cell; above 5 m/s it is no longer tighter than the tree's", ge=0.5,
