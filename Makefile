@@ -24,8 +24,8 @@ run: $(STAMP)
 # one worker per core; a file's tests stay on one worker, so its module fixtures run once;
 # files are handed out in the suite's order, the slow ones first (tests/conftest.py).
 # The end-to-end group (pytest.mark.e2e: the tutorial's whole loop, a Dask cluster, a
-# browser, `stepzoo run`'s whole pipeline, and interrupted at each stage, every built-in
-# scenario planned, the stored plans compared) runs apart, in `make test-e2e`; CI (.ci/run) runs both.
+# browser, `stepzoo run`'s whole pipeline, every built-in scenario planned, the stored
+# plans compared) runs apart, in `make test-e2e`; CI (.ci/run) runs both.
 # `make test` compiles with XLA's machine-code (LLVM) optimisation off: the same programs
 # (XLA's own passes all run), about a fifth less compiling, which is most of the suite's
 # time; results move by a rounding (no fused multiply-adds), which every test tolerates,

@@ -1,8 +1,8 @@
 """`stepzoo run` interrupted by Ctrl-C at each of its stages: each time one line and exit 130,
 every file an earlier stage finished kept as it was, and the same command then finishes the
-run, keeping the finished sweep and plans. It runs the whole pipeline in subprocesses five
-times (two to four minutes of a worker on two cores), so it is end-to-end: `make test-e2e`,
-which CI runs beside `make test`."""
+run, keeping the finished sweep and plans. Apart from test_faults.py, which it belongs with,
+because it runs the whole pipeline five times: as a file of its own pytest-xdist runs it
+beside the others."""
 import random
 import signal
 import subprocess
@@ -14,7 +14,7 @@ import pytest
 from helpers import CTRL_C_REACHES, TINY_SWEEP, files, until_line
 
 ROOT = Path(__file__).resolve().parents[1]
-pytestmark = [pytest.mark.slow, pytest.mark.e2e]
+pytestmark = pytest.mark.slow
 
 
 def test_run_interrupted_at_each_stage_keeps_what_it_wrote_and_the_same_command_finishes(
