@@ -145,14 +145,10 @@ def key(fn_name: str, lead: tuple, static: dict, dynamic) -> str:
     `lead` (positional, first) and `static` (keywords) and the run-time arguments `dynamic`
     (a pytree); raises Unnamed where it cannot name one."""
     leaves, tree = jax.tree.flatten(dynamic)
-    return _key(fn_name, lead, static, str(tree), [_aval(leaf) for leaf in leaves])
-
-
-def _key(fn_name: str, lead: tuple, static: dict, tree: str, types: list) -> str:
     parts = [library_source(), jax.__version__, jaxlib.__version__, np.__version__,
              jax.default_backend(), str(len(jax.devices())),
              str(jax.config.read("jax_enable_x64")), os.environ.get("XLA_FLAGS", ""), fn_name,
-             name_of(lead), name_of(static), tree, ",".join(types)]
+             name_of(lead), name_of(static), str(tree), ",".join(map(_aval, leaves))]
     return hashlib.sha256("\n".join(parts).encode()).hexdigest()
 
 
@@ -172,7 +168,7 @@ def _key_of(fn_name: str, lead: tuple, static: dict, dynamic) -> str | None:
     k = _keys.get(seen, "")
     if k == "":
         try:
-            k = _key(fn_name, lead, static, str(tree), [_aval(leaf) for leaf in leaves])
+            k = key(fn_name, lead, static, dynamic)
         except Unnamed:
             k = None
         _keys[seen] = k
