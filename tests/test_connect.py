@@ -347,7 +347,7 @@ def test_a_corridor_lets_a_disc_beside_a_wall_move_away_from_it(speed, monkeypat
     poses = conn.states[:, :3].copy()
     poses[:, 2] -= np.arcsin(CAR["Lr"] * np.tan(node_steers(conn.inputs, conn.steer_rates,
                                                               conn.tf)) / L)
-    hit = first_collision(omap, footprint, poses[:, None])[:] >= 0      # each node alone
+    hit = first_collision(omap, footprint, poses[:, None]) >= 0         # each node alone
     guess_touches = np.zeros(len(poses), bool)                         # node 0 is the start
     if guesses:                                    # the last corridor built: the solution's
         guess_touches[1:] = (corridor.clearance(guesses[-1]) <= corridor.radius).any(axis=1)
