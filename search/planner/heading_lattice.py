@@ -12,12 +12,11 @@ import math
 from typing import NamedTuple
 
 import numpy as np
-from scipy.ndimage import distance_transform_edt
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import dijkstra
 
 from stepzoo.search.world.footprint import Footprint
-from stepzoo.search.world.maps import OccupancyMap
+from stepzoo.search.world.maps import OccupancyMap, fine_distance
 
 HEADINGS = 16     # heading cells of the lattice: pi/8, the pruning cell's default
 FINE = 0.375      # [m] about the spacing of the lattice the moves are checked on
@@ -207,11 +206,3 @@ class HeadingLattice:
                 break
         return np.array([c, r]) * self.spacing + self.omap.origin
 
-
-def fine_distance(occupied: np.ndarray, sub: int) -> np.ndarray:
-    """[lattice steps] the exact distance from each point of the lattice `sub` times finer
-    than the cells (point (i, j) at (j, i) / sub cells from the lower-left corner) to the
-    obstacle region (occupied cells and all outside the grid), as maps.SUBDIV's field."""
-    fine = np.pad(np.repeat(np.repeat(occupied, sub, 0), sub, 1), 1, constant_values=True)
-    blocked = fine[:-1, :-1] | fine[1:, :-1] | fine[:-1, 1:] | fine[1:, 1:]
-    return distance_transform_edt(~blocked)

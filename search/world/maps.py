@@ -187,13 +187,19 @@ def _lattice_distance(occupied: np.ndarray) -> np.ndarray:
 def _grid_distance(shape: tuple[int, int], packed: bytes) -> np.ndarray:
     """_lattice_distance of the grid of `shape` whose cells `packed` holds, a bit each."""
     bits = np.unpackbits(np.frombuffer(packed, np.uint8), count=shape[0] * shape[1])
-    occupied = bits.reshape(shape).astype(bool)
-    fine = np.pad(np.repeat(np.repeat(occupied, SUBDIV, 0), SUBDIV, 1), 1, constant_values=True)
-    # A lattice point is in the closed region if any of the four fine cells around it is.
-    blocked = fine[:-1, :-1] | fine[1:, :-1] | fine[:-1, 1:] | fine[1:, 1:]
-    distance = distance_transform_edt(~blocked)
+    distance = fine_distance(bits.reshape(shape).astype(bool), SUBDIV)
     distance.setflags(write=False)
     return distance
+
+
+def fine_distance(occupied: np.ndarray, sub: int) -> np.ndarray:
+    """[lattice steps] the exact distance from each point of the lattice `sub` times finer
+    than the cells (point (i, j) at (j, i) / sub cells from the lower-left corner) to the
+    obstacle region (occupied cells and all outside the grid)."""
+    fine = np.pad(np.repeat(np.repeat(occupied, sub, 0), sub, 1), 1, constant_values=True)
+    # A lattice point is in the closed region if any of the four fine cells around it is.
+    blocked = fine[:-1, :-1] | fine[1:, :-1] | fine[:-1, 1:] | fine[1:, 1:]
+    return distance_transform_edt(~blocked)
 
 
 def from_array(occupied, resolution, origin=(0.0, 0.0)) -> OccupancyMap:
