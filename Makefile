@@ -29,13 +29,16 @@ run: $(STAMP)
 # `make test` compiles with XLA's machine-code (LLVM) optimisation off: the same programs
 # (XLA's own passes all run), about a fifth less compiling, which is most of the suite's
 # time; results move by a rounding (no fused multiply-adds), which every test tolerates,
-# as it must on another CPU. The end-to-end group compiles as users' runs do.
+# as it must on another CPU. The end-to-end group compiles as users' runs do, with NumPy's
+# AVX-512 kernels off (its sin, exp, arctan2... round otherwise there): the stored plans then
+# reproduce on CPUs with and without AVX-512 (tests/test_plan_regression.py).
 PYTEST := $(BIN)/python -m pytest -n auto --dist loadfile --no-loadscope-reorder
 test: lint typecheck
 	XLA_FLAGS="$$XLA_FLAGS --xla_backend_optimization_level=0" $(PYTEST) -m "not e2e"
 
+NUMPY_WITHOUT_AVX512 := NPY_DISABLE_CPU_FEATURES="X86_V4 AVX512F AVX512_SKX AVX512_ICL AVX512_SPR"
 test-e2e: $(STAMP)
-	$(PYTEST) -m e2e
+	$(NUMPY_WITHOUT_AVX512) $(PYTEST) -m e2e
 
 lint: $(STAMP)
 	$(BIN)/ruff check .

@@ -11,11 +11,14 @@ wall times are left out, as they differ from run to run.
 A plan is the same only where floating point rounds the same: a tree's choices turn on
 comparisons that one rounding can flip, after which the trees part (with XLA's machine-code
 optimisation off, which drops its fused multiply-adds, three of the five cases plan other
-paths and berlin_06_reverse none). So the stored plans are compared only where a rounding
-fingerprint (the library versions, a batch of planner edges, a small IPOPT solve) is the
-recorded one; elsewhere those comparisons skip and say why, and the checks that hold on any
-machine still run. End-to-end (`make test-e2e`): `make test` compiles with XLA's machine-code
-optimisation off (Makefile).
+paths and berlin_06_reverse none; with NumPy's AVX-512 kernels on, whose sin, exp and
+arctan2 round otherwise, two part and berlin_06_reverse finds none). So the stored plans are
+compared only where a rounding fingerprint (the library versions, a batch of planner edges,
+NumPy's transcendental functions, a small IPOPT solve) is the recorded one; elsewhere those
+comparisons skip and say why, and the checks that hold on any machine still run.
+End-to-end (`make test-e2e`), which turns NumPy's AVX-512 kernels off (NUMPY_WITHOUT_AVX512
+in the Makefile), so that the plans reproduce on CPUs with AVX-512 and without; `make test`
+compiles with XLA's machine-code optimisation off.
 
 The stored plans are regenerated (after a change that is meant to change plans, and only
 then, or to compare on another machine) by `.venv/bin/python tests/test_plan_regression.py`."""
@@ -54,7 +57,8 @@ pytestmark = pytest.mark.e2e
 def rounding_fingerprint() -> str:
     """sha256 of what sets the plans' last bits in this process: the versions of JAX,
     jaxlib, NumPy and CasADi, eight kinematic-bicycle edges integrated as the planner's
-    are, and an IPOPT solve of a constrained Rosenbrock problem."""
+    are, NumPy's sin, exp and arctan2 (whose kernels differ with the CPU's vector
+    instructions), and an IPOPT solve of a constrained Rosenbrock problem."""
     import casadi as ca
     import jax
     import jaxlib
@@ -70,6 +74,9 @@ def rounding_fingerprint() -> str:
     edges = integrate_batch("rk4", kinematic_bicycle, x0, u=u, p={"L": 2.58, "m": 1.0},
                             h=0.05, n_steps=200)
     digest.update(np.ascontiguousarray(edges.x).tobytes())
+    angles = np.linspace(-20.0, 20.0, 4001)
+    for values in (np.sin(angles), np.exp(angles), np.arctan2(angles, angles[::-1] + 0.1)):
+        digest.update(values.tobytes())
     x = ca.SX.sym("x", 2)
     solver = ca.nlpsol("fingerprint", "ipopt",
                        {"x": x, "f": (1 - x[0]) ** 2 + 100 * (x[1] - x[0] ** 2) ** 2,
@@ -86,7 +93,8 @@ def record_platform():
     if Path("/proc/cpuinfo").exists():
         cpu = next((line.split(":", 1)[1].strip() for line in open("/proc/cpuinfo")
                     if line.startswith("model name")), cpu)
-    where = f"{cpu}, {platform.system()}, XLA_FLAGS {os.environ.get('XLA_FLAGS', '')!r}"
+    where = (f"{cpu}, {platform.system()}, XLA_FLAGS {os.environ.get('XLA_FLAGS', '')!r}, "
+             f"NPY_DISABLE_CPU_FEATURES {os.environ.get('NPY_DISABLE_CPU_FEATURES', '')!r}")
     PLATFORM.write_text(json.dumps({"fingerprint": rounding_fingerprint(),
                                     "recorded_on": where}, indent=1) + "\n")
 
@@ -99,7 +107,8 @@ def same_rounding(fresh):
     if rounding_fingerprint() != recorded["fingerprint"]:
         pytest.skip(f"the stored plans were recorded where floating point rounds otherwise "
                     f"({recorded['recorded_on']}): plans part on a flipped comparison; "
-                    f"record them here to compare: python tests/test_plan_regression.py")
+                    f"compare through `make test-e2e` (NumPy's AVX-512 kernels off), or "
+                    f"record them here: python tests/test_plan_regression.py")
 
 
 def plan(name: str, out: Path) -> dict:
@@ -194,6 +203,24 @@ def test_the_fingerprint_tells_another_code_generation_apart():
     there = subprocess.run([sys.executable, "-c", code], cwd=ROOT / "tests", check=True,
                            capture_output=True, text=True, env={**os.environ, "XLA_FLAGS": other})
     assert there.stdout.strip() != rounding_fingerprint()
+
+
+def test_the_fingerprint_tells_numpys_avx512_kernels_apart():
+    """NumPy's AVX-512 sin, exp and arctan2 round otherwise than its AVX2 ones (on such a
+    CPU, berlin_06 parts in its sixth digit and berlin_06_reverse finds no plan), and the
+    fingerprint says so; `make test-e2e` turns them off."""
+    code = ("import numpy as np; from test_plan_regression import rounding_fingerprint; "
+            "core = getattr(np, '_core', None) or np.core; "    # NumPy 2, NumPy 1
+            "print(core._multiarray_umath.__cpu_features__['AVX512F'], rounding_fingerprint())")
+    prints = []
+    for disabled in ("", "X86_V4 AVX512F AVX512_SKX AVX512_ICL AVX512_SPR"):
+        env = {**os.environ, "NPY_DISABLE_CPU_FEATURES": disabled}
+        prints.append(subprocess.run([sys.executable, "-c", code], cwd=ROOT / "tests", env=env,
+                                     check=True, capture_output=True, text=True).stdout.split())
+    (avx512, on), (_, off) = prints
+    if avx512 != "True":
+        pytest.skip("this CPU has no AVX-512: NumPy runs the same kernels either way")
+    assert on != off
 
 
 def test_the_cases_cover_what_they_claim(fresh, same_rounding):
