@@ -167,10 +167,9 @@ def test_in_a_door_the_pruning_cells_are_halved_and_in_the_open_not(narrow):
     assert not apart([10.2, 15.0, 0.1], [10.7, 15.0, 0.3])
 
 
-@pytest.mark.parametrize("vx,steer_max", [(4.0, SPEED_CHANGE_STEER), (2.0, SPEED_CHANGE_STEER),
-                                         (4.0, None)])
+@pytest.mark.parametrize("vx,steer_max", [(4.0, None), (2.0, None), (4.0, 1.6)])
 def test_no_connection_sets_off_from_a_node_steered_past_the_speed_change_steer(vx, steer_max):
-    """With connect_steer_max at SPEED_CHANGE_STEER; None: the default, which turns it off."""
+    """With connect_steer_max at its default (None), SPEED_CHANGE_STEER; 1.6 turns it off."""
     s = search("inserted", vx=vx, **({} if steer_max is None else
                                      {"connect_steer_max": steer_max}))
     called = []
@@ -180,7 +179,8 @@ def test_no_connection_sets_off_from_a_node_steered_past_the_speed_change_steer(
     s.tree.add([None] * 3, states=near, parent=0, g=30.0, H=5.0, rest=5.0, guide=5.0, car=5.0,
                steer=[0.5, 0.1, -0.5], steer0=0.0, direction=1, tight=[False, False, True])
     s.connector.try_connect()
-    if vx > 2.0 and steer_max is not None:
+    assert s.prm.connect_steer_max == (SPEED_CHANGE_STEER if steer_max is None else 1.6)
+    if vx > 2.0 and steer_max is None:
         # The tree's move at 0.5 rad is skipped (its curvature would step into the
         # connection's); the one at 0.1 rad and the tight move (the connection's own model
         # and speed) are tried.
@@ -189,5 +189,5 @@ def test_no_connection_sets_off_from_a_node_steered_past_the_speed_change_steer(
         assert any("steer past" in f for f in s.connector.failures)
     else:
         # At the tight moves' speed the tree's edges meet the connection without a step;
-        # by default every node is tried, as the paper's planner here.
+        # turned off, every node is tried, as the paper's planner.
         assert sorted(called) == [-0.5, 0.1, 0.5]

@@ -139,10 +139,11 @@ def test_same_inputs_give_the_same_path_and_another_seed_another_tree(plans):
 
 
 def test_no_two_tree_nodes_share_a_pruning_cell():
-    # The paper's instant steering, whose cells are (x, y, heading) of the edges' ends; the
-    # rate-limited planner's also bin the steer, which the edges do not hold.
+    # The paper's instant steering and cells of one size, whose cells are (x, y, heading) of
+    # the edges' ends; the rate-limited planner's also bin the steer, which the edges do not
+    # hold, and narrow_cell_m halves them near walls.
     scenario = load_scenario("wall_between")
-    config = make_config(max_seconds=3600.0, steering="instant")
+    config = make_config(max_seconds=3600.0, steering="instant", narrow_cell_m=0.0)
     result = finder_for(scenario, config).plan(scenario.start, scenario.goal)
     prm = config.params
     ends = np.array([scenario.start] + [e[-1, :3] for e in result.tree])

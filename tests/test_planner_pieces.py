@@ -186,3 +186,54 @@ def test_tree_polylines_keep_each_edges_ends_and_evenly_spread_rows_in_the_trees
         rows = sorted({round(k * (len(edge) - 1) / (TREE_POINTS - 1))
                        for k in range(TREE_POINTS)})
         assert line == np.round(edge[rows, :2], 2).tolist()
+
+
+def beside_a_wall(vx=5.0):
+    """A search (not run) on 40 x 20 m at 0.5 m/cell walled from y = 12 m: a car at y = 10.9 m
+    facing east clears the wall, turned 0.15 rad it does not (the checker's own answer,
+    asserted below)."""
+    occupied = np.zeros((40, 80), bool)
+    occupied[24:, :] = True
+    config = make_config(max_seconds=3600.0)
+    finder = PathFinder(from_array(occupied, 0.5), config, None, vx)
+    start, goal = np.array([4.0, 10.0, 0.0]), np.array([36.0, 10.0, 0.0])
+    result = pathfinder.PlanResult(PlannerStatus.NO_PATH, "", start, goal, config.h, 4.0)
+    return pathfinder.Search(finder, start, goal, None, np.random.default_rng(0), result,
+                             expansions(1))
+
+
+def test_a_move_is_clear_with_its_body_turned_only_where_that_body_is_clear():
+    s = beside_a_wall()
+    shooter = s.f.shooter
+    poses = np.array([[[20.0, 10.9, 0.0]], [[20.0, 10.9, -0.15]]])
+    assert list(s.f.checker.first_invalid(poses)) == [-1, 0]
+    # Two shootings along y = 10.9 m facing east, the second also checked turned -0.15 rad.
+    rows = shooter.n_steps + 1
+    states = np.zeros((2, rows, 5))
+    states[:, :, 0] = np.linspace(10.0, 14.0, rows)
+    states[:, :, 1] = 10.9
+    shots = shooter.shots(states, np.zeros(2), np.zeros(2), s.goal, np.array([0.0, -0.15]))
+    assert list(shots.valid) == [True, False]
+    assert shots.free[1] == 0
+    assert shooter.shots(states, np.zeros(2), np.zeros(2), s.goal).valid.all()
+
+
+def test_the_trees_move_from_a_tight_node_is_checked_at_the_body_it_sets_off_with():
+    """A tight move's node holds the kinematic theta; the car's body faces body_slip short of
+    it: the tree's move from it must clear that body, from a node of its own moves (psi the
+    body) nothing more."""
+    from stepzoo.dynamics.kinematic import body_slip
+    s = beside_a_wall()
+    shooter, seen = s.f.shooter, []
+    plain = shooter.shots
+    shooter.shots = lambda *args: (seen.append(args[4]), plain(*args))[1]
+    node = np.array([[10.0, 10.0, 0.0, 0.0, 0.0]] * 2)
+    rows = s.tree.add([None] * 2, states=node, parent=0, g=5.0, H=26.0, rest=26.0,
+                      guide=26.0, car=26.0, steer=[0.25, 0.25], steer0=0.25, direction=1,
+                      tight=[True, False])
+    s.expander.expand(list(rows))
+    per = s.expander.per
+    turned = seen[0][:2 * per]
+    slip = body_slip(0.25, shooter.wheelbase, shooter.scalars["Lr"])
+    assert np.allclose(turned[:per], -slip) and slip > 0.1
+    assert np.all(turned[per:] == 0.0)

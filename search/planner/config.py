@@ -112,25 +112,25 @@ class PlannerParams(Schema):
         "heading) lattice of the car's turns solved from the goal (search/planner/"
         "heading_lattice.py), which leads the tree to the goal and through doors facing the "
         "way it must [1]"))
-    tie_break: Literal["inserted", "cell"] = Field("inserted", description=(
+    tie_break: Literal["inserted", "cell"] = Field("cell", description=(
         "which of two nodes of equal f the search expands first: inserted, the older (f as "
         "computed, so f that differ in their last bits only are ordered by that rounding), as "
         "the paper's planner here has it; cell, f compared in steps of 2^-20 m and ties to the "
         "lesser pruning cell, so a rounding of the integration does not reorder siblings [1]"))
     narrow_cell_m: Annotated[float, quantity(
         "a clearance", "m", "0 turns it off; beyond 10 m nearly every cell of a street is "
-        "halved", ge=0.0, le=10.0)] = Field(0.0, description=(
+        "halved", ge=0.0, le=10.0)] = Field(3.0, description=(
             "pruning cells are halved (position and heading) where the car's centre is less "
             "than this from an obstacle: in a door one node per cell cannot hold the "
-            "alignment the door needs (0: off, as the paper's planner here) [m]"))
+            "alignment the door needs (0: off, as the paper's planner) [m]"))
     connect_steer_max: Annotated[float, quantity(
         "a steer angle", "rad", "0.3 is where the dynamic bicycle's circle parts from the "
         "kinematic one's (expansion.SPEED_CHANGE_STEER); at or above the steer limit it is off",
-        ge=0.0, le=1.6)] = Field(1.6, description=(
+        ge=0.0, le=1.6)] = Field(0.3, description=(
             "no connection sets off from a node of the tree's own moves, where they drive "
             "faster than its tight moves, steered past this: the kinematic connection would "
             "meet the dynamic edge with a step in curvature, a steer jump the car cannot drive "
-            "(1.6: off, as the paper's planner here) [rad]"))
+            "(1.6: off, as the paper's planner) [rad]"))
     tight_speed: Annotated[float, quantity(
         "a speed", "m/s", "a walking pace to a slow roll: below 0.5 m/s a move covers less than "
         "a pruning cell; above 5 m/s it is no longer tighter than the tree's", ge=0.5,

@@ -8,6 +8,7 @@ import math
 
 import numpy as np
 
+from stepzoo.dynamics.kinematic import body_slip
 from stepzoo.search.planner.point_selector import point_selector, random_points
 from stepzoo.search.planner.shooting import Shots, integrate_together
 
@@ -79,10 +80,19 @@ class Expander:
         trajectories = integrate_together(requests)
         for (direction, shooter), (_, _, steer, steer0), states in zip(gears, requests,
                                                                       trajectories):
-            shots = shooter.shots(states, steer, steer0, s.goal)
+            turned = None
+            if direction > 0 and s.f.rate_limited:
+                # From a tight move's node (the kinematic bicycle, whose (X, Y) moves along
+                # theta) the tree's move sets off with psi = theta, but the car's body faces
+                # body_slip short of theta and turns only as it drives on: the move is clear
+                # only where that body is clear too (in a door the tracked car, its body that
+                # far off the planned one, touched the wall).
+                slow = np.repeat(tree.tight[rows], self.per)
+                turned = np.where(slow, -body_slip(steers, shooter.wheelbase,
+                                                   shooter.scalars["Lr"]), 0.0)
+            shots = shooter.shots(states, steer, steer0, s.goal, turned)
             if direction > 0 and s.f.rate_limited:
                 # From a tight move's node the car speeds up only with its wheel near straight.
-                slow = np.repeat(tree.tight[rows], self.per)
                 shots.free[slow & (np.abs(shots.steer0) > SPEED_CHANGE_STEER)] = 0
             cramped |= (shots.free < shots.states.shape[1]).reshape(len(rows), -1).any(
                 axis=1)[:len(nodes)]

@@ -221,10 +221,12 @@ class Shooter:
             start = self.settled(start, self.start_steers(steer0, steer), settle)
         return start
 
-    def shots(self, states, steer, steer0, destination) -> Shots:
+    def shots(self, states, steer, steer0, destination, turned=None) -> Shots:
         """The Shots of shootings integrated to `states` (K, N+1, 5), to end steers `steer`
         (K,) [rad] from `steer0` (one or (K,); NaN: from a standstill), towards `destination`
-        [X, Y, ...] [m]: distances, and validity against the checker."""
+        [X, Y, ...] [m]: distances, and validity against the checker; the shootings whose
+        `turned` (K,) [rad] is not 0 are valid only where the car's body turned by it is
+        clear too."""
         steer = np.asarray(steer, float)
         steer0 = np.broadcast_to(np.asarray(steer0, float), steer.shape)
         # A blown-up shooting is a result (an invalid one), so its overflow warnings are noise;
@@ -240,8 +242,14 @@ class Shooter:
             # s = CHECK_SPACING_M on the tightest turn (R = 2.6 m), far inside the margin.
             stride = max(1, int(CHECK_SPACING_M / max(self.vx * self.h, 1e-12)))
             checked = np.unique(np.r_[np.arange(0, rows, stride), rows - 1])
-            hit = self.checker.first_invalid(self.body_poses(states[:, checked], steer, steer0,
-                                                             checked / (rows - 1)))
+            bodies = self.body_poses(states[:, checked], steer, steer0, checked / (rows - 1))
+            hit = self.checker.first_invalid(bodies)
+            if turned is not None and np.any(turned):
+                also = np.flatnonzero(turned)
+                other = self.checker.first_invalid(
+                    bodies[also] + np.c_[np.zeros((len(also), 2)), turned[also]][:, None, :])
+                mine = hit[also]
+                hit[also] = np.where((other >= 0) & ((mine < 0) | (other < mine)), other, mine)
             # Rows before the last checked pose that is clear are clear.
             first = np.where(hit > 0, checked[np.maximum(hit - 1, 0)] + 1,
                              np.where(hit == 0, 0, -1))
