@@ -56,5 +56,6 @@ def test_run_interrupted_at_each_stage_keeps_what_it_wrote_and_the_same_command_
     now = files(out / "sweep")
     for name in ("runs.parquet", "limits.parquet", "config.toml"):
         assert now[Path(name)] == sweep_before[Path(name)], name
+    assert (out / "tuned.toml").read_bytes() == kept["tuned.toml"][""]    # not chosen again
     assert files(out / "plans") == kept["plans"]
     assert "plans kept" in done.stderr

@@ -58,6 +58,34 @@ def test_tuned_file_says_what_why_and_from_which_sweep(tuned):
     assert {r["method"] for r in t["runners_up"]} | {t["method"]} == set(load(SMALL).methods)
 
 
+def test_a_rerun_keeps_the_choice_made_from_the_same_sweep_and_arguments(tuned_both, tmp_path):
+    """`stepzoo run` run again keeps its tuned file (a new timing could break a near tie
+    otherwise, and every plan with it) only where that file was tuned by time from this very
+    sweep with this tolerance and margin: another tolerance, margin or cost, a sweep made
+    again (its creation time) or one elsewhere is tuned anew."""
+    import json
+    import shutil
+    from stepzoo.workflows.tune import kept
+    sweep, files = tuned_both
+    out = sweep.parent / "tuned_time.toml"
+    assert kept(out, sweep, POS_TOL, MARGIN) == files["time"]
+    assert kept(out, sweep, POS_TOL * 2, MARGIN) is None
+    assert kept(out, sweep, POS_TOL, MARGIN * 2) is None
+    assert kept(sweep.parent / "tuned_evals.toml", sweep, POS_TOL, MARGIN) is None
+    assert kept(tmp_path / "missing.toml", sweep, POS_TOL, MARGIN) is None
+    again = tmp_path / "sweep"
+    shutil.copytree(sweep, again)
+    assert kept(out, again, POS_TOL, MARGIN) is None             # a sweep elsewhere
+    manifest = json.loads((sweep / "manifest.json").read_text())
+    moved = tmp_path / "renewed.toml"
+    moved.write_text(out.read_text().replace(str(sweep.resolve()), str(again.resolve())))
+    renewed = kept(moved, again, POS_TOL, MARGIN)
+    assert renewed is not None and (renewed["method"], renewed["h"]) == (
+        files["time"]["method"], files["time"]["h"])
+    (again / "manifest.json").write_text(json.dumps({**manifest, "created": "later"}))
+    assert kept(moved, again, POS_TOL, MARGIN) is None            # the sweep made again
+
+
 def test_cost_evals_chooses_the_fewest_evaluations_that_qualify(tuned_both):
     sweep, files = tuned_both
     t = files["evals"]

@@ -58,6 +58,16 @@ def stages(out: Path, config: Path, pos_tol: float, margin: float, seed: int,
         return sweep_cmd.show(sweep_cmd.sweep(config, sweep, resume=True, progress=progress,
                                               runner=ahead.sweep_runner(config)), sweep)
 
+    def tune_stage():
+        chosen = tune_cmd.kept(tuned, sweep, pos_tol, margin)
+        if chosen is not None:
+            # The stage's own output: stderr under `run`, nothing when quiet.
+            print("tuned config kept: the file holds the choice made from this sweep with "
+                  "this tolerance and margin")
+        else:
+            chosen = tune_cmd.tune(sweep, pos_tol, margin, tuned)
+        tune_cmd.show(chosen, tuned)
+
     def plan():
         from stepzoo.search.planner.config import load_config
         scenarios = [load_scenario(n) for n in builtin_names()]
@@ -78,7 +88,7 @@ def stages(out: Path, config: Path, pos_tol: float, margin: float, seed: int,
         ("sweep", ["sweep", str(config), "--out", str(sweep), "--resume"], sweep_stage),
         ("tune", ["tune", str(sweep), "--pos-tol", repr(pos_tol), "--margin", repr(margin),
                   "--out", str(tuned)],
-         lambda: tune_cmd.show(tune_cmd.tune(sweep, pos_tol, margin, tuned), tuned)),
+         tune_stage),
         ("plan", ["plan", "--all", "--config", str(tuned), "--seed", str(seed),
                   "--out", str(plans)], plan),
     ]

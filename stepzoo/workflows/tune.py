@@ -40,6 +40,30 @@ def tune(results, pos_tol, margin: float, out, tol=None, cost: str = "time",
     return tuned
 
 
+def kept(out, results, pos_tol: float, margin: float) -> dict | None:
+    """The tuned config in the file `out` where `stepzoo tune` wrote it from this finished
+    sweep folder `results` (its path, its config's sha256 and its creation time) with this
+    position tolerance `pos_tol` [m], stability margin and the default cost: how `stepzoo
+    run` keeps its choice when run again, as it keeps its sweep and plans, so that a
+    resumed run does not choose again by a new timing (a near tie can then change the
+    choice and with it every plan). None where anything differs or cannot be read."""
+    import json
+    import tomllib
+    from pathlib import Path
+    try:
+        tuned = tomllib.loads(Path(out).read_text())
+        manifest = json.loads((Path(results) / "manifest.json").read_text())
+        same = (tuned["sweep"] == str(Path(results).resolve())
+                and tuned["sweep_config_sha256"] == manifest["config_sha256"]
+                and tuned["provenance"].endswith(f" created {manifest.get('created', '?')}")
+                and (tuned.get("pos_tol_m"), tuned["margin"]) == (pos_tol, margin)
+                and tuned["cost"] == "time" and not tuned["allow_beyond_predicted_limit"]
+                and "plans" not in tuned)
+        return tuned if same else None
+    except (OSError, ValueError, KeyError, TypeError, AttributeError):
+        return None
+
+
 def show(tuned: dict, out, fmt: str = "text") -> None:
     """Print the choice, its runners-up and where it was written, or JSON."""
     if fmt == "json":
