@@ -248,7 +248,8 @@ def test_what_the_second_process_fails_on_or_cannot_take_is_done_here(tmp_path):
     """An item the second process fails on (here a chunk id no config has) is computed by
     the pipeline, and so is every item after it (the process takes no more); a job it
     cannot start (a config file it cannot read), or a process that has died, leaves every
-    item to the pipeline; each item comes once."""
+    item to the pipeline (the command's default SIGPIPE does not end it as it writes to the
+    dead process); each item comes once."""
     from stepzoo.workflows.second_process import Ahead
     path = tmp_path / "tiny.toml"
     path.write_text(TINY_SWEEP)
@@ -263,8 +264,14 @@ def test_what_the_second_process_fails_on_or_cannot_take_is_done_here(tmp_path):
         assert got == {0: 0, 1: 1, 2: 2}
         ahead._proc.kill()
         ahead._proc.join()
-        assert dict(ahead.shared("chunks", (str(path), ["x"] * 3), 3, lambda i: -i)) == \
-            {0: 0, 1: -1, 2: -2}
+        # The `stepzoo` command leaves SIGPIPE at its default: writing to the dead process's
+        # pipe must not end this one.
+        before = signal.signal(signal.SIGPIPE, signal.SIG_DFL)
+        try:
+            assert dict(ahead.shared("chunks", (str(path), ["x"] * 3), 3, lambda i: -i)) == \
+                {0: 0, 1: -1, 2: -2}
+        finally:
+            signal.signal(signal.SIGPIPE, before)
     finally:
         ahead.close()
 

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import multiprocessing
 import signal
+import threading
 from pathlib import Path
 
 
@@ -216,10 +217,19 @@ class Ahead:
                            len(scenarios), here)
 
     def _send(self, job) -> bool:
+        """Send `job`; False where the process has died (killed, out of memory). Its end
+        of the pipe is then closed, and writing there raises SIGPIPE, which the `stepzoo`
+        command leaves at its default, ending the process (for `stepzoo ... | head`): it is
+        ignored while this process writes, so the write fails instead."""
+        main = threading.current_thread() is threading.main_thread()
+        before = signal.signal(signal.SIGPIPE, signal.SIG_IGN) if main else None
         try:
             self._conn.send(job)
-        except OSError:                 # the process died (killed, out of memory)
+        except OSError:
             return False
+        finally:
+            if main:
+                signal.signal(signal.SIGPIPE, before)
         return True
 
     def _answer(self):
