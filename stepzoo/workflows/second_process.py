@@ -99,10 +99,10 @@ def _serve(conn, ends, settings: dict) -> None:
             return
 
 
-def _take(conn, ends, kind: str, args: tuple, cache: dict) -> bool:
+def _take(conn, ends, kind: str, job: tuple, cache: dict) -> bool:
     """Take the items of a shared job from the back, one at a time, answering each; False
     where the parent has gone."""
-    serial, *args = args
+    serial, *args = job
     if kind == "chunks":
         from stepzoo.bench.sweep.config import load as load_config
         from stepzoo.bench.sweep.engine import compute_chunk
