@@ -4,12 +4,11 @@ pipeline takes items from the front of the list, this process from the back, eac
 free, so neither waits while the other has work left); Figures 1-6 once the sweep is tuned
 (they need only the sweep's tables and the tuned config); the built-in scenarios' plans
 still left by then, shared the same way; then the rest of the report once the plans are
-written. It computes exactly what `stepzoo sweep`,
-`stepzoo plan` and `stepzoo report` compute (sweep.compute_chunk, plan.timed_plan,
-report.sweep_figures, report.build); the pipeline writes the chunks and the plans, so each
-folder has one writer. It starts with the pipeline, so that its start-up overlaps the
-pipeline's; it imports the plotting libraries when it first draws, and the pipeline itself
-never imports them."""
+written. It computes exactly what `stepzoo sweep`, `stepzoo plan` and `stepzoo report`
+compute (sweep.compute_chunk, plan.timed_plan, report.sweep_figures, report.build); the
+pipeline writes the chunks and the plans, so each folder has one writer. It starts with the
+pipeline, so that its start-up overlaps the pipeline's; it imports the plotting libraries
+when it first draws, and the pipeline itself never imports them."""
 from __future__ import annotations
 
 import multiprocessing
@@ -47,13 +46,12 @@ def _claim(ends, serial: int, back: bool) -> int | None:
 
 
 def _serve(conn, ends, settings: dict) -> None:
-    """The second process: JAX set as its parent, the report's modules imported, then the
-    jobs ("chunks", (serial, sweep config file, chunk ids)) and ("plans", (serial, built-in
-    scenarios' names, planner config, seed)), shared through `ends` (`_claim`), each item it
-    takes answered with (serial, index, its tables or plan.timed_plan's (record, seconds,
-    plan.png)), None for one that failed (it then takes no more); ("figures", (sweep
-    folder, tuned file)), unanswered; and ("report", build's arguments), answered with the
-    index's path, None where it failed."""
+    """The second process: JAX set as its parent, then the jobs ("chunks", (serial, sweep config
+    file, chunk ids)) and ("plans", (serial, built-in scenarios' names, planner config,
+    seed)), shared through `ends` (`_claim`), each item it takes answered with (serial,
+    index, its tables or plan.timed_plan's (record, seconds, plan.png)), None for one that
+    failed (it then takes no more); ("figures", (sweep folder, tuned file)), unanswered; and
+    ("report", build's arguments), answered with the index's path, None where it failed."""
     # Ctrl-C goes to the whole process group: the parent says it was interrupted and ends
     # this process (SIGTERM, silent); a report it was writing leaves a hidden folder, which
     # the next report into that folder removes (results_folder.replacing).
@@ -179,8 +177,8 @@ class Ahead:
             yield i, here(i) if got is None else got
 
     def _receive(self, serial: int, into: dict) -> bool:
-        """One answer of the shared job `serial` into `into` (an answer of an earlier job is
-        dropped); False where the process has died."""
+        """One answer of the shared job `serial` into `into` (one of an earlier job, which an
+        error abandoned, is dropped); False where the process has died."""
         try:
             job, i, answer = self._conn.recv()
         except (EOFError, OSError):     # the process died (killed, out of memory)
@@ -233,8 +231,8 @@ class Ahead:
         return True
 
     def _answer(self):
-        """The answer to the report, an earlier shared job's late answers passed over; None
-        where the process failed."""
+        """The answer to the report (the answers of a shared job left unread, where an error
+        abandoned it, passed over); None where the process failed."""
         try:
             while isinstance(got := self._conn.recv(), tuple):
                 pass
