@@ -474,3 +474,36 @@ def test_a_ctrl_c_during_a_solve_stops_it_and_comes_out_of_connect(monkeypatch):
     assert len(calls) == 1
     monkeypatch.undo()
     assert connect([0, 0, 0, 0], [30, 5, 0.5], L=L, m=M).success
+
+
+def test_improve_attempts_ends_the_improvement_after_that_many_attempts_without_a_shorter_path():
+    """improve_attempts = K ends a plan once K connection attempts in a row after its best
+    path have not shortened it: the plan is the unbounded one cut there (its shorter paths a
+    prefix of the unbounded plan's), and a K the unbounded plan's longest run of fruitless
+    attempts never reaches changes nothing. open_field with the regression plans' config (no
+    clock: its plans end by themselves) finds its first path at the 1st attempt and a
+    shorter one at the 3rd."""
+    from pathlib import Path
+    from stepzoo.search.planner.config import load_config, with_params
+    from stepzoo.search.planner.pathfinder import PathFinder
+    from stepzoo.search.world.scenarios import load_scenario
+    scenario = load_scenario("open_field")
+    # The regression plans' config: `stepzoo run`'s tuned step, and no clock.
+    config = load_config(Path(__file__).parent / "data" / "plan_regression" / "config.toml")
+
+    def plan(**params):
+        finder = PathFinder(scenario.omap, with_params(config, **params), scenario.vehicle,
+                            scenario.speed)
+        return finder.plan(scenario.start, scenario.goal, scenario.goal_speed, seed=0)
+
+    free, one, two = plan(), plan(improve_attempts=1), plan(improve_attempts=2)
+    lengths = [length for _, length in free.progress]
+    assert len(lengths) == 2 and free.connect_attempts == 3
+    assert [length for _, length in one.progress] == lengths[:1]
+    assert one.connect_attempts == 2 and one.status == "exact"
+    assert one.reason.endswith("no shorter path in 1 connection attempts")
+    assert one.path_length() > free.path_length()
+    assert [length for _, length in two.progress] == lengths
+    assert two.connect_attempts == free.connect_attempts
+    assert all(np.array_equal(a, b) for a, b in zip(two.path_edges, free.path_edges))
+    assert len(two.path_edges) == len(free.path_edges)

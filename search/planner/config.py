@@ -92,6 +92,12 @@ class PlannerParams(Schema):
         "a count", "", "0 stops at the first path", ge=0, le=10_000_000)] = Field(
         300, description=("after the first exact path, expansions without a shorter one before "
                           "the plan ends (0: stop at the first, as the paper) [1]"))
+    improve_attempts: Annotated[int, quantity(
+        "a count", "", "0 sets no such bound; each attempt costs an OCP solve", ge=0,
+        le=10_000)] = Field(0, description=(
+            "after the first exact path, connection attempts (OCP solves) in a row without a "
+            "shorter path before the plan ends (0: no such bound, improve_expansions and the "
+            "budget end it) [1]"))
     reverse: Switch = Field(0, description=(
         "1: reverse gear (expansions backwards too, the connection may reverse); 0: forward "
         "only, as the paper [1]"))

@@ -32,10 +32,17 @@ class Connector:
         self.cheap: set[int] = set()
         self.failures: list[str] = []
         self.seconds = 0.0            # [s] wall time of the OCP solves
+        self.improved_at = 0          # attempts() when the best path last became shorter
 
     def attempts(self) -> int:
         """Connection attempts that called the OCP."""
         return len(self.tried) - len(self.cheap)
+
+    def improvement_spent(self) -> bool:
+        """Whether a path exists and improve_attempts (if set) attempts in a row have not
+        shortened it: the improvement ends."""
+        n = self.s.prm.improve_attempts
+        return bool(n) and math.isfinite(self.s.best) and self.attempts() - self.improved_at >= n
 
     def free_guesses(self, node, guesses) -> list | None:
         """The valid ones of `guesses`, the Dubins paths (with reverse gear, also Reeds-Shepp
@@ -90,7 +97,8 @@ class Connector:
         key = (g + np.maximum(H, tree.car)).tolist()
         improved = False
         for i in sorted(near, key=lambda j: (key[j], j)):
-            if self.attempts() >= prm.connect_tries or not s.budget_left():
+            if (self.attempts() >= prm.connect_tries or not s.budget_left()
+                    or self.improvement_spent()):
                 break
             if key[i] >= s.best * (1 - IMPROVE_TOL):
                 continue
@@ -135,7 +143,7 @@ class Connector:
                 res.first_solution_s = perf_counter() - s.t0
                 res.reason = (f"connected to the goal from a node {H[i]:.2f} m away "
                               f"(attempt {self.attempts()})")
-            s.best, improved = length, True
+            s.best, improved, self.improved_at = length, True, self.attempts()
             s.set_path(i)
             res.connection, res.cause = conn, Cause.CONNECTED
             res.solution_s = perf_counter() - s.t0

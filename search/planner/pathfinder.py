@@ -238,7 +238,8 @@ class Search:
     which chain until the tree's own moves take over.
     After it, nodes that cannot beat the best path (g + a lower bound of the rest) are dropped
     and connections that would shorten it are tried (search/planner/connection.py), until no node
-    is left, improve_expansions expansions pass without a shorter path, or `until` ends it."""
+    is left, improve_expansions expansions (or improve_attempts connection attempts, if set)
+    pass without a shorter path, or `until` ends it."""
 
     def __init__(self, finder: PathFinder, start, goal, goal_speed, rng, result: PlanResult,
                  until: Termination):
@@ -329,6 +330,9 @@ class Search:
             if math.isfinite(self.best) and stall >= prm.improve_expansions:
                 ended = (f"no shorter path in {stall} expansions" if stall else
                          "improvement off (improve_expansions = 0)")
+                break
+            if self.connector.improvement_spent():
+                ended = f"no shorter path in {prm.improve_attempts} connection attempts"
                 break
             if not self.budget_left():
                 assert self.stopped is not None   # budget_left: the condition that said stop
