@@ -2,7 +2,6 @@
 config, a plan per built-in scenario made with the tuned step, the report), keeps stdout for
 the report's path, finishes a run killed in its sweep from the chunks on disk to the tables
 of an undisturbed sweep, and a bad config is one line, exit 2."""
-import dataclasses
 import json
 import signal
 import subprocess
@@ -194,47 +193,44 @@ def test_a_report_process_that_fails_leaves_the_report_to_the_pipeline(tmp_path)
         ahead.close()
 
 
-def _waits_for_theirs(ahead, here):
-    """`here` (Ahead.shared's), its first call waiting until the second process has answered
-    an item (so it has taken one from the back, whatever the machine's speed); the items
-    done here are noted in `.done`."""
-    def first(i):
-        if not first.done:
-            deadline = time.monotonic() + 300
-            while not ahead.ready() and time.monotonic() < deadline:
-                time.sleep(0.01)
-        first.done.append(i)
-        return here(i)
-    first.done = []
-    return first
+def test_a_second_process_that_died_is_told_by_its_pipe_not_by_sigpipe():
+    """The `stepzoo` command leaves SIGPIPE at its default (for `stepzoo ... | head`): a job
+    sent to a second process that has died (killed, out of memory) is refused (False, the
+    pipeline then does the work) instead of ending this process by SIGPIPE (exit 141)."""
+    from stepzoo.search.world.scenarios import builtin_names, load_scenario
+    from stepzoo.workflows.second_process import Ahead
+    ahead = Ahead()
+    before = signal.signal(signal.SIGPIPE, signal.SIG_DFL)
+    try:
+        ahead._proc.kill()
+        ahead._proc.join()
+        scenario = load_scenario(builtin_names()[0])
+        assert [ahead.start(scenario, None, 0) for _ in range(3)] == [False] * 3
+        assert signal.getsignal(signal.SIGPIPE) == signal.SIG_DFL
+    finally:
+        signal.signal(signal.SIGPIPE, before)
+        ahead.close()
 
 
 def test_the_second_process_computes_the_chunks_the_sweep_would(tmp_path):
-    """The run's sweep shares its chunks with the second process, the pipeline taking them
-    from the front and the second process from the back (the implicit methods' first):
-    each chunk comes once, and every table of every chunk equals the chunk computed here,
-    bit for bit, whichever process computed it."""
+    """The run's sweep shares its chunks with the second process (an implicit method's go
+    there): every table of every chunk equals the chunk computed here, bit for bit."""
+
     from stepzoo.bench.sweep.suite import load
     from stepzoo.bench.sweep.engine import chunk_ids, compute_chunk
     from stepzoo.workflows.second_process import Ahead
     path = tmp_path / "implicit.toml"
     path.write_text(TINY_SWEEP.replace('"heun"', '"backward_euler"'))
     cfg = load(path)
-    ids = chunk_ids(cfg)
     ahead = Ahead()
     try:
-        cache: dict = {}
-        here = _waits_for_theirs(ahead, lambda i: compute_chunk(cfg, ids[i], cache))
-        shared = [(ids[i], chunk) for i, chunk in
-                  ahead.shared("chunks", (str(path), ids), len(ids), here)]
-        by_runner = list(ahead.sweep_runner(path)(cfg, ids))
+        shared = list(ahead.sweep_runner(path)(cfg, chunk_ids(cfg)))
     finally:
         ahead.close()
-    assert ids[-1] not in [ids[i] for i in here.done]      # the second process took it
-    for got in (shared, by_runner):
-        assert sorted(cid for cid, _ in got) == sorted(ids)
+    assert sorted(cid for cid, _ in shared) == sorted(chunk_ids(cfg))
+    assert [cid for cid, _ in shared][-2:] == ["backward_euler-b000", "backward_euler-b001"]
     cache = {}
-    for cid, chunk in shared + by_runner:
+    for cid, chunk in shared:
         here = compute_chunk(cfg, cid, cache)
         assert set(chunk) == set(here)
         for name in set(here) - {"timing"}:
@@ -244,56 +240,47 @@ def test_the_second_process_computes_the_chunks_the_sweep_would(tmp_path):
                                           obj=name)
 
 
-def test_what_the_second_process_fails_on_or_cannot_take_is_done_here(tmp_path):
-    """An item the second process fails on (here a chunk id no config has) is computed by
-    the pipeline, and so is every item after it (the process takes no more); a job it
-    cannot start (a config file it cannot read), or a process that has died, leaves every
-    item to the pipeline (the command's default SIGPIPE does not end it as it writes to the
-    dead process); each item comes once."""
-    from stepzoo.workflows.second_process import Ahead
-    path = tmp_path / "tiny.toml"
-    path.write_text(TINY_SWEEP)
-    ahead = Ahead()
-    try:
-        here = _waits_for_theirs(ahead, lambda i: f"here {i}")
-        got = dict(ahead.shared("chunks", (str(path), ["no-such-b000"] * 4), 4, here))
-        assert got == {i: f"here {i}" for i in range(4)}
-        assert here.done == [0, 1, 2, 3]    # 3 last: the second process took it, failed
-        got = dict(ahead.shared("chunks", (str(tmp_path / "missing.toml"), ["x"] * 3), 3,
-                                lambda i: i))
-        assert got == {0: 0, 1: 1, 2: 2}
-        ahead._proc.kill()
-        ahead._proc.join()
-        # The `stepzoo` command leaves SIGPIPE at its default: writing to the dead process's
-        # pipe must not end this one.
-        before = signal.signal(signal.SIGPIPE, signal.SIG_DFL)
-        try:
-            assert dict(ahead.shared("chunks", (str(path), ["x"] * 3), 3, lambda i: -i)) == \
-                {0: 0, 1: -1, 2: -2}
-        finally:
-            signal.signal(signal.SIGPIPE, before)
-    finally:
-        ahead.close()
+class _Fails:
+    """A `beside` (plan.plan_all's) that takes a scenario and then fails, as a process that
+    died does (`start` True), or cannot take it (`start` False)."""
+
+    def __init__(self, takes: bool):
+        self.takes, self.asked = takes, 0
+
+    def start(self, *job):
+        self.asked += 1
+        return self.takes
+
+    def ready(self):
+        return True
+
+    def answer(self):
+        return None
 
 
 class _Spy:
-    """A `beside` (plan.plan_all's) passing the plans on to `inner`, its `here` waiting for
-    the second process's first plan (`_waits_for_theirs`)."""
+    """A `beside` passing the jobs on to `inner` and noting whether each answer came."""
 
     def __init__(self, inner):
-        self.inner, self.here = inner, None
+        self.inner, self.answered = inner, []
 
-    def plans(self, scenarios, config, seed, here):
-        self.here = _waits_for_theirs(self.inner, here)
-        return self.inner.plans(scenarios, config, seed, self.here)
+    def start(self, *job):
+        return self.inner.start(*job)
+
+    def ready(self):
+        return self.inner.ready()
+
+    def answer(self):
+        got = self.inner.answer()
+        self.answered.append(got is not None)
+        return got
 
 
 def test_scenarios_planned_beside_are_the_plans_made_here():
     """The run shares its scenarios with the second process (plan.plan_all, no thread): each
     plan, in the scenarios' order, equals the one planned here but for its wall times, and so
-    does the plan.png each process draws of its own; a scenario that is not built in (the
-    second process plans by name) is planned here, as is every scenario where that
-    process has died."""
+    does the plan.png each process draws of its own; a scenario the second process does not
+    plan (it answers None, as when it has died, or cannot take it) is planned here."""
     from stepzoo.search.planner.config import load_config
     from stepzoo.search.world.scenarios import load_scenario
     from stepzoo.workflows.plan import plan_all
@@ -305,19 +292,12 @@ def test_scenarios_planned_beside_are_the_plans_made_here():
     try:
         spy = _Spy(ahead)
         shared = plan_all([scenario, scenario], config, 0, False, spy)
-        assert spy.here.done == [0]     # the second process planned the second one
-        here, there = [(without_timings(r), png) for r, png in shared]
-        assert here[1].startswith(b"\x89PNG") and there == here
-        spy = _Spy(ahead)
-        (record, _), = plan_all([dataclasses.replace(scenario, name="mine")], config, 0,
-                                False, spy)
-        assert spy.here.done == [0] and {**without_timings(record), "scenario": None} == \
-            {**here[0], "scenario": None}
-        ahead._proc.kill()
-        ahead._proc.join()
-        spy = _Spy(ahead)
-        shared = plan_all([scenario, scenario], config, 0, False, spy)
-        assert sorted(spy.here.done) == [0, 1]
-        assert [(without_timings(r), png) for r, png in shared] == [here, here]
     finally:
         ahead.close()
+    assert spy.answered == [True]       # the second process planned the second one
+    here, there = [(without_timings(r), png) for r, png in shared]
+    assert here[1].startswith(b"\x89PNG") and there == here
+    for takes in (True, False):
+        fails = _Fails(takes)
+        (record, png), = plan_all([scenario], config, 0, False, fails)
+        assert fails.asked == 1 and (without_timings(record), png) == here

@@ -119,7 +119,7 @@ def run(out="results", config=None, pos_tol: float = 0.1, margin: float = DEFAUL
     with claim(out, "run"):
         # A second process (stepzoo.workflows.second_process) computes some of the sweep's
         # chunks, draws Figures 1-6 and then plans some of the scenarios while this process
-        # plans the others (each takes the next as it is free), and builds the report.
+        # plans the others, and builds the report.
         from stepzoo.workflows.second_process import Ahead
         ahead = Ahead()
         try:

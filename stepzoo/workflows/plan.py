@@ -161,22 +161,53 @@ def timed_plan(scenario, config, seed) -> tuple[dict, float, bytes | None]:
 def plan_all(scenarios, config, seed, progress: bool,
              beside=None) -> list[tuple[dict, bytes | None]]:
     """(plan_scenario's record, its plan.png) of each scenario (timed_plan's), in their
-    order, each followed by a line on stderr if `progress` as it is made. Without `beside`
-    they are planned here in turn. With it (another process:
-    `beside.plans(scenarios, config, seed, here)` yields (i, timed_plan's answer) of each
-    scenario i as it is made, there or here by `here(i)`; second_process.Ahead.plans) two
-    cores plan at once. A plan depends only on its scenario, config and seed (and, through
-    a clock budget, on the processor time it gets), not on the process that makes it."""
-    def here(i):
-        return timed_plan(scenarios[i], config, seed)
-
-    made = (((i, here(i)) for i in range(len(scenarios))) if beside is None
-            else beside.plans(scenarios, config, seed, here))
+    order, each followed by a line on stderr if `progress`. Without `beside` they are planned
+    here in turn. With it (another process: `beside.start(scenario, config, seed)` has it
+    plan a scenario, False where it cannot; `beside.ready()` says whether its answer has
+    come; `beside.answer()` waits for it: timed_plan's answer, or None where that failed)
+    this process plans the scenarios from the first on and hands that one the last not yet
+    taken, one at a time, looking for its answer between its own plans (no thread: a Ctrl-C
+    meets this process in its own work or its wait): two cores plan at once. A plan depends
+    only on its scenario, config and seed (and, through a clock budget, on the processor
+    time it gets), not on the process that makes it; one that `beside` could not make is
+    made here, and from then on all are."""
+    todo = list(range(len(scenarios)))
     done: dict[int, tuple[dict, bytes | None]] = {}
-    for i, (record, seconds, png) in made:
+    away = None         # the scenario `beside` plans
+
+    def finish(i, record, seconds, png):
         done[i] = record, png
         if progress:
             _say_planned(f"[{i + 1}/{len(scenarios)}]", scenarios[i].name, record, seconds)
+
+    def hand():
+        nonlocal away, beside
+        if beside is not None and away is None and todo:
+            away = todo.pop()
+            if not beside.start(scenarios[away], config, seed):
+                todo.append(away)
+                away, beside = None, None
+
+    def collect(wait: bool):
+        nonlocal away, beside
+        if away is None or not (wait or beside.ready()):
+            return
+        i, answer, away = away, beside.answer(), None
+        if answer is None:              # that process failed: this one plans the rest
+            todo.insert(0, i)
+            beside = None
+        else:
+            finish(i, *answer)
+
+    hand()
+    while todo or away is not None:
+        if not todo:                    # this process is done: wait for the other's plan
+            collect(wait=True)          # (one it failed comes back to `todo`)
+            continue
+        i = todo.pop(0)
+        finish(i, *timed_plan(scenarios[i], config, seed))
+        collect(wait=False)
+        hand()
     return [done[i] for i in range(len(scenarios))]
 
 

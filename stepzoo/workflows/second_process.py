@@ -1,14 +1,13 @@
 """`stepzoo run`'s second process, for the work that can run beside the pipeline's own on a
-second core: the sweep's chunks, shared with the pipeline item by item (`Ahead.shared`: the
-pipeline takes items from the front of the list, this process from the back, each as it is
-free, so neither waits while the other has work left); Figures 1-6 once the sweep is tuned
-(they need only the sweep's tables and the tuned config); the built-in scenarios' plans
-still left by then, shared the same way; then the rest of the report once the plans are
-written. It computes exactly what `stepzoo sweep`, `stepzoo plan` and `stepzoo report`
-compute (sweep.compute_chunk, plan.timed_plan, report.sweep_figures, report.build); the
-pipeline writes the chunks and the plans, so each folder has one writer. It starts with the
-pipeline, so that its start-up overlaps the pipeline's; it imports the plotting libraries
-when it first draws, and the pipeline itself never imports them."""
+second core: the implicit methods' sweep chunks while the pipeline computes the others,
+then Figures 1-6 while the pipeline plans (they need only the sweep's tables and the tuned
+config), then the rest of the report once the plans are written. It computes exactly what
+`stepzoo sweep` and `stepzoo report` compute (sweep.compute_chunk, report.sweep_figures,
+report.build); the pipeline writes the chunks, so the sweep folder has one writer. Once it
+has drawn them it plans some of the built-in scenarios, as the pipeline plans the others
+(plan.plan_all); the pipeline writes the plans. It starts
+with the pipeline, so that its imports (plotting, JAX) overlap the sweep and the pipeline
+itself never imports the plotting libraries."""
 from __future__ import annotations
 
 import multiprocessing
@@ -30,28 +29,13 @@ def _jax_settings() -> dict:
 KEPT = "kept_programs"
 
 
-def _claim(ends, serial: int, back: bool) -> int | None:
-    """The next item of the shared job `serial` (`ends`: a shared array [serial, front,
-    back], the items front..back-1 not yet taken): from the back (the second process) or
-    the front (the pipeline); None when none is left, or the job is no longer `serial`."""
-    with ends.get_lock():
-        job, front, end = ends[:]
-        if job != serial or front >= end:
-            return None
-        if back:
-            ends[2] = end - 1
-            return end - 1
-        ends[1] = front + 1
-        return front
-
-
-def _serve(conn, ends, settings: dict) -> None:
-    """The second process: JAX set as its parent, then the jobs ("chunks", (serial, sweep config
-    file, chunk ids)) and ("plans", (serial, built-in scenarios' names, planner config,
-    seed)), shared through `ends` (`_claim`), each item it takes answered with (serial,
-    index, its tables or plan.timed_plan's (record, seconds, plan.png)), None for one that
-    failed (it then takes no more); ("figures", (sweep folder, tuned file)), unanswered; and
-    ("report", build's arguments), answered with the index's path, None where it failed."""
+def _serve(conn, settings: dict) -> None:
+    """The second process: JAX set as its parent, the report's modules imported, then the
+    jobs ("chunks", (sweep config file, chunk ids)), answered with [(chunk id, tables)],
+    ("figures", (sweep folder, tuned file)), unanswered, ("plan", (built-in scenario's name,
+    planner config, seed)), answered with plan.timed_plan's (record, seconds, plan.png), and
+    ("report", build's arguments), answered with the index's path; None answers a job that
+    failed."""
     # Ctrl-C goes to the whole process group: the parent says it was interrupted and ends
     # this process (SIGTERM, silent); a report it was writing leaves a hidden folder, which
     # the next report into that folder removes (results_folder.replacing).
@@ -62,6 +46,8 @@ def _serve(conn, ends, settings: dict) -> None:
     kept_programs.keep_in(settings.pop(KEPT))
     for name, value in settings.items():
         jax.config.update(name, value)
+    from stepzoo.workflows import report
+    from stepzoo.reports import drawing, load
     drawn = None
     cache: dict = {}
     while True:
@@ -69,15 +55,18 @@ def _serve(conn, ends, settings: dict) -> None:
             kind, args = conn.recv()
         except EOFError:                # the parent has ended
             return
-        if kind in ("chunks", "plans"):
-            if not _take(conn, ends, kind, args, cache):
-                return
-            continue
-        answer: str | None
-        from stepzoo.workflows import report
-        from stepzoo.reports import drawing, load
+        answer: list | str | tuple | None
         try:
-            if kind == "figures":
+            if kind == "plan":
+                from stepzoo.search.world.scenarios import load_scenario
+                from stepzoo.workflows.plan import timed_plan
+                answer = timed_plan(load_scenario(args[0]), *args[1:])
+            elif kind == "chunks":
+                from stepzoo.bench.sweep.config import load as load_config
+                from stepzoo.bench.sweep.engine import compute_chunk
+                cfg = load_config(args[0])
+                answer = [(cid, compute_chunk(cfg, cid, cache)) for cid in args[1]]
+            elif kind == "figures":
                 sweep = load.load_sweep(args[0])
                 tuned = load.load_tuned(args[1], sweep)
                 drawn = drawing.draw_apart(report.sweep_figures(sweep, tuned,
@@ -97,122 +86,45 @@ def _serve(conn, ends, settings: dict) -> None:
             return
 
 
-def _take(conn, ends, kind: str, job: tuple, cache: dict) -> bool:
-    """Take the items of a shared job from the back, one at a time, answering each; False
-    where the parent has gone."""
-    serial, *args = job
-    if kind == "chunks":
-        from stepzoo.bench.sweep.config import load as load_config
-        from stepzoo.bench.sweep.engine import compute_chunk
-        ids = args[1]
-        try:
-            cfg = load_config(args[0])
-        except Exception:               # the parent computes every chunk
-            return True
-
-        def item(i):
-            return compute_chunk(cfg, ids[i], cache)
-    else:
-        from stepzoo.search.world.scenarios import load_scenario
-        from stepzoo.workflows.plan import timed_plan
-        names, config, seed = args
-
-        def item(i):
-            return timed_plan(load_scenario(names[i]), config, seed)
-    while (i := _claim(ends, serial, back=True)) is not None:
-        try:
-            answer = item(i)
-        except Exception:               # the parent computes it, and what is left
-            answer = None
-        try:
-            conn.send((serial, i, answer))
-        except OSError:                 # the parent was killed meanwhile: no one to answer
-            return False
-        if answer is None:
-            break
-    return True
-
-
 class Ahead:
     """The second process of one pipeline: `sweep_runner(config)` is a `run_sweep` runner
-    that shares the chunks with it; `plans(...)` shares the built-in scenarios' plans with it
-    (plan.plan_all's `beside`); `figures(sweep, tuned)` hands it the finished sweep folder
-    and tuned file to draw Figures 1-6 from; `report(...)`
-    (report.build's arguments) has it build the report and returns the index's path, or None
-    where it could not (the caller then builds it); `close()` ends it."""
+    that shares the chunks with it; `figures(sweep, tuned)` hands it the finished sweep
+    folder and tuned file to draw Figures 1-6 from, `start`, `ready` and `answer` have it
+    plan a built-in scenario (plan.plan_all's `beside`), `report(...)` (report.build's arguments)
+    has it build the report and returns the index's path, or None where it could not (the
+    caller then builds it); `close()` ends it."""
 
     def __init__(self):
         # spawn, not fork: a forked child would inherit JAX's threads mid-flight.
         ctx = multiprocessing.get_context("spawn")
         self._conn, theirs = ctx.Pipe()
-        self._ends = ctx.Array("q", 3)     # [serial, front, back] of the shared job
-        self._serial = 0
-        self._proc = ctx.Process(target=_serve, args=(theirs, self._ends, _jax_settings()),
-                                 daemon=True, name="stepzoo-report")
+        self._proc = ctx.Process(target=_serve, args=(theirs, _jax_settings()), daemon=True,
+                                 name="stepzoo-report")
         self._proc.start()
         theirs.close()
         self._done = False
 
-    def shared(self, kind: str, args: tuple, n: int, here):
-        """(i, answer) of each item i < n of the job (kind, args), as they are done: this
-        process takes items from the front (`here(i)` computes one), the second process from
-        the back (`_serve`), each as it is free; an item it does not answer (it failed, or
-        died) is computed here. No thread: a Ctrl-C meets this process in its own work or
-        in its wait for the other's answer."""
-        self._serial += 1
-        serial = self._serial
-        with self._ends.get_lock():
-            self._ends[:] = [serial, 0, n]
-        theirs: dict = {}                   # the second process's answers by item
-        alive = self._send((kind, (serial, *args)))
-        while (i := _claim(self._ends, serial, back=False)) is not None:
-            yield i, here(i)
-            while alive and self.ready():
-                alive = self._receive(serial, theirs)
-        # What is left is the second process's: [back, n), answered or still coming.
-        for i in range(self._ends[2], n):
-            while alive and i not in theirs:
-                alive = self._receive(serial, theirs)
-            got = theirs.get(i)
-            yield i, here(i) if got is None else got
-
-    def _receive(self, serial: int, into: dict) -> bool:
-        """One answer of the shared job `serial` into `into` (one of an earlier job, which an
-        error abandoned, is dropped); False where the process has died."""
-        try:
-            job, i, answer = self._conn.recv()
-        except (EOFError, OSError):     # the process died (killed, out of memory)
-            return False
-        if job == serial:
-            into[i] = answer
-        return True
-
     def sweep_runner(self, config):
-        """run_sweep's runner for the sweep config file `config`: the chunks shared with the
-        second process (`shared`), the implicit methods' (the longest to compile and to run)
-        last, where it starts, each process with its own cache of references."""
+        """run_sweep's runner for the sweep config file `config`: the chunks of implicit
+        methods (the longest to compile and to run) computed in the second process while
+        this one computes the others (and the references), each process with its own cache
+        of references; the second process's chunks follow this one's, or are computed here
+        where it failed."""
         def run(cfg, todo):
             from stepzoo.bench.sweep.distributed import by_kind
             from stepzoo.bench.sweep.engine import compute_chunk
             from stepzoo.integrators import method
-            last = [c for kind, ids in by_kind(todo).items()
-                    if kind != "reference" and method(kind).implicit for c in ids]
-            ids = [c for c in todo if c not in last] + last
-            cache: dict = {}
-            for i, tables in self.shared("chunks", (str(config), ids), len(ids),
-                                         lambda i: compute_chunk(cfg, ids[i], cache)):
-                yield ids[i], tables
+            theirs = [c for kind, ids in by_kind(todo).items()
+                      if kind != "reference" and method(kind).implicit for c in ids]
+            sent = bool(theirs) and self._send(("chunks", (str(config), theirs)))
+            cache = {}
+            for cid in todo:
+                if cid not in theirs:
+                    yield cid, compute_chunk(cfg, cid, cache)
+            got = self._answer() if sent else None
+            for cid, tables in got or ((c, compute_chunk(cfg, c, cache)) for c in theirs):
+                yield cid, tables
         return run
-
-    def plans(self, scenarios, config, seed, here):
-        """(i, plan.timed_plan's answer) of each of `scenarios` planned with `config` and
-        `seed`, as they are done (`shared`; `here(i)` plans scenario i in this process);
-        all here where one is not built in (the second process plans by name)."""
-        from stepzoo.search.world.scenarios import builtin_names
-        if any(s.name not in builtin_names() for s in scenarios):
-            return ((i, here(i)) for i in range(len(scenarios)))
-        return self.shared("plans", ([s.name for s in scenarios], config, seed),
-                           len(scenarios), here)
 
     def _send(self, job) -> bool:
         """Send `job`; False where the process has died (killed, out of memory). Its end
@@ -231,26 +143,31 @@ class Ahead:
         return True
 
     def _answer(self):
-        """The answer to the report (the answers of a shared job left unread, where an error
-        abandoned it, passed over); None where the process failed."""
         try:
-            while isinstance(got := self._conn.recv(), tuple):
-                pass
-            return got
+            return self._conn.recv()
         except (EOFError, OSError):     # the process died (killed, out of memory)
             return None
 
     def figures(self, sweep, tuned) -> None:
-        """Has the process draw Figures 1-6 of the finished sweep and tuned file (then take
-        what is left of the plans' job that follows)."""
         self._send(("figures", (str(sweep), str(tuned))))
 
+    def start(self, scenario, config, seed) -> bool:
+        """Has the process plan `scenario`, a built-in one (sent by name: a small message,
+        which the pipe takes while the process still draws); False where it cannot."""
+        from stepzoo.search.world.scenarios import builtin_names
+        return scenario.name in builtin_names() and self._send(
+            ("plan", (scenario.name, config, seed)))
+
     def ready(self) -> bool:
-        """Whether an answer has come (or the process has died: reading says so)."""
+        """Whether an answer has come (or the process has died: `answer` then says None)."""
         try:
             return self._conn.poll()
         except OSError:
             return True
+
+    def answer(self):
+        """The answer to the last job, waited for; None where the process failed."""
+        return self._answer()
 
     def report(self, results: Path, out: Path, tuned_path: Path, plans_dir: Path,
                progress: bool) -> Path | None:
