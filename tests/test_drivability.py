@@ -48,7 +48,8 @@ def test_a_circle_has_its_curvature_and_lateral_acceleration_and_no_steer_rate()
 def test_a_steer_ramp_driven_by_scipy_shows_its_rate_and_a_fast_one_is_not_drivable(rate):
     """The kinematic bicycle at a speed that slows to a stop and speeds up again, its steer
     ramping at `rate` [rad/s] from -0.5 rad to 0.5 rad, then held for a second: the implied
-    steer rate is the ramp's, the curvature the held steer's."""
+    steer rate is the ramp's, the curvature the held steer's, read from the heading column
+    or from the course of (X, Y)."""
     def f(t, x):
         v = 4.0 * abs(math.cos(0.4 * t))
         delta = min(-0.5 + rate * t, 0.5)
@@ -56,10 +57,39 @@ def test_a_steer_ramp_driven_by_scipy_shows_its_rate_and_a_fast_one_is_not_driva
     duration = 1.0 / rate + 1.0
     ts = np.linspace(0.0, duration, 2001)
     sol = solve_ivp(f, (0.0, duration), [0.0, 0.0, 0.0], t_eval=ts, rtol=1e-11, atol=1e-12)
-    d = measure(rows_of(ts, sol.y.T))
-    assert d["max_steer_rate_radps"] == pytest.approx(rate, rel=0.03)
-    assert d["max_curvature_1pm"] == pytest.approx(math.tan(0.5) / L, rel=0.03)
-    assert d["drivable"] is (rate <= LIMITS["max_steer_rate"])
+    rows = rows_of(ts, sol.y.T)
+    # Its (X, Y) moves along its heading: read from either, the same measures.
+    for d in (measure(rows), drivability(rows, L, math.pi / 4, **LIMITS, heading="course")):
+        assert d["max_steer_rate_radps"] == pytest.approx(rate, rel=0.03)
+        assert d["max_curvature_1pm"] == pytest.approx(math.tan(0.5) / L, rel=0.03)
+        assert d["drivable"] is (rate <= LIMITS["max_steer_rate"])
+
+
+def test_the_dynamic_car_shows_its_steer_ramp_in_its_heading_but_its_course_overshoots():
+    """The linear-tyre dynamic bicycle (paper eq. 4, written here in plain NumPy) at 5 m/s,
+    its steer ramped at 0.3 rad/s from 0 to 0.3 rad, driven by SciPy: read from the heading
+    column (its body), the measure shows the ramp's rate; read from the centre of gravity's
+    course of (X, Y), nearly twice that, as the front tyre's force moves the centre of
+    gravity sideways before the body turns. So the block reads the heading column, and a
+    plan's (X, Y) course reads about twice the steer rate wherever its fast moves ramp."""
+    from stepzoo.dynamics.models import model
+    p = model("dynamic5").params(CAR["name"], 5.0)
+    vx, rate = 5.0, 0.3
+
+    def f(t, x):
+        _, _, psi, vy, r = x
+        delta = rate * min(max(t - 0.5, 0.0), 1.0)
+        front = p["Caf"] * (delta - (vy + p["Lf"] * r) / vx)
+        rear = p["Car"] * (p["Lr"] * r - vy) / vx
+        return [vx * math.cos(psi) - vy * math.sin(psi), vx * math.sin(psi) + vy * math.cos(psi),
+                r, (front + rear) / p["m"] - vx * r, (p["Lf"] * front - p["Lr"] * rear) / p["Iz"]]
+    ts = np.linspace(0.0, 3.0, 3001)
+    sol = solve_ivp(f, (0.0, 3.0), [0.0] * 5, t_eval=ts, rtol=1e-11, atol=1e-12, max_step=0.01)
+    rows = rows_of(ts, sol.y[:3].T)
+    by_heading = measure(rows)["max_steer_rate_radps"]
+    by_course = drivability(rows, L, math.pi / 4, **LIMITS, heading="course")
+    assert by_heading == pytest.approx(rate, rel=0.02)
+    assert 1.6 * rate < by_course["max_steer_rate_radps"] < 2.2 * rate
 
 
 def test_driving_backwards_is_counted_and_a_cusp_splits_the_measures():

@@ -20,6 +20,7 @@ from stepzoo.search.plans.schema import DRIVABILITY_KEYS, PATH_METRICS
 WINDOW_S = 0.25
 MIN_TRAVEL_M = 1e-3   # [m] a window with less travel (the car all but stopped) has no curvature
 STILL_M = 1e-5        # [m] a step between rows this short is standing still (rows hold 1e-6 m)
+COURSE_STEP_M = 0.01  # [m] the least step whose direction gives a course: 0.1 mrad of rounding
 # What the rows' finite differences allow above each limit before a plan is not drivable: a
 # window straddling a node or a cusp sees a step in curvature as a short ramp.
 TOLERANCE = {"curvature_1pm": 1.1, "steer_rate_radps": 1.25, "lateral_acceleration_mps2": 1.15}
@@ -55,7 +56,7 @@ def path_metrics(rows, omap: OccupancyMap, footprint: Footprint, body=None) -> d
 
 
 def drivability(rows, wheelbase, delta_max, max_steer_rate, max_lateral_acceleration,
-                window=WINDOW_S) -> dict:
+                window=WINDOW_S, heading="psi") -> dict:
     """plan.json's `drivability` block of path rows (K, 4) [t s, X m, Y m, psi rad]: in each run
     between cusps, windows of `window` [s] centred every window/4; in each, the curvature
     kappa [1/m] is the heading's change over the distance travelled, the implied steer angle
@@ -67,8 +68,14 @@ def drivability(rows, wheelbase, delta_max, max_steer_rate, max_lateral_accelera
     at the standstill). reverse_length_m [m] driven backwards; cusps. `drivable`:
     every measure within TOLERANCE times the car's limit (curvature: tan(delta_max) /
     wheelbase, delta_max [rad]; max_steer_rate [rad/s]; max_lateral_acceleration [m/s^2]). A
-    run shorter than a window adds no measure."""
+    run shorter than a window adds no measure. `heading`: "psi", the rows' heading column
+    (plan.json's block: the dynamic bicycle's body, the kinematic bicycle's direction of
+    travel), or "course", the direction of travel of (X, Y) on every row (course_rows), which
+    reads a steer ramp of the dynamic bicycle at about twice its rate (its centre of gravity
+    moves sideways before its body turns) and a change of the slip in one row as a kink."""
     rows = np.asarray(rows, float)
+    if heading == "course":
+        rows = course_rows(rows)
     out = dict.fromkeys(DRIVABILITY_KEYS)
     limit = {"curvature_1pm": math.tan(delta_max) / wheelbase,
              "steer_rate_radps": max_steer_rate,
@@ -122,6 +129,27 @@ def drivability(rows, wheelbase, delta_max, max_steer_rate, max_lateral_accelera
                cusps=cusps(rows), drivable=all(
                    measured[f"max_{name}"] <= TOLERANCE[name] * limit[name] for name in limit))
     return out
+
+
+def course_rows(rows) -> np.ndarray:
+    """Path rows (K, 4) [t, X, Y, psi] -> one row per chord of about COURSE_STEP_M between
+    them (none across a cusp), at its middle, whose heading is the chord's direction of
+    travel (turned by pi where it runs backwards)."""
+    step = np.diff(rows[:, 1:3], axis=0)
+    ds = np.hypot(step[:, 0], step[:, 1])
+    along = np.sign(step[:, 0] * np.cos(rows[:-1, 3]) + step[:, 1] * np.sin(rows[:-1, 3]))
+    s = np.r_[0.0, np.cumsum(ds)]
+    moving = np.flatnonzero(ds > STILL_M)
+    flips = moving[1:][np.diff(along[moving]) != 0]   # the first step of each later run
+    ends = np.unique(np.r_[0, np.searchsorted(s, np.arange(0.0, s[-1], COURSE_STEP_M)),
+                           flips, len(rows) - 1])
+    a, b = ends[:-1], ends[1:]
+    chord = rows[b, 1:3] - rows[a, 1:3]
+    angle = np.arctan2(chord[:, 1], chord[:, 0])
+    back = chord[:, 0] * np.cos(rows[a, 3]) + chord[:, 1] * np.sin(rows[a, 3]) < 0
+    mid = (rows[a, :3] + rows[b, :3]) / 2
+    keep = np.hypot(chord[:, 0], chord[:, 1]) > STILL_M
+    return np.column_stack([mid, angle + np.where(back, np.pi, 0.0)])[keep]
 
 
 def cusps(rows) -> int:
