@@ -186,6 +186,8 @@ class TuneEvidence(Schema):
     model: str | None = Field(None, description="the swept model")
     sweep_config_sha256: str | None = Field(None, description="the sweep config's sha256")
     sweep: str | None = Field(None, description="the sweep folder")
+    sweep_created: str | None = Field(None, description="when the sweep was created (its "
+                                      "manifest's `created`)")
     envelope: TunedEnvelope | None = Field(None, description="the swept envelope")
     calibration: Calibration | None = Field(None, description="how the costs were timed")
     runners_up: tuple[RunnerUp, ...] = Field((), description="the other methods, ranked")

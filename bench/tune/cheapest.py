@@ -223,6 +223,7 @@ def tune(folder, pos_tol, margin: float, tol=None, *, batch: int = PLANNER_BATCH
         "model": str(manifest.get("model", "dynamic5")),
         "sweep_config_sha256": manifest["config_sha256"],
         "sweep": str(Path(folder).resolve()),
+        "sweep_created": str(manifest.get("created", "?")),
         "provenance": (f"stepzoo tune {folder} {crit.flag} {crit.tol:g} --margin {margin:g} "
                        f"--cost {cost}{' ' + BEYOND_PREDICTED if beyond_predicted else ''} at "
                        f"{datetime.now(timezone.utc).isoformat(timespec='seconds')}, from "

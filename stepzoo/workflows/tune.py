@@ -55,7 +55,7 @@ def kept(out, results, pos_tol: float, margin: float) -> dict | None:
         manifest = json.loads((Path(results) / "manifest.json").read_text())
         same = (tuned["sweep"] == str(Path(results).resolve())
                 and tuned["sweep_config_sha256"] == manifest["config_sha256"]
-                and tuned["provenance"].endswith(f" created {manifest.get('created', '?')}")
+                and tuned["sweep_created"] == str(manifest.get("created", "?"))
                 and (tuned.get("pos_tol_m"), tuned["margin"]) == (pos_tol, margin)
                 and tuned["cost"] == "time" and not tuned["allow_beyond_predicted_limit"]
                 and "plans" not in tuned)
