@@ -1,7 +1,8 @@
 """The Hybrid A* baseline (search/baselines/hybrid_astar.py): in an empty map its path is the
-Dubins optimum (the shot finds it); around a wall its path is collision-free by an
-independent dense check with the map's exact distance and curves no tighter than the car can;
-it is deterministic; a goal in an obstacle, walled off, or beyond the budget gives no path."""
+Dubins optimum, with reverse gear the Reeds-Shepp one (the shot finds it), and a goal just
+behind is reached backwards; around a wall its path is collision-free by an independent dense
+check with the map's exact distance and curves no tighter than the car can; it is
+deterministic; a goal in an obstacle, walled off, or beyond the budget gives no path."""
 import math
 
 import numpy as np
@@ -13,7 +14,7 @@ from stepzoo.search.planner.pathfinder import PathFinder
 from stepzoo.search.planner.status import Cause, PlannerStatus
 from stepzoo.search.plans.path_metrics import TOLERANCE, distance_to_obstacles, drivability
 from stepzoo.search.plans.replay import car_footprint
-from stepzoo.search.proofs.car_bounds import dubins_length
+from stepzoo.search.proofs.car_bounds import dubins_length, reeds_shepp_length
 from stepzoo.search.world.maps import from_array
 from stepzoo.dynamics.vehicles import limits
 
@@ -42,11 +43,13 @@ def dense(rows, spacing=0.01) -> np.ndarray:
                             np.interp(at, s, np.unwrap(rows[:, 3]))])
 
 
-def test_in_an_empty_map_the_path_is_the_dubins_optimum():
-    search = planner(np.zeros((40, 60), bool))
+@pytest.mark.parametrize("reverse", [False, True])
+def test_in_an_empty_map_the_path_is_the_dubins_or_reeds_shepp_optimum(reverse):
+    search = planner(np.zeros((40, 60), bool), reverse=reverse)
     start, goal = (10.0, 20.0, 0.0), (45.0, 28.0, 2.0)
     result = search.plan(start, goal)
-    optimum = dubins_length(search.rear(start)[None], search.rear(goal), search.radius)[0]
+    optimum = (reeds_shepp_length if reverse else dubins_length)(
+        search.rear(start)[None], search.rear(goal), search.radius)[0]
     assert result.status == PlannerStatus.EXACT and result.expansions == 1
     assert result.length_m == pytest.approx(optimum, rel=1e-9)
     rear = np.column_stack([result.rows[:, 1:3] - search.lr * np.column_stack(
@@ -55,6 +58,15 @@ def test_in_an_empty_map_the_path_is_the_dubins_optimum():
     assert np.allclose(result.rows[0, 1:], start) and np.allclose(result.rows[-1, 1:3],
                                                                    goal[:2], atol=1e-6)
     assert math.remainder(result.rows[-1, 3] - goal[2], 2 * math.pi) == pytest.approx(0, abs=1e-6)
+
+
+def test_with_reverse_gear_a_goal_just_behind_is_reached_backwards():
+    search = planner(np.zeros((40, 60), bool), reverse=True)
+    result = search.plan((30.0, 20.0, 0.0), (24.0, 20.0, 0.0))
+    assert result.status == PlannerStatus.EXACT and result.length_m == pytest.approx(6.0)
+    car = PathFinder(search.omap, load_config()).vehicle
+    measured = drivability(result.rows, car["Lf"] + car["Lr"], math.pi / 4, **limits())
+    assert measured["reverse_length_m"] == pytest.approx(6.0) and measured["cusps"] == 0
 
 
 def test_around_a_wall_the_car_never_touches_by_a_dense_exact_check():
