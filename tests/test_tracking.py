@@ -225,6 +225,25 @@ def test_a_crawl_through_a_steer_ramp_is_tracked_with_the_plans_steer_fed_forwar
     assert out["deviation"].max() < 0.1
 
 
+def test_a_stop_whose_rows_jitter_by_their_rounding_is_no_cusp():
+    """20 m along X at 2 m/s with a 1 s stop halfway, its rows then 1e-6 m apart back and
+    forth (plan.json's rows are rounded to 1e-6 m; standing still they step so): one piece
+    driven forwards, tracked as the same path whose stop holds one point. Read as moves,
+    those steps made pieces of alternating direction, at which the tracked car stopped and
+    set off, backwards as forwards."""
+    go = line(2.0, 10.0)
+    stop = np.column_stack([go[-1, 0] + np.arange(1, 21) * 0.05, np.full(20, go[-1, 1]),
+                            np.zeros(20), np.zeros(20)])
+    on = line(2.0, 10.0)[1:] + [go[-1, 0] + 1.0, go[-1, 1] + 0.05, 0.0, 0.0]
+    held = np.vstack([go, stop, on])
+    jitter = held.copy()
+    jitter[len(go):len(go) + 20, 1] += 1e-6 * (np.arange(20) % 2)
+    assert len(T.reference(jitter, T.plant_params(VEHICLE))["first"]) == 1
+    clean, rounded = (track(r, [0.0, 0.0, 0.0], VEHICLE) for r in (held, jitter))
+    assert clean["done"] and rounded["done"]
+    assert rounded["deviation"].max() == pytest.approx(clean["deviation"].max(), abs=1e-6)
+
+
 def test_backwards_on_a_circle_the_rear_axle_pursuit_keeps_the_car_on_it():
     """Backing round a circle of R = 8 m at 0.8 m/s (the kinematic single track), from a
     pose on it (the centre of gravity on the circle, the body turned by the rolling car's

@@ -13,6 +13,7 @@ import numpy as np
 from stepzoo import dynamics
 from stepzoo.dynamics.blended import blend_weight, blended_single_track, kinematic_lateral
 from stepzoo.search.planner.connection_ocp import A_MAX
+from stepzoo.search.plans.path_metrics import STILL_M
 from stepzoo.dynamics.vehicles import G, axle_loads, default_vehicle, st_params, tyre_params
 
 CONTROLLER = "stanley"
@@ -105,7 +106,9 @@ def reference(rows, p: dict, kinematic=None) -> dict:
     rolling car's slip angle at the centre of gravity, asin(Lr kappa). Averaged over SMOOTH_M,
     it sets the axles of a car whose centre of gravity is on the path."""
     rows = np.asarray(rows, float)
-    keep = np.r_[True, np.hypot(*np.diff(rows[:, 1:3], axis=0).T) > 1e-9]
+    # Standing still, rows rounded to 1e-6 m (plan.json's) step about at random: read as
+    # moves, such steps would cut the path into pieces of alternating direction.
+    keep = np.r_[True, np.hypot(*np.diff(rows[:, 1:3], axis=0).T) > STILL_M]
     kinematic = (np.zeros(len(rows), bool) if kinematic is None
                  else np.asarray(kinematic, bool))[keep]
     rows = rows[keep]
