@@ -244,6 +244,21 @@ def test_a_stop_whose_rows_jitter_by_their_rounding_is_no_cusp():
     assert rounded["deviation"].max() == pytest.approx(clean["deviation"].max(), abs=1e-6)
 
 
+def test_the_steer_fed_forward_does_not_pick_up_the_rows_rounding():
+    """On a circle of 20 m, rows 5 cm apart rounded to 1e-6 m as plan.json holds them: the
+    steer the path's curvature feeds forward stays within 2.5e-4 rad of the unrounded rows'
+    (a second difference of rows 5 cm apart turns 1e-6 m into 5e-4 rad of steer; averaged
+    over FF_SMOOTH_M it is a quarter of that), so plan.json's rows and the planner's are
+    tracked alike."""
+    R = 20.0
+    s = np.arange(0.0, 60.0, 0.05)
+    rows = np.column_stack([s / 5.0, R * np.sin(s / R), R * (1 - np.cos(s / R)), s / R])
+    p = T.plant_params(VEHICLE)
+    exact, rounded = (T.reference(r, p)["steer_ff"] for r in (rows, np.round(rows, 6)))
+    assert exact[100] == pytest.approx(np.arctan(L / np.sqrt(R ** 2 - LR ** 2)), rel=1e-3)
+    assert np.abs(rounded - exact)[40:-40].max() < 2.5e-4
+
+
 def test_backwards_on_a_circle_the_rear_axle_pursuit_keeps_the_car_on_it():
     """Backing round a circle of R = 8 m at 0.8 m/s (the kinematic single track), from a
     pose on it (the centre of gravity on the circle, the body turned by the rolling car's

@@ -55,6 +55,7 @@ END_TOL_M = 0.02      # [m] a piece is done when its end is this close along the
 V_BLEND = (1.0, 2.0)  # [m/s] the plant blends from kinematic to dynamic between these speeds
 SPACING_M = 0.05      # [m] between the reference's points along the path
 SMOOTH_M = 1.0        # [m] the path's heading is averaged over this length
+FF_SMOOTH_M = 0.25   # [m] and its curvature, which sets the steer fed forward, over this
 WINDOW = 16           # path segments searched ahead of the last nearest one per step
 CHECK_SPACING_M = 0.05  # [m] at most between the tracked poses checked for collision
 # The closed loop is compiled for at least this many control periods and reference rows:
@@ -128,7 +129,10 @@ def reference(rows, p: dict, kinematic=None) -> dict:
         t, xy = seg[:, 0], seg[:, 1:3]
         d = np.diff(s)
         travel = np.unwrap(np.arctan2(*np.gradient(xy, s, axis=0).T[::-1]))
-        kappa = way * np.gradient(travel, s) if len(s) > 2 else np.zeros(len(s))
+        # Averaged over FF_SMOOTH_M: a second difference of rows SPACING_M apart turns their
+        # rounding (1e-6 m) into curvature noise of 1e-3 1/m, a steer fed forward that jitters.
+        kappa = _smooth(way * np.gradient(travel, s) if len(s) > 2 else np.zeros(len(s)),
+                        FF_SMOOTH_M)
         beta = np.arcsin(np.clip(Lr * kappa, -sin_beta_max, sin_beta_max))
         rolling = np.interp(s, along, kinematic[a:b + 1].astype(float)) > 0.5
         facing = travel + (np.pi if way < 0 else 0.0)
@@ -177,9 +181,9 @@ def steering_speed(speed, s, steer, rate: float, kappa=None, lateral: float = ma
     return np.minimum(speed, cap)
 
 
-def _smooth(a):
-    """Moving average of samples SPACING_M apart over SMOOTH_M, the ends held."""
-    half = int(SMOOTH_M / SPACING_M / 2)
+def _smooth(a, length=SMOOTH_M):
+    """Moving average of samples SPACING_M apart over `length` [m], the ends held."""
+    half = int(length / SPACING_M / 2)
     if len(a) < 3 or half < 1:
         return a
     padded = np.r_[np.repeat(a[0], half), a, np.repeat(a[-1], half)]
