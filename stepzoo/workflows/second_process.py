@@ -121,7 +121,7 @@ class Ahead:
             for cid in todo:
                 if cid not in theirs:
                     yield cid, compute_chunk(cfg, cid, cache)
-            got = self._answer() if sent else None
+            got = self.answer() if sent else None
             for cid, tables in got or ((c, compute_chunk(cfg, c, cache)) for c in theirs):
                 yield cid, tables
         return run
@@ -142,7 +142,8 @@ class Ahead:
                 signal.signal(signal.SIGPIPE, before)
         return True
 
-    def _answer(self):
+    def answer(self):
+        """The answer to the last job, waited for; None where the process failed."""
         try:
             return self._conn.recv()
         except (EOFError, OSError):     # the process died (killed, out of memory)
@@ -165,15 +166,11 @@ class Ahead:
         except OSError:
             return True
 
-    def answer(self):
-        """The answer to the last job, waited for; None where the process failed."""
-        return self._answer()
-
     def report(self, results: Path, out: Path, tuned_path: Path, plans_dir: Path,
                progress: bool) -> Path | None:
         if not self._send(("report", (results, out, tuned_path, plans_dir, progress))):
             return None
-        index = self._answer()
+        index = self.answer()
         self._done = True
         return None if index is None else Path(index)
 
