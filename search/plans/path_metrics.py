@@ -83,9 +83,8 @@ def drivability(rows, wheelbase, delta_max, max_steer_rate, max_lateral_accelera
     out.update(window_s=window, limits=limit, tolerance=dict(TOLERANCE))
     if len(rows) < 2:
         return out
-    step = np.diff(rows[:, 1:3], axis=0)
-    ds = np.hypot(step[:, 0], step[:, 1])
-    along = np.sign(step[:, 0] * np.cos(rows[:-1, 3]) + step[:, 1] * np.sin(rows[:-1, 3]))
+    ds, along = steps(rows)
+    along = np.sign(along)
     moving = np.flatnonzero(ds > STILL_M)
     kappa, rate, lateral = [0.0], [0.0], [0.0]
     # Runs of one direction of travel: the moving steps, split where the direction flips.
@@ -135,9 +134,8 @@ def course_rows(rows) -> np.ndarray:
     """Path rows (K, 4) [t, X, Y, psi] -> one row per chord of about COURSE_STEP_M between
     them (none across a cusp), at its middle, whose heading is the chord's direction of
     travel (turned by pi where it runs backwards)."""
-    step = np.diff(rows[:, 1:3], axis=0)
-    ds = np.hypot(step[:, 0], step[:, 1])
-    along = np.sign(step[:, 0] * np.cos(rows[:-1, 3]) + step[:, 1] * np.sin(rows[:-1, 3]))
+    ds, along = steps(rows)
+    along = np.sign(along)
     s = np.r_[0.0, np.cumsum(ds)]
     moving = np.flatnonzero(ds > STILL_M)
     flips = moving[1:][np.diff(along[moving]) != 0]   # the first step of each later run
@@ -155,11 +153,17 @@ def course_rows(rows) -> np.ndarray:
 def cusps(rows) -> int:
     """Changes of the direction of travel (forwards: along the heading) along path rows
     (K, 4) [t, X, Y, psi]."""
-    rows = np.asarray(rows, float)
-    step = np.diff(rows[:, 1:3], axis=0)
-    along = step[:, 0] * np.cos(rows[:-1, 3]) + step[:, 1] * np.sin(rows[:-1, 3])
-    direction = np.sign(along[np.hypot(step[:, 0], step[:, 1]) > STILL_M])
+    ds, along = steps(np.asarray(rows, float))
+    direction = np.sign(along[ds > STILL_M])
     return int(np.count_nonzero(direction[1:] != direction[:-1]))
+
+
+def steps(rows) -> tuple[np.ndarray, np.ndarray]:
+    """(K-1,) lengths [m] of the steps between path rows (K, 4) [t, X, Y, psi] and (K-1,)
+    their projections [m] on the heading of the row each sets off from (> 0 forwards)."""
+    step = np.diff(rows[:, 1:3], axis=0)
+    return (np.hypot(step[:, 0], step[:, 1]),
+            step[:, 0] * np.cos(rows[:-1, 3]) + step[:, 1] * np.sin(rows[:-1, 3]))
 
 
 def distance_to_obstacles(omap: OccupancyMap, xy) -> np.ndarray:

@@ -13,7 +13,7 @@ import numpy as np
 from stepzoo import dynamics
 from stepzoo.dynamics.blended import blend_weight, blended_single_track, kinematic_lateral
 from stepzoo.search.planner.connection_ocp import A_MAX
-from stepzoo.search.plans.path_metrics import STILL_M
+from stepzoo.search.plans.path_metrics import STILL_M, steps
 from stepzoo.dynamics.vehicles import G, axle_loads, default_vehicle, st_params, tyre_params
 
 CONTROLLER = "stanley"
@@ -85,9 +85,7 @@ def plant_params(vehicle: dict) -> dict:
 def pieces(rows) -> list[tuple[int, int, int]]:
     """(first row, last row, direction +1 | -1) of each stretch of path rows (K, 4) [t, X,
     Y, psi] driven one way (forwards: along psi); rows that do not move are dropped first."""
-    step = np.diff(rows[:, 1:3], axis=0)
-    along = step[:, 0] * np.cos(rows[:-1, 3]) + step[:, 1] * np.sin(rows[:-1, 3])
-    way = np.where(along >= 0, 1, -1)
+    way = np.where(steps(rows)[1] >= 0, 1, -1)
     cuts = np.flatnonzero(way[1:] != way[:-1]) + 1
     bounds = np.r_[0, cuts, len(way)]
     return [(int(a), int(b), int(way[a])) for a, b in zip(bounds[:-1], bounds[1:])]
