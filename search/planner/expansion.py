@@ -91,7 +91,7 @@ class Expander:
                 turned = np.where(slow, -body_slip(steers, shooter.wheelbase,
                                                    shooter.scalars["Lr"]), 0.0)
             shots = shooter.shots(states, steer, steer0, s.goal, turned)
-            if direction > 0 and s.f.rate_limited:
+            if turned is not None:
                 # From a tight move's node the car speeds up only with its wheel near straight.
                 shots.free[slow & (np.abs(shots.steer0) > SPEED_CHANGE_STEER)] = 0
             cramped |= (shots.free < shots.states.shape[1]).reshape(len(rows), -1).any(
