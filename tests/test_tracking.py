@@ -227,8 +227,9 @@ def test_a_crawl_through_a_steer_ramp_is_tracked_with_the_plans_steer_fed_forwar
 
 def test_a_stop_whose_rows_jitter_by_their_rounding_is_no_cusp():
     """20 m along X at 2 m/s with a 1 s stop halfway, its rows then 1e-6 m apart back and
-    forth (plan.json's rows are rounded to 1e-6 m; standing still they step so): one piece
-    driven forwards, tracked as the same path whose stop holds one point. Read as moves,
+    forth (plan.json's rows are rounded to 1e-6 m; standing still they step so): two pieces
+    driven forwards (the car stops where the plan does), tracked as the same path whose stop
+    holds one point. Read as moves,
     those steps made pieces of alternating direction, at which the tracked car stopped and
     set off, backwards as forwards."""
     go = line(2.0, 10.0)
@@ -238,10 +239,57 @@ def test_a_stop_whose_rows_jitter_by_their_rounding_is_no_cusp():
     held = np.vstack([go, stop, on])
     jitter = held.copy()
     jitter[len(go):len(go) + 20, 1] += 1e-6 * (np.arange(20) % 2)
-    assert len(T.reference(jitter, T.plant_params(VEHICLE))["first"]) == 1
+    # Two pieces, both forwards: cut where the plan stands still (halted), not at each step.
+    assert list(T.reference(jitter, T.plant_params(VEHICLE))["way"]) == [1, 1]
     clean, rounded = (track(r, [0.0, 0.0, 0.0], VEHICLE) for r in (held, jitter))
     assert clean["done"] and rounded["done"]
     assert rounded["deviation"].max() == pytest.approx(clean["deviation"].max(), abs=1e-6)
+
+
+def halt_rows(v, lock=0.785, rate=0.32, dt=0.01, accel=2.0):
+    """Rows [t, X, Y, psi] of the planner's kinematic bicycle ((X, Y) along psi): from rest
+    on full lock left up to v [m/s] at `accel` [m/s^2], 2 s on, braking to rest; the wheel
+    turned standing at `rate` [rad/s] to full lock right (as the connection turns it); the
+    same to the right; every fifth step of dt [s]."""
+    x, speed, delta, t, rows = np.zeros(3), 0.0, lock, 0.0, [[0.0, 0.0, 0.0, 0.0]]
+
+    def step():
+        nonlocal x, t
+        x = x + dt * np.array([speed * np.cos(x[2]), speed * np.sin(x[2]),
+                               speed * np.tan(delta) / L])
+        t += dt
+        rows.append([t, *x])
+
+    for turning in (True, False):
+        while speed < v:
+            speed = min(v, speed + accel * dt)
+            step()
+        for _ in range(int(2.0 / dt)):
+            step()
+        while speed > 0:
+            speed = max(0.0, speed - accel * dt)
+            step()
+        while turning and delta > -lock:
+            delta = max(-lock, delta - rate * dt)
+            step()
+    return np.array(rows[::5])
+
+
+def test_where_the_plan_stops_to_turn_the_wheel_the_car_stops_too(monkeypatch):
+    """A plan that stops between two full-lock turns at 2 m/s and turns the wheel lock to
+    lock standing (as the connection does): the reference is cut there (halted), so the car
+    brakes to a stop where the plan stands and turns its wheel before it sets off, within
+    0.27 m of the path; read as one piece it crawled on through the stop while its wheel
+    lagged and strayed 0.3 m."""
+    rows = halt_rows(2.0)
+    start = [0.0, 0.0, -np.arcsin(LR * np.tan(0.785) / L)]    # the rolling car's body
+    kinematic = np.ones(len(rows), bool)
+    assert len(T.reference(rows, T.plant_params(VEHICLE), kinematic)["first"]) == 2
+    stopped = track(rows, start, VEHICLE, kinematic)
+    monkeypatch.setattr(T, "HALT_S", np.inf)
+    crawled = track(rows, start, VEHICLE, kinematic)
+    assert stopped["done"] and crawled["done"]
+    assert stopped["deviation"].max() < 0.27 < 0.28 < crawled["deviation"].max()
 
 
 def test_the_steer_fed_forward_does_not_pick_up_the_rows_rounding():

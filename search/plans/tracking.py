@@ -45,6 +45,7 @@ GRIP_SHARE = 0.6      # the share of the tyres' friction mu g the path's turns m
 V_CAP_MIN = 0.2       # [m/s] the least speed that cap sets
 STEER_LAG_RAD = 0.2   # [rad] steer lagging its command by this much halts the car ...
 SLOWEST = 0.1         # ... down to this fraction of the planned speed
+HALT_S = 0.1          # [s] a plan standing still this long mid-way stops the car there too
 STEER_SERVO_S = 0.05  # [s] time constant of the steering servo (the plant limits its rate)
 SPEED_GAIN = 5.0      # [1/s] speed loop
 A_TRACK = 2 * A_MAX   # [m/s^2] the tracker's largest braking and acceleration: above the
@@ -82,17 +83,33 @@ def plant_params(vehicle: dict) -> dict:
             "v_blend_low": V_BLEND[0], "v_blend_high": V_BLEND[1]}
 
 
-def pieces(rows) -> list[tuple[int, int, int]]:
+def pieces(rows, halts=()) -> list[tuple[int, int, int]]:
     """(first row, last row, direction +1 | -1) of each stretch of path rows (K, 4) [t, X,
-    Y, psi] driven one way (forwards: along psi); rows that do not move are dropped first."""
+    Y, psi] driven one way (forwards: along psi), cut also at the rows `halts` (where the plan
+    stands still: see `halted`); rows that do not move are dropped first."""
     way = np.where(steps(rows)[1] >= 0, 1, -1)
     cuts = np.flatnonzero(way[1:] != way[:-1]) + 1
-    bounds = np.r_[0, cuts, len(way)]
+    inside = [h for h in halts if 0 < h < len(way)]
+    bounds = np.unique(np.r_[0, cuts, np.array(inside, int), len(way)])
     return [(int(a), int(b), int(way[a])) for a, b in zip(bounds[:-1], bounds[1:])]
 
 
+def halted(rows, keep) -> np.ndarray:
+    """Indices among the rows `keep` (K,) bool of path rows (K, 4) [t, X, Y, psi] after
+    which the plan stands still for HALT_S or longer before it moves on: there it turns the
+    wheel standing (the connection, from lock to lock), and the car stops there too, as at a
+    cusp, rather than crawl on through a turn its wheel has not reached."""
+    still = np.hypot(*np.diff(rows[:, 1:3], axis=0).T) <= STILL_M
+    stood = np.r_[0.0, np.cumsum(np.where(still, np.diff(rows[:, 0]), 0.0))]
+    kept = np.flatnonzero(keep)
+    # Between kept rows i and j, steps i .. j-2 stand still and step j-1 moves.
+    after = stood[kept[1:] - 1] - stood[kept[:-1]]
+    return np.flatnonzero(after >= HALT_S)
+
+
 def reference(rows, p: dict, kinematic=None) -> dict:
-    """The path as the controller reads it, piece after piece (a cusp's row is in both):
+    """The path as the controller reads it, piece after piece (cut at the cusps and where the
+    plan stands still, `halted`; a cut's row is in both):
     the centre of gravity's path P (n, 2), the controlled axle's path C (n, 2) (front axle
     forwards, rear axle backwards), the travel direction's heading along C `course` (n,),
     the body heading `psi_body` (n,), the steer that holds the path's curvature `steer_ff`
@@ -110,6 +127,7 @@ def reference(rows, p: dict, kinematic=None) -> dict:
     keep = np.r_[True, np.hypot(*np.diff(rows[:, 1:3], axis=0).T) > STILL_M]
     kinematic = (np.zeros(len(rows), bool) if kinematic is None
                  else np.asarray(kinematic, bool))[keep]
+    halts = halted(rows, keep)
     rows = rows[keep]
     L, Lr, Lf = p["Lf"] + p["Lr"], p["Lr"], p["Lf"]
     # The kinematic car's slip angle at full lock bounds the one the path asks for.
@@ -117,7 +135,7 @@ def reference(rows, p: dict, kinematic=None) -> dict:
     out: dict[str, list] = {k: [] for k in ("P", "C", "course", "psi_body", "steer_ff", "kappa",
                                             "speed", "accel", "left")}
     first, last, ways = [], [], []
-    for a, b, way in pieces(rows):
+    for a, b, way in pieces(rows, halts):
         # Resampled evenly along the path: rows closer than their rounding would make the
         # differences below noise.
         d = np.hypot(*np.diff(rows[a:b + 1, 1:3], axis=0).T)
