@@ -480,9 +480,9 @@ def test_improve_attempts_ends_the_improvement_after_that_many_attempts_without_
     """improve_attempts = K ends a plan once K connection attempts in a row after its best
     path have not shortened it: the plan is the unbounded one cut there (its shorter paths a
     prefix of the unbounded plan's), and a K the unbounded plan's longest run of fruitless
-    attempts never reaches changes nothing. open_field with the regression plans' config (no
-    clock: its plans end by themselves) finds its first path at the 1st attempt and a
-    shorter one at the 3rd."""
+    attempts never reaches (as many as it makes) changes nothing. open_field with the
+    regression plans' config (no clock: its plans end by themselves) finds its first path at
+    the 1st attempt and a shorter one later, not at the 2nd."""
     from pathlib import Path
     from stepzoo.search.planner.config import load_config, with_params
     from stepzoo.search.planner.pathfinder import PathFinder
@@ -496,14 +496,15 @@ def test_improve_attempts_ends_the_improvement_after_that_many_attempts_without_
                             scenario.speed)
         return finder.plan(scenario.start, scenario.goal, scenario.goal_speed, seed=0)
 
-    free, one, two = plan(), plan(improve_attempts=1), plan(improve_attempts=2)
+    free, one = plan(), plan(improve_attempts=1)
     lengths = [length for _, length in free.progress]
-    assert len(lengths) == 2 and free.connect_attempts == 3
+    assert len(lengths) >= 2 and "(attempt 1)" in free.reason
     assert [length for _, length in one.progress] == lengths[:1]
     assert one.connect_attempts == 2 and one.status == "exact"
     assert one.reason.endswith("no shorter path in 1 connection attempts")
     assert one.path_length() > free.path_length()
-    assert [length for _, length in two.progress] == lengths
-    assert two.connect_attempts == free.connect_attempts
-    assert all(np.array_equal(a, b) for a, b in zip(two.path_edges, free.path_edges))
-    assert len(two.path_edges) == len(free.path_edges)
+    never = plan(improve_attempts=free.connect_attempts)
+    assert [length for _, length in never.progress] == lengths
+    assert never.connect_attempts == free.connect_attempts
+    assert all(np.array_equal(a, b) for a, b in zip(never.path_edges, free.path_edges))
+    assert len(never.path_edges) == len(free.path_edges)

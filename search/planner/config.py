@@ -106,11 +106,16 @@ class PlannerParams(Schema):
         "node where a move of the tree's collides, and from every node once the tree exhausts "
         "unsolved; they chain until the tree's own moves take over; 0: the tree's own moves "
         "only, as the paper [1]"))
-    steering: Literal["rate_limited", "instant"] = Field("rate_limited", description=(
-        "rate_limited: the steer angle is a state whose rate is bounded by the vehicle's "
-        "max_steer_rate (tree edges are steer ramps, the connection's control is the steer "
-        "rate) and the curvature by its max_lateral_acceleration at the planned speed; "
-        "instant: each edge at one constant steer set at once, as the paper [1]"))
+    steering: Literal["rate_limited", "course_limited", "instant"] = Field(
+        "rate_limited", description=(
+            "rate_limited: the steer angle is a state whose rate is bounded by the vehicle's "
+            "max_steer_rate (tree edges are steer ramps, the connection's control is the steer "
+            "rate) and the curvature by its max_lateral_acceleration at the planned speed; "
+            "course_limited: rate_limited, and the course of the rows' (X, Y) within those "
+            "limits too (the tree's own moves ramp at dynamic_rate_fraction, change their "
+            "rate by at most it, and change speed or connect only with the wheel straight: "
+            "docs/studies/course-reading-2026-11-29e.md); instant: each edge at one constant "
+            "steer set at once, as the paper [1]"))
     guide: Literal["geodesic", "heading"] = Field("geodesic", description=(
         "the search's guide H: geodesic, the 2-D lattice geodesic to the goal (positions only; "
         "near the goal the larger of it and the Dubins or Reeds-Shepp length), as the paper's "
@@ -131,12 +136,14 @@ class PlannerParams(Schema):
             "alignment the door needs (0: off, as the paper's planner) [m]"))
     connect_steer_max: Annotated[float, quantity(
         "a steer angle", "rad", "0.3 is where the dynamic bicycle's circle parts from the "
-        "kinematic one's (expansion.SPEED_CHANGE_STEER); at or above the steer limit it is off",
-        ge=0.0, le=1.6)] = Field(0.3, description=(
+        "kinematic one's (expansion.SPEED_CHANGE_STEER); course_limited steering connects "
+        "within expansion.STRAIGHT_STEER (0.01) whatever this is; at or above the steer limit "
+        "it is off", ge=0.0, le=1.6)] = Field(0.3, description=(
             "no connection sets off from a node of the tree's own moves, where they drive "
-            "faster than its tight moves, steered past this: the kinematic connection would "
-            "meet the dynamic edge with a step in curvature, a steer jump the car cannot drive "
-            "(1.6: off, as the paper's planner) [rad]"))
+            "faster than its tight moves, steered past this: the kinematic connection's (X, Y) "
+            "moves along its heading, the dynamic edge's centre of gravity along its body's "
+            "heading plus a slip of about half the steer, so the course would kink where the "
+            "connection sets off (1.6: off, as the paper's planner) [rad]"))
     tight_speed: Annotated[float, quantity(
         "a speed", "m/s", "a walking pace to a slow roll: below 0.5 m/s a move covers less than "
         "a pruning cell; above 5 m/s it is no longer tighter than the tree's", ge=0.5,
@@ -152,6 +159,17 @@ class PlannerParams(Schema):
             "max_lateral_acceleration (rate-limited steering): the tracked car (Fiala tyres) "
             "grips to about 10.3 m/s^2, below the 11.5 m/s^2 of the published limit, and a "
             "tracking controller needs steer rate beyond the plan's to correct its errors [1]"))
+    dynamic_rate_fraction: Annotated[float, quantity(
+        "a fraction", "", "at least a tenth of the steer rate, so a move still turns; at most "
+        "the car's limit", ge=0.1, le=1.0)] = Field(0.6, description=(
+            "course_limited steering: the tree's own moves (the dynamic bicycle at the tree's "
+            "speed) ramp the steer at most this fraction of the vehicle's max_steer_rate "
+            "(and at most limit_fraction): the centre of gravity moves sideways with the steer "
+            "before the body turns, so the course of (X, Y) reads each change of the ramp's "
+            "rate as a step of the steer; with the rate changing by at most its limit between "
+            "edges (expansion.RATE_CHANGE) the course reads 1.8 times the rate (a linear-tyre "
+            "oracle at 5 m/s), 0.435 rad/s at 0.6 (0.24 rad/s), within 1.25 times the 0.4 "
+            "rad/s limit (docs/studies/course-reading-2026-11-29e.md) [1]"))
     reverse_penalty: Annotated[float, quantity(
         "a factor", "", "1 makes a metre backwards cost what one forwards does; beyond 10 "
         "reversing is all but forbidden", ge=1.0, le=10.0)] = Field(3.0, description=(

@@ -104,14 +104,14 @@ class Connector:
                 continue
             self.tried.add(i)
             if (s.f.rate_limited and s.f.vx > s.f.tight_vx and not tree.tight[i]
-                    and tree.direction[i] >= 0 and abs(tree.steer[i]) > prm.connect_steer_max):
+                    and tree.direction[i] >= 0 and abs(tree.steer[i]) > s.f.connect_steer_max):
                 # The connection drives the kinematic bicycle: at the tree's speed (above the
                 # tight moves') and a steer this large the dynamic bicycle turns on a wider
                 # circle, and the path's curvature would step where the connection sets off
                 # (as between speeds, expansion.SPEED_CHANGE_STEER), a steer jump the car
                 # cannot drive.
                 self.cheap.add(i)
-                self.failures.append(f"steer past {prm.connect_steer_max:g} rad at the tree's "
+                self.failures.append(f"steer past {s.f.connect_steer_max:g} rad at the tree's "
                                      "speed")
                 continue
             # The OCP ignores obstacles: started from a free path it more often stays free

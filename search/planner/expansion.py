@@ -18,6 +18,21 @@ PREFIX_FRACTION = 4     # a colliding shooting's free first part is kept from 1/
 # one's, so a change of speed at a large steer is a step in curvature the path rows read as a
 # jump of the steer (a fifth of it); within 0.3 rad that step stays under 0.07 rad.
 SPEED_CHANGE_STEER = 0.3
+# [rad] course_limited steering: within this, the wheel all but straight. The dynamic
+# bicycle's centre of gravity moves along its body's heading plus a slip of about half the
+# steer at 5 m/s, the kinematic bicycle's along its theta, so a change of speed (or the
+# connection setting off) with the wheel turned is a kink in the course of (X, Y); within
+# 0.01 rad it stays under 5 mrad. Such nodes also get pruning cells of their own.
+STRAIGHT_STEER = 0.01
+# course_limited steering: the tree's own move (the dynamic bicycle) sets its steer rate
+# within this fraction of its rate limit of its edge's rate: the slip of its centre of gravity
+# follows the steer, so each change of the steer rate steps the course's curvature (a
+# linear-tyre oracle at 5 m/s: 1.03 rad/s of implied steer rate per rad/s of change), and a
+# ramp reversed at once (twice the rate) reads 2.4 times the rate by the course, one changed
+# by at most its rate 1.8 times. A tight move from such a node keeps the same bound, and the
+# tree's move from a tight node's sets a rate whose sum with the tight ramp's stays within
+# the tight moves' rate (the slip it sets off adds to the course's turning).
+RATE_CHANGE = 1.0
 
 
 class Expander:
@@ -69,6 +84,8 @@ class Expander:
             start = np.where(standing[:, None], body, states)
             steer0 = np.where(standing, np.nan, steers)
             steer = shooter.aim(start, np.vstack(aims), steer0)
+            if direction > 0 and s.f.course_limited:
+                steer = self.rate_bounded(rows, steer, steer0, shooter)
             requests.append((shooter, shooter.launch(start, steer, steer0, settle), steer,
                              steer0))
         # Tight moves (below) are shot from every node of the batch in the same call as the
@@ -93,7 +110,7 @@ class Expander:
             shots = shooter.shots(states, steer, steer0, s.goal, turned)
             if turned is not None:
                 # From a tight move's node the car speeds up only with its wheel near straight.
-                shots.free[slow & (np.abs(shots.steer0) > SPEED_CHANGE_STEER)] = 0
+                shots.free[slow & (np.abs(shots.steer0) > s.f.speed_change_steer)] = 0
             cramped |= (shots.free < shots.states.shape[1]).reshape(len(rows), -1).any(
                 axis=1)[:len(nodes)]
             new += self.add_all(nodes, direction, shots)
@@ -101,10 +118,13 @@ class Expander:
         # speed may not turn in time), from every node once the tree exhausted, and along
         # chains of tight moves; once a node is reached by the tree's own move, the tree goes
         # on alone.
+        # Rate-limited, the car slows down from the tree's move only with its wheel near
+        # straight (course_limited: also once the tree exhausted).
+        slows = [not s.f.rate_limited or tree.direction[i] != 1
+                 or abs(tree.steer[i]) <= s.f.speed_change_steer for i in nodes]
         tight = [k for k, i in enumerate(nodes)
-                 if i < s.widened_at or tree.tight[i]
-                 or (cramped[k] and s.prm.tight_moves and s.f.rate_limited
-                     and (tree.direction[i] != 1 or abs(tree.steer[i]) <= SPEED_CHANGE_STEER))]
+                 if tree.tight[i] or (i < s.widened_at and (slows[k] or not s.f.course_limited))
+                 or (cramped[k] and s.prm.tight_moves and s.f.rate_limited and slows[k])]
         if tight:
             assert speculate, "tight moves are shot only where the search may take them"
             shooter, _, steer, steer0 = requests[-1]
@@ -113,6 +133,36 @@ class Expander:
             shots = shooter.shots(trajectories[-1][pick], steer[pick], steer0[pick], s.goal)
             new += self.add_all([nodes[k] for k in tight], 1, shots, tight=True)
         return new
+
+    def rate_bounded(self, rows, steer, steer0, shooter) -> np.ndarray:
+        """(B,) the end steers `steer` of `shooter`'s moves from the nodes `rows` (`per`
+        each) at start steers `steer0` (NaN: from a standstill, unbounded), bounded so that
+        each move's steer rate lies within `step` of the rate `edge_rates` gives."""
+        rate, step = (np.repeat(a, self.per) for a in self.edge_rates(rows, shooter.kinematic))
+        T, top = shooter.duration, shooter.rate
+        free = np.isnan(rate)       # not after the tree's own move: no bound of its own
+        lo = steer0 + T * np.where(free, -top, np.maximum(-top, rate - step))
+        hi = steer0 + T * np.where(free, top, np.minimum(top, rate + step))
+        with np.errstate(invalid="ignore"):
+            return np.where(np.isnan(steer0), steer, np.clip(steer, lo, hi))
+
+    def edge_rates(self, rows, kinematic) -> tuple[np.ndarray, np.ndarray]:
+        """(len(rows),) [rad/s] the rate a move from each node (a kinematic one if
+        `kinematic`) keeps its steer rate near, and (len(rows),) [rad/s] how near: after the
+        tree's own move forwards, that move's rate, within RATE_CHANGE of the tree's rate
+        limit; after a tight move, for the tree's own move, minus the tight move's rate,
+        within the tight moves' rate limit; else NaN (no bound)."""
+        tree, f = self.s.tree, self.s.f
+        rate, step = np.full(len(rows), np.nan), np.zeros(len(rows))
+        for k, i in enumerate(rows):
+            edge = tree.edges[i]
+            if edge is None or tree.direction[i] <= 0 or len(edge) < 2 or (
+                    kinematic and tree.tight[i]):
+                continue
+            own = (tree.steer[i] - tree.steer0[i]) / ((len(edge) - 1) * f.config.h)
+            rate[k] = -own if tree.tight[i] else own
+            step[k] = f.tight_shooter.rate if tree.tight[i] else RATE_CHANGE * f.shooter.rate
+        return rate, step
 
     def tight_request(self, rows) -> tuple:
         """(tight_shooter, start states, end steers, start steers) of the tight moves from each
@@ -130,6 +180,13 @@ class Expander:
             reach = shooter.rate * shooter.duration
             near = np.clip(steers + np.tile(np.linspace(-reach, reach, self.per), len(rows)),
                            -limit, limit)
+            if s.f.course_limited:
+                # The one nearest straight straightens the wheel as far as it can, so that a
+                # chain of tight moves can reach the straight wheel the tree's move sets off
+                # with.
+                middle = np.arange(len(rows)) * self.per + self.per // 2
+                near[middle] = np.clip(0.0, steers[middle] - reach, steers[middle] + reach)
+                near = self.rate_bounded(rows, near, steers, shooter)
             fan = np.where(np.isnan(steers), fan, near)
         start = np.where(standing[:, None], s.body_states(rows), tree.states[rows])
         start = np.repeat(start, self.per, axis=0)

@@ -16,7 +16,7 @@ from stepzoo.dynamics.kinematic import body_slip
 from stepzoo.dynamics.vehicles import limits as vehicle_limits
 from stepzoo.search.planner.connection_ocp import Connection, Corridor, connect, node_steers
 from stepzoo.search.planner.endpoints import bad_endpoint, departure_boxed_in, enclosed, walled_off
-from stepzoo.search.planner.expansion import Expander
+from stepzoo.search.planner.expansion import SPEED_CHANGE_STEER, STRAIGHT_STEER, Expander
 from stepzoo.search.world.footprint import Footprint
 from stepzoo.search.planner.guide import Guide, corridors
 from stepzoo.search.planner.heading_lattice import HeadingLattice
@@ -72,7 +72,13 @@ class PathFinder:
         # (so the curvature tan(delta) / L) where v^2 kappa would exceed the lateral limit.
         # The planner keeps limit_fraction of each limit: the rest is the tracking
         # controller's, to correct its errors on a car whose tyres grip less than the limit.
-        self.rate_limited = prm.steering == "rate_limited"
+        self.rate_limited = prm.steering != "instant"
+        self.course_limited = prm.steering == "course_limited"
+        # [rad] the car changes speed only with its steer within this (Expander)
+        self.speed_change_steer = STRAIGHT_STEER if self.course_limited else SPEED_CHANGE_STEER
+        # [rad] and sets off on the connection from the tree's own move only within this
+        self.connect_steer_max = (min(prm.connect_steer_max, STRAIGHT_STEER)
+                                  if self.course_limited else prm.connect_steer_max)
         self.lateral_limit = prm.limit_fraction * self.limits["max_lateral_acceleration"]
         self.steer_rate = (prm.limit_fraction * self.limits["max_steer_rate"]
                            if self.rate_limited else None)
@@ -81,11 +87,17 @@ class PathFinder:
         # limit allows the full lock.
         self.tight_vx = min(prm.tight_speed, self.vx) if self.rate_limited else self.vx
 
-        def shooter(vx=self.vx, **kind):
+        def shooter(vx=self.vx, rate=self.steer_rate, **kind):
             return Shooter(self.checker, self.vehicle["name"], vx, config.method, config.h,
                            config.n_steps, prm.batch_nodes * (prm.n_arc + prm.n_random),
-                           self.steer_limit(vx), max_steer_rate=self.steer_rate, **kind)
-        self.shooter = shooter()
+                           self.steer_limit(vx), max_steer_rate=rate, **kind)
+        # course_limited, the tree's own moves ramp slower: the course of the dynamic
+        # bicycle's centre of gravity reads a change of the ramp's rate as a step of the steer
+        # (its slip follows the steer at once), the kinematic moves' course reads their ramp
+        # as it is.
+        self.shooter = shooter(rate=(min(prm.dynamic_rate_fraction, prm.limit_fraction)
+                                     * self.limits["max_steer_rate"]
+                                     if self.course_limited else self.steer_rate))
         # Reverse gear: a second shooter drives backwards from every node, towards an arc
         # behind it and the random points, at tight_vx: drivers back up slowly, and a car
         # backing fast is hard to hold on a path (its steered axle trails).
@@ -224,6 +236,7 @@ class Cell(NamedTuple):
     direction: int
     steer: int
     fine: int = 0
+    straight: int = 0
 
 
 class Search:
@@ -284,7 +297,8 @@ class Search:
         return Cell(math.floor(state[0] / size), math.floor(state[1] / size),
                     math.floor(heading / turn),
                     direction if self.prm.reverse else 0,
-                    math.floor(steer / STEER_CELL + 0.5) if self.f.rate_limited else 0, fine)
+                    math.floor(steer / STEER_CELL + 0.5) if self.f.rate_limited else 0, fine,
+                    int(self.f.course_limited and abs(steer) <= STRAIGHT_STEER))
 
     def body_states(self, nodes) -> np.ndarray:
         """(n, 5) the states of `nodes` with psi the car body's heading (Shooter.body_states):

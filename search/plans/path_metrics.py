@@ -21,6 +21,12 @@ WINDOW_S = 0.25
 MIN_TRAVEL_M = 1e-3   # [m] a window with less travel (the car all but stopped) has no curvature
 STILL_M = 1e-5        # [m] a step between rows this short is standing still (rows hold 1e-6 m)
 COURSE_STEP_M = 0.01  # [m] the least step whose direction gives a course: 0.1 mrad of rounding
+# [m] read from the course, a window with less travel has no curvature: the rows' positions
+# carry errors of a micrometre (plan.json's rounding) to ten (the connection's rows where it
+# stops the car), a course error of 0.1 to 1 mrad over a chord, which over a centimetre of
+# travel is an implied steer of 0.03 to 0.3 rad; the path rows are filled to this spacing
+# (files.ROW_SPACING_M), so a window with less travel sees a chord or two.
+COURSE_MIN_TRAVEL_M = 0.05
 # What the rows' finite differences allow above each limit before a plan is not drivable: a
 # window straddling a node or a cusp sees a step in curvature as a short ramp.
 TOLERANCE = {"curvature_1pm": 1.1, "steer_rate_radps": 1.25, "lateral_acceleration_mps2": 1.15}
@@ -72,9 +78,11 @@ def drivability(rows, wheelbase, delta_max, max_steer_rate, max_lateral_accelera
     (plan.json's block: the dynamic bicycle's body, the kinematic bicycle's direction of
     travel), or "course", the direction of travel of (X, Y) on every row (course_rows), which
     reads a steer ramp of the dynamic bicycle at about twice its rate (its centre of gravity
-    moves sideways before its body turns) and a change of the slip in one row as a kink."""
+    moves sideways before its body turns) and a change of the slip in one row as a kink, and
+    has no curvature in a window with less than COURSE_MIN_TRAVEL_M of travel."""
     rows = np.asarray(rows, float)
-    if heading == "course":
+    by_course = heading == "course"
+    if by_course:
         rows = course_rows(rows)
     out = dict.fromkeys(DRIVABILITY_KEYS)
     limit = {"curvature_1pm": math.tan(delta_max) / wheelbase,
@@ -110,7 +118,7 @@ def drivability(rows, wheelbase, delta_max, max_steer_rate, max_lateral_accelera
         travel = np.interp(centre + window / 2, t, s) - np.interp(centre - window / 2, t, s)
         turn = (np.interp(centre + window / 2, t, heading)
                 - np.interp(centre - window / 2, t, heading))
-        seen = travel > MIN_TRAVEL_M
+        seen = travel > (COURSE_MIN_TRAVEL_M if by_course else MIN_TRAVEL_M)
         if not seen.any():
             continue
         k, travel, centre = turn[seen] / travel[seen], travel[seen], centre[seen]
