@@ -219,7 +219,9 @@ def test_bdf_blows_up_just_past_the_predicted_step_beyond_its_sector_and_not_far
     h_max = max_stable_step(method(name), [lam, lam.conjugate()])
     y0 = jnp.array([1.0, 0.0])
     m = retrying(name)      # the simplified iteration fails at h = 10
-    for h, grows in ((0.98 * h_max, False), (1.02 * h_max, True), (10.0, False)):
+    # Every h a NumPy float64, as h_max is: a Python float is weakly typed in JAX, so h = 10.0
+    # was a second program to compile (seconds, for an implicit method), the same steps.
+    for h, grows in ((0.98 * h_max, False), (1.02 * h_max, True), (np.float64(10.0), False)):
         tr = integrate(m, f, y0, None, None, h, 3000)
         assert bool(tr.converged)
         final = float(jnp.linalg.norm(tr.x[-1]))
