@@ -43,10 +43,19 @@ def _lateral(work):
     return [np.asarray(lateral_matrix(v, d, phys)[0]) for v, d in work.points.values]
 
 
-def _limits(cfg, name):
+@pytest.fixture(scope="module")
+def block():
+    """Block 0 of a config, with one cache per config (its sha256) for the module's tests, as
+    a sweep's chunks share theirs: the references along the lanes, the perturbations and the
+    "modes" rule's reference growth, which no method changes, are computed once a config."""
+    caches: dict[str, dict] = {}
+    return lambda cfg: Block(cfg, 0, caches.setdefault(cfg.sha256, {}))
+
+
+def _limits(work, name):
     """(measured, predicted from the closed-form lateral matrix) largest stable step [s] at
-    every point of block 0 of cfg."""
-    work = Block(cfg, 0, {})
+    every point of the block `work`."""
+    cfg = work.cfg
     m = method(name)
     grid = work.stable(m, np.tile(np.asarray(cfg.hs), (len(work.points), 1)))
     pred = np.array([max_stable_step(m, np.linalg.eigvals(A)) for A in _lateral(work)])
@@ -70,21 +79,22 @@ def test_explicit_and_multistep_methods_cover_every_finite_limit():
 
 
 @pytest.mark.parametrize("name", FINITE_LIMIT)
-def test_measured_limit_within_3pct_of_predicted_at_every_envelope_point(envelope, name):
-    meas, pred = _limits(envelope, name)
+def test_measured_limit_within_3pct_of_predicted_at_every_envelope_point(envelope, block,
+                                                                        name):
+    meas, pred = _limits(block(envelope), name)
     ratio = meas / pred
     assert np.all(np.isfinite(pred)) and np.all(np.abs(ratio - 1) <= 0.03), (name, ratio)
 
 
 @pytest.mark.parametrize("name", ["euler", "rk4"])
 def test_the_modes_rule_with_a_long_enough_horizon_measures_the_envelopes_limits(envelope,
-                                                                                 name):
+                                                                                 block, name):
     """The default rule ("modes": every state, each direction alone, within the stability
     horizon) agrees with the closed form within 3% too, given a stability horizon in which
     growth just past the limit can show (20 s: hundreds of steps); the team's bicycle
     configs keep "blowup", which measures the same in fewer runs."""
     cfg = envelope.changed(stability={"rule": "modes", "horizon": 20.0})
-    meas, pred = _limits(cfg, name)
+    meas, pred = _limits(block(cfg), name)
     ratio = meas / pred
     assert np.all(np.isfinite(pred)) and np.all(np.abs(ratio - 1) <= 0.03), (name, ratio)
 
@@ -96,7 +106,8 @@ def test_every_unbounded_method_holds_the_sector_of_the_swept_ones():
 
 
 @pytest.mark.parametrize("name", SWEPT_UNBOUNDED)
-def test_methods_unbounded_on_the_real_axis_never_blow_up_in_the_envelope(envelope, name):
+def test_methods_unbounded_on_the_real_axis_never_blow_up_in_the_envelope(envelope, block,
+                                                                           name):
     """A-stable methods hold every stable mode; an A(alpha)-stable one (BDF3-5) holds the
     envelope because every eigenvalue lies within its sector (at most 38.3 deg from the
     negative real axis, at 30 m/s and full steer, below BDF5's 51.84): predicted and
@@ -105,14 +116,14 @@ def test_methods_unbounded_on_the_real_axis_never_blow_up_in_the_envelope(envelo
     m = method(name)
     if not a_stable(m):
         angles = [np.degrees(np.pi - np.abs(np.angle(np.linalg.eigvals(A))))
-                  for A in _lateral(Block(cfg, 0, {}))]
+                  for A in _lateral(block(cfg))]
         assert np.max(angles) < a_alpha(m), (name, np.max(angles))
-    meas, pred = _limits(cfg, name)
+    meas, pred = _limits(block(cfg), name)
     assert np.all(np.isinf(pred)) and np.all(np.isinf(meas)), (name, meas)
 
 
-def test_blowup_rule_flags_a_step_just_past_the_limit_and_not_just_below(envelope):
-    work = Block(envelope, 0, {})
+def test_blowup_rule_flags_a_step_just_past_the_limit_and_not_just_below(envelope, block):
+    work = block(envelope)
     pred = np.array([max_stable_step(method("rk4"), np.linalg.eigvals(A))
                      for A in _lateral(work)])
     ok, t_blow, _ = work.stable(method("rk4"), np.stack([0.99 * pred, 1.02 * pred], axis=1))
@@ -120,8 +131,8 @@ def test_blowup_rule_flags_a_step_just_past_the_limit_and_not_just_below(envelop
     assert np.all((t_blow[:, 1] > 0) & (t_blow[:, 1] <= envelope.stability.steps * 1.02 * pred))
 
 
-def test_predicted_limit_from_jacobians_equals_the_closed_form_lateral_one(envelope):
-    work = Block(envelope, 0, {})
+def test_predicted_limit_from_jacobians_equals_the_closed_form_lateral_one(envelope, block):
+    work = block(envelope)
     lam = work.along().lam
     for name in FINITE_LIMIT:
         m = method(name)
