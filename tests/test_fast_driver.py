@@ -168,7 +168,10 @@ def two_devices(tmp_path_factory):
             "max_steps=max_steps)\n"
             "    assert len(tr.x.sharding.device_set) == 2, name\n"
             f"    np.save({str(out)!r} + f'/{{i}}.npy', np.asarray(tr.x))")
-    env = dict(os.environ, XLA_FLAGS="--xla_force_host_platform_device_count=2")
+    # This process's XLA flags too (conftest's loop option, make test's optimisation level):
+    # the interpreter compiles as this one does (in half the time it took without them).
+    env = dict(os.environ, XLA_FLAGS=f"{os.environ.get('XLA_FLAGS', '')} "
+               "--xla_force_host_platform_device_count=2")
     subprocess.run([sys.executable, "-c", code], env=env, check=True, timeout=600,
                    cwd=os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
     return {case: np.load(out / f"{i}.npy") for i, case in enumerate(SHARED)}
