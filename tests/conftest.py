@@ -2,6 +2,7 @@ import atexit
 import os
 import shutil
 import tempfile
+from pathlib import Path
 
 from helpers import TINY_SWEEP
 from stepzoo.cli import with_xla_option
@@ -45,6 +46,17 @@ def tiny_sweep(tmp_path_factory):
     path.write_text(TINY_SWEEP)
     run_sweep(load(path), base / "whole", progress=False)
     return path, base / "whole"
+
+
+@pytest.fixture(scope="session")
+def small_toml_sweep(tmp_path_factory):
+    """The finished sweep folder of bench/configs/small.toml, made once for the files that
+    read it (tuning, the stored tables, the recorded limits) instead of once by each; tests
+    copy it, never change it."""
+    out = tmp_path_factory.mktemp("small") / "sweep"
+    run_sweep(load(Path(__file__).resolve().parents[1] / "bench" / "configs" / "small.toml"),
+              out, progress=False)
+    return out
 
 
 @pytest.fixture

@@ -30,8 +30,6 @@ from stepzoo.bench.sweep import tables as schema
 from stepzoo.bench.timing.chunk_stopwatch import KEYS
 from stepzoo.bench.sweep.suite import load as load_suite
 from stepzoo.bench.sweep.suite import run_suite
-from stepzoo.bench.sweep.engine import run_sweep
-from stepzoo.bench.sweep.config import load
 
 ROOT = Path(__file__).resolve().parents[1]
 DATA = ROOT / "tests" / "data" / "sweep_regression"
@@ -86,21 +84,14 @@ def _check(fresh: dict[str, pd.DataFrame], stored: Path):
 
 
 @pytest.fixture(scope="module")
-def small(tmp_path_factory):
-    out = tmp_path_factory.mktemp("small")
-    run_sweep(load(ROOT / "bench" / "configs" / "small.toml"), out, progress=False)
-    return out
-
-
-@pytest.fixture(scope="module")
 def suite(tmp_path_factory):
     folder = tmp_path_factory.mktemp("suite")
     run_suite(load_suite(DATA / "suite.toml"), folder / "out", progress=False)
     return folder / "out"
 
 
-def test_the_small_sweep_gives_the_stored_tables(small):
-    _check(_tables(small), DATA / "small")
+def test_the_small_sweep_gives_the_stored_tables(small_toml_sweep):
+    _check(_tables(small_toml_sweep), DATA / "small")
 
 
 def test_a_suite_with_exact_and_scipy_references_gives_the_stored_tables(suite):
@@ -109,14 +100,14 @@ def test_a_suite_with_exact_and_scipy_references_gives_the_stored_tables(suite):
     _check(fresh, DATA / "suite")
 
 
-def test_each_chunk_charges_its_time_to_the_keys_of_its_work(small):
+def test_each_chunk_charges_its_time_to_the_keys_of_its_work(small_toml_sweep):
     """The stopwatch's keys are the timing table's and, summed, the manifest's as before; a
     reference chunk runs no method, a method chunk integrates and runs stability tests."""
-    manifest = json.loads((small / "manifest.json").read_text())
+    manifest = json.loads((small_toml_sweep / "manifest.json").read_text())
     assert set(manifest["timing"]) == {"compile_s", "reference_s", "integration_s",
                                        "stability_s", "metrics_s", "total_s", "wall_s"}
     assert set(manifest["timing"]["compile_s"]) == {"reference", *manifest["methods"]}
-    for chunk in sorted((small / "chunks").iterdir()):
+    for chunk in sorted((small_toml_sweep / "chunks").iterdir()):
         row = pd.read_parquet(chunk / "timing.parquet").iloc[0]
         assert list(row.index) == [*KEYS, "chunk", "method", "total_s"], chunk.name
         assert all(row[k] >= 0 for k in KEYS) and sum(row[k] for k in KEYS) <= row["total_s"]

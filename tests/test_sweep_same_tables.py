@@ -9,7 +9,6 @@ import pandas as pd
 import pytest
 
 from stepzoo.bench.timing import rounds as timing
-from stepzoo.bench.sweep.engine import run_sweep
 from stepzoo.bench.sweep.config import load
 
 SMALL = Path(__file__).resolve().parents[1] / "bench" / "configs" / "small.toml"
@@ -41,11 +40,10 @@ RUNS = {
 
 
 @pytest.fixture(scope="module")
-def small(tmp_path_factory):
-    cfg = load(SMALL)
-    out = tmp_path_factory.mktemp("small")
-    run_sweep(cfg, out, progress=False)
-    return cfg, pd.read_parquet(out / "runs.parquet"), pd.read_parquet(out / "limits.parquet")
+def small(small_toml_sweep):
+    out = small_toml_sweep
+    return load(SMALL), pd.read_parquet(out / "runs.parquet"), \
+        pd.read_parquet(out / "limits.parquet")
 
 
 def test_measured_limits_agree_with_the_recorded_ones_to_rel_tol(small):

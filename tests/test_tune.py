@@ -14,7 +14,6 @@ import pytest
 
 from stepzoo import dynamics
 from stepzoo.cli import main as stepzoo
-from stepzoo.bench.sweep.engine import run_sweep
 from stepzoo.bench.sweep.config import load
 from stepzoo.bench.tune.cheapest import candidates
 from stepzoo.dynamics.linear import lateral_eigenvalues
@@ -27,23 +26,23 @@ POS_TOL, MARGIN = 0.01, 0.1        # [m], fraction
 
 
 @pytest.fixture(scope="module")
-def tuned_both(tmp_path_factory):
-    """(sweep folder, {cost: tuned TOML}) of the small sweep, tuned by time and by evals."""
+def tuned_both(tmp_path_factory, small_toml_sweep):
+    """(sweep folder, {cost: tuned TOML}, the folder of the tuned files tuned_COST.toml) of
+    the small sweep (conftest), tuned by time and by evals."""
     folder = tmp_path_factory.mktemp("tune")
-    run_sweep(load(SMALL), folder / "sweep", progress=False)
     files = {}
     for cost in ("time", "evals"):
         out = folder / f"tuned_{cost}.toml"
         flag = [] if cost == "time" else ["--cost", "evals"]      # time is the default
-        assert stepzoo(["tune", str(folder / "sweep"), "--pos-tol", str(POS_TOL), "--margin",
+        assert stepzoo(["tune", str(small_toml_sweep), "--pos-tol", str(POS_TOL), "--margin",
                         str(MARGIN), "--out", str(out), *flag]) == 0
         files[cost] = tomllib.loads(out.read_text())
-    return folder / "sweep", files
+    return small_toml_sweep, files, folder
 
 
 @pytest.fixture(scope="module")
 def tuned(tuned_both):
-    sweep, files = tuned_both
+    sweep, files, _ = tuned_both
     return sweep, files["time"]
 
 
@@ -66,12 +65,12 @@ def test_a_rerun_keeps_the_choice_made_from_the_same_sweep_and_arguments(tuned_b
     import json
     import shutil
     from stepzoo.workflows.tune import kept
-    sweep, files = tuned_both
-    out = sweep.parent / "tuned_time.toml"
+    sweep, files, folder = tuned_both
+    out = folder / "tuned_time.toml"
     assert kept(out, sweep, POS_TOL, MARGIN) == files["time"]
     assert kept(out, sweep, POS_TOL * 2, MARGIN) is None
     assert kept(out, sweep, POS_TOL, MARGIN * 2) is None
-    assert kept(sweep.parent / "tuned_evals.toml", sweep, POS_TOL, MARGIN) is None
+    assert kept(folder / "tuned_evals.toml", sweep, POS_TOL, MARGIN) is None
     assert kept(tmp_path / "missing.toml", sweep, POS_TOL, MARGIN) is None
     again = tmp_path / "sweep"
     shutil.copytree(sweep, again)
@@ -87,7 +86,7 @@ def test_a_rerun_keeps_the_choice_made_from_the_same_sweep_and_arguments(tuned_b
 
 
 def test_cost_evals_chooses_the_fewest_evaluations_that_qualify(tuned_both):
-    sweep, files = tuned_both
+    sweep, files, _ = tuned_both
     t = files["evals"]
     assert t["cost"] == "evals" and files["time"]["cost"] == "time"
     runs = pd.read_parquet(sweep / "runs.parquet")
@@ -108,7 +107,7 @@ def test_the_calibration_defaults_are_the_planners_call():
 
 def test_the_reports_tuning_table_says_which_cost_chose(tuned_both):
     from stepzoo.reports.tables import tuning_caption, tuning_rows
-    _, files = tuned_both
+    _, files, _ = tuned_both
     assert "ranked by measured wall time" in tuning_caption(files["time"])
     assert "ranked by RHS evaluations" in tuning_caption(files["evals"])
     rows = tuning_rows(files["time"])
