@@ -270,9 +270,10 @@ class ModalRuns:
         slot = np.minimum(np.searchsorted(self.ts, ts), len(self.ts) - 1)
         first, ratio = np.full(len(ks), len(base)), 0.0
         for j, k in enumerate(ks):
-            dev = _state_norm(xs[k] - base, sc)
             allow = np.fmax(1.0, np.nan_to_num(self.ref_growth[lane, k, slot], nan=1.0))
-            with np.errstate(invalid="ignore", divide="ignore"):
+            # A run that blew up is a result (it departed): its inf and NaN are no warning.
+            with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
+                dev = _state_norm(xs[k] - base, sc)
                 excess = dev / (dev[0] * allow)
             bad = ~(excess <= self.growth)
             ratio = max(ratio, float(np.nanmax(np.where(np.isfinite(excess), excess, np.inf))))
