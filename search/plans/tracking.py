@@ -95,11 +95,12 @@ def pieces(rows, halts=()) -> list[tuple[int, int, int]]:
 
 
 def halted(rows, keep) -> np.ndarray:
-    """Indices among the rows `keep` (K,) bool of path rows (K, 4) [t, X, Y, psi] after
-    which the plan stands still for HALT_S or longer before it moves on: there it turns the
-    wheel standing (the connection, from lock to lock), and the car stops there too, as at a
-    cusp, rather than crawl on through a turn its wheel has not reached."""
-    still = np.hypot(*np.diff(rows[:, 1:3], axis=0).T) <= STILL_M
+    """Indices among the rows `keep` (K,) bool of path rows (K, 4) [t, X, Y, psi] (the first
+    and each one a move reaches: `reference`'s) after which the plan stands still for HALT_S
+    or longer before it moves on: there it turns the wheel standing (the connection, from
+    lock to lock), and the car stops there too, as at a cusp, rather than crawl on through a
+    turn its wheel has not reached."""
+    still = ~keep[1:]
     stood = np.r_[0.0, np.cumsum(np.where(still, np.diff(rows[:, 0]), 0.0))]
     kept = np.flatnonzero(keep)
     # Between kept rows i and j, steps i .. j-2 stand still and step j-1 moves.
