@@ -185,32 +185,37 @@ def test_a_full_lock_turn_at_the_planners_lateral_limit_is_tracked_within_a_quar
     assert speed[s > 10.0] == pytest.approx(np.sqrt(6.0 * R))
 
 
-def crawl_ramp_rows(v, peak, rate=0.32, dt=0.01):
+def kinematic_drive(controls, dt=0.01):
     """Rows [t, X, Y, psi] of the planner's kinematic bicycle ((X, Y) along psi, turning at
-    v tan(delta) / L): 2 m/s straight ahead braking at 2 m/s^2 to a crawl at v [m/s], there
-    the steer ramped at `rate` [rad/s] from 0 to `peak`, to -peak and back to 0 [rad] (as a
-    connection turns the wheel while it crawls), then straight on accelerating at 1 m/s^2 to
-    2 m/s; every fifth step."""
-    x, speed, delta, t, rows = np.zeros(3), 2.0, 0.0, 0.0, [[0.0, 0.0, 0.0, 0.0]]
-
-    def step():
-        nonlocal x, t
+    v tan(delta) / L) from the origin facing +X, one step of dt [s] under each of `controls`
+    (speed [m/s], steer [rad]); every fifth step."""
+    x, t, rows = np.zeros(3), 0.0, [[0.0, 0.0, 0.0, 0.0]]
+    for speed, delta in controls:
         x = x + dt * np.array([speed * np.cos(x[2]), speed * np.sin(x[2]),
                                speed * np.tan(delta) / L])
         t += dt
         rows.append([t, *x])
-
-    while speed > v:
-        speed = max(v, speed - 2 * dt)
-        step()
-    for target in (peak, -peak, 0.0):
-        while abs(delta - target) > 1e-12:
-            delta += np.clip(target - delta, -rate * dt, rate * dt)
-            step()
-    while speed < 2.0:
-        speed = min(2.0, speed + dt)
-        step()
     return np.array(rows[::5])
+
+
+def crawl_ramp_rows(v, peak, rate=0.32, dt=0.01):
+    """kinematic_drive's rows: 2 m/s straight ahead braking at 2 m/s^2 to a crawl at v [m/s],
+    there the steer ramped at `rate` [rad/s] from 0 to `peak`, to -peak and back to 0 [rad]
+    (as a connection turns the wheel while it crawls), then straight on accelerating at
+    1 m/s^2 to 2 m/s."""
+    def controls():
+        speed, delta = 2.0, 0.0
+        while speed > v:
+            speed = max(v, speed - 2 * dt)
+            yield speed, delta
+        for target in (peak, -peak, 0.0):
+            while abs(delta - target) > 1e-12:
+                delta += np.clip(target - delta, -rate * dt, rate * dt)
+                yield speed, delta
+        while speed < 2.0:
+            speed = min(2.0, speed + dt)
+            yield speed, delta
+    return kinematic_drive(controls(), dt)
 
 
 def test_a_crawl_through_a_steer_ramp_is_tracked_with_the_plans_steer_fed_forward():
@@ -247,32 +252,24 @@ def test_a_stop_whose_rows_jitter_by_their_rounding_is_no_cusp():
 
 
 def halt_rows(v, lock=0.785, rate=0.32, dt=0.01, accel=2.0):
-    """Rows [t, X, Y, psi] of the planner's kinematic bicycle ((X, Y) along psi): from rest
-    on full lock left up to v [m/s] at `accel` [m/s^2], 2 s on, braking to rest; the wheel
-    turned standing at `rate` [rad/s] to full lock right (as the connection turns it); the
-    same to the right; every fifth step of dt [s]."""
-    x, speed, delta, t, rows = np.zeros(3), 0.0, lock, 0.0, [[0.0, 0.0, 0.0, 0.0]]
-
-    def step():
-        nonlocal x, t
-        x = x + dt * np.array([speed * np.cos(x[2]), speed * np.sin(x[2]),
-                               speed * np.tan(delta) / L])
-        t += dt
-        rows.append([t, *x])
-
-    for turning in (True, False):
-        while speed < v:
-            speed = min(v, speed + accel * dt)
-            step()
-        for _ in range(int(2.0 / dt)):
-            step()
-        while speed > 0:
-            speed = max(0.0, speed - accel * dt)
-            step()
-        while turning and delta > -lock:
-            delta = max(-lock, delta - rate * dt)
-            step()
-    return np.array(rows[::5])
+    """kinematic_drive's rows: from rest on full lock left up to v [m/s] at `accel` [m/s^2],
+    2 s on, braking to rest; the wheel turned standing at `rate` [rad/s] to full lock right
+    (as the connection turns it); the same to the right."""
+    def controls():
+        speed, delta = 0.0, lock
+        for turning in (True, False):
+            while speed < v:
+                speed = min(v, speed + accel * dt)
+                yield speed, delta
+            for _ in range(int(2.0 / dt)):
+                yield speed, delta
+            while speed > 0:
+                speed = max(0.0, speed - accel * dt)
+                yield speed, delta
+            while turning and delta > -lock:
+                delta = max(-lock, delta - rate * dt)
+                yield speed, delta
+    return kinematic_drive(controls(), dt)
 
 
 def test_where_the_plan_stops_to_turn_the_wheel_the_car_stops_too(monkeypatch):
