@@ -117,14 +117,32 @@ def test_racing_sweeps_leave_the_first_ones_tables_whole(tiny_sweep, tmp_path):
         pd.testing.assert_frame_equal(a[name], b[name], check_exact=True, obj=name)
 
 
+# `stepzoo` whose sweep waits after writing its first chunk, until Ctrl-C.
+WAITS_AFTER_FIRST_CHUNK = """
+import sys, time
+from stepzoo.bench.sweep import engine
+from stepzoo.cli import main
+write = engine._write_chunk
+def write_then_wait(*args):
+    write(*args)
+    time.sleep(300)
+engine._write_chunk = write_then_wait
+sys.argv[0] = "stepzoo"
+sys.exit(main())
+"""
+
+
 def test_an_interrupted_sweep_says_how_to_resume_and_resumes_to_the_same_tables(tiny_sweep,
                                                                               tmp_path):
+    """Ctrl-C lands while the sweep holds its first chunk on disk (the sweep waits there, so
+    the tiny sweep cannot end before the signal on a fast machine)."""
     path, whole = tiny_sweep
     out = tmp_path / "out"
-    proc = subprocess.Popen([*CTRL_C_REACHES, "sweep", str(path), "--out", str(out),
-                             "--no-progress"], cwd=ROOT, stderr=subprocess.PIPE, text=True)
+    proc = subprocess.Popen([*CTRL_C_REACHES[:-2], "-c", WAITS_AFTER_FIRST_CHUNK, "sweep",
+                             str(path), "--out", str(out), "--no-progress"], cwd=ROOT,
+                            stderr=subprocess.PIPE, text=True)
     deadline = time.monotonic() + 120
-    while not any((out / "chunks").glob("euler-*")) and time.monotonic() < deadline:
+    while not any((out / "chunks").glob("[!.]*")) and time.monotonic() < deadline:
         time.sleep(0.05)
     proc.send_signal(signal.SIGINT)
     _, err = proc.communicate(timeout=120)
