@@ -3,7 +3,7 @@ f(t, x, u, p) (pure JAX, in x's dtype), state and input names, parameter values,
 problem (initial state, constant inputs, interval) and its truth, a closed form or a tight
 reference. `model(name, tyre=...)` returns the same object for the same arguments.
 
-The vehicle models (dynamic5, dynamic6, kinematic, st) also take a vehicle set by name
+The vehicle models (dynamic5, dynamic6, kinematic, kinematic_cg, st) also take a vehicle set by name
 (`params(vehicle, vx)`) and start 'from rest' at an operating point (`from_rest(vx, delta)`)."""
 from dataclasses import dataclass, field
 from functools import cache
@@ -126,7 +126,7 @@ def _dynamic(name, tyre):
                     _bicycle_params(tyre, False), tyre)
 
 
-VEHICLE_MODELS = ("dynamic5", "dynamic6", "kinematic", "st")
+VEHICLE_MODELS = ("dynamic5", "dynamic6", "kinematic", "kinematic_cg", "st")
 TYRE_MODELS = ("dynamic5", "dynamic6")
 
 
@@ -134,6 +134,10 @@ def _build(name: str) -> Model:
     if name == "kinematic":
         return _vehicle(name, kinematic.kinematic_bicycle, kinematic.STATES, kinematic.INPUTS,
                         "kinematic bicycle (paper eq. pm)", _kinematic_params)
+    if name == "kinematic_cg":
+        return _vehicle(name, kinematic.rigid_bicycle, kinematic.RIGID_STATES,
+                        kinematic.INPUTS, "kinematic bicycle as a rigid car, at its centre of "
+                        "gravity", _kinematic_params)
     if name == "st":
         return _vehicle(name, single_track.single_track, single_track.STATES,
                         single_track.INPUTS, "CommonRoad single-track model (ST), 7 states",

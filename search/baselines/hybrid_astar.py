@@ -15,6 +15,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from stepzoo.dynamics.kinematic import shifted
 from stepzoo.search.planner.connection_ocp import dubins_paths, path_poses, reeds_shepp_paths
 from stepzoo.search.planner.endpoints import bad_endpoint, walled_off
 from stepzoo.search.planner.guide import corridors, geodesic
@@ -109,14 +110,11 @@ class HybridAStar:
 
     def centred(self, rear) -> np.ndarray:
         """Rear-axle poses (..., 3) [x, y, yaw] -> centre-of-gravity poses (..., 3)."""
-        rear = np.asarray(rear, float)
-        return np.stack([rear[..., 0] + self.lr * np.cos(rear[..., 2]),
-                         rear[..., 1] + self.lr * np.sin(rear[..., 2]), rear[..., 2]], -1)
+        return shifted(rear, self.lr)
 
     def rear(self, pose) -> np.ndarray:
         """A centre-of-gravity pose [X, Y, psi] -> its rear axle's [x, y, yaw]."""
-        x, y, yaw = np.asarray(pose, float)[:3]
-        return np.array([x - self.lr * math.cos(yaw), y - self.lr * math.sin(yaw), yaw])
+        return shifted(np.asarray(pose, float)[:3], -self.lr)
 
     def plan(self, start, goal, vx: float = 5.0) -> HybridAStarResult:
         """Plan from `start` to `goal`, centre-of-gravity poses [X, Y, psi] ([m, m, rad]) as

@@ -74,7 +74,7 @@ def plan_run(task: Task, finders: dict) -> dict:
     from stepzoo.search.plans.path_metrics import PATH_METRICS, path_metrics
     from stepzoo.search.planner.pathfinder import PathFinder
     from stepzoo.search.plans.files import path_rows, plan_drivability
-    from stepzoo.search.plans.replay import body_headings, controls, replay
+    from stepzoo.search.plans.replay import replay
     from stepzoo.search.world.scenarios import open_map
     from stepzoo.search.plans.tracking import tracking
     q, config = task.q, task.config
@@ -94,8 +94,7 @@ def plan_run(task: Task, finders: dict) -> dict:
     tracking_s = perf_counter() - t0
     exact = result.status == "exact"
     rows: np.ndarray | list = path_rows(result, finder.vehicle) if exact else []
-    metrics = path_metrics(rows, finder.omap, finder.vehicle_footprint,
-                           body_headings(rows, controls(result), finder.vehicle)) \
+    metrics = path_metrics(rows, finder.omap, finder.vehicle_footprint) \
         if exact else dict.fromkeys(PATH_METRICS)
     drivable = plan_drivability(rows, finder.vehicle, config.params)
     return ordered({

@@ -10,6 +10,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from stepzoo.dynamics.kinematic import shifted
 from stepzoo.search.planner.connection_ocp import dubins_paths, guess_paths, path_poses
 from stepzoo.search.planner.status import Cause
 
@@ -47,17 +48,20 @@ class Connector:
     def free_guesses(self, node, guesses) -> list | None:
         """The valid ones of `guesses`, the Dubins paths (with reverse gear, also Reeds-Shepp
         paths) from the node to the goal that the connection's guesses drive
-        (connect.guess_paths); all of them if only a Dubins path driven backwards is valid
-        (reverse gear); None if none is."""
+        (connect.guess_paths, of the rear axle's poses: `rear`); all of them if only a Dubins
+        path driven backwards is valid (reverse gear); None if none is."""
         s = self.s
-        radius, start = s.radius, s.tree.states[node][:3]
-        paths = [path_poses(start, segs, radius, DUBINS_SPACING) for segs in guesses]
+        radius, start, lever = s.radius, self.rear(s.tree.states[node]), s.f.lever
+        paths = [shifted(path_poses(start, segs, radius, DUBINS_SPACING), lever)
+                 for segs in guesses]
         if s.prm.reverse:
             # Backwards, the footprint (symmetric about its centre) sweeps what it sweeps
-            # driving forwards between the poses turned round.
+            # driving forwards between the poses turned round, the centre of gravity behind
+            # the turned round rear axle.
             back = start + (0.0, 0.0, math.pi)
-            paths += [path_poses(back, segs, radius, DUBINS_SPACING) for segs in
-                      dubins_paths(back, s.goal[:3] + (0.0, 0.0, math.pi), radius)]
+            paths += [shifted(path_poses(back, segs, radius, DUBINS_SPACING), -lever)
+                      for segs in dubins_paths(back, self.rear(s.goal) + (0.0, 0.0, math.pi),
+                                               radius)]
         if not paths:
             return None
         # One check of all words: each padded with its last pose to the longest.
@@ -68,6 +72,11 @@ class Connector:
         if not free.any():
             return None
         return [segs for segs, ok in zip(guesses, free) if ok] or list(guesses)
+
+    def rear(self, pose) -> np.ndarray:
+        """The pose [X, Y, psi] of the point of the car at `pose` (3+,) that turns on circles
+        of the turning radius: rate-limited, the rigid car's rear axle (PathFinder.lever)."""
+        return shifted(np.asarray(pose, float)[:3], -self.s.f.lever)
 
     def cost(self, conn, direction) -> float:
         """[m] the connection's cost as the tree's g counts it: its length, a metre backwards
@@ -116,7 +125,8 @@ class Connector:
                 continue
             # The OCP ignores obstacles: started from a free path it more often stays free
             # (rate-limited; the paper's planner tries every word's guess).
-            words = guess_paths(tree.states[i][:3], s.goal[:3], s.radius, prm.reverse)
+            words = guess_paths(self.rear(tree.states[i]), self.rear(s.goal), s.radius,
+                                prm.reverse)
             guesses = self.free_guesses(i, words)
             if guesses is not None and not s.f.rate_limited:
                 guesses = words

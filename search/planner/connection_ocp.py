@@ -15,7 +15,8 @@ import casadi as ca
 import jax.numpy as jnp
 import numpy as np
 
-from stepzoo.dynamics.kinematic import body_slip, kinematic_bicycle, kinematic_terms
+from stepzoo.dynamics.kinematic import (kinematic_bicycle, kinematic_terms, rigid_bicycle,
+                                         rigid_terms, shifted)
 from stepzoo.dynamics.models import steered
 from stepzoo.integrators import integrate, method as zoo_method
 from stepzoo.integrators.methods import TABLEAUS
@@ -53,13 +54,11 @@ CRAWL_SPACING_M = 0.02   # [m] between the path's poses it interpolates
 
 class Corridor(NamedTuple):
     """What the connection keeps clear of (rate-limited): the car's body as discs of
-    `radius` [m] at `offsets` (J,) [m] along it from (X, Y), the body facing theta less
-    asin(Lr tan(delta) / L) (Lr [m] from the rear axle to (X, Y)), and `clearance`, points
-    (..., 2) [m] -> (...) [m] a lower bound of their distance to the nearest obstacle
+    `radius` [m] at `offsets` (J,) [m] along its heading psi from (X, Y), and `clearance`,
+    points (..., 2) [m] -> (...) [m] a lower bound of their distance to the nearest obstacle
     (OccupancyMap.clearance)."""
     offsets: np.ndarray
     radius: float
-    Lr: float
     clearance: Callable
 
 
@@ -70,7 +69,8 @@ class Connection:
     status: str          # IPOPT's return status
     tf: float            # [s]
     t: np.ndarray        # (N+1,) [s]
-    states: np.ndarray   # (N+1, 4) [X, Y, theta, v] in [m, m, rad, m/s]
+    states: np.ndarray   # (N+1, 4) [X, Y, theta, v] in [m, m, rad, m/s] (steer_rates: the
+    #                      rigid car's [X, Y, psi, v], its centre of gravity and body)
     inputs: np.ndarray   # (N, 2) [delta rad, F N], piecewise constant (delta: at each
     #                      interval's start if steer_rates)
     solve_s: float       # wall time of `connect`: guess and every IPOPT try [s]
@@ -81,22 +81,24 @@ class Connection:
 
 @cache
 def step_function(method: str, steered: bool = False) -> ca.Function:
-    """One step x_{n+1} = step(x_n, u_n, h, L, m) of an explicit tableau of the zoo; `steered`:
-    the state [X, Y, theta, v, delta], the inputs [ddelta, F] (dynamics.models.steered)."""
+    """One step x_{n+1} = step(x_n, u_n, h, L, m, Lr) of an explicit tableau of the zoo, on
+    the paper's kinematic bicycle (Lr unused); `steered`: on the rigid car (dynamics
+    kinematic_cg: Lr [m] from the rear axle to its centre of gravity), the state [X, Y, psi,
+    v, delta], the inputs [ddelta, F] (dynamics.models.steered)."""
     if method not in TABLEAUS:
         raise KeyError(f"unknown method {method!r}; known: {', '.join(TABLEAUS)}")
     tab = TABLEAUS[method]
     if not tab.explicit:
         raise ValueError(f"method {method!r} is implicit; the connection needs an explicit one")
     x, u = ca.SX.sym("x", 4 + steered), ca.SX.sym("u", 2)
-    h, L, m = ca.SX.sym("h"), ca.SX.sym("L"), ca.SX.sym("m")
+    h, L, m, Lr = ca.SX.sym("h"), ca.SX.sym("L"), ca.SX.sym("m"), ca.SX.sym("Lr")
     if steered:
-        f = lambda t, y: ca.vertcat(*kinematic_terms(y, ca.vertcat(y[4], u[1]), L, m, ca.cos,
-                                                     ca.sin, ca.tan), u[0])
+        f = lambda t, y: ca.vertcat(*rigid_terms(y, ca.vertcat(y[4], u[1]), L, Lr, m, ca.cos,
+                                                 ca.sin, ca.tan, ca.sqrt), u[0])
     else:
         f = lambda t, y: ca.vertcat(*kinematic_terms(y, u, L, m, ca.cos, ca.sin, ca.tan))
     x_next = x + h * weighted(tab.b, rk_slopes(tab.a, tab.c, f, 0.0, x, h, tab.needed))
-    return ca.Function(f"step_{method}{'_steered' * steered}", [x, u, h, L, m], [x_next])
+    return ca.Function(f"step_{method}{'_steered' * steered}", [x, u, h, L, m, Lr], [x_next])
 
 
 def unwrap(theta, reference):
@@ -109,9 +111,9 @@ def _open_loop(N: int, method: str, steered: bool = False) -> ca.Function:
     """States (4 or 5, N+1) of the discrete model from x0 under inputs (2, N), step h."""
     step = step_function(method, steered)
     x0, us = ca.MX.sym("x0", 4 + steered), ca.MX.sym("u", 2, N)
-    h, L, m = ca.MX.sym("h"), ca.MX.sym("L"), ca.MX.sym("m")
-    xs = step.mapaccum("roll", N)(x0, us, h, L, m)
-    return ca.Function(f"open_loop{N}", [x0, us, h, L, m], [ca.horzcat(x0, xs)])
+    h, L, m, Lr = ca.MX.sym("h"), ca.MX.sym("L"), ca.MX.sym("m"), ca.MX.sym("Lr")
+    xs = step.mapaccum("roll", N)(x0, us, h, L, m, Lr)
+    return ca.Function(f"open_loop{N}", [x0, us, h, L, m, Lr], [ca.horzcat(x0, xs)])
 
 
 def _mod(a):
@@ -323,12 +325,6 @@ def _progress(t, runs, plans, a_max):
     return k, tau, v0 * a1 + a_max * a1 ** 2 / 2 + peak * (a2 + a3) - a_max * a3 ** 2 / 2
 
 
-def _ramp_steers(rates, steer0, rate_max, dt) -> np.ndarray:
-    """(N,) [rad] the steer at the end of each interval of dt [s] ramped from steer0 [rad] at
-    the scaled rates (N,) [1] of rate_max [rad/s] (from `_steer_ramps`)."""
-    return steer0 + np.cumsum(rates) * rate_max * dt
-
-
 def _guess_inputs(N, runs, plans, a_max):
     """Scaled inputs (2, N) [steer sign, acceleration / a_max] at the midpoints of N equal
     intervals of driving `runs` at their speed profiles `plans` (from `_profile`)."""
@@ -369,7 +365,7 @@ class _Problem:
     """A built IPOPT solver and the maps from its variables to the connection."""
     watch: "_StallWatch"  # its iteration callback
     solver: ca.Function   # nlpsol: x = [T, vec(U)(, vec(Z))], p = [x0, goal, L, m, d_max,
-    #                       a_max(, rate_max, a_lat, v_steer, Lr)(, the corridor's Lr,
+    #                       a_max(, rate_max, a_lat, v_steer, Lr)(, the corridor's
     #                       offsets, centres)(, v_goal)]; g = [defects
     #                       (multiple), end, state rows (single), lateral acceleration / a_lat
     #                       and the steer rate per metre (steered)]
@@ -459,33 +455,30 @@ def _problem(N: int, shooting: str, method: str, bounded: bool, speed_fixed: boo
     """The parametrised minimum-time OCP, positions relative to the start node; `steered`:
     the steer a state, its rate the control, v^2 tan(delta) / L bounded, and below the speed
     v_steer the steer rate bounded per metre (rate_max / v_steer [rad/m]); `discs` (steered):
-    the squared distance of each of that many discs of the car's body (Lr and their offsets
+    the squared distance of each of that many discs of the car's body (their offsets
     parameters) at each node 1..N from a parametrised centre, whose bounds the solve sets."""
     nx = 4 + steered
     k = nx + LIMITS_AT            # parameters before (rate_max, a_lat, v_steer, Lr), the
-    #                               discs' (Lr, offsets, centres (2, N * discs)) and v_goal
-    n_discs = (1 + discs + 2 * N * discs) if discs else 0
+    #                               discs' (offsets, centres (2, N * discs)) and v_goal
+    n_discs = (discs + 2 * N * discs) if discs else 0
     p = ca.MX.sym("p", k + 4 * steered + n_discs + speed_fixed)
     x0, goal, L, m, d_max, a_max = p[:nx], p[nx:nx + 3], p[nx + 3], p[nx + 4], p[nx + 5], \
         p[nx + 6]
     T, U = ca.MX.sym("T"), ca.MX.sym("U", 2, N)
     inputs = ca.vertcat((p[k] if steered else d_max) * U[0, :], m * a_max * U[1, :])
-    rollout = _open_loop(N, method, steered)(x0, inputs, T / N, L, m)
+    Lr = p[k + 3] if steered else 0.0
+    rollout = _open_loop(N, method, steered)(x0, inputs, T / N, L, m, Lr)
     if shooting == "multiple":
         Z = ca.MX.sym("Z", nx, N)
         x, states = ca.veccat(T, U, Z), ca.horzcat(x0, Z)
-        defects = Z - step_function(method, steered).map(N)(states[:, :-1], inputs, T / N, L, m)
+        defects = Z - step_function(method, steered).map(N)(states[:, :-1], inputs, T / N, L, m,
+                                                            Lr)
         g = [ca.vec(defects)]
     elif shooting == "single":
         x, states, g = ca.veccat(T, U), rollout, []
     else:
         raise ValueError(f"shooting must be 'single' or 'multiple', not {shooting!r}")
-    if steered:
-        # The goal heading is the body's: theta less the rolling slip at the end steer
-        # (dynamics.kinematic.body_slip), Lr [m] from the rear axle to (X, Y).
-        g.append(ca.vertcat(states[:2, -1], _body(states[:, -1:], L, p[k + 3])) - goal)
-    else:
-        g.append(states[:3, -1] - goal)
+    g.append(states[:3, -1] - goal)
     if speed_fixed:
         g.append(states[3, -1] - p[-1])
     rows = slice(0 if bounded else 2, nx)
@@ -499,15 +492,13 @@ def _problem(N: int, shooting: str, method: str, bounded: bool, speed_fixed: boo
         for ends in (states[3, :-1], states[3, 1:]):
             g.append(ca.vec(U[0, :] ** 2 - (ends / p[k + 2]) ** 2))
     if discs:
-        # The body faces theta less the rolling slip asin(Lr tan(delta) / L)
-        # (dynamics.kinematic.body_slip); each disc centre lies its offset along the body.
+        # Each disc centre lies its offset along the body, from the centre of gravity.
         c = k + 4
-        offsets = p[c + 1:c + 1 + discs]
-        centres = ca.reshape(p[c + 1 + discs:c + n_discs], 2, N * discs)
-        body = _body(states[:, 1:], L, p[c])
+        offsets = p[c:c + discs]
+        centres = ca.reshape(p[c + discs:c + n_discs], 2, N * discs)
         along = ca.repmat(offsets.T, 1, N)                       # disc fastest
         cx, cy, heading = (ca.reshape(ca.repmat(row, discs, 1), 1, N * discs)
-                           for row in (states[0, 1:], states[1, 1:], body))
+                           for row in (states[0, 1:], states[1, 1:], states[2, 1:]))
         g.append(ca.vec((cx + along * ca.cos(heading) - centres[0, :]) ** 2
                         + (cy + along * ca.sin(heading) - centres[1, :]) ** 2))
     ipopt = {**IPOPT_OPTIONS, **ADAPTIVE_MU} if shooting == "multiple" else IPOPT_OPTIONS
@@ -522,12 +513,6 @@ def _problem(N: int, shooting: str, method: str, bounded: bool, speed_fixed: boo
     return _Problem(watch, solver, ca.Function("rollout", [T, U, p], [rollout]),
                     ca.Function("path", [x, p], [states, inputs]), shooting, 3 + speed_fixed,
                     rows, nx)
-
-
-def _body(states, L, Lr):
-    """The body's heading [rad] at steered states (5, n) [X, Y, theta, v, delta]: theta less
-    asin(Lr tan(delta) / L) (dynamics.kinematic.body_slip), L and Lr [m]."""
-    return states[2, :] - ca.asin(Lr * ca.tan(states[4, :]) / L)
 
 
 def _solve(prob, p, lo, hi, tf_range, tf_g, u_g, per_metre=False, room=None,
@@ -567,9 +552,6 @@ def _solve(prob, p, lo, hi, tf_range, tf_g, u_g, per_metre=False, room=None,
     # goal (, v_goal): v_goal is the last parameter when the speed is fixed
     target = np.r_[p[nx:nx + 3], p[len(p) - (prob.n_end - 3):]]
     end = states[-1, :len(target)] - target
-    if nx == 5:  # steered: the goal heading is the body's (_body)
-        L, Lr = p[nx + 3], p[nx + LIMITS_AT + 3]      # as _problem reads them
-        end[2] -= float(body_slip(states[-1, 4], L, Lr))
     success = bool(stats["success"]) and float(np.abs(end).max()) < END_TOL
     rates = None
     if nx == 5:
@@ -594,9 +576,9 @@ def connect(start, goal, *, L, m, bounds=None, N=50, shooting=DEFAULT_SHOOTING,
     `steer_speed` [m/s] (default: no bound per metre) the steer turns at most max_steer_rate /
     steer_speed per metre (STANDSTILL_RATE of its rate at a standstill): a minimum-time car
     does not slow to a crawl to turn the wheel, which leaves a kink no car tracks at speed.
-    With it the goal's heading is the body's: the car ends with theta - asin(Lr tan(delta)
-    / L) (dynamics.kinematic.body_slip; Lr [m] from the rear axle to (X, Y)) on it, its end
-    steer free (0, the default, is the rear axle's point: theta).
+    With it the car is the kinematic bicycle as a rigid car (dynamics kinematic_cg): `start`
+    and `goal` are its centre of gravity, Lr [m] ahead of the rear axle, and its body's
+    heading, and its guesses drive its rear axle, which turns on circles of L / tan(delta).
     Without max_steer_rate (None, the paper's OCP) the steer is a control. With it, a
     `corridor` keeps the car off the obstacles: at each node each disc of the body lies
     within a ball free of obstacles that holds its guess's disc (`_rooms`: the widest of
@@ -615,7 +597,8 @@ def connect(start, goal, *, L, m, bounds=None, N=50, shooting=DEFAULT_SHOOTING,
     start and goal. The fastest guess is tried first; if IPOPT fails (a map bound may cut
     that path), the fastest of each other winding and first direction of travel is tried,
     up to MAX_TRIES solves. `paths` passes those paths when the caller has them already:
-    guess_paths(start, goal, radius, v_min < 0) with radius = L / tan(delta_max).
+    guess_paths(start, goal, radius, v_min < 0) with radius = L / tan(delta_max), start and
+    goal the rear axle's poses (steered).
     Never raises for an infeasible problem: `success` is False and the arrays hold IPOPT's
     last iterate. The cached solver makes this function not thread-safe."""
     t0 = perf_counter()
@@ -638,8 +621,11 @@ def connect(start, goal, *, L, m, bounds=None, N=50, shooting=DEFAULT_SHOOTING,
     v_goal = [] if goal_speed is None else [goal_speed]
     radius = L / np.tan(delta_max)
     goal_local = np.array([*(goal[:2] - origin), goal[2]])
+    # The guesses drive the point that turns on circles of `radius`: the rigid car's rear axle.
+    lever = Lr if rate_limited else 0.0
+    rear = shifted(x0[:3], -lever)
     if paths is None:
-        paths = guess_paths(x0[:3], goal_local, radius, v_min < 0)
+        paths = guess_paths(rear, shifted(goal_local, -lever), radius, v_min < 0)
     # Fastest guess first; forwards only, that is the shortest Dubins path first.
     # The inputs, a Python loop per interval, are built only for the guesses tried.
     # Steered, the guess keeps to the speed at which its tightest turn meets the lateral limit.
@@ -660,7 +646,7 @@ def connect(start, goal, *, L, m, bounds=None, N=50, shooting=DEFAULT_SHOOTING,
         tf_g = min(max(guess.tf, tf_lo), tf_hi)
         lo = np.array([box[0], box[2], min(start[2], theta_g) - THETA_MARGIN, v_min])
         hi = np.array([box[1], box[3], max(start[2], theta_g) + THETA_MARGIN, v_max])
-        x_start, z_g, steers = x0, None, delta_max * u_g[0]
+        x_start, z_g = x0, None
         poses = None
         if rate_limited:
             x_start = np.r_[x0, steer0]
@@ -668,7 +654,7 @@ def connect(start, goal, *, L, m, bounds=None, N=50, shooting=DEFAULT_SHOOTING,
             if shooting == "multiple":
                 # The states start on a guess the car can drive (_crawl_guess): the path at
                 # its turns' steers, the wheel turned standing.
-                tf_g, z_g = _crawl_guess(N, x0[:3], x0[3], steer0,
+                tf_g, z_g = _crawl_guess(N, rear, x0[3], steer0,
                                          [(sign, way * q) for way, run in guess.runs
                                           for sign, q in run], radius, delta_max,
                                          max_steer_rate, a_max, v_max, -v_min,
@@ -676,24 +662,24 @@ def connect(start, goal, *, L, m, bounds=None, N=50, shooting=DEFAULT_SHOOTING,
                 tf_g = min(max(tf_g, tf_lo), tf_hi)
                 u_g = np.clip(np.diff(z_g[3:], axis=1)
                               / (np.c_[[a_max, max_steer_rate]] * tf_g / N), -1.0, 1.0)[::-1]
-                z_g, poses, steers = z_g[:, 1:], z_g[:3, 1:].T, z_g[4, 1:]
+                z_g[:3] = shifted(z_g[:3].T, lever).T
+                z_g, poses = z_g[:, 1:], z_g[:3, 1:].T
             else:
                 u_g[0] = _steer_ramps(u_g[0], steer0, delta_max, max_steer_rate, tf_g / N)
-                steers = _ramp_steers(u_g[0], steer0, max_steer_rate, tf_g / N)
         p = np.r_[x_start, goal_local[:2], theta_g, L, m, delta_max, a_max, limits, v_goal]
         solved = _solve(prob, p, lo, hi, (tf_lo, tf_hi), tf_g, u_g, steer_speed is not None,
                         z_g=z_g)
         solves += 1
         if (kept is not None and corridor is not None and solved.success
-                and _touches(corridor, solved, L, origin)):
+                and _touches(corridor, solved, origin)):
             # The OCP ignores obstacles: solved again, each disc kept within a free ball that
             # holds its guess's disc.
             if poses is None:
-                poses = _guess_poses(N, x0[:3], radius, guess.runs, guess.plans, a_max)
-            centres, room = _rooms(corridor, _disc_centres(corridor, poses, steers, L) + origin)
+                poses = shifted(_guess_poses(N, rear, radius, guess.runs, guess.plans, a_max),
+                                lever)
+            centres, room = _rooms(corridor, _disc_centres(corridor, poses) + origin)
             centres -= origin
-            p = np.r_[p[:len(p) - len(v_goal)], corridor.Lr, corridor.offsets, centres.ravel(),
-                      v_goal]
+            p = np.r_[p[:len(p) - len(v_goal)], corridor.offsets, centres.ravel(), v_goal]
             solved = _solve(kept, p, lo, hi, (tf_lo, tf_hi), tf_g, u_g,
                             steer_speed is not None, room.ravel(), z_g)
             solves += 1
@@ -706,21 +692,12 @@ def connect(start, goal, *, L, m, bounds=None, N=50, shooting=DEFAULT_SHOOTING,
                       shooting=shooting, steer_rates=solved.steer_rates)
 
 
-def node_steers(inputs, steer_rates, tf) -> np.ndarray:
-    """(N+1,) [rad] the steer at each node 0..N of a steered solution: the inputs' (N, 2)
-    [delta, F] steers at nodes 0..N-1, and the last one ramped on at its rate [rad/s] over
-    an interval of tf / N [s]."""
-    dt = tf / len(inputs)
-    return np.r_[inputs[:, 0], inputs[-1, 0] + steer_rates[-1] * dt]
-
-
-def _disc_centres(corridor: Corridor, poses, steers, L) -> np.ndarray:
+def _disc_centres(corridor: Corridor, poses) -> np.ndarray:
     """(n, J, 2) [m] the centres of the corridor's discs of the car at poses (n, 3+) [X, Y,
-    theta] and steers (n,) [rad], its body facing theta less its rolling slip."""
+    psi]."""
     poses = np.asarray(poses, float)
-    body = poses[:, 2] - body_slip(steers, L, corridor.Lr)
     return poses[:, None, :2] + np.asarray(corridor.offsets)[None, :, None] \
-        * np.stack([np.cos(body), np.sin(body)], axis=-1)[:, None, :]
+        * np.stack([np.cos(poses[:, 2]), np.sin(poses[:, 2])], axis=-1)[:, None, :]
 
 
 def _rooms(corridor: Corridor, centres) -> tuple[np.ndarray, np.ndarray]:
@@ -744,24 +721,22 @@ def _rooms(corridor: Corridor, centres) -> tuple[np.ndarray, np.ndarray]:
     return pick, np.take_along_axis(room, best[..., None], axis=-1)[..., 0]
 
 
-def _touches(corridor: Corridor, solved: _Solution, L, origin) -> bool:
+def _touches(corridor: Corridor, solved: _Solution, origin) -> bool:
     """Whether a disc of the car touches an obstacle at a node 1..N of the (steered) solution,
     positions relative to `origin` [m]."""
-    assert solved.steer_rates is not None
-    steers = node_steers(solved.inputs, solved.steer_rates, solved.tf)[1:]
-    centres = _disc_centres(corridor, solved.states[1:], steers, L)
+    centres = _disc_centres(corridor, solved.states[1:])
     return bool((corridor.clearance(centres + origin) <= corridor.radius).any())
 
 
-def resimulate(conn: Connection, *, L, m, refine=10) -> np.ndarray:
+def resimulate(conn: Connection, *, L, m, Lr=0.0, refine=10) -> np.ndarray:
     """States (N*refine+1, 4) re-integrated with the zoo's rk4 driver on a `refine`-times
     finer step under the connection's piecewise-constant inputs (steer rates, the steer a
-    state, if it has them): checks the discretisation."""
-    rk4, p = zoo_method("rk4"), {"L": float(L), "m": float(m)}
+    state, on the rigid car with Lr [m], if it has them): checks the discretisation."""
+    rk4, p = zoo_method("rk4"), {"L": float(L), "m": float(m), "Lr": float(Lr)}
     h = conn.tf / len(conn.inputs) / refine
     rhs, x, inputs = kinematic_bicycle, jnp.asarray(conn.states[0]), conn.inputs
     if conn.steer_rates is not None:
-        rhs, x = steered(kinematic_bicycle), jnp.asarray(np.r_[conn.states[0], conn.inputs[0, 0]])
+        rhs, x = steered(rigid_bicycle), jnp.asarray(np.r_[conn.states[0], conn.inputs[0, 0]])
         inputs = np.column_stack([conn.steer_rates, conn.inputs[:, 1]])
     rows = [conn.states[:1]]
     for u in inputs:

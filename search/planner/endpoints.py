@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from stepzoo.dynamics.kinematic import shifted
 from stepzoo.search.proofs.departure import boxed_in, turned
 from stepzoo.search.world.footprint import Footprint
 from stepzoo.search.planner.guide import lattice
@@ -42,15 +43,16 @@ def walled_off(omap: OccupancyMap, labels: np.ndarray, start, goal) -> tuple[Cau
 
 
 def departure_boxed_in(omap: OccupancyMap, footprint: Footprint, start, goal,
-                       radius: float) -> tuple[Cause | None, str]:
+                       radius: float, lever: float = 0.0) -> tuple[Cause | None, str]:
     """START_BOXED_IN (GOAL_BOXED_IN) if, forward only, every way out of the start (into the
     goal: the way out of the goal turned round) of curvature <= 1/radius [1/m] collides at
     once. Forward only: with reverse gear short moves to and fro can turn a car round where
-    neither way is free for long."""
+    neither way is free for long. The paths are those of the point `lever` [m] behind the
+    poses' (X, Y) (the rigid car's rear axle), which carries the footprint along (`seen`)."""
     gap = float(np.hypot(*(goal[:2] - start[:2])))
-    for name, pose, leave in (("start", start, "departure"),
-                              ("goal", turned(goal), "arrival")):
-        boxed, longest = boxed_in(omap, footprint, pose, radius)
+    for name, (pose, car), leave in (("start", seen(footprint, start, lever), "departure"),
+                                     ("goal", seen(footprint, goal, lever, True), "arrival")):
+        boxed, longest = boxed_in(omap, car, pose, radius)
         # A path shorter than the proof's length could end before it collides.
         if boxed and gap > longest:
             return Cause(f"{name}_boxed_in"), (
@@ -61,13 +63,15 @@ def departure_boxed_in(omap: OccupancyMap, footprint: Footprint, start, goal,
 
 
 def enclosed(omap: OccupancyMap, footprint: Footprint, start, goal,
-             radius: float) -> tuple[Cause | None, str]:
+             radius: float, lever: float = 0.0) -> tuple[Cause | None, str]:
     """START_BOXED_IN (GOAL_BOXED_IN) if, forward only, no forward path gets from the start
     near the goal (or from the goal turned round near the start), proved by growing every
-    pose such a path can reach (`reach.unreachable`). It costs seconds: run once a search has
+    pose such a path can reach (`reach.unreachable`), the paths those of the point `lever`
+    [m] behind the poses' (X, Y) (`seen`). It costs seconds: run once a search has
     exhausted."""
-    for name, pose, other in (("start", start, goal), ("goal", turned(goal), start)):
-        if unreachable(omap, footprint, pose, radius, other[:2]):
+    for name, (pose, car), other in (("start", seen(footprint, start, lever), goal),
+                                     ("goal", seen(footprint, goal, lever, True), start)):
+        if unreachable(omap, car, pose, radius, other[:2]):
             return Cause(f"{name}_boxed_in"), (
                 f"{name} boxed in: every pose a forward path of curvature <= 1/{radius:.2f} "
                 f"m can reach from it (grown on {CELL_M:g} m and "
@@ -75,3 +79,12 @@ def enclosed(omap: OccupancyMap, footprint: Footprint, start, goal,
                 f"and over {STEP_M:g} m from the {'goal' if name == 'start' else 'start'}"
                 "; try --reverse")
     return None, ""
+
+
+def seen(footprint: Footprint, pose, lever: float, back: bool = False) -> tuple:
+    """(pose, footprint) of the car at `pose` [X, Y, psi] seen from the point `lever` [m]
+    behind (X, Y) (the rigid car's rear axle); `back`: turned round, the way out of a goal
+    that the car arrives at forwards."""
+    pose = shifted(np.asarray(pose, float)[:3], -lever)
+    car = footprint.seen_from(lever)
+    return (turned(pose), car.turned()) if back else (pose, car)

@@ -8,7 +8,6 @@ import math
 
 import numpy as np
 
-from stepzoo.dynamics.kinematic import body_slip
 from stepzoo.search.planner.point_selector import point_selector, random_points
 from stepzoo.search.planner.shooting import Shots, integrate_together
 
@@ -56,7 +55,6 @@ class Expander:
             randoms.append(points)
         rows = self.filled(nodes)
         states = np.repeat(tree.states[rows], self.per, axis=0)
-        body = np.repeat(s.body_states(rows), self.per, axis=0)
         steers = np.repeat(tree.steer[rows], self.per)  # each shooting starts at its node's
         ways = np.repeat(tree.direction[rows], self.per)
         new = []
@@ -80,13 +78,11 @@ class Expander:
             settle = None
             if s.f.rate_limited and direction > 0:
                 settle = standing | (ways < 0) | np.repeat(tree.tight[rows], self.per)
-            # From a standstill the car sets off from its body's heading.
-            start = np.where(standing[:, None], body, states)
             steer0 = np.where(standing, np.nan, steers)
-            steer = shooter.aim(start, np.vstack(aims), steer0)
+            steer = shooter.aim(states, np.vstack(aims), steer0)
             if direction > 0 and s.f.course_limited:
                 steer = self.rate_bounded(rows, steer, steer0, shooter)
-            requests.append((shooter, shooter.launch(start, steer, steer0, settle), steer,
+            requests.append((shooter, shooter.launch(states, steer, steer0, settle), steer,
                              steer0))
         # Tight moves (below) are shot from every node of the batch in the same call as the
         # tree's moves, before it is known which nodes take them: one call of the driver per
@@ -97,19 +93,10 @@ class Expander:
         trajectories = integrate_together(requests)
         for (direction, shooter), (_, _, steer, steer0), states in zip(gears, requests,
                                                                       trajectories):
-            turned = None
+            shots = shooter.shots(states, steer, steer0, s.goal)
             if direction > 0 and s.f.rate_limited:
-                # From a tight move's node (the kinematic bicycle, whose (X, Y) moves along
-                # theta) the tree's move sets off with psi = theta, but the car's body faces
-                # body_slip short of theta and turns only as it drives on: the move is clear
-                # only where that body is clear too (in a door the tracked car, its body that
-                # far off the planned one, touched the wall).
-                slow = np.repeat(tree.tight[rows], self.per)
-                turned = np.where(slow, -body_slip(steers, shooter.wheelbase,
-                                                   shooter.scalars["Lr"]), 0.0)
-            shots = shooter.shots(states, steer, steer0, s.goal, turned)
-            if turned is not None:
                 # From a tight move's node the car speeds up only with its wheel near straight.
+                slow = np.repeat(tree.tight[rows], self.per)
                 shots.free[slow & (np.abs(shots.steer0) > s.f.speed_change_steer)] = 0
             cramped |= (shots.free < shots.states.shape[1]).reshape(len(rows), -1).any(
                 axis=1)[:len(nodes)]
@@ -188,8 +175,7 @@ class Expander:
                 near[middle] = np.clip(0.0, steers[middle] - reach, steers[middle] + reach)
                 near = self.rate_bounded(rows, near, steers, shooter)
             fan = np.where(np.isnan(steers), fan, near)
-        start = np.where(standing[:, None], s.body_states(rows), tree.states[rows])
-        start = np.repeat(start, self.per, axis=0)
+        start = np.repeat(tree.states[rows], self.per, axis=0)
         return shooter, shooter.launch(start, fan, steers), fan, steers
 
     def filled(self, items: list) -> list:

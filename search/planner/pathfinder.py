@@ -12,9 +12,8 @@ from typing import NamedTuple
 import numpy as np
 
 from stepzoo import dynamics
-from stepzoo.dynamics.kinematic import body_slip
 from stepzoo.dynamics.vehicles import limits as vehicle_limits
-from stepzoo.search.planner.connection_ocp import Connection, Corridor, connect, node_steers
+from stepzoo.search.planner.connection_ocp import Connection, Corridor, connect
 from stepzoo.search.planner.endpoints import bad_endpoint, departure_boxed_in, enclosed, walled_off
 from stepzoo.search.planner.expansion import SPEED_CHANGE_STEER, STRAIGHT_STEER, Expander
 from stepzoo.search.world.footprint import Footprint
@@ -86,6 +85,10 @@ class PathFinder:
         # Tight moves are driven slower: the steer turns faster per metre and the lateral
         # limit allows the full lock.
         self.tight_vx = min(prm.tight_speed, self.vx) if self.rate_limited else self.vx
+        # [m] from the point of the kinematic moves that turns on circles of turn_radius to
+        # their (X, Y): rate-limited, the rigid car's rear axle to its centre of gravity;
+        # instant, the paper's kinematic bicycle's (X, Y) turns so itself.
+        self.lever = self.vehicle["Lr"] if self.rate_limited else 0.0
 
         def shooter(vx=self.vx, rate=self.steer_rate, **kind):
             return Shooter(self.checker, self.vehicle["name"], vx, config.method, config.h,
@@ -172,7 +175,7 @@ class PathFinder:
         cause, reason = walled_off(self.omap, self.corridors(), start, goal)
         if cause is None and not self.config.params.reverse:
             cause, reason = departure_boxed_in(self.omap, self.footprint, start, goal,
-                                               self.turn_radius())
+                                               self.turn_radius(), self.lever)
         return cause, reason
 
     def turn_radius(self) -> float:
@@ -195,8 +198,8 @@ class PathFinder:
         pose, its guesses driving `paths` (connect's); (connection, '' or why not). With
         reverse gear the OCP lets the speed go down to -tight_vx; rate-limited, it starts at the
         node's steer and bounds the steer rate and the lateral acceleration by the planned
-        limits (the OCP may slow down to turn tighter: its steer limit is delta_max) and ends
-        with the car's body, not theta, on the goal's heading."""
+        limits (the OCP may slow down to turn tighter: its steer limit is delta_max), on the
+        rigid car whose states are the node's (centre of gravity and body)."""
         prm = self.config.params
         limits = ({"steer0": steer, "max_steer_rate": self.steer_rate,
                    "max_lateral_acceleration": self.lateral_limit, "Lr": self.vehicle["Lr"]}
@@ -204,7 +207,7 @@ class PathFinder:
         speed = self.vx if speed is None else speed
         if self.rate_limited:
             limits["corridor"] = Corridor(self.footprint.offsets, self.footprint.radius,
-                                          self.vehicle["Lr"], self.omap.clearance)
+                                          self.omap.clearance)
         conn = connect([node[0], node[1], node[2], direction * speed], goal, L=self.wheelbase,
                        m=self.vehicle["m"], bounds=bounds or self.omap.bounds(),
                        N=prm.connect_N, goal_speed=goal_speed, delta_max=prm.delta_max,
@@ -216,14 +219,8 @@ class PathFinder:
         return conn, ""
 
     def connection_poses(self, conn: Connection) -> np.ndarray:
-        """(N+1, 3) the poses [X, Y, psi] the car's body takes at the connection's nodes: its
-        states'; rate-limited, turned back by the rolling slip at the node's steer
-        (dynamics.kinematic.body_slip), as the car keeping to the path faces."""
-        poses = conn.states[:, :3].copy()
-        if conn.steer_rates is not None:
-            steer = node_steers(conn.inputs, conn.steer_rates, conn.tf)
-            poses[:, 2] -= body_slip(steer, self.wheelbase, self.vehicle["Lr"])
-        return poses
+        """(N+1, 3) the poses [X, Y, psi] the car's body takes at the connection's nodes."""
+        return conn.states[:, :3]
 
 
 class Cell(NamedTuple):
@@ -268,7 +265,7 @@ class Search:
                    if prm.guide == "heading" else None)
         self.guide = Guide(finder.omap, finder.corridors(), goal,
                            finder.vehicle["width"] / 2 + prm.margin, prm.connect_radius,
-                           self.radius, bool(prm.reverse), heading)
+                           self.radius, bool(prm.reverse), heading, finder.lever)
         root = np.array([*start, 0.0, 0.0])
         self.tree = Tree()
         self.tree.add([None], states=root, parent=-1, g=0.0,
@@ -299,13 +296,6 @@ class Search:
                     direction if self.prm.reverse else 0,
                     math.floor(steer / STEER_CELL + 0.5) if self.f.rate_limited else 0, fine,
                     int(self.f.course_limited and abs(steer) <= STRAIGHT_STEER))
-
-    def body_states(self, nodes) -> np.ndarray:
-        """(n, 5) the states of `nodes` with psi the car body's heading (Shooter.body_states):
-        a move from a standstill sets off from the body."""
-        t = self.tree
-        return self.f.shooter.body_states(t.states[nodes], t.steer[nodes],
-                                          t.tight[nodes] | (t.direction[nodes] < 0))
 
     def order(self, nodes) -> list[float]:
         """The search's order of `nodes`: g + w H, w = h_weight (above 1: greedier first
@@ -393,7 +383,7 @@ class Search:
                     if res.widened else "tight moves off"))
         if res.cause == Cause.EXHAUSTED and not self.prm.reverse:
             cause, why = enclosed(self.f.omap, self.f.footprint, self.tree.states[0][:3],
-                                  self.goal, self.radius)
+                                  self.goal, self.radius, self.f.lever)
             if cause:
                 res.cause, ended = cause, f"{ended}; {why}"
         return ended

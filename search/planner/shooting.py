@@ -9,7 +9,6 @@ import jax.numpy as jnp
 import numpy as np
 
 from stepzoo import dynamics
-from stepzoo.dynamics.kinematic import body_slip
 from stepzoo.dynamics.linear import lateral_matrix
 from stepzoo.dynamics.models import steered
 from stepzoo.integrators import integrate_batch, kept_programs, method
@@ -58,19 +57,21 @@ class Shooter:
     Hybrid A*'s and CommonRoad's steer-rate inputs do, except from a standstill (a start steer
     of NaN: the start, a cusp), where the driver turns the wheel before moving off and the
     shooting holds its end steer; without, each shooting holds one steer, set at once, as the
-    paper. Rate-limited, a kinematic shooting from a standstill starts from a state whose psi
-    is the car body's heading: the kinematic bicycle's theta, along which its (X, Y) moves,
-    starts body_slip (dynamics.kinematic.body_slip) at its steer to the side the steer turns,
-    as a car sets off once its wheel is turned. Rolling on, it carries the node's theta on,
-    so that its centre of gravity's path has no kink."""
+    paper. Rate-limited, the kinematic shootings drive the kinematic bicycle as a rigid car
+    (dynamics "kinematic_cg": its (X, Y) the centre of gravity, psi the body, as the dynamic
+    bicycle's), so that every row of a plan is one car's pose: turning the wheel at a
+    standstill turns the body nowhere, and the centre of gravity sets off at the new steer's
+    slip beside the body; without, the paper's kinematic bicycle (eq. pm), whose (X, Y)
+    moves along its psi."""
 
     def __init__(self, checker: ValidityChecker, vehicle: str, vx: float, method_name: str,
                  h: float, n_steps: int, batch: int, delta_max: float, reverse: bool = False,
                  tight: bool = False, max_steer_rate: float | None = None):
         self.reverse = reverse
         self.kinematic = reverse or tight
-        self.model = dynamics.model("kinematic" if self.kinematic else "dynamic5")
         self.rate = max_steer_rate
+        kinematic = "kinematic" if max_steer_rate is None else "kinematic_cg"
+        self.model = dynamics.model(kinematic if self.kinematic else "dynamic5")
         self.rhs = self.model.rhs if self.rate is None else steered(self.model.rhs)
         self.checker = checker
         self.method = method(method_name)
@@ -108,8 +109,7 @@ class Shooter:
 
     def integrate(self, x0, steer, steer0=None) -> np.ndarray:
         """(B, 5) states and (B,) end steers (and, rate-limited, (B,) start steers, NaN: from a
-        standstill) -> (B, N+1, 5) trajectories (kinematic and rate-limited, from a
-        standstill: psi the body's heading in x0, the kinematic theta in the trajectories)."""
+        standstill) -> (B, N+1, 5) trajectories."""
         return integrate_together([(self, x0, steer, steer0)])[0]
 
     def model_inputs(self, x0, steer, steer0=None) -> tuple[np.ndarray, np.ndarray]:
@@ -125,11 +125,7 @@ class Shooter:
             inputs = steer[:, None]
         else:
             # The steer a state, its constant rate the input.
-            standing = np.isnan(np.broadcast_to(np.asarray(steer0, float), steer.shape))
             steer0 = self.start_steers(steer0, steer)
-            if self.kinematic:
-                x0[:, 2] += np.where(standing, body_slip(steer0, self.wheelbase,
-                                                         self.scalars["Lr"]), 0.0)
             x0, inputs = np.column_stack([x0, steer0]), ((steer - steer0) / self.duration)[:, None]
         if self.kinematic:
             inputs = np.column_stack([inputs, np.zeros(B)])            # [delta or rate, F = 0]
@@ -157,34 +153,6 @@ class Shooter:
         A, b = lateral_matrix(self.vx, delta, self.scalars, np)
         x0[rows, 3:5] = -np.linalg.solve(np.moveaxis(A, 2, 0), b.T[..., None])[..., 0]
         return x0
-
-    def body_poses(self, states, steer, steer0, fraction) -> np.ndarray:
-        """(B, K, 3) the poses [X, Y, psi] the car's body takes at `states` (B, K, 5), at the
-        `fraction` (K,) of the shootings to the end steers `steer` (B,) from `steer0`: the
-        dynamic bicycle's own; rate-limited on the kinematic bicycle, whose (X, Y) moves along
-        theta, the car's body turned back by its rolling slip at the ramp's steer
-        (dynamics.kinematic.body_slip), as the car keeping to the path faces; at the node
-        itself (fraction 0) of a move rolling on, the node's pose (the move that reached it
-        checked it)."""
-        poses = states[..., :3]
-        if not self.kinematic or self.rate is None:
-            return poses
-        start = self.start_steers(steer0, steer)
-        delta = start[:, None] + (steer - start)[:, None] * fraction[None, :]
-        standing = np.isnan(np.broadcast_to(np.asarray(steer0, float), steer.shape))
-        slip = np.where((fraction[None, :] > 0) | standing[:, None],
-                        body_slip(delta, self.wheelbase, self.scalars["Lr"]), 0.0)
-        return np.concatenate([poses[..., :2], (poses[..., 2] - slip)[..., None]], axis=-1)
-
-    def body_states(self, states, steer, kinematic) -> np.ndarray:
-        """`states` (B, 5) of nodes with psi the car body's heading: rate-limited, the rows
-        `kinematic` (B,) bool (reached by a kinematic move) hold the kinematic theta at their
-        end steer `steer` (B,) [rad], which the body faces body_slip short of."""
-        states = np.array(states, float)
-        if self.rate is not None:
-            states[:, 2] -= np.where(kinematic, body_slip(steer, self.wheelbase,
-                                                          self.scalars["Lr"]), 0.0)
-        return states
 
     def shoot(self, state, points, destination, steer0=0.0, settle=None) -> Shots:
         """Shoot from `state` (5,), or from one state per point (B, 5), at steer `steer0`
@@ -221,12 +189,10 @@ class Shooter:
             start = self.settled(start, self.start_steers(steer0, steer), settle)
         return start
 
-    def shots(self, states, steer, steer0, destination, turned=None) -> Shots:
+    def shots(self, states, steer, steer0, destination) -> Shots:
         """The Shots of shootings integrated to `states` (K, N+1, 5), to end steers `steer`
         (K,) [rad] from `steer0` (one or (K,); NaN: from a standstill), towards `destination`
-        [X, Y, ...] [m]: distances, and validity against the checker; the shootings whose
-        `turned` (K,) [rad] is not 0 are valid only where the car's body turned by it is
-        clear too."""
+        [X, Y, ...] [m]: distances, and validity against the checker."""
         steer = np.asarray(steer, float)
         steer0 = np.broadcast_to(np.asarray(steer0, float), steer.shape)
         # A blown-up shooting is a result (an invalid one), so its overflow warnings are noise;
@@ -242,14 +208,7 @@ class Shooter:
             # s = CHECK_SPACING_M on the tightest turn (R = 2.6 m), far inside the margin.
             stride = max(1, int(CHECK_SPACING_M / max(self.vx * self.h, 1e-12)))
             checked = np.unique(np.r_[np.arange(0, rows, stride), rows - 1])
-            bodies = self.body_poses(states[:, checked], steer, steer0, checked / (rows - 1))
-            hit = self.checker.first_invalid(bodies)
-            if turned is not None and np.any(turned):
-                also = np.flatnonzero(turned)
-                other = self.checker.first_invalid(
-                    bodies[also] + np.c_[np.zeros((len(also), 2)), turned[also]][:, None, :])
-                mine = hit[also]
-                hit[also] = np.where((other >= 0) & ((mine < 0) | (other < mine)), other, mine)
+            hit = self.checker.first_invalid(states[:, checked, :3])
             # Rows before the last checked pose that is clear are clear.
             first = np.where(hit > 0, checked[np.maximum(hit - 1, 0)] + 1,
                              np.where(hit == 0, 0, -1))

@@ -32,13 +32,12 @@ COURSE_MIN_TRAVEL_M = 0.05
 TOLERANCE = {"curvature_1pm": 1.1, "steer_rate_radps": 1.25, "lateral_acceleration_mps2": 1.15}
 
 
-def path_metrics(rows, omap: OccupancyMap, footprint: Footprint, body=None) -> dict:
+def path_metrics(rows, omap: OccupancyMap, footprint: Footprint) -> dict:
     """Of path rows (K, 4) [t s, X m, Y m, psi rad] at most a few cm apart: length [m]; cusps;
     clearance [m] of the footprint's discs (the exact distance from the disc cover, which
     holds the car, to the nearest obstacle cell or the map's edge; <= 0 touches), min and
-    mean over rows, the footprint facing `body` (K,) [rad] (replay.body_headings; default:
-    psi); |curvature| [1/m], max and
-    length-weighted mean; smoothness = integral of curvature^2 ds [1/m]. None for no path."""
+    mean over rows, the footprint facing psi; |curvature| [1/m], max and length-weighted
+    mean; smoothness = integral of curvature^2 ds [1/m]. None for no path."""
     rows = np.asarray(rows, float)
     if len(rows) < 2:
         return dict.fromkeys(PATH_METRICS)
@@ -47,8 +46,7 @@ def path_metrics(rows, omap: OccupancyMap, footprint: Footprint, body=None) -> d
     turn = np.remainder(np.diff(rows[:, 3]) + np.pi, 2 * np.pi) - np.pi
     moving = ds > 1e-9
     kappa = np.abs(turn[moving]) / ds[moving]
-    poses = rows[:, 1:4] if body is None else np.column_stack([rows[:, 1:3], body])
-    centres = footprint.disc_centres(poses)
+    centres = footprint.disc_centres(rows[:, 1:4])
     clearance = distance_to_obstacles(omap, centres.reshape(-1, 2)).reshape(
         centres.shape[:-1]).min(axis=-1) - footprint.radius
     length = float(ds.sum())

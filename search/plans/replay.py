@@ -10,7 +10,6 @@ from functools import cache
 import numpy as np
 
 from stepzoo import dynamics
-from stepzoo.dynamics.kinematic import body_slip
 from stepzoo.dynamics.models import steered as steered_rhs
 from stepzoo.search.planner.connection_ocp import DEFAULT_METHOD as CONNECT_METHOD
 from stepzoo.search.world.footprint import Footprint, first_collision
@@ -28,6 +27,7 @@ CHECK_SPACING_M = 0.05  # [m] at most between the replayed poses checked for col
 # to 1e-6 s, and the rows filled in between nodes are far more than this apart.
 NODE_TIME_TOL_S = 1e-5
 VEHICLE_PARAMS = ("m", "Iz", "Lf", "Lr", "Caf", "Car")
+KINEMATIC = ("kinematic", "kinematic_cg")  # the paper's kinematic bicycle, the rigid car's
 METRICS = ("max_deviation_m", "final_deviation_m", "max_heading_deviation_rad", "collides",
            "goal_distance_m", "clearance_min_m")
 
@@ -45,9 +45,12 @@ def controls(result: PlanResult, method: str | None = None) -> list[dict]:
 
     Rate-limited steering (the steer a state, dynamics.models.steered): `inputs` also hold
     "delta_rate" [rad/s], the steer's constant rate over the segment (a tree edge) or over each
-    step (the connection, (n,)), and "delta" is the steer at its (each step's) start."""
+    step (the connection, (n,)), and "delta" is the steer at its (each step's) start; the
+    kinematic segments drive the kinematic bicycle as a rigid car, {"model": "kinematic_cg"}
+    (its (X, Y) the centre of gravity, psi the body, v the centre of gravity's speed)."""
     out, t0 = [], 0.0
     tree = {"method": method} if method else {}
+    rigid = "kinematic" if result.path_steer_rates is None else "kinematic_cg"
     rates = result.path_steer_rates or [None] * len(result.path_edges)
     previous = np.zeros(5)  # the state a segment starts from unless it says otherwise
     for edge, steer, tight, way, rate in zip(result.path_edges, result.path_steers,
@@ -60,7 +63,7 @@ def controls(result: PlanResult, method: str | None = None) -> list[dict]:
             delta = ([start] * n if rate is None
                      else (start + rate * result.h * np.arange(n)).tolist())
             speed = result.tight_vx if tight or way < 0 else result.vx
-            out.append({"model": "kinematic", "t0": t0, "dt": result.h, "v0": way * speed,
+            out.append({"model": rigid, "t0": t0, "dt": result.h, "v0": way * speed,
                         "inputs": {"delta": delta, "F": [0.0] * n, **ramp},
                         "move": "tight" if tight else "reverse", "steps": n, **tree,
                         "h": result.h})
@@ -80,7 +83,8 @@ def controls(result: PlanResult, method: str | None = None) -> list[dict]:
         n = len(conn.inputs)
         ramp = ({} if conn.steer_rates is None
                 else {"delta_rate": conn.steer_rates.tolist()})
-        out.append({"model": "kinematic", "t0": t0, "dt": conn.tf / n,
+        out.append({"model": "kinematic" if conn.steer_rates is None else "kinematic_cg",
+                    "t0": t0, "dt": conn.tf / n,
                     "v0": float(conn.states[0, 3]),
                     "inputs": {"delta": conn.inputs[:, 0].tolist(),
                                "F": conn.inputs[:, 1].tolist(), **ramp},
@@ -108,18 +112,14 @@ def replay(plan, omap: OccupancyMap, footprint: Footprint | None = None,
     the start pose, segment after segment, by DOP853 at rtol 1e-10: the dynamic bicycle's
     state carried across tree edges; a kinematic segment starting from the pose reached at its
     v0; a tree edge after a kinematic one from that pose with vy = r = 0, as the planner
-    starts it (rate-limited, a tree segment setting off from a standstill, the first or one
-    whose direction of travel differs from the last's, starts from the body's heading, where
-    a kinematic segment ended body_slip at its last steer beyond it, and a kinematic one's
-    theta starts body_slip at its first steer beyond that); a tree edge
-    that records `lateral0` (rate-limited, after a standstill or a kinematic edge) from its
-    (vy, r), the steady state of its steer.
+    starts it; a tree edge that records `lateral0` (rate-limited, after a standstill or a
+    kinematic edge) from its (vy, r), the steady state of its steer.
 
     Against the planned path at its nodes (the planner's integration steps and the
     connection's intervals): max_deviation_m, final_deviation_m [m] (position) and
     max_heading_deviation_rad; collides: the `footprint` (default: the car's own, no margin,
-    covered by discs as the planner covers it) along the replayed path, facing the body's
-    heading (`drive`), poses at most CHECK_SPACING_M apart and the straight moves between
+    covered by discs as the planner covers it) along the replayed path, facing its psi
+    (`drive`), poses at most CHECK_SPACING_M apart and the straight moves between
     them checked (first_collision),
     against `omap`; clearance_min_m [m]: the least distance of that disc cover to an obstacle
     along the replay (<= 0 touches); goal_distance_m [m]: replayed end to the goal position.
@@ -144,11 +144,11 @@ def replay(plan, omap: OccupancyMap, footprint: Footprint | None = None,
         planned = np.asarray(plan["path"], float)
     if footprint is None:
         footprint = car_footprint(vehicle, margin)
-    replayed, samples, body = drive(segs, start, vehicle, planned[:, 0])
+    replayed, samples = drive(segs, start, vehicle, planned[:, 0])
     gap = np.hypot(*(replayed[:, :2] - planned[:, 1:3]).T)
     turn = np.abs(np.remainder(replayed[:, 2] - planned[:, 3] + math.pi, 2 * math.pi)
                   - math.pi)
-    collides, clearance = safety(omap, footprint, np.column_stack([samples[:, :2], body]))
+    collides, clearance = safety(omap, footprint, samples)
     block.update({
         "max_deviation_m": float(gap.max()),
         "final_deviation_m": float(gap[-1]),
@@ -181,14 +181,12 @@ def car_footprint(vehicle: dict, margin: float | None = None) -> Footprint:
 
 
 def drive(segs: list[dict], start, vehicle: dict,
-          times=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+          times=None) -> tuple[np.ndarray, np.ndarray]:
     """The controls `segs` driven open loop from the pose `start` [X, Y, psi]: (replayed
     poses (K, 3) at `times` [s] (ascending, from the start; default: the segments' steps,
     each joint once), replayed poses (M, 3) at most CHECK_SPACING_M apart, the ends
-    included, and the heading (M,) [rad] of the car's body at those: on a rate-limited
-    kinematic segment, whose (X, Y) moves along theta, theta - body_slip at the steer, as
-    the planner checks it; elsewhere psi). A time on a joint is the earlier segment's end;
-    times past the last segment are its end."""
+    included). A time on a joint is the earlier segment's end; times past the last segment
+    are its end."""
     if times is None:
         times = np.r_[0.0, np.concatenate([
             float(seg["t0"]) + _span(seg) * np.arange(1, int(seg["steps"]) + 1) / int(seg["steps"])
@@ -196,7 +194,6 @@ def drive(segs: list[dict], start, vehicle: dict,
     times = np.asarray(times, float)
     poses = np.tile(np.asarray(start, float)[:3], (len(times), 1))
     samples = [np.asarray(start, float)[None, :3]]
-    bodies = [np.asarray(start, float)[None, 2]]
     todo = times > 0.0
     state = np.r_[np.asarray(start, float)[:3], 0.0, 0.0]  # [X, Y, psi, vy, r]
 
@@ -209,24 +206,12 @@ def drive(segs: list[dict], start, vehicle: dict,
         poses[inside] = at[:, :3]
         todo[inside] = False
         samples.append(fine[:, :3])
-        body = fine[:, 2]
-        if model == "kinematic" and steered:
-            # The kinematic bicycle moves its (X, Y) along theta; the body the planner checked
-            # faces body_slip short of it (PathFinder.connection_poses, Shooter.body_poses).
-            body = body - body_slip(fine[:, 4], p["L"], p["Lr"])
-        bodies.append(body)
         return x
 
-    way, body = 0, state[2]  # the last segment's direction of travel, the body's heading
     for i, seg in enumerate(segs):
         inputs = seg["inputs"]
         steered = "delta_rate" in inputs  # the steer a state, driven by its rate
         last = i == len(segs) - 1
-        heading = 1 if seg["model"] == "dynamic5" or float(seg["v0"]) > 0 else -1
-        standing = steered and seg.get("move") != "connection" and heading != way
-        if standing:
-            state[2] = body  # the car sets off from its body's heading
-        way = heading
         if seg["model"] == "dynamic5":
             p = dict(_params("dynamic5", vehicle), vx=float(seg["vx"]))
             if "lateral0" in seg:
@@ -237,54 +222,28 @@ def drive(segs: list[dict], start, vehicle: dict,
             x = solve("dynamic5", x0, u, p, float(seg["t0"]), float(seg["duration"]),
                       abs(float(seg["vx"])), steered, last)
             state = x[:5]
-            body = state[2]
-        elif seg["model"] == "kinematic":
-            p = _params("kinematic", vehicle)
+        elif seg["model"] in KINEMATIC:
+            model = seg["model"]
+            p = _params(model, vehicle)
             x = np.r_[state[:3], float(seg["v0"])]
             uk = np.column_stack([inputs["delta_rate" if steered else "delta"],
                                   inputs["F"]]).astype(float)
             if steered:
                 x = np.r_[x, float(inputs["delta"][0])]
-            if standing:
-                # Its wheel turned, the car's centre of gravity sets off body_slip to the side.
-                x[2] += body_slip(x[4], p["L"], p["Lr"])
             dt = float(seg["dt"])
             # Runs of equal inputs are one smooth problem: solved in one call.
             breaks = np.r_[0, 1 + np.flatnonzero((np.diff(uk, axis=0) != 0).any(axis=1)), len(uk)]
             for a, b in zip(breaks[:-1], breaks[1:]):
                 speed = abs(x[3]) + abs(uk[a, 1]) / p["m"] * dt * (b - a)
-                x = solve("kinematic", x, uk[a], p, float(seg["t0"]) + a * dt, dt * (b - a),
+                x = solve(model, x, uk[a], p, float(seg["t0"]) + a * dt, dt * (b - a),
                           speed, steered, last and b == len(uk))
             # The kinematic bicycle has no lateral motion: a tree edge after it starts at rest
             # laterally, as the planner starts it.
             state = np.r_[x[:3], 0.0, 0.0]
-            body = x[2] - (body_slip(x[4], p["L"], p["Lr"]) if steered else 0.0)
         else:
-            raise ValueError(f"unknown control model {seg['model']!r}: dynamic5 or kinematic")
-    return poses, np.vstack(samples), np.concatenate(bodies)
-
-
-def body_headings(rows, segs: list[dict], vehicle: dict) -> np.ndarray:
-    """(K,) [rad] the heading of the car's body at path rows (K, 4) [t s, X m, Y m, psi rad]
-    driven by the controls `segs`: psi, less body_slip at the steer on a rate-limited
-    kinematic segment, whose psi is the theta its (X, Y) moves along (as the planner checks
-    it); a row on a joint belongs to the earlier segment, the first row to the first.
-    `vehicle`: Lf and Lr [m]."""
-    rows = np.asarray(rows, float)
-    heading = rows[:, 3].copy()
-    for i, seg in enumerate(segs):
-        inputs = seg["inputs"]
-        if seg["model"] != "kinematic" or "delta_rate" not in inputs:
-            continue
-        t0, dt, n = float(seg["t0"]), float(seg["dt"]), int(seg["steps"])
-        begin = t0 - NODE_TIME_TOL_S if i == 0 else t0 + NODE_TIME_TOL_S
-        on = (rows[:, 0] > begin) & (rows[:, 0] <= t0 + n * dt + NODE_TIME_TOL_S)
-        into = np.clip(rows[on, 0] - t0, 0.0, n * dt)
-        k = np.minimum((into / dt).astype(int), n - 1)
-        steer = (np.asarray(inputs["delta"], float)[k]
-                 + np.asarray(inputs["delta_rate"], float)[k] * (into - k * dt))
-        heading[on] -= body_slip(steer, vehicle["Lf"] + vehicle["Lr"], vehicle["Lr"])
-    return heading
+            raise ValueError(f"unknown control model {seg['model']!r}: dynamic5, "
+                             f"{' or '.join(KINEMATIC)}")
+    return poses, np.vstack(samples)
 
 
 def _span(seg: dict) -> float:
@@ -389,7 +348,7 @@ def _fill(seg: dict, states: np.ndarray, vehicle: dict, spacing: float) -> np.nd
         steer = float(inputs["delta"]) + float(inputs.get("delta_rate", 0.0)) * h * np.arange(n)
         u = np.full((n, 1), float(inputs["delta_rate"] if steered else inputs["delta"]))
     else:
-        model, p = "kinematic", _params("kinematic", vehicle)
+        model, p = seg["model"], _params(seg["model"], vehicle)
         x = states[:n, :4] if states.shape[1] == 4 and seg["move"] == "connection" else \
             np.column_stack([states[:n, :3], np.full(n, float(seg["v0"]))])
         steer = np.asarray(inputs["delta"], float)[:n]

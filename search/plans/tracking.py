@@ -157,19 +157,30 @@ def reference(rows, p: dict, kinematic=None) -> dict:
         planned += 2 * np.pi * np.round((facing[0] - planned[0]) / (2 * np.pi))
         # Averaged over SMOOTH_M: a kink where the plan hands a slipping car's heading to the
         # kinematic bicycle becomes a turn a car can drive.
-        psi_body = _smooth(np.where(rolling, facing - beta, planned))
+        body = np.where(rolling, facing - beta, planned)
+        psi_body = _smooth(body)
+        # The steer fed forward: on the paper's kinematic bicycle, the steer of its path's
+        # turn; elsewhere the rear axle's (Lr behind the centre of gravity, along the body),
+        # which turns at tan(delta) / L whatever the steer does, where the centre of gravity's
+        # path curves beyond that while the steer turns (its slip changes with it).
+        rear = xy - Lr * np.column_stack([np.cos(body), np.sin(body)])
+        pace = np.gradient(rear, s, axis=0) if len(s) > 2 else np.ones((len(s), 2))
+        turning = (np.gradient(np.unwrap(np.arctan2(pace[:, 1], pace[:, 0])), s)
+                   / np.maximum(np.hypot(pace[:, 0], pace[:, 1]), 1e-9))
+        steer_ff = np.where(rolling, np.arctan(L * np.tan(beta) / Lr),
+                            np.arctan(L * _smooth(way * turning, FF_SMOOTH_M)))
         offset = Lf if way > 0 else -Lr
         axle = xy + offset * np.column_stack([np.cos(psi_body), np.sin(psi_body)])
         course = _smooth(np.unwrap(np.arctan2(*np.gradient(axle, s, axis=0).T[::-1])))
         dt = np.diff(t)
         v = np.where(dt > 0, d / np.where(dt > 0, dt, 1.0), 0.0)
-        speed = steering_speed(np.r_[v, v[-1:]], s, np.arctan(L * _smooth(kappa)),
-                               p["ddelta_max"], _smooth(kappa), GRIP_SHARE * p["mu"] * G)
+        speed = steering_speed(np.r_[v, v[-1:]], s, _smooth(steer_ff), p["ddelta_max"],
+                               _smooth(kappa), GRIP_SHARE * p["mu"] * G)
         first.append(sum(len(c) for c in out["P"]))
         last.append(first[-1] + len(seg) - 1)
         ways.append(way)
         for k, val in (("P", xy), ("C", axle), ("course", course), ("psi_body", psi_body),
-                       ("steer_ff", np.arctan(L * np.tan(beta) / Lr)), ("kappa", _smooth(kappa)),
+                       ("steer_ff", steer_ff), ("kappa", _smooth(kappa)),
                        ("speed", speed), ("accel", speed * np.gradient(speed, s)),
                        ("left", s[-1] - s)):
             out[k].append(val)

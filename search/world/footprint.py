@@ -57,6 +57,16 @@ class Footprint:
         offsets = -length / 2 + piece * (np.arange(n_discs) + 0.5)
         return cls(length, width, offsets, math.hypot(piece / 2, width / 2))
 
+    def seen_from(self, length: float) -> "Footprint":
+        """The same discs with their offsets measured from the point `length` [m] behind
+        (X, Y) along the heading (ahead for length < 0): the rigid car's from its rear axle,
+        Lr behind its centre of gravity."""
+        return Footprint(self.length, self.width, self.offsets + length, self.radius)
+
+    def turned(self) -> "Footprint":
+        """The same discs seen facing the other way (offsets negated)."""
+        return Footprint(self.length, self.width, -self.offsets, self.radius)
+
     def disc_centres(self, poses) -> np.ndarray:
         """(..., 3+) [X, Y, psi] (extra columns ignored) -> (..., n, 2) [m]."""
         poses = np.asarray(poses, dtype=float)
