@@ -5,7 +5,8 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from stepzoo.dynamics.kinematic import kinematic_bicycle
+from stepzoo.dynamics.kinematic import kinematic_bicycle, rigid_bicycle, shifted
+from stepzoo.dynamics.models import steered
 from stepzoo.dynamics.vehicles import vehicle
 from stepzoo.integrators import integrate, method
 from stepzoo.search.proofs.car_bounds import reeds_shepp_length
@@ -197,10 +198,17 @@ def test_same_inputs_give_the_same_connection():
 
 @pytest.mark.parametrize("name", ["euler", "heun", "midpoint", "rk3", "rk4", "dopri5"])
 def test_casadi_step_is_the_zoo_step(name):
+    """The OCP's CasADi step is the zoo's JAX step of the same model: the paper's kinematic
+    bicycle, and steered, the rigid car (dynamics kinematic_cg) with its steer a state."""
     x, u, h = np.array([1.0, -2.0, 0.7, 8.0]), np.array([0.3, 2500.0]), 0.05
-    ours = np.asarray(step_function(name)(x, u, h, L, M)).ravel()
+    ours = np.asarray(step_function(name)(x, u, h, L, M, CAR["Lr"])).ravel()
     zoo = integrate(method(name), kinematic_bicycle, jnp.asarray(x), jnp.asarray(u),
                     {"L": L, "m": M}, h, 1).x[1]
+    np.testing.assert_allclose(ours, np.asarray(zoo), rtol=1e-13, atol=1e-13)
+    x5, rate = np.r_[x, 0.3], np.array([-0.32, 2500.0])
+    ours = np.asarray(step_function(name, True)(x5, rate, h, L, M, CAR["Lr"])).ravel()
+    zoo = integrate(method(name), steered(rigid_bicycle), jnp.asarray(x5), jnp.asarray(rate),
+                    {"L": L, "m": M, "Lr": CAR["Lr"]}, h, 1).x[1]
     np.testing.assert_allclose(ours, np.asarray(zoo), rtol=1e-13, atol=1e-13)
 
 
@@ -255,24 +263,20 @@ def test_a_connection_that_would_collide_is_kept_within_its_guess_room():
                   max_lateral_acceleration=9.2)
 
     def first_hit(conn):
-        steer = np.r_[conn.inputs[:, 0],
-                      conn.inputs[-1, 0] + conn.steer_rates[-1] * conn.tf / len(conn.inputs)]
-        poses = conn.states[:, :3].copy()
-        poses[:, 2] -= np.arcsin(CAR["Lr"] * np.tan(steer) / L)
-        return first_collision(omap, footprint, poses[None])[0]
+        return first_collision(omap, footprint, conn.states[None, :, :3])[0]
 
     radius = L / np.tan(pi_ / 4)
     guess = path_poses(start[:3], dubins_paths(start[:3], goal, radius)[0], radius, 0.2)
     assert first_collision(omap, footprint, guess[None])[0] < 0
     blind = connect(start, goal, **limits)
     assert blind.success and first_hit(blind) >= 0
-    corridor = Corridor(footprint.offsets, footprint.radius, CAR["Lr"], omap.clearance)
+    corridor = Corridor(footprint.offsets, footprint.radius, omap.clearance)
     kept = connect(start, goal, **limits, corridor=corridor)
     assert kept.success and first_hit(kept) < 0
     assert np.abs(kept.states[-1, :3] - goal).max() < 1e-6
     # Where the blind solution is free, the corridor changes nothing.
     free = connect(start, goal, **limits, corridor=Corridor(
-        footprint.offsets, footprint.radius, CAR["Lr"], from_array(occupied * 0, 0.25).clearance))
+        footprint.offsets, footprint.radius, from_array(occupied * 0, 0.25).clearance))
     assert free.tf == blind.tf and np.array_equal(free.states, blind.states)
 
 
@@ -309,17 +313,12 @@ def _wall_corridor(margin=0.2):
     occupied = np.zeros((160, 160), bool)
     occupied[:, :40] = True
     omap = from_array(occupied, 0.25)
-    return omap, footprint, Corridor(footprint.offsets, footprint.radius, CAR["Lr"],
-                                     omap.clearance)
+    return omap, footprint, Corridor(footprint.offsets, footprint.radius, omap.clearance)
 
 
 def _first_hit(conn, omap, footprint):
-    from stepzoo.search.planner.connection_ocp import node_steers
     from stepzoo.search.world.footprint import first_collision
-    poses = conn.states[:, :3].copy()
-    poses[:, 2] -= np.arcsin(CAR["Lr"] * np.tan(node_steers(conn.inputs, conn.steer_rates,
-                                                              conn.tf)) / L)
-    return first_collision(omap, footprint, poses[None])[0]
+    return first_collision(omap, footprint, conn.states[None, :, :3])[0]
 
 
 @pytest.mark.parametrize("speed", [3.0, 5.0])
@@ -334,7 +333,7 @@ def test_a_corridor_lets_a_disc_beside_a_wall_move_away_from_it(speed, monkeypat
     connection: where IPOPT's first solve rounds otherwise, the corridor is built from a
     guess that touches at two nodes)."""
     from stepzoo.search.planner import connection_ocp
-    from stepzoo.search.planner.connection_ocp import _rooms, node_steers
+    from stepzoo.search.planner.connection_ocp import _rooms
     from stepzoo.search.world.footprint import first_collision
     omap, footprint, corridor = _wall_corridor()
     guesses = []
@@ -344,9 +343,7 @@ def test_a_corridor_lets_a_disc_beside_a_wall_move_away_from_it(speed, monkeypat
     conn = connect(start, goal, L=L, m=M, delta_max=pi_ / 4, max_steer_rate=0.32,
                    max_lateral_acceleration=9.2, bounds=(0, 40, 0, 40), corridor=corridor)
     assert conn.success
-    poses = conn.states[:, :3].copy()
-    poses[:, 2] -= np.arcsin(CAR["Lr"] * np.tan(node_steers(conn.inputs, conn.steer_rates,
-                                                              conn.tf)) / L)
+    poses = conn.states[:, :3]
     hit = first_collision(omap, footprint, poses[:, None]) >= 0         # each node alone
     guess_touches = np.zeros(len(poses), bool)                         # node 0 is the start
     if guesses:                                    # the last corridor built: the solution's
@@ -360,10 +357,13 @@ def test_a_corridor_lets_a_disc_beside_a_wall_move_away_from_it(speed, monkeypat
     assert room[2] > omap.clearance(discs[2:3])[0] - corridor.radius - 1e-12
 
 
-def test_the_corridor_turns_each_guess_disc_with_the_guess_steer(monkeypatch):
-    """The corridor's discs of a rate-limited guess face the body at the guess's ramped steer
-    (its rolling slip), which changes at most the rate limit times an interval between
-    nodes: not the scaled steer rate read as a steer, which jumps to full lock and back."""
+def test_the_corridors_guess_is_the_rigid_car_its_rear_axle_rolling_along_its_body(
+        monkeypatch):
+    """Steered, the guess drives the rigid car's rear axle (Lr behind its centre of gravity)
+    on the Dubins word, and the corridor's discs sit along the body from the centre of
+    gravity: between the guess's poses the rear axle moves along the body's heading (it
+    rolls without sliding), the centre of gravity does not where the car turns (it moves at
+    the slip beside the body), and the guess starts at the start's centre of gravity."""
     from stepzoo.search.planner import connection_ocp
     from stepzoo.search.planner.connection_ocp import Corridor
     from stepzoo.search.world.footprint import Footprint
@@ -374,39 +374,48 @@ def test_the_corridor_turns_each_guess_disc_with_the_guess_steer(monkeypatch):
     omap = from_array(occupied, 0.25)
     seen = []
     real = connection_ocp._disc_centres
-
-    def spy(corridor, poses, steers, L_):
-        seen.append(np.asarray(steers, float))
-        return real(corridor, poses, steers, L_)
-
-    monkeypatch.setattr(connection_ocp, "_disc_centres", spy)
-    conn = connect(np.array([5.0, 5.0, 0.0, 2.0]), np.array([13.0, 13.0, pi_ / 2]), L=L, m=M,
+    monkeypatch.setattr(connection_ocp, "_disc_centres", lambda corridor, poses: (
+        seen.append(np.asarray(poses, float)) or real(corridor, poses)))
+    start = np.array([5.0, 5.0, 0.0, 2.0])
+    conn = connect(start, np.array([13.0, 13.0, pi_ / 2]), L=L, m=M, Lr=CAR["Lr"],
                    delta_max=pi_ / 4, max_steer_rate=0.32, max_lateral_acceleration=9.2,
-                   corridor=Corridor(footprint.offsets, footprint.radius, CAR["Lr"],
-                                     omap.clearance))
-    assert conn.success and len(seen) >= 2      # the touching check's, then the corridor's
-    step = 0.32 * 30.0 / 50                     # the rate limit over the longest interval
-    for steers in seen:
-        assert np.abs(np.diff(steers)).max() <= step
+                   corridor=Corridor(footprint.offsets, footprint.radius, omap.clearance))
+    assert conn.success and len(seen) >= 2      # the touching check's, then the guess's
+    guess = np.vstack([start[:3] - (*start[:2], 0.0), seen[-1]])   # relative to the start
+
+    def drift(points, heading):
+        """|direction of each chord between poses that moves - the mean heading|."""
+        chord = np.diff(points, axis=0)
+        mid = (heading[1:] + heading[:-1]) / 2
+        moves = np.hypot(chord[:, 0], chord[:, 1]) > 1e-6
+        return np.abs(np.remainder(np.arctan2(chord[:, 1], chord[:, 0]) - mid + pi_, 2 * pi_)
+                      - pi_)[moves]
+
+    rear = shifted(guess, -CAR["Lr"])
+    assert drift(rear[:, :2], guess[:, 2]).max() < 0.02
+    assert drift(guess[:, :2], guess[:, 2]).max() > 0.3
+    assert np.abs(guess[0] - (0.0, 0.0, 0.0)).max() < 1e-12
 
 
-def test_a_rate_limited_connection_ends_with_the_body_on_the_goal_heading():
-    """The kinematic car's body faces theta less body_slip at its steer: a connection that
-    arrives turning (a goal 6 m ahead and 4 m to the left, facing left, from 3 m/s) ends with
-    its body, not theta, on the goal's heading, its wheel still turned; without Lr (the
-    rear axle's point) theta ends there."""
-    from stepzoo.dynamics.kinematic import body_slip
-    from stepzoo.search.planner.connection_ocp import node_steers
+def test_a_rate_limited_connection_ends_on_the_goal_pose_with_its_wheel_turned():
+    """The rigid car's state is its centre of gravity and its body's heading: a connection
+    that arrives turning (a goal 6 m ahead and 4 m to the left, facing left, from 3 m/s) ends
+    with them on the goal pose, its wheel still turned; re-integrated finely on the rigid
+    car (resimulate, rk4 on a 10 times finer step) it ends within a centimetre of it, as
+    the same problem on the paper's bicycle (Lr = 0, the rear axle's point) does, at
+    another end steer."""
     start, goal = [0.0, 0.0, 0.0, 3.0], np.array([6.0, 4.0, pi_ / 2])
     limits = dict(L=L, m=M, max_steer_rate=0.32, max_lateral_acceleration=9.2)
     conn = connect(start, goal, Lr=CAR["Lr"], **limits)
-    steer = node_steers(conn.inputs, conn.steer_rates, conn.tf)[-1]
-    body = conn.states[-1, 2] - body_slip(steer, L, CAR["Lr"])
-    assert conn.success and abs(steer) > 0.1
-    assert np.abs(conn.states[-1, :2] - goal[:2]).max() < 1e-6
-    assert body == pytest.approx(goal[2], abs=1e-6)
+    end_steer = conn.inputs[-1, 0] + conn.steer_rates[-1] * conn.tf / len(conn.inputs)
+    assert conn.success and abs(end_steer) > 0.1
+    assert np.abs(conn.states[-1, :3] - goal).max() < 1e-6
+    fine = resimulate(conn, L=L, m=M, Lr=CAR["Lr"])
+    assert np.abs(fine[-1, :2] - goal[:2]).max() < 0.01
     axle = connect(start, goal, **limits)
-    assert axle.success and axle.states[-1, 2] == pytest.approx(goal[2], abs=1e-6)
+    assert axle.success and np.abs(axle.states[-1, :3] - goal).max() < 1e-6
+    assert np.abs(resimulate(axle, L=L, m=M)[-1, :2] - goal[:2]).max() < 0.01
+    assert abs(axle.inputs[-1, 0] - conn.inputs[-1, 0]) > 0.01
 
 
 def test_the_rate_limited_guess_is_a_motion_of_the_car():

@@ -202,38 +202,29 @@ def beside_a_wall(vx=5.0):
                              expansions(1))
 
 
-def test_a_move_is_clear_with_its_body_turned_only_where_that_body_is_clear():
+def test_a_tight_move_is_the_rigid_car_its_rear_axle_rolling_along_its_body():
+    """Rate-limited, the tight moves drive the rigid car (dynamics kinematic_cg): their rows
+    are the centre of gravity and the body, as the tree's own moves. From a node at rest the
+    wheel turns standing (the first row is the node's pose, the body not turned by it), and
+    rolling on, the rear axle (Lr behind along the body) moves along the body's heading while
+    the centre of gravity moves at the slip beside it (0.5 rad at full lock)."""
     s = beside_a_wall()
-    shooter = s.f.shooter
-    poses = np.array([[[20.0, 10.9, 0.0]], [[20.0, 10.9, -0.15]]])
-    assert list(s.f.checker.first_invalid(poses)) == [-1, 0]
-    # Two shootings along y = 10.9 m facing east, the second also checked turned -0.15 rad.
-    rows = shooter.n_steps + 1
-    states = np.zeros((2, rows, 5))
-    states[:, :, 0] = np.linspace(10.0, 14.0, rows)
-    states[:, :, 1] = 10.9
-    shots = shooter.shots(states, np.zeros(2), np.zeros(2), s.goal, np.array([0.0, -0.15]))
-    assert list(shots.valid) == [True, False]
-    assert shots.free[1] == 0
-    assert shooter.shots(states, np.zeros(2), np.zeros(2), s.goal).valid.all()
+    shooter = s.f.tight_shooter
+    assert shooter.model.name == "kinematic_cg"
+    node = np.array([10.0, 10.0, 0.3, 0.0, 0.0])
+    steer = np.linspace(-shooter.delta_max, shooter.delta_max, shooter.batch)
+    rows = shooter.integrate(np.tile(node, (shooter.batch, 1)), steer,
+                             np.full(shooter.batch, np.nan))
+    assert np.abs(rows[:, 0, :3] - node[:3]).max() < 1e-12
+    Lr = shooter.scalars["Lr"]
 
+    def drift(points, heading):
+        chord = np.diff(points, axis=-2)
+        mid = (heading[..., 1:] + heading[..., :-1]) / 2
+        return np.abs(np.remainder(np.arctan2(chord[..., 1], chord[..., 0]) - mid + np.pi,
+                                   2 * np.pi) - np.pi)
 
-def test_the_trees_move_from_a_tight_node_is_checked_at_the_body_it_sets_off_with():
-    """A tight move's node holds the kinematic theta; the car's body faces body_slip short of
-    it: the tree's move from it must clear that body, from a node of its own moves (psi the
-    body) nothing more."""
-    from stepzoo.dynamics.kinematic import body_slip
-    s = beside_a_wall()
-    shooter, seen = s.f.shooter, []
-    plain = shooter.shots
-    shooter.shots = lambda *args: (seen.append(args[4]), plain(*args))[1]
-    node = np.array([[10.0, 10.0, 0.0, 0.0, 0.0]] * 2)
-    rows = s.tree.add([None] * 2, states=node, parent=0, g=5.0, H=26.0, rest=26.0,
-                      guide=26.0, car=26.0, steer=[0.25, 0.25], steer0=0.25, direction=1,
-                      tight=[True, False])
-    s.expander.expand(list(rows))
-    per = s.expander.per
-    turned = seen[0][:2 * per]
-    slip = body_slip(0.25, shooter.wheelbase, shooter.scalars["Lr"])
-    assert np.allclose(turned[:per], -slip) and slip > 0.1
-    assert np.all(turned[per:] == 0.0)
+    rear = rows[..., :2] - Lr * np.stack([np.cos(rows[..., 2]), np.sin(rows[..., 2])], -1)
+    assert drift(rear, rows[..., 2]).max() < 1e-3
+    slip = drift(rows[..., :2], rows[..., 2])
+    assert slip[0].min() == pytest.approx(np.arctan(Lr / shooter.wheelbase), abs=1e-3)

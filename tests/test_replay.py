@@ -74,6 +74,22 @@ def kinematic_bicycle(steer, force, v, rate=0.0):
     return f
 
 
+def rigid_car(steer, force, v, rate=0.0):
+    """The kinematic bicycle as a rigid car (Rajamani 2012, eqs. 2.26-2.29): x = [X, Y, psi,
+    v], its centre of gravity moving at the slip beta = atan(Lr tan(delta) / L) beside its
+    body psi, the body turning at v cos(beta) tan(delta) / L; the steer ramps from `steer` at
+    `rate` [rad/s]."""
+    def f(t, x):
+        delta = steer + rate * t
+        beta = math.atan(v["Lr"] * math.tan(delta) / v["wheelbase"])
+        return [x[3] * math.cos(x[2] + beta), x[3] * math.sin(x[2] + beta),
+                x[3] * math.cos(beta) * math.tan(delta) / v["wheelbase"], force / v["m"]]
+    return f
+
+
+KINEMATIC = {"kinematic": kinematic_bicycle, "kinematic_cg": rigid_car}
+
+
 def independent_deviation(record):
     """Max distance [m] between the plan's path and its controls driven from the start, at
     every path row (the dense solution at the row's time)."""
@@ -89,33 +105,20 @@ def independent_deviation(record):
         replayed[rows] = sol.sol(np.minimum(path[rows, 0] - t0, span))[:2].T
         return sol.y[:, -1]
 
-    # Rate-limited, a tree move setting off from a standstill (the first move, a cusp) starts
-    # from the body's heading: the centre of gravity, Lr ahead of the rear axle (which does
-    # not slide), moves asin(Lr tan(delta) / L) to the side of the body on the kinematic
-    # bicycle.
-    way, body = 0, x[2]
     for seg in record["controls"]:
         u = seg["inputs"]
-        slip = (lambda d: np.arcsin(v["Lr"] * np.tan(d) / v["wheelbase"])) \
-            if "delta_rate" in u else (lambda d: 0.0)
-        direction = 1 if seg["model"] == "dynamic5" else np.sign(seg["v0"])
-        if "delta_rate" in u and seg["move"] != "connection" and direction != way:
-            x[2] = body + (slip(u["delta"][0]) if seg["model"] == "kinematic" else 0.0)
-        way = direction
         if seg["model"] == "dynamic5":
             if "lateral0" in seg:
                 x = np.r_[x[:3], seg["lateral0"]]
             x = solve(dynamic_bicycle(seg["vx"], u["delta"], v, u.get("delta_rate", 0.0)), x,
                       seg["t0"], seg["duration"])
-            body = x[2]
         else:
             k = np.r_[x[:3], seg["v0"]]
             rates = u.get("delta_rate", [0.0] * len(u["F"]))
             for i, (delta, force, rate) in enumerate(zip(u["delta"], u["F"], rates)):
-                k = solve(kinematic_bicycle(delta, force, v, rate), k, seg["t0"] + i * seg["dt"],
-                          seg["dt"])
+                k = solve(KINEMATIC[seg["model"]](delta, force, v, rate), k,
+                          seg["t0"] + i * seg["dt"], seg["dt"])
             x = np.r_[k[:3], 0.0, 0.0]
-            body = k[2] - slip(u["delta"][-1] + rates[-1] * seg["dt"])
     assert not np.isnan(replayed).any()
     return float(np.hypot(*(path[:, 1:3] - replayed).T).max())
 
@@ -334,59 +337,41 @@ def test_path_rows_between_the_connections_nodes_are_what_its_model_drives(tuned
     assert chord > 1e-3
 
 
-def test_the_replay_checks_the_body_a_reversing_car_faces():
-    """Setting off backwards at a steady steer (rate-limited: the steer a state), the kinematic
-    bicycle's theta starts body_slip beside the body; the body faces psi0 + v tan(delta) / L t
-    throughout (theta's rate, the slip constant), and that body is what the replay checks, as
-    the planner does (Shooter.body_poses): theta checked as the body turned the car's ends
-    0.4 m into walls the planner had cleared by its margin."""
+def test_a_reversing_rigid_car_rolls_its_rear_axle_on_the_circle_of_its_steer():
+    """Setting off backwards at a steady steer (rate-limited: the rigid car, its steer a
+    state), the replayed poses are the car's centre of gravity and body: the rear axle, Lr
+    behind it along the body, stays on the circle of radius L / tan(delta) about the turn's
+    centre (it rolls without sliding), and the body turns at v cos(beta) tan(delta) / L."""
     from stepzoo.search.plans.replay import drive
     vehicle = {"m": 1093.3, "Iz": 1791.6, "Lf": 1.156, "Lr": 1.422, "Caf": 129627.6,
                "Car": 105379.4}
+    L = vehicle["Lf"] + vehicle["Lr"]
     n, dt, v, steer = 40, 0.02, -2.0, 0.3
-    seg = {"model": "kinematic", "t0": 0.0, "dt": dt, "v0": v, "move": "reverse", "steps": n,
-           "inputs": {"delta": [steer] * n, "F": [0.0] * n, "delta_rate": [0.0] * n}}
-    _, samples, body = drive([seg], (3.0, 4.0, 0.5), vehicle)
+    seg = {"model": "kinematic_cg", "t0": 0.0, "dt": dt, "v0": v, "move": "reverse",
+           "steps": n, "inputs": {"delta": [steer] * n, "F": [0.0] * n, "delta_rate": [0.0] * n}}
+    _, samples = drive([seg], (3.0, 4.0, 0.5), vehicle)
     t = n * dt * np.arange(len(samples)) / (len(samples) - 1)
-    rate = v * math.tan(steer) / (vehicle["Lf"] + vehicle["Lr"])
-    assert np.abs(body - (0.5 + rate * t)).max() < 1e-8
-    # The samples keep the model's theta, which the goal constrains.
-    slip = math.asin(vehicle["Lr"] * math.tan(steer) / (vehicle["Lf"] + vehicle["Lr"]))
-    assert np.abs(samples[1:, 2] - (body[1:] + slip)).max() < 1e-8
-
-
-def test_body_headings_turn_a_kinematic_segments_rows_back_by_the_rolling_slip():
-    """Rows of a reversing kinematic segment at steer 0.3 + 0.2 t hold theta, body_slip
-    beside the body; body_headings gives theta - body_slip(steer) on them (the first row the
-    first segment's), and leaves a dynamic edge's rows, the joint row included, as they are."""
-    from stepzoo.dynamics.kinematic import body_slip
-    from stepzoo.search.plans.replay import body_headings
-    vehicle = {"Lf": 1.156, "Lr": 1.422}
-    L, n, dt = 2.578, 10, 0.02
-    kin = {"model": "kinematic", "t0": 0.0, "dt": dt, "v0": -2.0, "steps": n,
-           "inputs": {"delta": (0.3 + 0.2 * dt * np.arange(n)).tolist(), "F": [0.0] * n,
-                      "delta_rate": [0.2] * n}}
-    tree = {"model": "dynamic5", "t0": n * dt, "duration": n * dt, "vx": 5.0, "steps": n,
-            "inputs": {"delta": 0.5, "delta_rate": 0.0}}
-    t = np.linspace(0.0, 2 * n * dt, 41)
-    theta = 1.0 + t
-    rows = np.column_stack([t, t, t, theta])
-    steer = 0.3 + 0.2 * t
-    body = body_headings(rows, [kin, tree], vehicle)
-    mine = t <= n * dt + 1e-9
-    assert np.abs(body[mine] - (theta - body_slip(steer, L, 1.422))[mine]).max() < 1e-12
-    assert np.array_equal(body[~mine], theta[~mine])
-    assert body[0] == pytest.approx(1.0 - body_slip(0.3, L, 1.422), abs=1e-12)
-    # Without the rate (instant steering) the planner checks theta as the body: unchanged.
-    instant = {**kin, "inputs": {"delta": kin["inputs"]["delta"], "F": [0.0] * n}}
-    assert np.array_equal(body_headings(rows, [instant, tree], vehicle), theta)
+    beta = math.atan(vehicle["Lr"] * math.tan(steer) / L)
+    assert np.abs(samples[:, 2] - (0.5 + v * math.cos(beta) * math.tan(steer) / L * t)).max() \
+        < 1e-8
+    rear = samples[:, :2] - vehicle["Lr"] * np.column_stack([np.cos(samples[:, 2]),
+                                                              np.sin(samples[:, 2])])
+    radius = L / math.tan(steer)
+    centre = rear[0] + radius * np.array([-math.sin(0.5), math.cos(0.5)])
+    assert np.abs(np.hypot(*(rear - centre).T) - radius).max() < 1e-8
+    # The rear axle rolls at v cos(beta): the chord of its arc.
+    arc = abs(v) * math.cos(beta) * n * dt
+    assert np.hypot(*(rear[-1] - rear[0])) == pytest.approx(2 * radius * math.sin(
+        arc / (2 * radius)), rel=1e-9)
 
 
 def test_a_car_backing_out_beside_a_wall_clears_it_as_the_planner_checked():
     """Backing out 0.4 m at steer 0.3 rad beside a wall at y = 5 m, the car (centre y = 4 m,
-    discs of radius 0.89 m) keeps 0.11 m at the start and 0.08 m at the least. Its
-    kinematic theta starts body_slip = 0.17 rad from its body: checked as the body, that
-    heading swings the front 0.3 m into the wall (the seven colliding reverse plans)."""
+    discs of radius 0.89 m) keeps 0.11 m at the start and less as its front swings towards
+    the wall; the least clearance is the one measured on poses of the rigid car integrated
+    here (SciPy, rigid_car). Had its centre of gravity moved along the body's heading plus
+    the slip while the body stood (the planner's former kinematic bicycle, whose heading was
+    that of its centre of gravity's path), its front would have swung 0.3 m into the wall."""
     from stepzoo.search.plans.replay import drive, safety
     vehicle = dynamics.vehicle(None)
     veh = {k: vehicle[k] for k in ("name", "length", "width", "m", "Iz", "Lf", "Lr", "Caf",
@@ -395,14 +380,21 @@ def test_a_car_backing_out_beside_a_wall_clears_it_as_the_planner_checked():
     occupied[100:102] = True               # the wall, y = 5.0..5.1 m
     omap = from_array(occupied, 0.05)
     n, dt = 10, 0.02
-    seg = {"model": "kinematic", "t0": 0.0, "dt": dt, "v0": -2.0, "steps": n, "move": "reverse",
+    seg = {"model": "kinematic_cg", "t0": 0.0, "dt": dt, "v0": -2.0, "steps": n,
+           "move": "reverse",
            "inputs": {"delta": [0.3] * n, "F": [0.0] * n, "delta_rate": [0.0] * n}}
     start = [10.0, 4.0, 0.0]
-    poses, samples, _ = drive([seg], start, veh, dt * np.arange(n + 1))
+    poses, samples = drive([seg], start, veh, dt * np.arange(n + 1))
     record = {"start": start, "goal": list(samples[-1]), "params": {"margin": 0.1},
               "vehicle": veh, "controls": [seg],
               "path": np.column_stack([dt * np.arange(n + 1), poses]).tolist()}
     block = replay(record, omap)
     assert block["collides"] is False
-    assert 0.05 < block["clearance_min_m"] < 0.112
-    assert safety(omap, car_footprint(veh, 0.1), samples)[0]  # theta as the body: a collision
+    sol = solve_ivp(rigid_car(0.3, 0.0, veh), (0, n * dt), [*start, -2.0], rtol=1e-11,
+                    atol=1e-12, t_eval=np.linspace(0, n * dt, 201))
+    _, least = safety(omap, car_footprint(veh, 0.1), sol.y[:3].T)
+    assert block["clearance_min_m"] == pytest.approx(least, abs=2e-3)
+    assert 0.05 < block["clearance_min_m"] < 0.11
+    slipped = samples.copy()
+    slipped[:, 2] += math.asin(veh["Lr"] * math.tan(0.3) / veh["wheelbase"])
+    assert safety(omap, car_footprint(veh, 0.1), slipped)[0]

@@ -230,6 +230,48 @@ def test_a_crawl_through_a_steer_ramp_is_tracked_with_the_plans_steer_fed_forwar
     assert out["deviation"].max() < 0.1
 
 
+def rigid_ramp_rows(v, peak, rate=0.32, dt=0.01):
+    """Rows [t, X, Y, psi] of the rigid car (its centre of gravity moving at the slip beta =
+    atan(Lr tan(delta) / L) beside its body psi, the body turning at v cos(beta) tan(delta)
+    / L): 2 m/s straight ahead braking at 2 m/s^2 to v [m/s], there the steer ramped at
+    `rate` [rad/s] from 0 to `peak`, to -peak and back to 0 [rad], then accelerating at
+    1 m/s^2 to 2 m/s; every fifth step."""
+    x, speed, delta, t, rows = np.zeros(3), 2.0, 0.0, 0.0, [[0.0, 0.0, 0.0, 0.0]]
+
+    def step():
+        nonlocal x, t
+        beta = np.arctan(LR * np.tan(delta) / L)
+        x = x + dt * np.array([speed * np.cos(x[2] + beta), speed * np.sin(x[2] + beta),
+                               speed * np.cos(beta) * np.tan(delta) / L])
+        t += dt
+        rows.append([t, *x])
+
+    while speed > v:
+        speed = max(v, speed - 2 * dt)
+        step()
+    for target in (peak, -peak, 0.0):
+        while abs(delta - target) > 1e-12:
+            delta += np.clip(target - delta, -rate * dt, rate * dt)
+            step()
+    while speed < 2.0:
+        speed = min(2.0, speed + dt)
+        step()
+    return np.array(rows[::5])
+
+
+def test_a_rigid_cars_crawl_through_a_steer_ramp_is_tracked_with_its_rear_axles_steer():
+    """The rigid car's rows (the planner's tight moves, reversing and connection) at 0.5 m/s
+    ramp the steer at 0.32 rad/s through +-0.7 rad: its centre of gravity's path curves up to
+    0.5 1/m while the slip changes, beyond any steady turn's (full lock: 0.34 1/m), so the
+    steer fed forward from it saturated and the car strayed 0.39 m. Fed forward from the rear
+    axle's path (Lr behind along the body), which turns at tan(delta) / L whatever the steer
+    does, the car keeps within 0.1 m."""
+    rows = rigid_ramp_rows(0.5, 0.7)
+    out = track(rows, rows[0, 1:], VEHICLE)
+    assert out["done"]
+    assert out["deviation"].max() < 0.1
+
+
 def test_a_stop_whose_rows_jitter_by_their_rounding_is_no_cusp():
     """20 m along X at 2 m/s with a 1 s stop halfway, its rows then 1e-6 m apart back and
     forth (plan.json's rows are rounded to 1e-6 m; standing still they step so): two pieces
@@ -297,7 +339,9 @@ def test_the_steer_fed_forward_does_not_pick_up_the_rows_rounding():
     tracked alike."""
     R = 20.0
     s = np.arange(0.0, 60.0, 0.05)
-    rows = np.column_stack([s / 5.0, R * np.sin(s / R), R * (1 - np.cos(s / R)), s / R])
+    # The rigid car's body faces asin(Lr / R) inside the circle's tangent.
+    rows = np.column_stack([s / 5.0, R * np.sin(s / R), R * (1 - np.cos(s / R)),
+                            s / R - np.arcsin(LR / R)])
     p = T.plant_params(VEHICLE)
     exact, rounded = (T.reference(r, p)["steer_ff"] for r in (rows, np.round(rows, 6)))
     assert exact[100] == pytest.approx(np.arctan(L / np.sqrt(R ** 2 - LR ** 2)), rel=1e-3)

@@ -12,7 +12,6 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import dijkstra
 
 from stepzoo.search.planner.heading_lattice import HeadingLattice
-from stepzoo.dynamics.kinematic import shifted
 from stepzoo.search.proofs.car_bounds import dubins_length, reeds_shepp_length
 from stepzoo.search.world.maps import SUBDIV, OccupancyMap
 
@@ -91,9 +90,9 @@ class Guide:
 
     def __init__(self, omap: OccupancyMap, labels: np.ndarray, goal, room: float,
                  near_m: float, radius: float, reverse: bool,
-                 heading: HeadingLattice | None = None, lever: float = 0.0):
+                 heading: HeadingLattice | None = None):
         self.omap, self.goal, self.radius, self.reverse = omap, goal, radius, reverse
-        self.near_m, self.heading, self.lever = near_m, heading, lever
+        self.near_m, self.heading = near_m, heading
         self.geodesic = geodesic(omap, labels, goal)
         self.field = guide_field(omap, labels, goal, self.geodesic, room, near_m)
 
@@ -121,15 +120,12 @@ class Guide:
         """(K,) [m] the shortest path of the car from poses (K, 3+) to the goal ignoring
         obstacles, a lower bound of the rest: Dubins forwards, Reeds-Shepp with reverse gear;
         0 (a weaker bound) beyond 2 near_m (connect_radius) of the goal, where the geodesic
-        leads and the turning radius hardly adds to it. The paths are those of the point
-        `lever` [m] behind (X, Y) (the rigid car's rear axle, whose path is no longer than its
-        centre of gravity's), which turns on circles of `radius`."""
+        leads and the turning radius hardly adds to it."""
         bound = reeds_shepp_length if self.reverse else dubins_length
         out = np.zeros(len(poses))
         near = np.hypot(*(poses[:, :2] - self.goal[:2]).T) <= 2 * self.near_m
         if near.any():
-            out[near] = bound(shifted(poses[near, :3], -self.lever),
-                              shifted(self.goal[:3], -self.lever), self.radius)
+            out[near] = bound(poses[near], self.goal, self.radius)
         return out
 
     def descend(self, state, distance: float) -> np.ndarray:

@@ -265,7 +265,7 @@ class Search:
                    if prm.guide == "heading" else None)
         self.guide = Guide(finder.omap, finder.corridors(), goal,
                            finder.vehicle["width"] / 2 + prm.margin, prm.connect_radius,
-                           self.radius, bool(prm.reverse), heading, finder.lever)
+                           self.radius, bool(prm.reverse), heading)
         root = np.array([*start, 0.0, 0.0])
         self.tree = Tree()
         self.tree.add([None], states=root, parent=-1, g=0.0,

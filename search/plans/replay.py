@@ -50,7 +50,6 @@ def controls(result: PlanResult, method: str | None = None) -> list[dict]:
     (its (X, Y) the centre of gravity, psi the body, v the centre of gravity's speed)."""
     out, t0 = [], 0.0
     tree = {"method": method} if method else {}
-    rigid = "kinematic" if result.path_steer_rates is None else "kinematic_cg"
     rates = result.path_steer_rates or [None] * len(result.path_edges)
     previous = np.zeros(5)  # the state a segment starts from unless it says otherwise
     for edge, steer, tight, way, rate in zip(result.path_edges, result.path_steers,
@@ -63,7 +62,7 @@ def controls(result: PlanResult, method: str | None = None) -> list[dict]:
             delta = ([start] * n if rate is None
                      else (start + rate * result.h * np.arange(n)).tolist())
             speed = result.tight_vx if tight or way < 0 else result.vx
-            out.append({"model": rigid, "t0": t0, "dt": result.h, "v0": way * speed,
+            out.append({"model": "kinematic" if rate is None else "kinematic_cg", "t0": t0, "dt": result.h, "v0": way * speed,
                         "inputs": {"delta": delta, "F": [0.0] * n, **ramp},
                         "move": "tight" if tight else "reverse", "steps": n, **tree,
                         "h": result.h})

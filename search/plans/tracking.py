@@ -117,11 +117,13 @@ def reference(rows, p: dict, kinematic=None) -> dict:
     (n,), the plan's speed `speed` (n,) [m/s], the distance left to the piece's end `left`
     (n,) [m]; per piece `first`, `last` row and `way` (+1 | -1).
 
-    The body heading is the plan's psi where the plan drove the dynamic bicycle (its (X, Y)
-    the centre of gravity); where it drove the kinematic bicycle (`kinematic`, a bool per
-    row; default: nowhere), whose (X, Y) moves along psi, it is the path's heading less the
-    rolling car's slip angle at the centre of gravity, asin(Lr kappa). Averaged over SMOOTH_M,
-    it sets the axles of a car whose centre of gravity is on the path."""
+    The body heading is the plan's psi (the dynamic bicycle's and the rigid car's rows: the
+    centre of gravity and the body); where it drove the paper's kinematic bicycle
+    (`kinematic`, a bool per row; default: nowhere), whose (X, Y) moves along psi, it is the
+    path's heading less the rolling car's slip angle at the centre of gravity, asin(Lr
+    kappa). Averaged over SMOOTH_M, it sets the axles of a car whose centre of gravity is on
+    the path. The steer fed forward is that of the rear axle's path (Lr behind the centre of
+    gravity along the body), which turns at tan(delta) / L."""
     rows = np.asarray(rows, float)
     # Standing still, rows rounded to 1e-6 m (plan.json's) step about at random: read as
     # moves, such steps would cut the path into pieces of alternating direction.
