@@ -62,7 +62,8 @@ def controls(result: PlanResult, method: str | None = None) -> list[dict]:
             delta = ([start] * n if rate is None
                      else (start + rate * result.h * np.arange(n)).tolist())
             speed = result.tight_vx if tight or way < 0 else result.vx
-            out.append({"model": "kinematic" if rate is None else "kinematic_cg", "t0": t0, "dt": result.h, "v0": way * speed,
+            out.append({"model": "kinematic" if rate is None else "kinematic_cg", "t0": t0,
+                        "dt": result.h, "v0": way * speed,
                         "inputs": {"delta": delta, "F": [0.0] * n, **ramp},
                         "move": "tight" if tight else "reverse", "steps": n, **tree,
                         "h": result.h})
