@@ -92,6 +92,42 @@ def test_the_dynamic_car_shows_its_steer_ramp_in_its_heading_but_its_course_over
     assert 1.6 * rate < by_course["max_steer_rate_radps"] < 2.2 * rate
 
 
+@pytest.mark.parametrize("rate", [0.3, 0.6])
+def test_a_rigid_car_read_at_its_rear_axle_shows_its_steer_ramp_where_its_course_cannot(rate):
+    """A rigid car's kinematic bicycle at its centre of gravity (Rajamani eqs 2.26-2.29,
+    written here in plain NumPy), driven by SciPy: 3 m straight at 2 m/s, a stop, the wheel
+    turned to 0.3 rad standing, then off at 2 m/s with the steer ramping at `rate` [rad/s] to
+    -0.3 rad. Its centre of gravity sets off 0.16 rad aside of where it stopped heading and
+    its course turns with the slip, so the course of (X, Y) reads many times the ramp; the
+    rear axle's course (lr behind along psi) reads the ramp, and tan(0.3) / L."""
+    lr = CAR["Lr"]
+
+    def plan(t):                      # [s] -> (speed [m/s], steer [rad])
+        if t < 1.5:
+            return 2.0, 0.0
+        if t < 2.5:
+            return 0.0, 0.3 * (t - 1.5)
+        return 2.0, max(0.3 - rate * max(t - 3.5, 0.0), -0.3)
+
+    def f(t, x):
+        v, delta = plan(t)
+        beta = math.atan(lr * math.tan(delta) / L)
+        return [v * math.cos(x[2] + beta), v * math.sin(x[2] + beta),
+                v * math.cos(beta) * math.tan(delta) / L]
+    duration = 4.0 + 0.6 / rate
+    ts = np.linspace(0.0, duration, int(duration * 500) + 1)
+    sol = solve_ivp(f, (0.0, duration), [0.0] * 3, t_eval=ts, rtol=1e-11, atol=1e-12,
+                    max_step=0.002)
+    rows = rows_of(ts, sol.y.T)
+    rear = drivability(rows, L, math.pi / 4, **LIMITS, heading="rear_axle", lr=lr)
+    course = drivability(rows, L, math.pi / 4, **LIMITS, heading="course")
+    # within the noise of plan.json's 1e-6 m rounding over a 2 m/s window (about 0.03 rad/s)
+    assert rear["max_steer_rate_radps"] == pytest.approx(rate, abs=0.04)
+    assert rear["max_curvature_1pm"] == pytest.approx(math.tan(0.3) / L, rel=0.02)
+    assert rear["drivable"] is (rate <= LIMITS["max_steer_rate"])
+    assert course["max_steer_rate_radps"] > 3 * rate
+
+
 def test_driving_backwards_is_counted_and_a_cusp_splits_the_measures():
     ts = np.linspace(0.0, 8.0, 801)
     x = np.where(ts < 4.0, 5.0 * ts, 20.0 - 2.0 * (ts - 4.0))  # 20 m on, 8 m back

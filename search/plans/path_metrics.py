@@ -60,7 +60,7 @@ def path_metrics(rows, omap: OccupancyMap, footprint: Footprint) -> dict:
 
 
 def drivability(rows, wheelbase, delta_max, max_steer_rate, max_lateral_acceleration,
-                window=WINDOW_S, heading="psi") -> dict:
+                window=WINDOW_S, heading="psi", lr=None) -> dict:
     """plan.json's `drivability` block of path rows (K, 4) [t s, X m, Y m, psi rad]: in each run
     between cusps, windows of `window` [s] centred every window/4; in each, the curvature
     kappa [1/m] is the heading's change over the distance travelled, the implied steer angle
@@ -77,9 +77,14 @@ def drivability(rows, wheelbase, delta_max, max_steer_rate, max_lateral_accelera
     travel), or "course", the direction of travel of (X, Y) on every row (course_rows), which
     reads a steer ramp of the dynamic bicycle at about twice its rate (its centre of gravity
     moves sideways before its body turns) and a change of the slip in one row as a kink, and
-    has no curvature in a window with less than COURSE_MIN_TRAVEL_M of travel."""
+    has no curvature in a window with less than COURSE_MIN_TRAVEL_M of travel; or
+    "rear_axle", the direction of travel of the rear axle's centre, `lr` [m] behind (X, Y)
+    along psi (rear_axle_rows): a rigid car's point that moves along its body, on curvature
+    tan(delta) / wheelbase, whatever its speed or the rate of its steer."""
     rows = np.asarray(rows, float)
-    by_course = heading == "course"
+    if heading == "rear_axle":
+        rows = rear_axle_rows(rows, lr)
+    by_course = heading in ("course", "rear_axle")
     if by_course:
         rows = course_rows(rows)
     out = dict.fromkeys(DRIVABILITY_KEYS)
@@ -106,11 +111,11 @@ def drivability(rows, wheelbase, delta_max, max_steer_rate, max_lateral_accelera
         s = np.r_[0.0, np.cumsum(ds[run[0]:run[-1] + 1])]
         weighted = np.r_[0.0, np.cumsum((t[1:] + t[:-1]) / 2 * np.diff(s))]  # of t ds
         heading = np.unwrap(span[:, 3])
-        if k and len(heading) > 2:
+        if k and len(heading) > 2 and not by_course:
             # A cusp's row holds the heading the car stopped with; it sets off with its wheel
             # turned at the standstill, along the run's own heading: extrapolated back from
             # the next two rows, so that turning the wheel while stopped is not read as a
-            # steer rate.
+            # steer rate. (A course's first row is already the run's own: its first chord.)
             heading[0] = 2 * heading[1] - heading[2]
         centre = np.arange(t[0] + window / 2, t[-1] - window / 2 + 1e-12, window / 4)
         travel = np.interp(centre + window / 2, t, s) - np.interp(centre - window / 2, t, s)
@@ -134,6 +139,15 @@ def drivability(rows, wheelbase, delta_max, max_steer_rate, max_lateral_accelera
                cusps=cusps(rows), drivable=all(
                    measured[f"max_{name}"] <= TOLERANCE[name] * limit[name] for name in limit))
     return out
+
+
+def rear_axle_rows(rows, lr) -> np.ndarray:
+    """Path rows (K, 4) [t, X, Y, psi] of a car's centre of gravity -> the same rows of its
+    rear axle's centre, lr [m] behind along psi."""
+    rows = np.array(rows, float)
+    rows[:, 1] -= lr * np.cos(rows[:, 3])
+    rows[:, 2] -= lr * np.sin(rows[:, 3])
+    return rows
 
 
 def course_rows(rows) -> np.ndarray:
