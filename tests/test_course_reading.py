@@ -179,8 +179,9 @@ def test_a_stop_read_from_the_course_is_no_steer_rate_of_its_rounding():
 
 def test_a_plan_at_5_mps_is_drivable_read_from_its_course():
     """wall_between (the tree at 5 m/s round a wall, tight moves and the connection) with the
-    course_limited planner: within every limit read from the course of (X, Y) alone, as from
-    its heading column (the rate_limited planner reads 0.81 rad/s by the course)."""
+    course_limited planner: within every limit read from the course of its rear axle (the
+    rows' (X, Y) Lr back along psi), as from its heading column. (Its centre of gravity's
+    course is a rigid car's: it sets off aside where the wheel turns standing.)"""
     from stepzoo.search.planner.config import load_config, with_params
     from stepzoo.search.plans.files import path_rows
     from stepzoo.search.world.scenarios import load_scenario
@@ -190,6 +191,7 @@ def test_a_plan_at_5_mps_is_drivable_read_from_its_course():
     result = finder.plan(scenario.start, scenario.goal, scenario.goal_speed)
     assert result.status == "exact", result.reason
     rows = path_rows(result, finder.vehicle)
-    for heading in ("psi", "course"):
-        d = drivability(rows, finder.wheelbase, math.pi / 4, **LIMITS, heading=heading)
+    for heading in ("psi", "rear_axle"):
+        d = drivability(rows, finder.wheelbase, math.pi / 4, **LIMITS, heading=heading,
+                        lr=finder.vehicle["Lr"])
         assert d["drivable"], (heading, d)

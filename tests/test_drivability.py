@@ -245,10 +245,12 @@ def test_an_open_field_is_crossed_forwards():
 
 def test_a_goal_straight_behind_is_reached_forwards_at_5_mps():
     """Goal 25 m straight behind the car, facing its way, in an open field, the tree at
-    5 m/s: backing there costs reverse_penalty (3) x 25 = 75 m, a forward loop less, so the
-    plan drives forwards. (At reverse_penalty 2 = h_weight each metre backwards left the
-    search order f = g + 2 H unchanged and this plan backed all 25 m.) The search's first
-    exact path is the plan: no improvement, which the order alone decides."""
+    5 m/s: backing there costs reverse_penalty (3) x 25 = 75 m, turning round less, so the
+    plan turns round forwards; the rigid car, its wheel ramped and straight where it changes
+    speed, turns in three points (a few metres back at walking pace), not backing all the way.
+    (At reverse_penalty 2 = h_weight each metre backwards left the search order f = g + 2 H
+    unchanged and this plan backed all 25 m.) The search's first exact path is the plan: no
+    improvement, which the order alone decides."""
     grid = np.zeros((80, 120), bool)
     grid[:, :2] = grid[:, -2:] = grid[:2] = grid[-2:] = True
     omap = from_array(grid, 0.5)
@@ -258,9 +260,12 @@ def test_a_goal_straight_behind_is_reached_forwards_at_5_mps():
     assert result.status == "exact", result.reason
     d = measure(path_rows(result, finder.vehicle))
     assert config.params.reverse_penalty > config.params.h_weight
-    assert (d["reverse_length_m"], d["cusps"]) == (0.0, 0)
-    assert result.progress[-1][1] == pytest.approx(result.path_length(), rel=1e-9)
-    assert result.path_length() < config.params.reverse_penalty * 25.0
+    assert d["cusps"] <= 2 and d["reverse_length_m"] < 0.2 * result.path_length()
+    forwards = result.path_length() - d["reverse_length_m"]
+    assert result.progress[-1][1] == pytest.approx(
+        forwards + config.params.reverse_penalty * d["reverse_length_m"]
+        + config.params.cusp_cost * d["cusps"], rel=0.02)
+    assert result.progress[-1][1] < config.params.reverse_penalty * 25.0
 
 
 def test_a_car_that_stands_still_has_nothing_to_measure():

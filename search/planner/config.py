@@ -107,15 +107,16 @@ class PlannerParams(Schema):
         "unsolved; they chain until the tree's own moves take over; 0: the tree's own moves "
         "only, as the paper [1]"))
     steering: Literal["rate_limited", "course_limited", "instant"] = Field(
-        "rate_limited", description=(
+        "course_limited", description=(
             "rate_limited: the steer angle is a state whose rate is bounded by the vehicle's "
             "max_steer_rate (tree edges are steer ramps, the connection's control is the steer "
             "rate) and the curvature by its max_lateral_acceleration at the planned speed; "
-            "course_limited: rate_limited, and the course of the rows' (X, Y) within those "
-            "limits too (the tree's own moves ramp at dynamic_rate_fraction, change their "
-            "rate by at most it, and change speed or connect only with the wheel straight: "
-            "docs/studies/course-reading-2026-11-29e.md); instant: each edge at one constant "
-            "steer set at once, as the paper [1]"))
+            "course_limited: rate_limited, and the course of the car's rear axle within those "
+            "limits too, where the tyres' slip changes (the tree's own moves ramp at "
+            "dynamic_rate_fraction, change their rate by at most it, and change speed or "
+            "connect only with the wheel straight: docs/studies/course-reading-2026-11-29e.md "
+            "and one-car-2026-11-29f.md); instant: each edge at one constant steer set at "
+            "once, as the paper [1]"))
     guide: Literal["geodesic", "heading"] = Field("geodesic", description=(
         "the search's guide H: geodesic, the 2-D lattice geodesic to the goal (positions only; "
         "near the goal the larger of it and the Dubins or Reeds-Shepp length), as the paper's "

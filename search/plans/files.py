@@ -115,10 +115,11 @@ def plan_record(result: PlanResult, scenario: Scenario, config, vehicle: dict, s
 
 def plan_drivability(rows, vehicle: dict, params) -> dict:
     """plan.json's `drivability` block (path_metrics.drivability) of path rows (K, 4) for the
-    vehicle set `vehicle` and the planner parameters `params` (its steer limit delta_max)."""
+    vehicle set `vehicle` and the planner parameters `params` (its steer limit delta_max),
+    read from the course of the rear axle (the rows' centre of gravity, Lr back along psi)."""
     return ordered(drivability(rows, vehicle["Lf"] + vehicle["Lr"], params.delta_max,
-                               **limits(vehicle["name"])), DRIVABILITY_KEYS,
-                   "plan.json drivability")
+                               **limits(vehicle["name"]), heading="rear_axle",
+                               lr=vehicle["Lr"]), DRIVABILITY_KEYS, "plan.json drivability")
 
 
 def render_png(record: dict, scenario: Scenario) -> bytes:

@@ -82,16 +82,14 @@ def drivability(rows, wheelbase, delta_max, max_steer_rate, max_lateral_accelera
     along psi (rear_axle_rows): a rigid car's point that moves along its body, on curvature
     tan(delta) / wheelbase, whatever its speed or the rate of its steer."""
     rows = np.asarray(rows, float)
-    if heading == "rear_axle":
-        rows = rear_axle_rows(rows, lr)
     by_course = heading in ("course", "rear_axle")
-    if by_course:
-        rows = course_rows(rows)
+    if by_course and len(rows) >= 2:
+        rows = course_rows(rear_axle_rows(rows, lr) if heading == "rear_axle" else rows)
     out = dict.fromkeys(DRIVABILITY_KEYS)
     limit = {"curvature_1pm": math.tan(delta_max) / wheelbase,
              "steer_rate_radps": max_steer_rate,
              "lateral_acceleration_mps2": max_lateral_acceleration}
-    out.update(window_s=window, limits=limit, tolerance=dict(TOLERANCE))
+    out.update(heading=heading, window_s=window, limits=limit, tolerance=dict(TOLERANCE))
     if len(rows) < 2:
         return out
     ds, along = steps(rows)

@@ -30,6 +30,9 @@ DRIVABILITY_COLUMNS = {
 }
 DRIVABILITY_KEYS = {
     **DRIVABILITY_COLUMNS,
+    "heading": "what the curvature is read from (path_metrics.drivability): rear_axle, the "
+               "course of the rear axle's centre (the rows' (X, Y) Lr back along psi), which a "
+               "rigid car drives along its body on curvature tan(delta) / wheelbase",
     "window_s": "[s] the time over which the heading's change per metre gives the curvature",
     "limits": "the car's limits: curvature_1pm [1/m] (tan(delta_max) / wheelbase), "
               "steer_rate_radps [rad/s], lateral_acceleration_mps2 [m/s^2]",
