@@ -62,10 +62,13 @@ def footprint_hits(omap, vehicle, poses, spacing):
 
 def dense_check(scenario, result):
     """Re-simulate every path edge with the adaptive reference (tight moves on the kinematic
-    bicycle) and the connection on a ten times finer step; return (collisions, largest joint
+    bicycle, as a rigid car where the steer is rate-limited) and the connection on a ten
+    times finer step; return (collisions, largest joint
     gap [m], connection miss [m])."""
     vehicle = dynamics.vehicle(scenario.vehicle)
-    model, tight = dynamics.model("dynamic5"), dynamics.model("kinematic")
+    rigid = bool(result.path_steer_rates)  # rate-limited: its kinematic moves a rigid car's
+    model = dynamics.model("dynamic5")
+    tight = dynamics.model("kinematic_cg" if rigid else "kinematic")
     p = model.params(scenario.vehicle, scenario.speed)
     p_tight = tight.params(scenario.vehicle, scenario.speed)
     # Sample the footprint at a quarter cell and the motion so finely that no point of the car
@@ -93,7 +96,8 @@ def dense_check(scenario, result):
         joint_gap = max(joint_gap, float(np.hypot(*(edge[0, :2] - previous_end[:2]))))
         previous_end = xs[-1]
     conn = result.connection
-    fine = resimulate(conn, L=vehicle["Lf"] + vehicle["Lr"], m=vehicle["m"], refine=10)
+    fine = resimulate(conn, L=vehicle["Lf"] + vehicle["Lr"], m=vehicle["m"], refine=10,
+                      **({"Lr": vehicle["Lr"]} if rigid else {}))
     collisions += int(footprint_hits(scenario.omap, vehicle, fine, spacing).sum())
     joint_gap = max(joint_gap, float(np.hypot(*(fine[0, :2] - previous_end[:2]))))
     miss = float(np.hypot(*(fine[-1, :2] - np.asarray(scenario.goal[:2]))))
@@ -230,9 +234,8 @@ def yard_facing_a_wall(steering="rate_limited", heading=0.6):
 def test_a_start_the_tree_cannot_turn_out_of_is_left_by_tight_moves():
     # Its moves collide, so the tree shoots tight moves there (rate-limited, at once; the
     # paper's instant steering only once its tree has exhausted) and finds a path that the
-    # dense check re-simulates on each edge's own model. Rate-limited at 17 degrees there is
-    # none: its tight moves are checked with the body turned by its rolling slip, the front
-    # swung out, and reach no farther than the tree's; at 34 degrees they turn out.
+    # dense check re-simulates on each edge's own model (rate-limited, the rigid car's tight
+    # moves turn out facing the wall at 17 degrees too).
     for steering, widened, heading in (("rate_limited", False, 0.6), ("instant", True, 0.3)):
         scenario, _, result = yard_facing_a_wall(steering, heading)
         assert (result.status, result.widened) == ("exact", widened), result.reason
@@ -242,22 +245,26 @@ def test_a_start_the_tree_cannot_turn_out_of_is_left_by_tight_moves():
 
 
 def test_a_turn_tighter_than_the_trees_speed_allows_is_driven_slower():
-    """From the path rows alone (the heading's change over half a metre of rows, as the
-    drivability block reads it, and the speed their times give): where the path turns on a
-    radius r tighter than the lateral limit allows at the tree's 5 m/s, the car drives it at
-    v <= sqrt(a_lat r), a_lat the planned limit (limit_fraction of the car's); and it does
-    turn that tight, at the tight moves' speed."""
+    """From the path rows alone (the heading's change over half a metre of the rear axle's
+    rows, Lr behind (X, Y), as the drivability block reads it, and the speed the centre of
+    gravity's rows and times give): where the path turns on a radius r tighter than the
+    lateral limit allows at the tree's 5 m/s, the car drives it at v <= sqrt(a_lat r), a_lat
+    the planned limit (limit_fraction of the car's); and it does turn that tight, at the
+    tight moves' speed."""
     from stepzoo.search.plans.files import path_rows
+    from stepzoo.search.plans.path_metrics import rear_axle_rows
     _, finder, result = yard_facing_a_wall()
     assert result.status == "exact", result.reason
     rows = path_rows(result, finder.vehicle)
-    ds = np.hypot(*np.diff(rows[:, 1:3], axis=0).T)
+    rear = rear_axle_rows(rows, finder.vehicle["Lr"])
+    ds = np.hypot(*np.diff(rear[:, 1:3], axis=0).T)
     keep = ds > 1e-6
     heading = np.unwrap(rows[1:, 3])[keep]
     along, t = np.cumsum(ds[keep]), rows[1:, 0][keep]
+    cog = np.cumsum(np.hypot(*np.diff(rows[:, 1:3], axis=0).T))[keep]
     n = int(np.ceil(0.5 / np.median(ds[keep])))          # about half a metre of rows
     kappa = np.abs(heading[n:] - heading[:-n]) / (along[n:] - along[:-n])
-    v = (along[n:] - along[:-n]) / (t[n:] - t[:-n])
+    v = (cog[n:] - cog[:-n]) / (t[n:] - t[:-n])
     a_lat = finder.lateral_limit
     assert a_lat == pytest.approx(0.8 * 11.5)
     assert (v ** 2 * kappa).max() <= 1.02 * a_lat
@@ -298,23 +305,18 @@ class Recorder:
 
 @pytest.mark.parametrize("tight", [True, False])
 def test_the_planner_checks_a_kinematic_move_where_the_cars_body_is(tight):
-    """A tight move's (X, Y) moves along theta; the car keeping to that path faces theta -
-    body_slip(steer): that is the pose the validity checker is given, at the ramp's last
-    steer, the node itself as it is. The dynamic bicycle's own
-    heading is the body's, checked as it is."""
-    from stepzoo.dynamics.kinematic import body_slip
+    """A tight move drives the kinematic bicycle as a rigid car (its psi the body), the tree's
+    own move the dynamic bicycle (its psi the body): either way the validity checker is given
+    the states' poses as they are, the node's and the ramp's last."""
     recorder = Recorder()
-    car = dynamics.vehicle(None)
-    L, Lr = car["Lf"] + car["Lr"], car["Lr"]
     shooter = Shooter(recorder, None, 2.0 if tight else 5.0, "rk4", 0.02, 40, 3, 0.7,
                       tight=tight, max_steer_rate=0.32)
     steer0, steer = 0.2, np.array([-0.05, 0.2, 0.45])
     shots = shooter.shoot_steers(np.zeros(5), steer, np.array([20.0, 0.0, 0.0]), steer0)
     checked, states = recorder.seen[-1], shots.states
-    slip = (lambda d: body_slip(d, L, Lr)) if tight else (lambda d: 0.0 * d)
-    assert checked[:, 0, 2] == pytest.approx(states[:, 0, 2], abs=1e-12)   # the node itself
-    assert checked[:, -1, 2] == pytest.approx(states[:, -1, 2] - slip(steer), abs=1e-12)
-    assert checked[:, -1, :2] == pytest.approx(states[:, -1, :2], abs=1e-12)
+    assert checked[:, 0] == pytest.approx(states[:, 0, :3], abs=1e-12)   # the node itself
+    assert checked[:, -1] == pytest.approx(states[:, -1, :3], abs=1e-12)
+    assert np.ptp(states[:, -1, 2]) > 0.05     # the three steers turned the body apart
 
 
 @pytest.mark.parametrize("reverse", [False, True])
