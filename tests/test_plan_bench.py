@@ -103,7 +103,10 @@ def test_the_table_has_a_row_per_integrator_query_and_run_with_every_measure(ben
     assert (around["goal_distance_m"] < 0.1).all() and (around["replay_s"] > 0).all()
     # ... and tracked by the controller on the richer car, as plan.json's tracking block.
     assert (around["tracking_controller"] == "stanley").all()
-    assert (around["tracking_max_deviation_m"] >= around["tracking_final_deviation_m"]).all()
+    # Where it stops is where it strays most on these plans: the two measures computed apart
+    # (the scan's distance to the path, the end's to its last row) agree to rounding.
+    assert (around["tracking_max_deviation_m"] + 1e-9
+            >= around["tracking_final_deviation_m"]).all()
     assert (around["tracking_s"] > 0).all() and around["tracking_collides"].notna().all()
     walled = table[table["query"] == "walled"]
     assert (walled["status"] == "no_path").all() and (walled["cause"] == "walled_off").all()
