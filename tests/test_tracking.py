@@ -331,6 +331,25 @@ def test_where_the_plan_stops_to_turn_the_wheel_the_car_stops_too(monkeypatch):
     assert stopped["deviation"].max() < 0.27 < 0.28 < crawled["deviation"].max()
 
 
+@pytest.mark.parametrize("turn", [0.0, 0.5])
+def test_a_body_turned_standing_at_the_end_is_a_final_heading_deviation(turn):
+    """12 m straight at 0.8 m/s, then a second standing at the end while the rows' heading turns
+    by `turn` [rad] (the paper's kinematic bicycle drew its body so when its wheel turned at a
+    standstill): no car turns standing, so the tracked car stops facing as it came, and the
+    tracking block's final_heading_deviation_rad reads -turn; its position is where the rows
+    end."""
+    from stepzoo.search.world.maps import from_array
+    rows = line(0.8, 12.0)
+    still = rows[-1, 0] + np.linspace(0.05, 1.0, 20)
+    rows = np.vstack([rows, np.column_stack([still, np.full(20, rows[-1, 1]), np.zeros(20),
+                                             np.linspace(0.0, turn, 21)[1:]])])
+    plan = {"path": rows.tolist(), "start": [0.0, 0.0, 0.0], "controls": [],
+            "vehicle": dict(VEHICLE, wheelbase=L), "params": {"margin": 0.1}}
+    block = T.tracking(plan, from_array(np.zeros((20, 40), bool), 1.0))
+    assert block["final_heading_deviation_rad"] == pytest.approx(-turn, abs=0.01)
+    assert block["final_deviation_m"] < 0.05
+
+
 def test_the_steer_fed_forward_does_not_pick_up_the_rows_rounding():
     """On a circle of 20 m, rows 5 cm apart rounded to 1e-6 m as plan.json holds them: the
     steer the path's curvature feeds forward stays within 2.5e-4 rad of the unrounded rows'
@@ -397,6 +416,7 @@ def test_a_scenarios_plan_is_tracked_within_a_quarter_metre_without_collision():
     assert record["status"] == "exact" and list(block) == list(TRACKING_KEYS)
     assert (block["controller"], block["model"]) == ("stanley", "single_track_fiala")
     assert block["max_deviation_m"] < 0.25 and block["final_deviation_m"] < 0.25
+    assert abs(block["final_heading_deviation_rad"]) < 0.05    # facing as the goal asks
     assert block["collides"] is False and block["clearance_min_m"] > 0
     # The record's own path, tracked again from plan.json alone, gives the same block.
     assert T.tracking(record, omap) == block
@@ -434,7 +454,8 @@ def test_a_plan_without_a_path_has_a_tracking_block_of_nulls():
                         "vehicle": dict(VEHICLE, wheelbase=L), "params": {"margin": 0.1}},
                        from_array(np.zeros((4, 4), bool), 1.0))
     assert block == {"controller": "stanley", "model": "single_track_fiala",
-                     "max_deviation_m": None, "final_deviation_m": None, "collides": None,
+                     "max_deviation_m": None, "final_deviation_m": None,
+                     "final_heading_deviation_rad": None, "collides": None,
                      "clearance_min_m": None}
 
 

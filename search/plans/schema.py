@@ -71,6 +71,8 @@ TRACKING_KEYS = {
     "model": "the car it drives: single_track_fiala (dynamics/blended.py)",
     "max_deviation_m": "[m] largest distance of the car's centre of gravity from the path",
     "final_deviation_m": "[m] where the car stopped, to the path's last row",
+    "final_heading_deviation_rad": "[rad] the car's body heading where it stopped, less the "
+                                   "path's last row's (the goal's), wrapped to (-pi, pi]",
     "collides": "whether the car's footprint collides along the tracked trajectory",
     "clearance_min_m": "[m] least distance of its disc cover to an obstacle (<= 0 touches)",
 }

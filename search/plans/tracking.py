@@ -18,7 +18,8 @@ from stepzoo.dynamics.vehicles import G, axle_loads, default_vehicle, st_params,
 
 CONTROLLER = "stanley"
 MODEL = "single_track_fiala"
-METRICS = ("max_deviation_m", "final_deviation_m", "collides", "clearance_min_m")
+METRICS = ("max_deviation_m", "final_deviation_m", "final_heading_deviation_rad", "collides",
+           "clearance_min_m")
 KEYS = ("controller", "model") + METRICS
 
 METHOD = "rk4"
@@ -407,11 +408,13 @@ def tracking(plan, omap, footprint=None, vehicle: dict | None = None,
     """tracking(plan, omap, footprint=None, vehicle=None, margin=None) -> dict, plan.json's
     `tracking` block: `controller`, `model`, and along the tracked trajectory (`track`)
     max_deviation_m [m] (the centre of gravity's largest distance to the planned path),
-    final_deviation_m [m] (where the car stopped, to the path's last row), collides (the
-    car's footprint, as `replay` checks it, at poses at most CHECK_SPACING_M apart and the
-    moves between them) and clearance_min_m [m] (least distance of its disc cover to an
-    obstacle, <= 0 touches). `plan`: the plan.json record or a PlanResult (with the planner's
-    vehicle set and margin, as `replay` takes them). No path: the measures are None."""
+    final_deviation_m [m] (where the car stopped, to the path's last row),
+    final_heading_deviation_rad [rad] (its body's heading there, less the last row's),
+    collides (the car's footprint, as `replay` checks it, at poses at most CHECK_SPACING_M
+    apart and the moves between them) and clearance_min_m [m] (least distance of its disc
+    cover to an obstacle, <= 0 touches). `plan`: the plan.json record or a PlanResult (with
+    the planner's vehicle set and margin, as `replay` takes them). No path: the measures are
+    None."""
     from stepzoo.search.planner.pathfinder import PlanResult
     from stepzoo.search.plans.replay import car_footprint, safety
     if isinstance(plan, PlanResult):
@@ -440,5 +443,7 @@ def tracking(plan, omap, footprint=None, vehicle: dict | None = None,
     block.update({
         "max_deviation_m": float(run["deviation"].max()),
         "final_deviation_m": float(np.hypot(*(run["end"][:2] - rows[-1, 1:3]))),
+        "final_heading_deviation_rad": float(np.angle(np.exp(1j * (run["end"][2]
+                                                                   - rows[-1, 3])))),
         "collides": collides, "clearance_min_m": clearance})
     return block
