@@ -41,16 +41,6 @@ def shifted(poses, length):
     return out
 
 
-def body_slip(delta, L, Lr):
-    """[rad] the angle from the body of a car rolling without slip (its rear axle does not
-    slide) to the path of its centre of gravity, Lr [m] ahead of the rear axle,
-    when that path curves at tan(delta) / L [1/m], the kinematic bicycle's at steer delta
-    [rad] (L the wheelbase [m]): asin(Lr tan(delta) / L), the same forwards and backwards.
-    The kinematic bicycle moves its (X, Y) along theta: a car whose centre of gravity keeps
-    to that path faces theta - body_slip."""
-    return np.arcsin(np.clip(Lr * np.tan(delta) / L, -1.0, 1.0))
-
-
 def kinematic_bicycle(t, x, u, p):
     """JAX right-hand side; `L` defaults to Lf + Lr of a vehicle set."""
     L = p["L"] if "L" in p else p["Lf"] + p["Lr"]

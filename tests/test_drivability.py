@@ -139,8 +139,8 @@ def test_driving_backwards_is_counted_and_a_cusp_splits_the_measures():
 
 def test_turning_the_wheel_at_a_cusp_is_no_steer_rate():
     """10 m straight on at 2 m/s, a stop, the wheel turned to 0.3 rad while stopped, then 4 m
-    back on the arc of that steer: the centre of gravity sets off body_slip aside of the
-    heading it stopped with (0.2 rad here). The runs' curvatures are 0 and tan(0.3) / L; the
+    back on the arc of that steer: the centre of gravity sets off asin(Lr tan(0.3) / L)
+    aside of the heading it stopped with (0.2 rad here). The runs' curvatures are 0 and tan(0.3) / L; the
     steer is constant in each run, so no steer rate, whatever the cusp's row holds."""
     kappa = math.tan(0.3) / L
     on = np.linspace(0.0, 5.0, 501)

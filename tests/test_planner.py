@@ -274,22 +274,25 @@ def test_a_turn_tighter_than_the_trees_speed_allows_is_driven_slower():
     assert v[tight].max() == pytest.approx(finder.config.params.tight_speed, rel=0.02)
 
 
-def test_a_rolling_cars_body_turns_from_its_path_by_body_slip():
-    """Geometry alone: a car rolling without slip, whose centre of gravity (Lr ahead of the
-    rear axle) keeps to a circle of radius R, has its rear axle on the circle of radius
-    sqrt(R^2 - Lr^2) and its body along that axle's tangent; the angle from the body to the
-    centre of gravity's velocity is body_slip at the kinematic bicycle's steer atan(L / R),
-    whose (X, Y) turns on that same radius."""
-    from stepzoo.dynamics.kinematic import body_slip
+def test_the_rigid_cars_centre_of_gravity_rolls_as_geometry_says():
+    """Geometry alone: a car rolling without slip with its rear axle on a circle of radius r
+    about the origin, its body along the axle's tangent, has its steer atan(L / r), its
+    centre of gravity (Lr ahead of the axle) on the circle of radius sqrt(r^2 + Lr^2),
+    moving square to its radius; kinematic_cg's rigid_terms give that velocity's direction
+    and the body's turn v / sqrt(r^2 + Lr^2) for its speed v."""
+    import math
+    from stepzoo.dynamics.kinematic import rigid_terms
     car = dynamics.vehicle(None)
     L, Lr = car["Lf"] + car["Lr"], car["Lr"]
-    for R in (2.6, 4.0, 10.0):
-        rear = np.array([np.sqrt(R**2 - Lr**2), 0.0])   # turning left about the origin
-        body = np.array([0.0, 1.0])
-        cog = rear + Lr * body
-        velocity = np.array([-cog[1], cog[0]]) / R
-        angle = np.arctan2(body[0] * velocity[1] - body[1] * velocity[0], body @ velocity)
-        assert angle == pytest.approx(body_slip(np.arctan(L / R), L, Lr), abs=1e-12)
+    for r in (2.6, 4.0, 10.0):
+        body = np.array([0.0, 1.0])                      # turning left about the origin
+        cog = np.array([r, 0.0]) + Lr * body
+        R = np.hypot(*cog)
+        dx, dy, turn, _ = rigid_terms([*cog, np.pi / 2, 2.0], [math.atan(L / r), 0.0], L, Lr,
+                                      1.0, math.cos, math.sin, math.tan, math.sqrt)
+        assert np.array([dx, dy]) == pytest.approx(2.0 * np.array([-cog[1], cog[0]]) / R,
+                                                   abs=1e-12)
+        assert turn == pytest.approx(2.0 / R, abs=1e-12)
 
 
 class Recorder:
@@ -326,7 +329,7 @@ def test_a_kinematic_move_sets_off_without_sliding_its_rear_axle(reverse):
     a standstill (the start, a cusp), its wheel turned first (steer0 NaN), from a node whose
     body faces psi = 0.4: between every two poses the validity checker is given (the
     body's), the rear axle's chord lies along the mean of their body headings, and the first
-    pose is the node's. A move that set off along the node's heading instead of body_slip
+    pose is the node's. A move that set off along the node's heading instead of the slip
     beyond it slides the rear axle by up to 0.45 rad (full lock) at the start."""
     recorder = Recorder()
     car = dynamics.vehicle(None)

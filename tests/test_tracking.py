@@ -426,8 +426,8 @@ def test_reverse_gear_and_its_cusp_are_tracked():
     """A start facing a wall (as test_planner's): the plan backs away, then drives forwards;
     the car stops at the cusp, changes direction and reaches the end without collision,
     within a quarter metre of the path all the way: the plan's moves set off from a
-    standstill as the car does, its wheel turned, body_slip aside of the body's heading
-    (set off along the body's heading instead, the plan asked the car to slide, and the
+    standstill as the car does, its wheel turned, the rigid car's centre of gravity aside of
+    the body's heading (set off along the body's heading instead, the plan asked the car to slide, and the
     tracked car strayed 1.1 m from it backing round its tight turn)."""
     from stepzoo.search.world.maps import from_array
     occupied = np.zeros((40, 60), bool)
