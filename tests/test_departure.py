@@ -102,6 +102,62 @@ def test_the_planner_says_start_boxed_in_without_searching_and_reverse_is_not_bo
     assert PathFinder(omap, config, None, 2.0).plan(start, goal).cause != "start_boxed_in"
 
 
+def den312d_11():
+    """(query, map) of den312d-11: its goal lies where a street opens into a yard, the
+    car's rear towards a wall corner."""
+    query = next(q for q in load_queries(QUERY_DIR / "streets.json") if q.id == "den312d-11")
+    return query, open_map(query.map_path, query.cell_size)
+
+
+def test_a_goal_pocket_no_rigid_car_arrives_at_forwards_is_proved_on_the_fine_grid():
+    """den312d-11's goal, arrived at forwards by the rigid car (its rear axle rolls along the
+    body, Lr behind the centre of gravity), is left backwards: forwards from the rear axle's
+    pose turned round. The coarse growth, a pose every metre, steps past the wall corner that
+    every such path runs into and slides out along the street; the fine growth closes in its
+    3.5 m window, away from the start. The car itself, driven along 300 random paths,
+    agrees: every path collides, no collision-free prefix gets 3 m from the goal, and the
+    prefixes' poses every half metre lie in the fine set."""
+    from stepzoo.search.planner.endpoints import seen
+    from stepzoo.search.proofs.reach import COARSE, FINE, forward_reach, misses
+    query, omap = den312d_11()
+    fp, goal, lever = footprint(), np.array(query.goal), VEHICLE["Lr"]
+    pose, car = seen(fp, goal, lever, True)
+    assert forward_reach(omap, car, pose, RADIUS, COARSE) is None
+    grown = forward_reach(omap, car, pose, RADIUS, FINE)
+    assert grown is not None and misses(grown, np.array(query.start[:2]), FINE)
+    paths = random_forward_paths(np.random.default_rng(4), pose, 300, 6.0)
+    # The car's poses along them: facing back again, its centre of gravity Lr ahead of the
+    # rear axle; checked with the footprint as the planner's checker sees it.
+    heading = paths[..., 2] - math.pi
+    bodies = np.stack([paths[..., 0] + lever * np.cos(heading),
+                       paths[..., 1] + lever * np.sin(heading), heading], axis=-1)
+    hit = first_collision(omap, fp, bodies)
+    assert (hit > 0).all()
+    reach, corner = grown
+    every = round(FINE.step_m / 0.05)
+    farthest = 0.0
+    for path, body, first in zip(paths, bodies, hit):
+        farthest = max(farthest, float(np.hypot(*(body[:first, :2] - goal[:2]).T).max()))
+        poses = path[:first:every]
+        col = np.floor((poses[:, 0] - corner[0]) / FINE.cell_m).astype(int)
+        row = np.floor((poses[:, 1] - corner[1]) / FINE.cell_m).astype(int)
+        b = np.floor(np.mod(poses[:, 2], 2 * np.pi) / (2 * np.pi / FINE.heading_bins))
+        assert reach[b.astype(int) % FINE.heading_bins, row, col].all()
+    assert 1.0 < farthest < 3.0
+
+
+def test_a_search_cut_short_by_its_budget_says_when_no_forward_path_arrives():
+    """den312d-11 on 40 expansions: the search ends without a path and, instead of an
+    approximate path to a node that may stand beside the goal facing elsewhere, the plan is
+    no_path with the enclosure proof's cause."""
+    query, omap = den312d_11()
+    result = PathFinder(omap, make_config(max_expansions=40), None, 5.0).plan(query.start,
+                                                                            query.goal)
+    assert (result.status, result.cause) == ("no_path", "goal_boxed_in")
+    assert 0 < result.expansions <= 40 and "budget ended" in result.reason
+    assert "grown on 0.025 m" in result.reason
+
+
 @pytest.mark.parametrize("qid", ["room-64-64-8-05-boxed", "room-64-64-8-09-boxed"])
 def test_the_boxed_in_queries_of_the_earlier_draw_are_boxed_in(qid):
     query = {q.id: q for q in load_queries(QUERY_DIR / "boxed_in.json")}[qid]

@@ -11,7 +11,7 @@ from stepzoo.search.world.footprint import Footprint
 from stepzoo.search.planner.guide import lattice
 from stepzoo.search.world.maps import OccupancyMap
 from stepzoo.search.planner.status import Cause
-from stepzoo.search.proofs.reach import CELL_M, HEADING_BINS, STEP_M, WINDOW_M, unreachable
+from stepzoo.search.proofs.reach import COARSE, FINE, unreachable
 from stepzoo.search.world.validity import ValidityChecker
 
 
@@ -66,18 +66,20 @@ def enclosed(omap: OccupancyMap, footprint: Footprint, start, goal,
              radius: float, lever: float = 0.0) -> tuple[Cause | None, str]:
     """START_BOXED_IN (GOAL_BOXED_IN) if, forward only, no forward path gets from the start
     near the goal (or from the goal turned round near the start), proved by growing every
-    pose such a path can reach (`reach.unreachable`), the paths those of the point `lever`
-    [m] behind the poses' (X, Y) (`seen`). It costs seconds: run once a search has
-    exhausted."""
+    pose such a path can reach (`reach.unreachable`, on the coarse grid, then on the fine
+    one for a pocket), the paths those of the point `lever` [m] behind the poses' (X, Y)
+    (`seen`). It costs seconds: run once a search has ended without a path."""
     for name, (pose, car), other in (("start", seen(footprint, start, lever), goal),
                                      ("goal", seen(footprint, goal, lever, True), start)):
-        if unreachable(omap, car, pose, radius, other[:2]):
-            return Cause(f"{name}_boxed_in"), (
-                f"{name} boxed in: every pose a forward path of curvature <= 1/{radius:.2f} "
-                f"m can reach from it (grown on {CELL_M:g} m and "
-                f"{360 / HEADING_BINS:g} degree cells) stays within {WINDOW_M:g} m of it "
-                f"and over {STEP_M:g} m from the {'goal' if name == 'start' else 'start'}"
-                "; try --reverse")
+        for grid in (COARSE, FINE):
+            if unreachable(omap, car, pose, radius, other[:2], grid):
+                far = "goal" if name == "start" else "start"
+                return Cause(f"{name}_boxed_in"), (
+                    f"{name} boxed in: every pose a forward path of curvature <= "
+                    f"1/{radius:.2f} m can reach from it (grown on {grid.cell_m:g} m and "
+                    f"{360 / grid.heading_bins:g} degree cells) stays within "
+                    f"{grid.window_m:g} m of it and over {grid.step_m:g} m from the {far}"
+                    "; try --reverse")
     return None, ""
 
 

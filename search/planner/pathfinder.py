@@ -373,24 +373,34 @@ class Search:
 
     def exhausted(self) -> str:
         """Why the search ended with its heap empty; the cause is exhausted, unless a path
-        was found or the enclosure proof (forward only) shows the start or goal boxed in."""
+        was found."""
         res = self.result
         res.cause = res.cause or Cause.EXHAUSTED
-        ended = ("no node left that could shorten the path" if res.cause == Cause.CONNECTED
-                 else f"search exhausted: every reachable pruning cell of "
-                 f"{self.cell_xy:g} m and {self.cell_heading:.3g} rad was expanded, "
-                 + ("tight moves (the kinematic bicycle out to full lock) included"
-                    if res.widened else "tight moves off"))
-        if res.cause == Cause.EXHAUSTED and not self.prm.reverse:
-            cause, why = enclosed(self.f.omap, self.f.footprint, self.tree.states[0][:3],
-                                  self.goal, self.radius, self.f.lever)
-            if cause:
-                res.cause, ended = cause, f"{ended}; {why}"
+        return ("no node left that could shorten the path" if res.cause == Cause.CONNECTED
+                else f"search exhausted: every reachable pruning cell of "
+                f"{self.cell_xy:g} m and {self.cell_heading:.3g} rad was expanded, "
+                + ("tight moves (the kinematic bicycle out to full lock) included"
+                   if res.widened else "tight moves off"))
+
+    def boxed_in(self, ended: str) -> str:
+        """`ended`, and the cause, for a search that ended without a path (exhausted, or
+        cut short by its budget): with the reason of the enclosure proof (forward only,
+        endpoints.enclosed) appended and its cause set if the proof shows the start or goal
+        boxed in. Cut short, the tree may hold nodes beside the goal that face elsewhere:
+        an approximate path to them would hide that no forward path arrives."""
+        if self.prm.reverse:
+            return ended
+        cause, why = enclosed(self.f.omap, self.f.footprint, self.tree.states[0][:3],
+                              self.goal, self.radius, self.f.lever)
+        if cause:
+            self.result.cause, ended = cause, f"{ended}; {why}"
         return ended
 
     def finish(self, ended: str) -> PlanResult:
         """The result once the loop has ended, for the reason `ended`."""
         res, conn = self.result, self.connector
+        if not math.isfinite(self.best):
+            ended = self.boxed_in(ended)   # its seconds count as the search's
         res.nodes = len(self.tree)
         res.tree = self.tree.edges[1:]
         res.connect_s = conn.seconds

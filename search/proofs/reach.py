@@ -2,15 +2,16 @@
 the poses every collision-free forward path of curvature <= 1/radius can reach, grown until
 it closes inside a window around the pose.
 
-Cells are (x, y) squares of CELL_M and heading bins of 2 pi / HEADING_BINS. A path's poses
-every STEP_M of its length lie in cells that the growth reaches: from a cell it adds every
-cell that a path of length STEP_M can end in from any pose of the cell (a box of
+On a `Grid`, cells are (x, y) squares of cell_m and heading bins of 2 pi / heading_bins. A
+path's poses every step_m of its length lie in cells that the growth reaches: from a cell it
+adds every cell that a path of length step_m can end in from any pose of the cell (a box of
 displacements bounded per end-heading bin, below), except cells where every pose collides
 (some disc of the footprint, moved anywhere the cell allows, still covers an obstacle cell
 or the map's outside: `OccupancyMap.disc_hits` decides that exactly). If the growth closes
 without reaching the window's edge, no forward path leaves the window; a goal farther than
-STEP_M from every reached cell cannot be reached. The paths are those of the kinematic
-bicycle (moving along the heading), as in `departure`."""
+step_m from every reached cell cannot be reached. The paths are those of the kinematic
+bicycle (moving along the heading), as in `departure`. Two grids: COARSE for a pose boxed in
+within metres, FINE for a pocket a car's length across."""
 from __future__ import annotations
 
 import math
@@ -22,13 +23,30 @@ from stepzoo.search.proofs.departure import witness_arcs
 from stepzoo.search.world.footprint import Footprint, first_collision
 from stepzoo.search.world.maps import EXACT_CELLS, OccupancyMap
 
-# Measured on room-64-64-8-09's start: 0.1 m cells and 2-degree bins do not close (the
-# cells' rounding, a cell and a bin per step, lets the set slide along the wall); these do.
+# COARSE's. Measured on room-64-64-8-09's start: 0.1 m cells and 2-degree bins do not close
+# (the cells' rounding, a cell and a bin per step, lets the set slide along the wall); these do.
 CELL_M = 0.05         # [m] side of a position cell
 HEADING_BINS = 360    # heading bins of 1 degree
 STEP_M = 1.0          # [m] path length between the poses the growth follows
 WINDOW_M = 7.0        # [m] half side of the square window around the pose
 QUADRATURE = 400      # points of the displacement bounds' integrals
+
+
+class Grid(NamedTuple):
+    """The growth's resolution: position cells of `cell_m` [m], `heading_bins` heading bins,
+    poses followed every `step_m` [m] of path, within `window_m` [m] (half side) of the pose."""
+    cell_m: float
+    heading_bins: int
+    step_m: float
+    window_m: float
+
+
+COARSE = Grid(CELL_M, HEADING_BINS, STEP_M, WINDOW_M)
+# A pocket a car's length across: COARSE follows a path's poses every metre only, so its
+# growth steps past a wall corner that every path collides with on the way (den312d-11's goal,
+# the rigid car arriving forwards: its growth slides out along the street); FINE follows them
+# every half metre, on cells and bins half as large, in a window half as wide.
+FINE = Grid(0.025, 720, 0.5, 3.5)
 
 
 class _Box(NamedTuple):
@@ -75,42 +93,45 @@ def _dilate(grid, lo, hi, axis) -> np.ndarray:
     return upper > below
 
 
-def _blocked(omap: OccupancyMap, footprint: Footprint, x, y, heading) -> np.ndarray:
-    """bool (K,): every pose of the cells centred at (x, y) [m] with heading bins centred at
-    `heading` [rad] (arrays (K,)) collides: some disc, shrunk by how far the cell lets its
-    centre move, still covers an obstacle."""
+def _blocked(omap: OccupancyMap, footprint: Footprint, x, y, heading,
+             grid: Grid = COARSE) -> np.ndarray:
+    """bool (K,): every pose of the cells of `grid` centred at (x, y) [m] with heading bins
+    centred at `heading` [rad] (arrays (K,)) collides: some disc, shrunk by how far the cell
+    lets its centre move, still covers an obstacle."""
     out = np.zeros(len(x), bool)
     c, s = np.cos(heading), np.sin(heading)
     for offset in footprint.offsets:
         # The centre moves at most half the cell's diagonal and |offset| * half a bin.
-        shrink = CELL_M / math.sqrt(2) + abs(offset) * math.pi / HEADING_BINS
+        shrink = grid.cell_m / math.sqrt(2) + abs(offset) * math.pi / grid.heading_bins
         out |= omap.disc_hits(x + offset * c, y + offset * s, footprint.radius - shrink - 1e-9)
     return out
 
 
-def forward_reach(omap: OccupancyMap, footprint: Footprint, pose, radius):
+def forward_reach(omap: OccupancyMap, footprint: Footprint, pose, radius,
+                  grid: Grid = COARSE):
     """The grown cells (bins, ny, nx) bool and the window's lower-left corner (x, y) [m], or
     None if the growth reaches the window's edge (nothing proved), for forward paths of
-    curvature <= 1/radius [1/m] from `pose` [X, Y, psi]."""
+    curvature <= 1/radius [1/m] from `pose` [X, Y, psi], on `grid`."""
+    cell_m, bins, step_m, window_m = grid
     if 2 * math.ceil(footprint.radius / omap.resolution) + 1 > EXACT_CELLS:
         return None  # disc_hits would answer from a lower bound: no proof from it
-    if STEP_M / radius > math.pi / 2:
+    if step_m / radius > math.pi / 2:
         return None  # the displacement bounds need a step's turn within a quarter turn
-    n = int(round(2 * WINDOW_M / CELL_M))
-    corner = np.asarray(pose[:2], float) - WINDOW_M
-    bin_size = 2 * math.pi / HEADING_BINS
-    headings = (np.arange(HEADING_BINS) + 0.5) * bin_size
+    n = int(round(2 * window_m / cell_m))
+    corner = np.asarray(pose[:2], float) - window_m
+    bin_size = 2 * math.pi / bins
+    headings = (np.arange(bins) + 0.5) * bin_size
     # Collision is decided once per cell, when the growth first reaches it.
-    checked = np.zeros((HEADING_BINS, n, n), bool)
-    blocked = np.zeros((HEADING_BINS, n, n), bool)
-    reach = np.zeros((HEADING_BINS, n, n), bool)
-    start_bin = int((pose[2] % (2 * math.pi)) // bin_size) % HEADING_BINS
+    checked = np.zeros((bins, n, n), bool)
+    blocked = np.zeros((bins, n, n), bool)
+    reach = np.zeros((bins, n, n), bool)
+    start_bin = int((pose[2] % (2 * math.pi)) // bin_size) % bins
     reach[start_bin, n // 2, n // 2] = True
-    most = math.ceil(STEP_M / radius / bin_size) + 1
-    boxes = {d: _displacement_box(max((d - 1) * bin_size, -STEP_M / radius),
-                                  min((d + 1) * bin_size, STEP_M / radius), STEP_M, radius)
+    most = math.ceil(step_m / radius / bin_size) + 1
+    boxes = {d: _displacement_box(max((d - 1) * bin_size, -step_m / radius),
+                                  min((d + 1) * bin_size, step_m / radius), step_m, radius)
              for d in range(-most, most + 1)
-             if (d - 1) * bin_size < STEP_M / radius and (d + 1) * bin_size > -STEP_M / radius}
+             if (d - 1) * bin_size < step_m / radius and (d + 1) * bin_size > -step_m / radius}
     # Per heading bin a and bin change d: the cells a step can shift by, (x_lo, x_hi, y_lo,
     # y_hi), from the box rotated to the bin's middle heading and padded by what any heading
     # of the bin (within half a bin of the middle) adds; a pose anywhere in its cell adds
@@ -122,19 +143,19 @@ def forward_reach(omap: OccupancyMap, footprint: Footprint, pose, radius):
         pad = np.hypot(*corners.T).max() * bin_size / 2
         x = np.cos(headings)[:, None] * corners[:, 0] - np.sin(headings)[:, None] * corners[:, 1]
         y = np.sin(headings)[:, None] * corners[:, 0] + np.cos(headings)[:, None] * corners[:, 1]
-        shifts[d] = np.stack([np.floor((x.min(axis=1) - pad) / CELL_M),
-                              np.floor((x.max(axis=1) + pad) / CELL_M) + 1,
-                              np.floor((y.min(axis=1) - pad) / CELL_M),
-                              np.floor((y.max(axis=1) + pad) / CELL_M) + 1], axis=1).astype(int)
+        shifts[d] = np.stack([np.floor((x.min(axis=1) - pad) / cell_m),
+                              np.floor((x.max(axis=1) + pad) / cell_m) + 1,
+                              np.floor((y.min(axis=1) - pad) / cell_m),
+                              np.floor((y.max(axis=1) + pad) / cell_m) + 1], axis=1).astype(int)
     # A step moves at most `margin` cells: a reached cell nearer the edge could leave unseen.
     margin = int(max(np.abs(v).max() for v in shifts.values())) + 2
     # A free arc that gets as near the edge is a path the growth would follow there: say so
     # at once instead of growing the whole window (an open start costs seconds otherwise).
-    arcs = witness_arcs(pose, radius, 2 * WINDOW_M, CELL_M)
+    arcs = witness_arcs(pose, radius, 2 * window_m, cell_m)
     hit = first_collision(omap, footprint, arcs)
     for arc, first in zip(arcs, hit):
         free = arc[:first] if first >= 0 else arc
-        if np.abs(free[:, :2] - pose[:2]).max() >= WINDOW_M - (margin + 1) * CELL_M:
+        if np.abs(free[:, :2] - pose[:2]).max() >= window_m - (margin + 1) * cell_m:
             return None
     frontier = {start_bin: reach[start_bin].copy()}
     while frontier:
@@ -148,7 +169,7 @@ def forward_reach(omap: OccupancyMap, footprint: Footprint, pose, radius):
                 shifted = _dilate(_dilate(part, x_lo, x_hi, axis=1), y_lo, y_hi, axis=0)
                 # Inside the grid: every reached cell is over `margin` from the edge.
                 top, left = r0 + y_lo, c0 + x_lo
-                b = (a + d) % HEADING_BINS
+                b = (a + d) % bins
                 if b not in grown:
                     grown[b] = np.zeros((n, n), bool)
                 grown[b][top:top + shifted.shape[0], left:left + shifted.shape[1]] |= shifted
@@ -156,8 +177,8 @@ def forward_reach(omap: OccupancyMap, footprint: Footprint, pose, radius):
         for b, cells in grown.items():
             cells &= ~reach[b]
             new = np.nonzero(cells & ~checked[b])
-            blocked[b][new] = _blocked(omap, footprint, corner[0] + (new[1] + 0.5) * CELL_M,
-                                       corner[1] + (new[0] + 0.5) * CELL_M, headings[b])
+            blocked[b][new] = _blocked(omap, footprint, corner[0] + (new[1] + 0.5) * cell_m,
+                                       corner[1] + (new[0] + 0.5) * cell_m, headings[b], grid)
             checked[b][new] = True
             cells &= ~blocked[b]
             if not cells.any():
@@ -170,19 +191,22 @@ def forward_reach(omap: OccupancyMap, footprint: Footprint, pose, radius):
     return reach, corner
 
 
-def misses(grown, target) -> bool:
-    """Whether every cell of `grown` (forward_reach's result) is over STEP_M from the point
-    `target` [X, Y] [m]: then no path whose poses every STEP_M lie in it ends there."""
+def misses(grown, target, grid: Grid = COARSE) -> bool:
+    """Whether every cell of `grown` (forward_reach's result on `grid`) is over a step from
+    the point `target` [X, Y] [m]: then no path whose poses every step lie in it ends there."""
     reach, corner = grown
+    cell_m, step_m = grid.cell_m, grid.step_m
     rows, cols = np.nonzero(reach.any(axis=0))
     # The nearest point of each reached cell to the target.
-    x = np.clip(target[0], corner[0] + cols * CELL_M, corner[0] + (cols + 1) * CELL_M)
-    y = np.clip(target[1], corner[1] + rows * CELL_M, corner[1] + (rows + 1) * CELL_M)
-    return bool(np.hypot(x - target[0], y - target[1]).min() > STEP_M)
+    x = np.clip(target[0], corner[0] + cols * cell_m, corner[0] + (cols + 1) * cell_m)
+    y = np.clip(target[1], corner[1] + rows * cell_m, corner[1] + (rows + 1) * cell_m)
+    return bool(np.hypot(x - target[0], y - target[1]).min() > step_m)
 
 
-def unreachable(omap: OccupancyMap, footprint: Footprint, pose, radius, target) -> bool:
+def unreachable(omap: OccupancyMap, footprint: Footprint, pose, radius, target,
+                grid: Grid = COARSE) -> bool:
     """Whether no collision-free forward path of curvature <= 1/radius goes from `pose` to
-    the point `target` [X, Y] [m] (proved by `forward_reach`; False: nothing proved)."""
-    grown = forward_reach(omap, footprint, pose, radius)
-    return grown is not None and misses(grown, target)
+    the point `target` [X, Y] [m] (proved by `forward_reach` on `grid`; False: nothing
+    proved)."""
+    grown = forward_reach(omap, footprint, pose, radius, grid)
+    return grown is not None and misses(grown, target, grid)
