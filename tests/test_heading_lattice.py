@@ -169,9 +169,10 @@ def test_in_a_door_the_pruning_cells_are_halved_and_in_the_open_not(narrow):
 
 @pytest.mark.parametrize("vx,steer_max", [(4.0, None), (2.0, None), (4.0, 1.6)])
 def test_no_connection_sets_off_from_a_node_steered_past_the_speed_change_steer(vx, steer_max):
-    """With connect_steer_max at its default (None), SPEED_CHANGE_STEER; 1.6 turns it off."""
-    s = search("inserted", vx=vx, **({} if steer_max is None else
-                                     {"connect_steer_max": steer_max}))
+    """With connect_steer_max at its default (None), SPEED_CHANGE_STEER; 1.6 turns it off
+    (rate_limited steering: course_limited connects only with the wheel straight)."""
+    s = search("inserted", vx=vx, steering="rate_limited",
+               **({} if steer_max is None else {"connect_steer_max": steer_max}))
     called = []
     s.f.connect = lambda node, *args, **kw: (called.append(kw["steer"]), (None, "recorded"))[1]
     goal = s.goal

@@ -79,7 +79,7 @@ def server(tmp_path_factory):
     shipped = load_config()
     # An expansion budget: the plan cannot depend on how fast the machine is.
     (folder / "budget.toml").write_text(f'method = "{shipped.method}"\nh = {shipped.h!r}\n'
-                                        "[planner]\nmax_expansions = 60\n")
+                                        "[planner]\nmax_expansions = 600\n")
     # The server warms up on the test's own map (a small one) and config.
     (folder / "query.toml").write_text('map = "grid.npy"\ncell_size = 0.5\nspeed = 5.0\n'
                                        "start = [4.0, 10.0, 0.0]\ngoal = [36.0, 10.0, 0.0]\n")
