@@ -9,6 +9,7 @@ import math
 import numpy as np
 from scipy.spatial import cKDTree
 
+from stepzoo.dynamics.kinematic import shifted
 from stepzoo.search.world.footprint import Footprint
 from stepzoo.search.world.maps import OccupancyMap
 from stepzoo.search.plans.schema import DRIVABILITY_KEYS, PATH_METRICS
@@ -142,10 +143,8 @@ def drivability(rows, wheelbase, delta_max, max_steer_rate, max_lateral_accelera
 def rear_axle_rows(rows, lr) -> np.ndarray:
     """Path rows (K, 4) [t, X, Y, psi] of a car's centre of gravity -> the same rows of its
     rear axle's centre, lr [m] behind along psi."""
-    rows = np.array(rows, float)
-    rows[:, 1] -= lr * np.cos(rows[:, 3])
-    rows[:, 2] -= lr * np.sin(rows[:, 3])
-    return rows
+    rows = np.asarray(rows, float)
+    return np.column_stack([rows[:, 0], shifted(rows[:, 1:4], -lr)])
 
 
 def course_rows(rows) -> np.ndarray:

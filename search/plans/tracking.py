@@ -12,6 +12,7 @@ import numpy as np
 
 from stepzoo import dynamics
 from stepzoo.dynamics.blended import blend_weight, blended_single_track, kinematic_lateral
+from stepzoo.dynamics.kinematic import shifted
 from stepzoo.search.planner.connection_ocp import A_MAX
 from stepzoo.search.plans.path_metrics import STILL_M, steps
 from stepzoo.dynamics.vehicles import G, axle_loads, default_vehicle, st_params, tyre_params
@@ -166,7 +167,7 @@ def reference(rows, p: dict, kinematic=None) -> dict:
         # turn; elsewhere the rear axle's (Lr behind the centre of gravity, along the body),
         # which turns at tan(delta) / L whatever the steer does, where the centre of gravity's
         # path curves beyond that while the steer turns (its slip changes with it).
-        rear = xy - Lr * np.column_stack([np.cos(body), np.sin(body)])
+        rear = shifted(np.column_stack([xy, body]), -Lr)[:, :2]
         pace = np.gradient(rear, s, axis=0) if len(s) > 2 else np.ones((len(s), 2))
         turning = (np.gradient(np.unwrap(np.arctan2(pace[:, 1], pace[:, 0])), s)
                    / np.maximum(np.hypot(pace[:, 0], pace[:, 1]), 1e-9))
