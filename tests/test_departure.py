@@ -102,6 +102,16 @@ def test_the_planner_says_start_boxed_in_without_searching_and_reverse_is_not_bo
     assert PathFinder(omap, config, None, 2.0).plan(start, goal).cause != "start_boxed_in"
 
 
+def grown_holds(grown, grid, poses) -> np.ndarray:
+    """bool (K,): whether each of `poses` (K, 3) [X, Y, psi] lies in a cell of `grown`
+    (forward_reach's (reach, corner) on `grid`)."""
+    reach, corner = grown
+    col = np.floor((poses[:, 0] - corner[0]) / grid.cell_m).astype(int)
+    row = np.floor((poses[:, 1] - corner[1]) / grid.cell_m).astype(int)
+    b = np.floor(np.mod(poses[:, 2], 2 * np.pi) / (2 * np.pi / grid.heading_bins)).astype(int)
+    return reach[b % grid.heading_bins, row, col]
+
+
 def den312d_11():
     """(query, map) of den312d-11: its goal lies where a street opens into a yard, the
     car's rear towards a wall corner."""
@@ -133,16 +143,11 @@ def test_a_goal_pocket_no_rigid_car_arrives_at_forwards_is_proved_on_the_fine_gr
                        paths[..., 1] + lever * np.sin(heading), heading], axis=-1)
     hit = first_collision(omap, fp, bodies)
     assert (hit > 0).all()
-    reach, corner = grown
     every = round(FINE.step_m / 0.05)
     farthest = 0.0
     for path, body, first in zip(paths, bodies, hit):
         farthest = max(farthest, float(np.hypot(*(body[:first, :2] - goal[:2]).T).max()))
-        poses = path[:first:every]
-        col = np.floor((poses[:, 0] - corner[0]) / FINE.cell_m).astype(int)
-        row = np.floor((poses[:, 1] - corner[1]) / FINE.cell_m).astype(int)
-        b = np.floor(np.mod(poses[:, 2], 2 * np.pi) / (2 * np.pi / FINE.heading_bins))
-        assert reach[b.astype(int) % FINE.heading_bins, row, col].all()
+        assert grown_holds(grown, FINE, path[:first:every]).all()
     assert 1.0 < farthest < 3.0
 
 
@@ -233,8 +238,8 @@ def test_the_trees_dynamic_shootings_from_a_boxed_in_start_collide_too():
 def test_the_grown_forward_poses_hold_every_free_path_and_enclose_a_street_start():
     """room-64-64-8-09's start faces a wall 4.5 m away at 15 degrees: a 2 m arc leaves it,
     but the grown set closes within 7 m and the goal lies far outside; every collision-free
-    prefix of 300 random forward paths has its poses at each STEP_M of length in it."""
-    from stepzoo.search.proofs.reach import CELL_M, HEADING_BINS, STEP_M, forward_reach, misses
+    prefix of 300 random forward paths has its poses at each step_m of length in it."""
+    from stepzoo.search.proofs.reach import COARSE, forward_reach, misses
     query = next(q for q in load_queries(QUERY_DIR / "streets.json")
                  if q.id == "room-64-64-8-09")
     omap, fp = open_map(query.map_path, query.cell_size), footprint()
@@ -244,14 +249,11 @@ def test_the_grown_forward_poses_hold_every_free_path_and_enclose_a_street_start
     assert misses((reach, corner), np.array(query.goal[:2]))
     paths = random_forward_paths(np.random.default_rng(3), start, 300, 8.0)
     hit = first_collision(omap, fp, paths)
-    every = round(STEP_M / 0.05)
+    every = round(COARSE.step_m / 0.05)
     samples = 0
     for path, first in zip(paths, hit):
         free = path[:first] if first >= 0 else path
         poses = free[::every]
-        col = np.floor((poses[:, 0] - corner[0]) / CELL_M).astype(int)
-        row = np.floor((poses[:, 1] - corner[1]) / CELL_M).astype(int)
-        b = np.floor(np.mod(poses[:, 2], 2 * np.pi) / (2 * np.pi / HEADING_BINS)).astype(int)
-        assert reach[b % HEADING_BINS, row, col].all()
+        assert grown_holds((reach, corner), COARSE, poses).all()
         samples += len(poses) - 1
     assert samples > 300  # the paths do move: more than one step each on average

@@ -23,12 +23,6 @@ from stepzoo.search.proofs.departure import witness_arcs
 from stepzoo.search.world.footprint import Footprint, first_collision
 from stepzoo.search.world.maps import EXACT_CELLS, OccupancyMap
 
-# COARSE's. Measured on room-64-64-8-09's start: 0.1 m cells and 2-degree bins do not close
-# (the cells' rounding, a cell and a bin per step, lets the set slide along the wall); these do.
-CELL_M = 0.05         # [m] side of a position cell
-HEADING_BINS = 360    # heading bins of 1 degree
-STEP_M = 1.0          # [m] path length between the poses the growth follows
-WINDOW_M = 7.0        # [m] half side of the square window around the pose
 QUADRATURE = 400      # points of the displacement bounds' integrals
 
 
@@ -41,7 +35,10 @@ class Grid(NamedTuple):
     window_m: float
 
 
-COARSE = Grid(CELL_M, HEADING_BINS, STEP_M, WINDOW_M)
+# 0.05 m cells, 1-degree bins, a pose every metre, a 7 m window. Measured on
+# room-64-64-8-09's start: 0.1 m cells and 2-degree bins do not close (the cells' rounding, a
+# cell and a bin per step, lets the set slide along the wall); these do.
+COARSE = Grid(cell_m=0.05, heading_bins=360, step_m=1.0, window_m=7.0)
 # A pocket a car's length across: COARSE follows a path's poses every metre only, so its
 # growth steps past a wall corner that every path collides with on the way (den312d-11's goal,
 # the rigid car arriving forwards: its growth slides out along the street); FINE follows them
