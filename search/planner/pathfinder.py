@@ -214,13 +214,11 @@ class PathFinder:
                        v_min=-self.tight_vx if prm.reverse else 0.0, paths=paths, **limits)
         if not conn.success:
             return conn, f"IPOPT: {conn.status}"
-        if self.checker.first_invalid(self.connection_poses(conn)[None])[0] >= 0:
+        # Its nodes checked at their poses (rate-limited, the rigid car's: its centre of
+        # gravity and body).
+        if self.checker.first_invalid(conn.states[None, :, :3])[0] >= 0:
             return conn, "connection collides"
         return conn, ""
-
-    def connection_poses(self, conn: Connection) -> np.ndarray:
-        """(N+1, 3) the poses [X, Y, psi] the car's body takes at the connection's nodes."""
-        return conn.states[:, :3]
 
 
 class Cell(NamedTuple):
