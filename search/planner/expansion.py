@@ -18,10 +18,11 @@ PREFIX_FRACTION = 4     # a colliding shooting's free first part is kept from 1/
 # jump of the steer (a fifth of it); within 0.3 rad that step stays under 0.07 rad.
 SPEED_CHANGE_STEER = 0.3
 # [rad] course_limited steering: within this, the wheel all but straight. The dynamic
-# bicycle's centre of gravity moves along its body's heading plus a slip of about half the
-# steer at 5 m/s, the kinematic bicycle's along its theta, so a change of speed (or the
-# connection setting off) with the wheel turned is a kink in the course of (X, Y); within
-# 0.01 rad it stays under 5 mrad. Such nodes also get pruning cells of their own.
+# bicycle's tyres slip (its centre of gravity about half the steer aside of its body at
+# 5 m/s, its rear axle a few hundredths of a radian), the rigid car's kinematic moves do not,
+# so a change of speed (or the connection setting off) with the wheel turned is a kink in the
+# course of the rear axle (and of (X, Y)); within 0.01 rad it stays under 5 mrad. Such nodes
+# also get pruning cells of their own.
 STRAIGHT_STEER = 0.01
 # course_limited steering: the tree's own move (the dynamic bicycle) sets its steer rate
 # within this fraction of its rate limit of its edge's rate: the slip of its centre of gravity
