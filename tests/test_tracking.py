@@ -1,8 +1,8 @@
-"""The tracking replay against answers known without it: Stanley's loop from an offset start
-on a straight line, forwards and backwards, matches its linearised closed loop (matrix
-exponential, with the steering servo); on a circle its steady offset is the one solved from
-the car's steady-state cornering equations, written here from the tyre law and the geometry
-of a turning car."""
+"""The tracking replay against answers known without it: Stanley's loop (forwards) and the
+rear-wheel feedback (backwards) from an offset start on a straight line match their linearised
+closed loops (matrix exponential, with the steering servo); on a circle its steady offset
+is the one solved from the car's steady-state cornering equations, written here from the
+tyre law and the geometry of a turning car."""
 import numpy as np
 import pytest
 from scipy.linalg import expm
@@ -43,8 +43,8 @@ def test_an_offset_start_decays_as_the_linearised_stanley_loop(way):
     straight line the controlled axle's error follows the linear loop of states [e, psi,
     delta]: forwards the front axle, e' = v (psi + delta), delta -> -psi - k e / (k_soft + v),
     whose e decays at Stanley's rate k v / (k_soft + v) (the steer's servo adds a fast pole);
-    backwards the rear axle under pure pursuit of the point l = LOOKAHEAD_M behind it,
-    e' = -v psi, psi' = -v delta / L, delta -> 2 L psi / l - 2 L e / l^2."""
+    backwards the rear axle under rear-wheel feedback of length l = BACK_L_M, e' = -v psi,
+    psi' = -v delta / L, delta -> 2 L psi / l - L e / l^2 (critically damped)."""
     v, e0 = 0.8, 0.01
     out = track(line(v, 12.0, way), [0.0, e0, 0.0], VEHICLE)
     poses = out["poses"]
@@ -56,11 +56,10 @@ def test_an_offset_start_decays_as_the_linearised_stanley_loop(way):
         e = Y + LF * np.sin(psi)
         A = np.array([[0, v, v], [0, 0, v / L], servo_row([-c, -1])])
     else:
-        look = T.LOOKAHEAD_M
-        assert T.LOOKAHEAD_S * v < look          # the least lookahead applies
+        length = T.BACK_L_M
         e = Y - LR * np.sin(psi)
         A = np.array([[0, -v, 0], [0, 0, -v / L],
-                      servo_row([-2 * L / look**2, 2 * L / look])])
+                      servo_row([-L / length**2, 2 * L / length])])
     expected = linear_response(A, np.array([e0, 0.0, 0.0]), times)[:, 0]
     # The linear loop in continuous time against the sampled one (steps of 0.01 s): within 1%
     # of the offset all along, where the offset itself falls by 90% or more.
@@ -367,13 +366,15 @@ def test_the_steer_fed_forward_does_not_pick_up_the_rows_rounding():
     assert np.abs(rounded - exact)[40:-40].max() < 2.5e-4
 
 
-def test_backwards_on_a_circle_the_rear_axle_pursuit_keeps_the_car_on_it():
+def test_backwards_on_a_circle_the_rear_wheel_feedback_keeps_the_car_on_it():
     """Backing round a circle of R = 8 m at 0.8 m/s (the kinematic single track), from a
     pose on it (the centre of gravity on the circle, the body turned by the rolling car's
-    slip asin(Lr / R) from its tangent, the wheel at its steer): pure pursuit of a point on
-    the rear axle's own circle has that circle as its steady state, so the car stays on the
-    path (within 1 cm), until the lookahead reaches the path's end. The previous law
-    (Stanley's terms on the rear axle and a heading term) settled 2 cm off it here."""
+    slip asin(Lr / R) from its tangent, the wheel at its steer): the rear axle's curvature
+    fed forward holds its own circle, so once it has settled (within 2.5 cm before: the
+    path's first point reads half its turn, from one-sided differences) the car stays on
+    the path within 1 mm to its end. Pure pursuit settled on it too, but left it by 0.13 m
+    where its lookahead passed the path's end; the law before that (Stanley's terms on the
+    rear axle and a heading term) settled 2 cm off it."""
     R, v = 8.0, 0.8
     s = np.arange(0.0, 0.75 * 2 * np.pi * R, 0.05)
     a = s / R
@@ -382,11 +383,10 @@ def test_backwards_on_a_circle_the_rear_axle_pursuit_keeps_the_car_on_it():
     out = track(rows, [0.0, 0.0, -np.arcsin(LR / R)], VEHICLE, np.ones(len(rows), bool))
     assert out["done"]
     X, Y = out["poses"][:, 0], out["poses"][:, 1]
-    before_end = s[-1] - T.LOOKAHEAD_M - 0.5            # [m] the lookahead not yet at the end
-    n = int(before_end / v / T.H_S)
-    assert np.abs(np.hypot(X[:n], Y[:n] - R) - R).max() < 0.01
-    assert out["deviation"][:n].max() < 0.01
-    assert np.hypot(*(out["end"][:2] - rows[-1, 1:3])) < 0.1
+    off = np.abs(np.hypot(X, Y - R) - R)
+    settled = int(10.0 / v / T.H_S)                       # after its first 10 m
+    assert off.max() < 0.025 and off[settled:].max() < 0.001
+    assert np.hypot(*(out["end"][:2] - rows[-1, 1:3])) < 0.05    # it stops at the end
 
 
 def plan_record_of(scenario_name=None, omap=None, start=None, goal=None, vx=None, **params):
@@ -506,3 +506,51 @@ def test_the_shared_program_sizes_give_the_rows_and_the_tracking_of_the_plans_ow
     monkeypatch.setattr(T, "LEAST_STEPS", 65536)
     short = track(own, start, finder.vehicle, kinematic)
     assert not short["done"] and len(short["poses"]) == 1024
+
+
+def cusp_rows(v=2.0, steer=-0.6, back_m=3.0, on_m=20.0, v_on=5.0, dt=0.01):
+    """A rigid car's rows [t, X, Y, psi]: backing `back_m` [m] at `v` [m/s] and `steer` [rad]
+    (its rear axle on a circle of L / tan(steer), in closed form), then at once forwards at
+    `v_on` along a straight line from there, the wheel straight: the plan's steer jumps at
+    the cusp (as where a tight move meets the tree's 5 m/s moves)."""
+    t1 = np.arange(0.0, back_m / v, dt)
+    psi = -v * np.tan(steer) / L * t1             # psi' = v tan(delta) / L, v < 0
+    rate = -v * np.tan(steer) / L
+    rear = np.column_stack([-np.sin(psi) / rate * v, (np.cos(psi) - 1) / rate * v])
+    back = np.column_stack([t1, rear + LR * np.column_stack([np.cos(psi), np.sin(psi)]), psi])
+    t2 = np.arange(dt, on_m / v_on, dt)
+    end = back[-1]
+    on = np.column_stack([end[0] + t2, end[1] + v_on * t2 * np.cos(end[3]),
+                          end[2] + v_on * t2 * np.sin(end[3]), np.full(len(t2), end[3])])
+    return np.vstack([back, on])
+
+
+def test_at_a_cusp_the_car_turns_its_wheel_standing_before_it_moves_off(monkeypatch):
+    """Backing on a circle at steer -0.6 rad, then straight on at 5 m/s: the plan's steer
+    jumps by 0.6 rad at the cusp, which takes the wheel (0.6 - START_LAG_RAD) /
+    max_steer_rate = 1.375 s. The tracked car stands there most of that (the wheel starts
+    turning as it brakes to the stop) and keeps within 4 cm of the path; a car that moves
+    off with its wheel still turning (creeping at a tenth of the plan's speed) stands under
+    0.2 s and strays more than twice as far."""
+    rows = cusp_rows()
+    cusp = rows[np.argmax(np.diff(rows[:, 1]) > 0), 1:3]     # where X turns to growing
+
+    def tracked():
+        out = track(rows, rows[0, 1:], VEHICLE)
+        poses = out["poses"]
+        away = np.hypot(*(poses[:, :2] - rows[-1, 1:3]).T) > 0.2    # before it stops
+        step = np.r_[np.hypot(*np.diff(poses[:, :2], axis=0).T), 1.0]
+        standing = (step < 1e-3) & (np.hypot(*(poses[:, :2] - cusp).T) < 0.2)
+        assert out["done"]
+        return out["deviation"][away].max(), standing.sum() * T.H_S
+
+    deviation, standing = tracked()
+    turning = (0.6 - T.START_LAG_RAD) / VEHICLE["max_steer_rate"]     # [s] 1.375
+    assert standing > 0.6 * turning and deviation < 0.04
+    monkeypatch.setattr(T, "START_LAG_RAD", np.inf)
+    T._scan.cache_clear()
+    try:
+        hasty, stood = tracked()
+    finally:
+        T._scan.cache_clear()
+    assert stood < 0.2 and hasty > 2 * deviation

@@ -30,16 +30,17 @@ H_S = 0.01            # [s] integration step and control period (zero-order hold
 # (k_soft + v)); on the kinematic car the front axle's cross-track error then decays at rate k.
 GAIN_K = 2.0          # [1/s] cross-track gain k
 K_SOFT = 1.0          # [m/s] softening: the cross-track term stays bounded as the car stops
-# Backwards, pure pursuit of the rear axle (Coulter, 'Implementation of the Pure Pursuit Path
-# Tracking Algorithm', CMU-RI-TR-92-01; reversing as in Nav2's Regulated Pure Pursuit): the
-# rear axle, which the steer does not move sideways, follows the arc through a point
-# LOOKAHEAD ahead along its path. The kinematic car's rear axle turns at tan(delta) / L
-# whichever way it goes, so backwards this is forward pure pursuit mirrored: linearised, its
-# offset obeys s^2 + 2 v / l s + 2 v^2 / l^2 = 0 (damping 0.71), and on a circle it settles on
-# the path, where the previous law (Stanley's terms on the rear axle plus a heading term)
-# fought the plan's body slip at every cusp and strayed up to 1 m.
-LOOKAHEAD_M = 2.0     # [m] least lookahead: about a wheelbase
-LOOKAHEAD_S = 0.6     # [s] lookahead per speed: the loop's time scale l / v stays the same
+# Backwards, rear-wheel feedback (Samson, IEEE TAC 40, 1995; Paden et al., 'A survey of motion
+# planning and control techniques for self-driving urban vehicles', IEEE T-IV 1, 2016,
+# sec. V-B2): the rear axle, which the steer does not move sideways, turns at its path's
+# curvature (fed forward) less e / l^2 + 2 sin(theta) / l, e its offset to the left of the
+# path and theta its travel direction's error; the kinematic car's rear axle turns at
+# -tan(delta) / L per metre backwards, so along the path e'' + 2 e' / l + e / l^2 = 0
+# (critically damped), and on a curve it keeps to the path. Pure pursuit, its predecessor
+# here, cut curves short of a cusp by up to 0.4 m (no curvature fed forward, its lookahead
+# past the end of a piece a few tenths of a metre long).
+BACK_L_M = 1.0        # [m] the length l: an error settles within a few metres (reversing
+                      # pieces between cusps are often shorter than a wheelbase)
 STEER_SHARE = 0.5     # the share of the steer rate the path may ask for per metre at speed
 A_CAP = 2.0           # [m/s^2] braking towards a speed the steer rate or the grip caps
 GRIP_SHARE = 0.6      # the share of the tyres' friction mu g the path's turns may ask for
@@ -47,6 +48,7 @@ GRIP_SHARE = 0.6      # the share of the tyres' friction mu g the path's turns m
 V_CAP_MIN = 0.2       # [m/s] the least speed that cap sets
 STEER_LAG_RAD = 0.2   # [rad] steer lagging its command by this much halts the car ...
 SLOWEST = 0.1         # ... down to this fraction of the planned speed
+START_LAG_RAD = 0.05  # [rad] standing, the car moves off once its steer is this near its command
 HALT_S = 0.1          # [s] a plan standing still this long mid-way stops the car there too
 STEER_SERVO_S = 0.05  # [s] time constant of the steering servo (the plant limits its rate)
 SPEED_GAIN = 5.0      # [1/s] speed loop
@@ -123,7 +125,7 @@ def reference(rows, p: dict, kinematic=None) -> dict:
     centre of gravity and the body); where it drove the paper's kinematic bicycle
     (`kinematic`, a bool per row; default: nowhere), whose (X, Y) moves along psi, it is the
     path's heading less the rolling car's slip angle at the centre of gravity, asin(Lr
-    kappa). Averaged over SMOOTH_M, it sets the axles of a car whose centre of gravity is on
+    kappa), averaged over SMOOTH_M. It sets the axles of a car whose centre of gravity is on
     the path. The steer fed forward is that of the rear axle's path (Lr behind the centre of
     gravity along the body), which turns at tan(delta) / L."""
     rows = np.asarray(rows, float)
@@ -149,20 +151,25 @@ def reference(rows, p: dict, kinematic=None) -> dict:
         seg = np.column_stack([np.interp(s, along, rows[a:b + 1, k]) for k in range(3)])
         t, xy = seg[:, 0], seg[:, 1:3]
         d = np.diff(s)
-        travel = np.unwrap(np.arctan2(*np.gradient(xy, s, axis=0).T[::-1]))
+        travel = np.unwrap(np.arctan2(*_slope(xy, s).T[::-1]))
         # Averaged over FF_SMOOTH_M: a second difference of rows SPACING_M apart turns their
         # rounding (1e-6 m) into curvature noise of 1e-3 1/m, a steer fed forward that jitters.
-        kappa = _smooth(way * np.gradient(travel, s) if len(s) > 2 else np.zeros(len(s)),
+        kappa = _smooth(way * _slope(travel, s) if len(s) > 2 else np.zeros(len(s)),
                         FF_SMOOTH_M)
         beta = np.arcsin(np.clip(Lr * kappa, -sin_beta_max, sin_beta_max))
         rolling = np.interp(s, along, kinematic[a:b + 1].astype(float)) > 0.5
         facing = travel + (np.pi if way < 0 else 0.0)
         planned = np.interp(s, along, np.unwrap(rows[a:b + 1, 3]))
         planned += 2 * np.pi * np.round((facing[0] - planned[0]) / (2 * np.pi))
-        # Averaged over SMOOTH_M: a kink where the plan hands a slipping car's heading to the
-        # kinematic bicycle becomes a turn a car can drive.
+        # Forwards averaged over SMOOTH_M: a kink where the plan hands a slipping car's
+        # heading to the kinematic bicycle becomes a turn a car can drive. Backwards the
+        # rear-wheel feedback reads the rear axle's path segment by segment, which must be the
+        # path the car drove: the plan's body heading as it is (averaged, it moved that path
+        # by tenths of a radian on a piece shorter than SMOOTH_M), the kinematic bicycle's
+        # averaged along its trend.
         body = np.where(rolling, facing - beta, planned)
-        psi_body = _smooth(body)
+        psi_body = (_smooth(body) if way > 0
+                    else np.where(rolling, _smooth(body, trend=True), body))
         # The steer fed forward: on the paper's kinematic bicycle, the steer of its path's
         # turn; elsewhere the rear axle's (Lr behind the centre of gravity, along the body),
         # which turns at tan(delta) / L whatever the steer does, where the centre of gravity's
@@ -213,12 +220,25 @@ def steering_speed(speed, s, steer, rate: float, kappa=None, lateral: float = ma
     return np.minimum(speed, cap)
 
 
-def _smooth(a, length=SMOOTH_M):
-    """Moving average of samples SPACING_M apart over `length` [m], the ends held."""
+def _slope(a, s) -> np.ndarray:
+    """d a / d s of samples `a` (n, ...) at the points `s` (n,) [m], to second order at the
+    ends too: first order there, a piece's first point read half a curve's turn."""
+    return np.gradient(a, s, axis=0, edge_order=2 if len(s) > 2 else 1)
+
+
+def _smooth(a, length=SMOOTH_M, trend=False):
+    """Moving average of samples SPACING_M apart over `length` [m], the ends held, or with
+    `trend` extended along the line that fits the samples within `length` of each (a heading
+    along a curve: held, its last half length bent straight)."""
     half = int(length / SPACING_M / 2)
     if len(a) < 3 or half < 1:
         return a
-    padded = np.r_[np.repeat(a[0], half), a, np.repeat(a[-1], half)]
+    if trend:
+        near, k = min(len(a), 2 * half + 1), np.arange(1, half + 1)
+        head, tail = (np.polyfit(np.arange(near), end, 1) for end in (a[:near], a[::-1][:near]))
+        padded = np.r_[np.polyval(head, -k[::-1]), a, np.polyval(tail, -k)]
+    else:
+        padded = np.r_[np.repeat(a[0], half), a, np.repeat(a[-1], half)]
     return np.convolve(padded, np.full(2 * half + 1, 1 / (2 * half + 1)), mode="valid")
 
 
@@ -349,15 +369,12 @@ def _scan(n_steps: int):
                    + (1 - rolls) * wrap(at("course", j, f) - psi))
             forward = (aim - jnp.arctan(GAIN_K * e / soft)
                        + front_slip(v, at("kappa", j, f)))
-            # The point LOOKAHEAD along the path (its piece's end at most), seen from the rear
-            # axle against the direction of travel; the arc's curvature 2 sin(alpha) / l.
-            ahead_m = jnp.maximum(LOOKAHEAD_M, LOOKAHEAD_S * jnp.abs(v))
-            ahead = j + jnp.round(ahead_m / SPACING_M).astype(int)
-            goal = jnp.where(ahead < hi, at("C", jnp.minimum(ahead, hi - 1), f), ref["C"][hi])
-            gap = goal - axle
-            alpha = wrap(jnp.arctan2(gap[1], gap[0]) - psi - jnp.pi)
-            reach_m = jnp.maximum(jnp.hypot(gap[0], gap[1]), 1e-6)
-            backward = -jnp.arctan(2 * L * jnp.sin(alpha) / reach_m)
+            # Backwards: the rear axle's path curvature fed forward, plus its offset and the
+            # error of its travel direction along the path (the segment it is nearest).
+            seg = ref["C"][j + 1] - ref["C"][j]
+            theta = wrap(psi + jnp.pi - jnp.arctan2(seg[1], seg[0]))
+            backward = jnp.arctan(jnp.tan(at("steer_ff", j, f))
+                                  + L * (side / BACK_L_M ** 2 + 2 * jnp.sin(theta) / BACK_L_M))
             steer = jnp.clip(jnp.where(way > 0, forward, backward), p["delta_min"],
                              p["delta_max"])
             # The plan's speed, or less where braking at A_BRAKE must start to stop at the
@@ -377,6 +394,10 @@ def _scan(n_steps: int):
             # Slower while the steer lags its command (its rate is limited): the path, not
             # the plan's timing, is what the car must keep to.
             lag = jnp.clip(1 - jnp.abs(steer - x[6]) / STEER_LAG_RAD, SLOWEST, 1.0)
+            # Standing (at a cusp, or where the plan stood), it turns the wheel before it
+            # moves off, as a driver does where the plan's steer jumps.
+            lag = jnp.where((jnp.abs(x[3]) < STOPPED_MPS)
+                            & (jnp.abs(steer - x[6]) > START_LAG_RAD), 0.0, lag)
             target, ahead = target * lag, jnp.where(lag < 1, 0.0, ahead)
             last = k >= n_pieces - 1
             finished = done | (end & last)
