@@ -128,6 +128,31 @@ def test_a_rigid_car_read_at_its_rear_axle_shows_its_steer_ramp_where_its_course
     assert course["max_steer_rate_radps"] > 3 * rate
 
 
+def test_a_rigid_car_that_stops_within_a_step_reads_its_steer_ramp_on_both_sides():
+    """The rigid car (as above, plain NumPy and SciPy) backing at 6 m/s braking at 3 m/s^2
+    to a stop at t = 2 s and on forwards, its steer ramping at 0.3 rad/s from -0.6 rad,
+    sampled every 0.0677 s (a connection's intervals) so that the stop falls inside a step:
+    the step's chord runs partly back and partly on, its direction neither run's. Read at the
+    rear axle, the ramp (within 0.05 rad/s; it read 0.70, twice the limit, when that chord
+    and the step from one run's last course to the next's first were read as runs' ends)."""
+    lr = CAR["Lr"]
+
+    def f(t, x):
+        v, delta = 3.0 * (t - 2.0), -0.6 + 0.3 * t
+        beta = math.atan(lr * math.tan(delta) / L)
+        return [v * math.cos(x[2] + beta), v * math.sin(x[2] + beta),
+                v * math.cos(beta) * math.tan(delta) / L]
+    ts = np.arange(0.01, 4.0, 0.0677)
+    assert not np.isclose(ts, 2.0, atol=0.005).any()        # the stop is inside a step
+    sol = solve_ivp(f, (0.0, 4.0), [0.0] * 3, t_eval=ts, rtol=1e-11, atol=1e-12,
+                    max_step=0.002)
+    rear = drivability(rows_of(ts, sol.y.T), L, math.pi / 4, **LIMITS, heading="rear_axle",
+                       lr=lr)
+    assert rear["cusps"] == 1
+    assert rear["max_steer_rate_radps"] == pytest.approx(0.3, abs=0.05)
+    assert rear["drivable"]
+
+
 def test_driving_backwards_is_counted_and_a_cusp_splits_the_measures():
     ts = np.linspace(0.0, 8.0, 801)
     x = np.where(ts < 4.0, 5.0 * ts, 20.0 - 2.0 * (ts - 4.0))  # 20 m on, 8 m back

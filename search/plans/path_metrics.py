@@ -70,7 +70,8 @@ def drivability(rows, wheelbase, delta_max, max_steer_rate, max_lateral_accelera
     steer's change between windows over that of their times weighted by distance (the
     curvature's weights: exact for a steer ramp at any speed, also where the car slows to
     turn the wheel; the heading a run after a cusp sets off with is its own, the wheel turned
-    at the standstill). reverse_length_m [m] driven backwards; cusps. `drivable`:
+    at the standstill). reverse_length_m [m] driven backwards and cusps, both of the rows'
+    own (X, Y) whatever the heading read. `drivable`:
     every measure within TOLERANCE times the car's limit (curvature: tan(delta_max) /
     wheelbase, delta_max [rad]; max_steer_rate [rad/s]; max_lateral_acceleration [m/s^2]). A
     run shorter than a window adds no measure. `heading`: "psi", the rows' heading column
@@ -82,10 +83,10 @@ def drivability(rows, wheelbase, delta_max, max_steer_rate, max_lateral_accelera
     "rear_axle", the direction of travel of the rear axle's centre, `lr` [m] behind (X, Y)
     along psi (rear_axle_rows): a rigid car's point that moves along its body, on curvature
     tan(delta) / wheelbase, whatever its speed or the rate of its steer."""
-    rows = np.asarray(rows, float)
+    rows = own = np.asarray(rows, float)
     by_course = heading in ("course", "rear_axle")
     if by_course and len(rows) >= 2:
-        rows = course_rows(rear_axle_rows(rows, lr) if heading == "rear_axle" else rows)
+        rows, way = course_rows(rear_axle_rows(rows, lr) if heading == "rear_axle" else rows)
     out = dict.fromkeys(DRIVABILITY_KEYS)
     limit = {"curvature_1pm": math.tan(delta_max) / wheelbase,
              "steer_rate_radps": max_steer_rate,
@@ -97,6 +98,12 @@ def drivability(rows, wheelbase, delta_max, max_steer_rate, max_lateral_accelera
     along = np.sign(along)
     moving = np.flatnonzero(ds > STILL_M)
     kappa, rate, lateral = [0.0], [0.0], [0.0]
+    if by_course:
+        # From the last chord before a cusp to the first after it is in neither run: each run
+        # holds its own chords' courses only (the step read as the later run's first, and
+        # its first row as the earlier run's last course, 3.28 rad/s where the rows ramp at
+        # 0.32).
+        moving = moving[way[moving] == way[moving + 1]]
     # Runs of one direction of travel: the moving steps, split where the direction flips.
     runs = np.split(moving, np.flatnonzero(np.diff(along[moving]) != 0) + 1)
     for k, run in enumerate(runs):
@@ -134,8 +141,11 @@ def drivability(rows, wheelbase, delta_max, max_steer_rate, max_lateral_accelera
             rate.append(float((np.abs(np.diff(steer))[apart] / np.diff(when)[apart]).max()))
     measured = {"max_curvature_1pm": max(kappa), "max_steer_rate_radps": max(rate),
                 "max_lateral_acceleration_mps2": max(lateral)}
-    out.update(measured, reverse_length_m=float(ds[moving][along[moving] < 0].sum()),
-               cusps=cusps(rows), drivable=all(
+    # The path's own (X, Y): the reading's course rows drop the chords beside a cusp.
+    ds, along = steps(own)
+    backwards = (ds > STILL_M) & (along < 0)
+    out.update(measured, reverse_length_m=float(ds[backwards].sum()),
+               cusps=cusps(own), drivable=all(
                    measured[f"max_{name}"] <= TOLERANCE[name] * limit[name] for name in limit))
     return out
 
@@ -147,10 +157,13 @@ def rear_axle_rows(rows, lr) -> np.ndarray:
     return np.column_stack([rows[:, 0], shifted(rows[:, 1:4], -lr)])
 
 
-def course_rows(rows) -> np.ndarray:
-    """Path rows (K, 4) [t, X, Y, psi] -> one row per chord of about COURSE_STEP_M between
-    them (none across a cusp), at its middle, whose heading is the chord's direction of
-    travel (turned by pi where it runs backwards)."""
+def course_rows(rows) -> tuple[np.ndarray, np.ndarray]:
+    """Path rows (K, 4) [t, X, Y, psi] -> (one row per chord of about COURSE_STEP_M between
+    them, at its middle, whose heading is the chord's direction of travel (turned by pi where
+    it runs backwards); each chord's way, +1 forwards or -1). None across a cusp, nor on
+    either side of one: the rows' step that ends there may hold the stop itself (a
+    connection's interval in which the car stops and sets off again), its direction then
+    neither run's."""
     ds, along = steps(rows)
     along = np.sign(along)
     s = np.r_[0.0, np.cumsum(ds)]
@@ -163,8 +176,9 @@ def course_rows(rows) -> np.ndarray:
     angle = np.arctan2(chord[:, 1], chord[:, 0])
     back = chord[:, 0] * np.cos(rows[a, 3]) + chord[:, 1] * np.sin(rows[a, 3]) < 0
     mid = (rows[a, :3] + rows[b, :3]) / 2
-    keep = np.hypot(chord[:, 0], chord[:, 1]) > STILL_M
-    return np.column_stack([mid, angle + np.where(back, np.pi, 0.0)])[keep]
+    keep = (np.hypot(chord[:, 0], chord[:, 1]) > STILL_M) & ~np.isin(a, flips) & ~np.isin(b, flips)
+    return (np.column_stack([mid, angle + np.where(back, np.pi, 0.0)])[keep],
+            np.where(back, -1, 1)[keep])
 
 
 def cusps(rows) -> int:
