@@ -2,11 +2,13 @@
 centre screen that spares most poses the per-disc check never changes an answer."""
 
 
+import math
+
 import numpy as np
 import pytest
 
 from stepzoo.search.world.footprint import (Footprint, discs_collide, first_collision,
-                                            poses_collide, roomy)
+                                            poses_collide, rectangle_clearance, roomy)
 from stepzoo.search.world.maps import MAP_DIR, SUBDIV, from_array, load_map
 
 
@@ -311,3 +313,32 @@ def test_a_rigid_cars_full_lock_turn_clears_a_wall_the_disc_cover_touches():
     assert first_collision(omap, cover, poses[None]).tolist() == [-1]
     discs = Footprint(length, width, cover.offsets, cover.radius)
     assert first_collision(omap, discs, poses[None])[0] > 0
+
+
+@pytest.mark.parametrize("turn", [0.0, 0.3, math.pi / 4])
+def test_the_rectangles_clearance_from_a_wall_is_its_growth_until_it_touches(turn):
+    """A rectangle whose nearest point to a straight wall is d away: grown by g on every side,
+    its reach towards the wall grows by g (|cos| + |sin|) of its turn, so it clears by
+    d / (|cos turn| + |sin turn|): d square to the wall, d / sqrt(2) at 45 degrees, where the
+    disc cover's clearance is nearer d and is taken instead; neither exceeds d."""
+    occupied = np.zeros((20, 20), bool)
+    occupied[:4] = True                              # the wall: y < 6 m
+    omap = from_array(occupied, 1.5)
+    cover = Footprint.from_vehicle(4.708, 1.81)
+    d = 0.37
+    reach = 4.708 / 2 * abs(math.sin(turn)) + 1.81 / 2 * abs(math.cos(turn))
+    pose = np.array([[15.0, 6.0 + reach + d, turn]])
+    discs = np.array([cover_clearance(omap, cover, pose[0])])
+    got = rectangle_clearance(omap, cover, pose, discs, tol=1e-4)
+    grown = d / (abs(math.cos(turn)) + abs(math.sin(turn)))
+    assert got == pytest.approx(max(grown, discs[0]), abs=1e-4) and got <= d
+    if turn == 0.0:
+        assert got == pytest.approx(d, abs=1e-4) and discs[0] < d - 0.25   # the discs' 0.29 m
+
+
+def cover_clearance(omap, footprint, pose):
+    """[m] the disc cover's clearance at `pose`, by dense points on each disc's circle."""
+    centres = footprint.disc_centres(pose)
+    angle = np.linspace(0, 2 * np.pi, 2000)
+    ring = centres[:, None, :] + footprint.radius * np.stack([np.cos(angle), np.sin(angle)], -1)
+    return float(ring[..., 1].min() - 6.0)

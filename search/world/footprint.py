@@ -133,6 +133,42 @@ def rectangle_decides(omap: OccupancyMap, footprint: Footprint) -> bool:
         math.hypot(footprint.length, footprint.width) / omap.resolution + 1 <= EXACT_CELLS)
 
 
+def rectangle_clearance(omap: OccupancyMap, footprint: Footprint, poses, discs,
+                        tol: float = 1e-3) -> float:
+    """[m] the least clearance of `footprint`'s rectangle at `poses` (M, 3+) [X, Y, psi] on
+    `omap`, given `discs` (M,) [m], its disc cover's clearance at each pose: the largest g,
+    to within `tol`, at which the rectangle grown by g on every side (shrunk for g < 0)
+    clears every obstacle at every pose, or the least of `discs` if larger. Both are lower
+    bounds of the rectangle's distance E: the grown rectangle holds every point within g of
+    the rectangle (and none farther than g sqrt(2): at a corner, E may reach g sqrt(2)), and
+    the discs hold the rectangle. The discs stick out of the rectangle by at most `over` on
+    any side, so no pose clears by more than its discs plus that, nor by less than its discs
+    over sqrt(2)."""
+    poses, discs = np.asarray(poses, float), np.asarray(discs, float)
+    over = max(footprint.reach + footprint.radius - footprint.length / 2,
+               footprint.radius - footprint.width / 2)
+    least = float(discs.min())
+    floor = tol - min(footprint.length, footprint.width) / 2   # shrunk to nothing
+    hi = least + over + tol
+    near = discs < hi * math.sqrt(2)
+    ahead = footprint.centre
+    x = poses[near, 0] + ahead * np.cos(poses[near, 2])
+    y = poses[near, 1] + ahead * np.sin(poses[near, 2])
+
+    def clears(g):
+        return not omap.rectangle_hits(x, y, poses[near, 2], footprint.length + 2 * g,
+                                       footprint.width + 2 * g).any()
+    lo = max(least / math.sqrt(2) if least > 0 else least, floor)
+    while not clears(lo):   # only where the discs touch: shrink until the rectangle clears
+        if lo <= floor:
+            return floor
+        hi, lo = lo, max(lo - over - tol, floor)
+    while hi - lo > tol:
+        mid = (lo + hi) / 2
+        lo, hi = (mid, hi) if clears(mid) else (lo, mid)
+    return max(lo, least)
+
+
 def discs_collide(omap: OccupancyMap, footprint: Footprint, x, y, psi) -> np.ndarray:
     """Poses as arrays (...) [m, m, rad] -> bool (...): the plain check, disc by disc: a disc
     collides if an obstacle lies within its radius (OccupancyMap.disc_hits).
