@@ -16,7 +16,7 @@ from stepzoo.dynamics.vehicles import limits as vehicle_limits
 from stepzoo.search.planner.connection_ocp import Connection, Corridor, connect
 from stepzoo.search.planner.endpoints import bad_endpoint, departure_boxed_in, enclosed, walled_off
 from stepzoo.search.planner.expansion import SPEED_CHANGE_STEER, STRAIGHT_STEER, Expander
-from stepzoo.search.world.footprint import Footprint, rectangle_decides
+from stepzoo.search.world.footprint import Footprint
 from stepzoo.search.planner.guide import Guide, corridors
 from stepzoo.search.planner.heading_lattice import HeadingLattice
 from stepzoo.search.world.maps import SUBDIV, OccupancyMap
@@ -61,10 +61,6 @@ class PathFinder:
         # Slices half as long as the car is wide: the discs stick out 12% past the sides
         # instead of 32%, which is what lets a car through a door 0.6 m wider than itself.
         self.footprint = Footprint.from_vehicle(length, width, 2 * math.ceil(length / width))
-        # The proofs that no path exists reason about discs every pose of the car covers:
-        # inside the footprint's rectangle where the check decides by it.
-        self.proof_footprint = (self.footprint.inscribed()
-                                if rectangle_decides(omap, self.footprint) else self.footprint)
         self.vehicle_footprint = Footprint.from_vehicle(  # the car itself, for measures
             self.vehicle["length"], self.vehicle["width"], len(self.footprint.offsets))
         self.checker = checker or FootprintChecker(omap, self.footprint)
@@ -178,7 +174,7 @@ class PathFinder:
         """(cause, reason) why no search can reach the goal, proved before one starts."""
         cause, reason = walled_off(self.omap, self.corridors(), start, goal)
         if cause is None and not self.config.params.reverse:
-            cause, reason = departure_boxed_in(self.omap, self.proof_footprint, start, goal,
+            cause, reason = departure_boxed_in(self.omap, self.footprint, start, goal,
                                                self.turn_radius(), self.lever)
         return cause, reason
 
@@ -392,8 +388,8 @@ class Search:
         an approximate path to them would hide that no forward path arrives."""
         if self.prm.reverse:
             return ended
-        cause, why = enclosed(self.f.omap, self.f.proof_footprint,
-                              self.tree.states[0][:3], self.goal, self.radius, self.f.lever)
+        cause, why = enclosed(self.f.omap, self.f.footprint, self.tree.states[0][:3],
+                              self.goal, self.radius, self.f.lever)
         if cause:
             self.result.cause, ended = cause, f"{ended}; {why}"
         return ended
