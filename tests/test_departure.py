@@ -1,7 +1,8 @@
 """Leaving a pose forwards: the proof that no forward path leaves (boxed_in) holds against
 brute force, never contradicts a free arc, and the planner turns it into a typed no_path at
 once; the grown set of forward poses (reach) holds every collision-free random path's poses
-and proves a start pocket of the street set; the closed-form Dubins length is the shortest
+and proves a start pocket of the street set, and where the car's rectangle decides, the cells
+it blocks hold no free pose; the closed-form Dubins length is the shortest
 Dubins path; the boxed-in queries of the earlier draw are boxed in."""
 import math
 
@@ -168,8 +169,14 @@ def test_the_boxed_in_queries_of_the_earlier_draw_are_boxed_in(qid):
     query = {q.id: q for q in load_queries(QUERY_DIR / "boxed_in.json")}[qid]
     omap = open_map(query.map_path, query.cell_size)
     result = PathFinder(omap, make_config(), None, 5.0).plan(query.start, query.goal)
-    assert (result.status, result.cause, result.expansions) == ("no_path", "start_boxed_in", 0)
+    # On 3 m cells the check decides by the rectangle. The departure proof reasons about the
+    # front disc inside it, which does not prove these before a search; the enclosure proof,
+    # about the rectangle itself, proves both once the search exhausts (44 and 52 expansions).
+    assert (result.status, result.cause) == ("no_path", "start_boxed_in")
+    assert 0 < result.expansions < 100
     assert not free_departure(omap, footprint(), np.array(query.start), RADIUS)
+    # The disc cover alone is boxed in before any search.
+    assert boxed_in(omap, discs_only(footprint()), np.array(query.start), RADIUS)[0]
 
 
 def test_arc_poses_lie_on_the_circle_of_their_curvature():
@@ -235,16 +242,31 @@ def test_the_trees_dynamic_shootings_from_a_boxed_in_start_collide_too():
     assert (shots.free < shots.states.shape[1]).all() and (reached <= longest).all()
 
 
-def test_the_grown_forward_poses_hold_every_free_path_and_enclose_a_street_start():
-    """room-64-64-8-09's start faces a wall 4.5 m away at 15 degrees: a 2 m arc leaves it,
-    but the grown set closes within 7 m and the goal lies far outside; every collision-free
-    prefix of 300 random forward paths has its poses at each step_m of length in it."""
+def discs_only(fp):
+    """`fp`'s discs as the car's shape (the check decides by them on any map)."""
+    return Footprint(fp.length, fp.width, fp.offsets, fp.radius)
+
+
+@pytest.mark.parametrize("shape", ["discs", "rectangle"])
+def test_the_grown_forward_poses_hold_every_free_path_and_enclose_a_street_start(shape):
+    """room-64-64-8-09's start faces a wall 4.5 m away at 15 degrees: a 2 m arc leaves it;
+    for the disc cover, the grown set closes within 7 m and the goal lies far outside; every
+    collision-free prefix of 300 random forward paths has its poses at each step_m of length
+    in it. For the rigid car's rectangle (which the check decides by on these 3 m cells), seen
+    from its rear axle as the planner's proofs see it, the growth leaves the window: its
+    full-lock turn clears the wall by 4.8 cm, and the planner finds the way."""
     from stepzoo.search.proofs.reach import COARSE, forward_reach, misses
     query = next(q for q in load_queries(QUERY_DIR / "streets.json")
                  if q.id == "room-64-64-8-09")
-    omap, fp = open_map(query.map_path, query.cell_size), footprint()
+    omap = open_map(query.map_path, query.cell_size)
+    fp = discs_only(footprint()) if shape == "discs" else footprint()
     start = np.array(query.start)
     assert free_departure(omap, fp, start, RADIUS) and not boxed_in(omap, fp, start, RADIUS)[0]
+    if shape == "rectangle":
+        from stepzoo.search.planner.endpoints import seen
+        pose, car = seen(fp, start, VEHICLE["Lr"])
+        assert forward_reach(omap, car, pose, RADIUS) is None
+        return
     reach, corner = forward_reach(omap, fp, start, RADIUS)
     assert misses((reach, corner), np.array(query.goal[:2]))
     paths = random_forward_paths(np.random.default_rng(3), start, 300, 8.0)
@@ -257,3 +279,37 @@ def test_the_grown_forward_poses_hold_every_free_path_and_enclose_a_street_start
         assert grown_holds((reach, corner), COARSE, poses).all()
         samples += len(poses) - 1
     assert samples > 300  # the paths do move: more than one step each on average
+
+
+@pytest.mark.parametrize("grid", ["COARSE", "FINE"])
+def test_the_shrunk_rectangle_blocks_no_cell_that_holds_a_free_pose(grid):
+    """Where the check decides by the rectangle (den312d's 1.5 m cells), the growth's cells
+    near walls, the car seen from its centre and, as the proofs see the rigid car, from its
+    rear axle facing either way: in every cell _blocked claims, the poses at its corners and
+    bin edges and 30 random poses within it (position in its square, heading in its bin) all
+    collide by the exact check. The rectangle at the cell's centre unshrunk would claim cells
+    with free poses: the shrink carries it."""
+    from stepzoo.search.proofs import reach
+    g = getattr(reach, grid)
+    omap, rng = open_map(MAP_DIR / "den312d.map", 1.5), np.random.default_rng(5)
+    bin_size = 2 * math.pi / g.heading_bins
+    xmin, xmax, ymin, ymax = omap.bounds()
+    xy = rng.uniform((xmin, ymin), (xmax, ymax), (40000, 2))
+    xy = xy[(omap.clearance(xy) > 0) & (omap.clearance(xy) < 3.0)][:3000]
+    x, y = ((np.floor(xy / g.cell_m) + 0.5) * g.cell_m).T
+    heading = (np.floor(rng.uniform(0, 2 * math.pi, len(x)) / bin_size) + 0.5) * bin_size
+    corners = [(u, v, w) for u in (-0.5, 0.5) for v in (-0.5, 0.5) for w in (-0.5, 0.5)]
+    offsets = np.r_[np.array(corners), rng.uniform(-0.5, 0.5, (30, 3))]
+    rear = footprint().seen_from(VEHICLE["Lr"])
+    for car in (footprint(), rear, rear.turned()):
+        blocked = reach._blocked(omap, car, x, y, heading, g)
+        poses = np.stack([x[:, None] + offsets[:, 0] * g.cell_m,
+                          y[:, None] + offsets[:, 1] * g.cell_m,
+                          heading[:, None] + offsets[:, 2] * bin_size], axis=-1)
+        free = ~poses_collide(omap, car, poses)      # (cells, poses)
+        assert not (blocked[:, None] & free).any()
+        centre = omap.rectangle_hits(x + car.centre * np.cos(heading),
+                                     y + car.centre * np.sin(heading), heading,
+                                     car.length, car.width)
+        assert (centre & free.any(axis=1)).sum() > 10    # the unshrunk claim would be wrong
+        assert blocked.sum() > 0.5 * centre.sum() > 100  # and the shrunk one claims most

@@ -2,11 +2,13 @@
 centre screen that spares most poses the per-disc check never changes an answer."""
 
 
+import math
+
 import numpy as np
 import pytest
 
 from stepzoo.search.world.footprint import (Footprint, discs_collide, first_collision,
-                                            poses_collide, roomy)
+                                            poses_collide, rectangle_clearance, roomy)
 from stepzoo.search.world.maps import MAP_DIR, SUBDIV, from_array, load_map
 
 
@@ -203,7 +205,8 @@ def test_the_centre_screen_agrees_exactly_with_the_per_disc_check_on_a_real_map(
         name, cell_size, length, width):
     real = load_map(MAP_DIR / name, cell_size=cell_size)
     omap = from_array(real.occupied, real.resolution, (-3.25, 7.1))  # an origin off zero
-    footprint = Footprint.from_vehicle(length, width)
+    cover = Footprint.from_vehicle(length, width)
+    footprint = Footprint(length, width, cover.offsets, cover.radius)  # the discs decide
     poses = poses_over(omap, footprint, np.random.default_rng(5))
     truth = per_disc_check(omap, footprint, poses)
     screened = roomy(omap, footprint, *poses.T)
@@ -227,3 +230,115 @@ def test_bad_input_raises_value_error():
         Footprint.from_vehicle(4.5, 1.8, 0)
     with pytest.raises(ValueError, match="shape"):
         first_collision(grid_with([]), Footprint.from_vehicle(4.5, 1.8), np.zeros((5, 3)))
+
+
+def dense_rectangle_hits(omap, length, width, poses, n=61):
+    """Whether any of n x n points over the length x width rectangle at each pose lies in an
+    obstacle cell or off the grid: a sample, so it finds no overlap that is not there."""
+    pts = np.stack([rectangle_points(length, width, p, n) for p in poses])
+    u = (pts[..., 0] - omap.origin[0]) / omap.resolution
+    v = (pts[..., 1] - omap.origin[1]) / omap.resolution
+    rows, cols = omap.occupied.shape
+    off = ~((u > 0) & (u < cols) & (v > 0) & (v < rows))
+    col = np.clip(np.floor(u), 0, cols - 1).astype(int)
+    row = np.clip(np.floor(v), 0, rows - 1).astype(int)
+    return (off | omap.occupied[row, col]).any(axis=-1)
+
+
+def test_the_rectangle_check_is_bracketed_by_dense_points_of_the_rectangle_and_a_grown_one():
+    """On a real 1.5 m map, near its obstacles: every pose where a point of the rectangle lies
+    in an obstacle cell hits, and every pose that hits has a point of the rectangle grown by
+    more than the points' spacing over sqrt(2) in one."""
+    real = load_map(MAP_DIR / "Berlin_1_256.map", cell_size=1.5)
+    omap = from_array(real.occupied, real.resolution, (-3.25, 7.1))
+    length, width = 4.708, 1.81
+    poses = poses_over(omap, Footprint.from_vehicle(length, width), np.random.default_rng(7),
+                       5000)[:-5]
+    near = omap.clearance(poses[:, :2]) < 3.5
+    poses = poses[near]
+    got = omap.rectangle_hits(*poses.T, length, width)
+    grow = 2 * 0.1   # points 4.9 / 60 = 0.08 m apart: 0.06 m from any point of the rectangle
+    assert not np.any(dense_rectangle_hits(omap, length, width, poses) & ~got)
+    assert not np.any(got & ~dense_rectangle_hits(omap, length + grow, width + grow, poses))
+    assert 0.2 < got.mean() < 0.9   # near obstacles, both answers are common
+    assert omap.rectangle_hits(np.nan, 10.0, 0.0, length, width)
+
+
+def test_where_a_disc_collides_the_rectangle_decides_and_clears_corners_the_discs_stick_out_at():
+    real = load_map(MAP_DIR / "Berlin_1_256.map", cell_size=1.5)
+    omap = from_array(real.occupied, real.resolution, (-3.25, 7.1))
+    cover = Footprint.from_vehicle(4.708, 1.81)
+    discs = Footprint(4.708, 1.81, cover.offsets, cover.radius)
+    poses = poses_over(omap, cover, np.random.default_rng(8), 20000)
+    by_discs = poses_collide(omap, discs, poses)
+    got = poses_collide(omap, cover, poses)
+    assert np.array_equal(got, by_discs & omap.rectangle_hits(*poses.T, 4.708, 1.81))
+    assert np.any(by_discs & ~got)   # the discs' overshoot, cleared
+    # Seen from the rear axle, the same rectangle, Lr ahead.
+    finite = np.isfinite(poses).all(axis=1)
+    rear = poses[finite]
+    rear[:, :2] -= 1.422 * np.column_stack([np.cos(rear[:, 2]), np.sin(rear[:, 2])])
+    assert np.array_equal(poses_collide(omap, cover.seen_from(1.422), rear), got[finite])
+
+
+def test_the_inscribed_discs_lie_inside_the_rectangle_and_reach_its_ends():
+    cover = Footprint.from_vehicle(4.708, 1.81).seen_from(1.422)
+    inner = cover.inscribed()
+    assert not inner.rectangle and inner.radius == pytest.approx(1.81 / 2)
+    along = inner.offsets - cover.centre
+    assert along.min() - inner.radius == pytest.approx(-4.708 / 2)
+    assert along.max() + inner.radius == pytest.approx(4.708 / 2)
+
+
+def test_a_rigid_cars_full_lock_turn_clears_a_wall_the_disc_cover_touches():
+    """room-64-64-8-09's start: 4.5 m from a wall, facing it at 15 degrees. The rigid car at
+    full lock (its rear axle on a circle of L / tan(pi / 4)) turns away with its corners 4.8 cm
+    clear of the wall (the corners' lowest point, in closed form); its front disc reaches 5
+    cm past the wall. The check says what the rectangle does."""
+    occupied = np.zeros((20, 20), bool)
+    occupied[:2] = True                        # the wall: y < 6 m
+    omap = from_array(occupied, 3.0)
+    L, Lr, length, width = 2.578, 1.422, 4.708, 1.81   # the planner's car, 0.1 m margin
+    psi0 = -1.84
+    rear = np.array([30.0, 10.5]) - Lr * np.array([np.cos(psi0), np.sin(psi0)])
+    centre = rear + L * np.array([-np.sin(psi0), np.cos(psi0)])     # on the left
+    psi = np.linspace(psi0, 0.3, 400)
+    axle = centre + L * np.column_stack([np.sin(psi), -np.cos(psi)])
+    poses = np.column_stack([axle + Lr * np.column_stack([np.cos(psi), np.sin(psi)]), psi])
+    corner = np.hypot(L + width / 2, Lr + length / 2)   # the outer front corner's radius
+    assert centre[1] - corner - 6.0 == pytest.approx(0.048, abs=1e-3)
+    lowest = min(rectangle_points(length, width, p)[:, 1].min() for p in poses)
+    assert lowest > 6.04
+    cover = Footprint.from_vehicle(length, width, 6)
+    assert first_collision(omap, cover, poses[None]).tolist() == [-1]
+    discs = Footprint(length, width, cover.offsets, cover.radius)
+    assert first_collision(omap, discs, poses[None])[0] > 0
+
+
+@pytest.mark.parametrize("turn", [0.0, 0.3, math.pi / 4])
+def test_the_rectangles_clearance_from_a_wall_is_its_growth_until_it_touches(turn):
+    """A rectangle whose nearest point to a straight wall is d away: grown by g on every side,
+    its reach towards the wall grows by g (|cos| + |sin|) of its turn, so it clears by
+    d / (|cos turn| + |sin turn|): d square to the wall, d / sqrt(2) at 45 degrees, where the
+    disc cover's clearance is nearer d and is taken instead; neither exceeds d."""
+    occupied = np.zeros((20, 20), bool)
+    occupied[:4] = True                              # the wall: y < 6 m
+    omap = from_array(occupied, 1.5)
+    cover = Footprint.from_vehicle(4.708, 1.81)
+    d = 0.37
+    reach = 4.708 / 2 * abs(math.sin(turn)) + 1.81 / 2 * abs(math.cos(turn))
+    pose = np.array([[15.0, 6.0 + reach + d, turn]])
+    discs = np.array([cover_clearance(omap, cover, pose[0])])
+    got = rectangle_clearance(omap, cover, pose, discs, tol=1e-4)
+    grown = d / (abs(math.cos(turn)) + abs(math.sin(turn)))
+    assert got == pytest.approx(max(grown, discs[0]), abs=1e-4) and got <= d
+    if turn == 0.0:
+        assert got == pytest.approx(d, abs=1e-4) and discs[0] < d - 0.25   # the discs' 0.29 m
+
+
+def cover_clearance(omap, footprint, pose):
+    """[m] the disc cover's clearance at `pose`, by dense points on each disc's circle."""
+    centres = footprint.disc_centres(pose)
+    angle = np.linspace(0, 2 * np.pi, 2000)
+    ring = centres[:, None, :] + footprint.radius * np.stack([np.cos(angle), np.sin(angle)], -1)
+    return float(ring[..., 1].min() - 6.0)

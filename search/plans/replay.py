@@ -12,7 +12,8 @@ import numpy as np
 from stepzoo import dynamics
 from stepzoo.dynamics.models import steered as steered_rhs
 from stepzoo.search.planner.connection_ocp import DEFAULT_METHOD as CONNECT_METHOD
-from stepzoo.search.world.footprint import Footprint, first_collision
+from stepzoo.search.world.footprint import (Footprint, first_collision, rectangle_clearance,
+                                            rectangle_decides)
 from stepzoo.search.world.maps import OccupancyMap
 from stepzoo.search.plans.path_metrics import distance_to_obstacles
 from stepzoo.search.planner.pathfinder import PlanResult
@@ -121,8 +122,9 @@ def replay(plan, omap: OccupancyMap, footprint: Footprint | None = None,
     covered by discs as the planner covers it) along the replayed path, facing its psi
     (`drive`), poses at most CHECK_SPACING_M apart and the straight moves between
     them checked (first_collision),
-    against `omap`; clearance_min_m [m]: the least distance of that disc cover to an obstacle
-    along the replay (<= 0 touches); goal_distance_m [m]: replayed end to the goal position.
+    against `omap`; clearance_min_m [m]: the least distance of that disc cover (where the
+    check decides by the rectangle, of the rectangle: `safety`) to an obstacle along the
+    replay (<= 0 touches); goal_distance_m [m]: replayed end to the goal position.
     A plan without a path gets these as None; `segments`, `nodes`, `samples` count what was
     compared, `end` is the replayed end pose [X, Y, psi]."""
     if isinstance(plan, PlanResult):
@@ -165,10 +167,15 @@ def replay(plan, omap: OccupancyMap, footprint: Footprint | None = None,
 def safety(omap: OccupancyMap, footprint: Footprint, poses) -> tuple[bool, float]:
     """(whether the footprint collides at the poses (M, 3+) [X, Y, psi] or on the straight
     moves between them (first_collision), the least distance [m] of its disc cover to an
-    obstacle at the poses (<= 0 touches))."""
-    centres = footprint.disc_centres(poses).reshape(-1, 2)
-    return (bool(first_collision(omap, footprint, np.asarray(poses)[None])[0] >= 0),
-            float(distance_to_obstacles(omap, centres).min() - footprint.radius))
+    obstacle at the poses (<= 0 touches), or where the check decides by the rectangle, of
+    the rectangle (rectangle_clearance, a lower bound))."""
+    poses = np.asarray(poses, float)
+    centres = footprint.disc_centres(poses)
+    discs = distance_to_obstacles(omap, centres.reshape(-1, 2)).reshape(
+        centres.shape[:-1]).min(axis=-1) - footprint.radius
+    clearance = (rectangle_clearance(omap, footprint, poses, discs)
+                 if rectangle_decides(omap, footprint) else float(discs.min()))
+    return bool(first_collision(omap, footprint, poses[None])[0] >= 0), clearance
 
 
 def car_footprint(vehicle: dict, margin: float | None = None) -> Footprint:

@@ -74,7 +74,9 @@ TRACKING_KEYS = {
     "final_heading_deviation_rad": "[rad] the car's body heading where it stopped, less the "
                                    "path's last row's (the goal's), wrapped to (-pi, pi]",
     "collides": "whether the car's footprint collides along the tracked trajectory",
-    "clearance_min_m": "[m] least distance of its disc cover to an obstacle (<= 0 touches)",
+    "clearance_min_m": ("[m] least distance of its disc cover to an obstacle (<= 0 touches); "
+                        "where the check decides by the car's rectangle, of the rectangle (a "
+                        "lower bound: footprint.rectangle_clearance)"),
 }
 
 # plan.json's `stats`, in the order they are written.

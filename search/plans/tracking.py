@@ -434,9 +434,9 @@ def tracking(plan, omap, footprint=None, vehicle: dict | None = None,
     final_heading_deviation_rad [rad] (its body's heading there, less the last row's),
     collides (the car's footprint, as `replay` checks it, at poses at most CHECK_SPACING_M
     apart and the moves between them) and clearance_min_m [m] (least distance of its disc
-    cover to an obstacle, <= 0 touches). `plan`: the plan.json record or a PlanResult (with
-    the planner's vehicle set and margin, as `replay` takes them). No path: the measures are
-    None."""
+    cover, or rectangle, to an obstacle, as `replay` measures it, <= 0 touches). `plan`: the
+    plan.json record or a PlanResult (with the planner's vehicle set and margin, as `replay`
+    takes them). No path: the measures are None."""
     from stepzoo.search.planner.pathfinder import PlanResult
     from stepzoo.search.plans.replay import car_footprint, safety
     if isinstance(plan, PlanResult):

@@ -6,14 +6,15 @@ round: arriving forwards is leaving backwards).
 Both speak of paths that move along the heading and turn at most 1/radius per metre (the
 kinematic bicycle of the connection, radius = L / tan(delta_max)), swept by the footprint's
 discs, which collide as the planner's check says: an obstacle cell or the map's outside
-within a disc's radius."""
+within a disc's radius (where the check decides by the car's rectangle, the proof's disc is
+inside it)."""
 from __future__ import annotations
 
 import math
 
 import numpy as np
 
-from stepzoo.search.world.footprint import Footprint, first_collision
+from stepzoo.search.world.footprint import Footprint, first_collision, rectangle_decides
 from stepzoo.search.world.maps import OccupancyMap
 
 DEPARTURE_M = 2.0   # [m] the witness arc's length: half a car, more than a tree node's prefix
@@ -60,7 +61,12 @@ def unavoidable_points(footprint: Footprint, pose, radius, spacing) -> tuple[np.
 def boxed_in(omap: OccupancyMap, footprint: Footprint, pose, radius) -> tuple[bool, float]:
     """(True only if every forward path from `pose` [X, Y, psi] longer than the returned
     length [m] collides, that length). A point of unavoidable_points inside an obstacle cell
-    (or off the map) is inside the front disc of every such path, hence a collision."""
+    (or off the map) is inside the front disc of every such path, hence a collision. Where the
+    check decides by the rectangle (rectangle_decides), the disc cover sticks out of what
+    collides: the front disc is then the inscribed one (Footprint.inscribed), inside the
+    rectangle."""
+    if rectangle_decides(omap, footprint):
+        footprint = footprint.inscribed()
     a, r = float(footprint.offsets.max()), footprint.radius
     # Every point lies within this of the pose (t <= d + a + r with d <= radius pi/2,
     # |y| <= r): with more room than that around the pose no obstacle can be among them.

@@ -5,9 +5,11 @@ it closes inside a window around the pose.
 On a `Grid`, cells are (x, y) squares of cell_m and heading bins of 2 pi / heading_bins. A
 path's poses every step_m of its length lie in cells that the growth reaches: from a cell it
 adds every cell that a path of length step_m can end in from any pose of the cell (a box of
-displacements bounded per end-heading bin, below), except cells where every pose collides
-(some disc of the footprint, moved anywhere the cell allows, still covers an obstacle cell
-or the map's outside: `OccupancyMap.disc_hits` decides that exactly). If the growth closes
+displacements bounded per end-heading bin, below), except cells where every pose collides:
+some disc of the footprint, moved anywhere the cell allows, still covers an obstacle cell
+or the map's outside (`OccupancyMap.disc_hits` decides that exactly), or where the check
+decides by the car's rectangle (`rectangle_decides`), the rectangle shrunk by as much as the
+cell moves its points still overlaps one (`OccupancyMap.rectangle_hits`). If the growth closes
 without reaching the window's edge, no forward path leaves the window; a goal farther than
 step_m from every reached cell cannot be reached. The paths are those of the kinematic
 bicycle (moving along the heading), as in `departure`. Two grids: COARSE for a pose boxed in
@@ -20,7 +22,7 @@ from typing import NamedTuple
 import numpy as np
 
 from stepzoo.search.proofs.departure import witness_arcs
-from stepzoo.search.world.footprint import Footprint, first_collision
+from stepzoo.search.world.footprint import Footprint, first_collision, rectangle_decides
 from stepzoo.search.world.maps import EXACT_CELLS, OccupancyMap
 
 QUADRATURE = 400      # points of the displacement bounds' integrals
@@ -42,8 +44,11 @@ COARSE = Grid(cell_m=0.05, heading_bins=360, step_m=1.0, window_m=7.0)
 # A pocket a car's length across: COARSE follows a path's poses every metre only, so its
 # growth steps past a wall corner that every path collides with on the way (den312d-11's goal,
 # the rigid car arriving forwards: its growth slides out along the street); FINE follows them
-# every half metre, on cells and bins half as large, in a window half as wide.
-FINE = Grid(0.025, 720, 0.5, 3.5)
+# every half metre, on cells half and bins a sixth as large, in a window half as wide. Measured
+# on den312d-11's goal with the car's rectangle deciding: 720 and 1440 bins let the set drift
+# a bin a step through the gap the rectangle leaves by the corner (as do 0.0125 m cells or
+# quarter-metre steps on 720 bins); on 1800, 2160 and 2880 it closes, 2.64 m out at most.
+FINE = Grid(0.025, 2160, 0.5, 3.5)
 
 
 class _Box(NamedTuple):
@@ -93,15 +98,41 @@ def _dilate(grid, lo, hi, axis) -> np.ndarray:
 def _blocked(omap: OccupancyMap, footprint: Footprint, x, y, heading,
              grid: Grid = COARSE) -> np.ndarray:
     """bool (K,): every pose of the cells of `grid` centred at (x, y) [m] with heading bins
-    centred at `heading` [rad] (arrays (K,)) collides: some disc, shrunk by how far the cell
-    lets its centre move, still covers an obstacle."""
-    out = np.zeros(len(x), bool)
+    centred at `heading` [rad] (arrays (K,)) collides: where the check decides by the
+    rectangle, the rectangle at the cell's centre, shrunk on every side by
+    `rectangle_shrink`, still overlaps an obstacle; else some disc, shrunk by how far the
+    cell lets its centre move, still covers one."""
     c, s = np.cos(heading), np.sin(heading)
+    if rectangle_decides(omap, footprint):
+        delta = rectangle_shrink(footprint, grid) + 1e-9
+        ahead = footprint.centre
+        return omap.rectangle_hits(x + ahead * c, y + ahead * s, heading,
+                                   footprint.length - 2 * delta, footprint.width - 2 * delta)
+    out = np.zeros(len(x), bool)
     for offset in footprint.offsets:
         # The centre moves at most half the cell's diagonal and |offset| * half a bin.
         shrink = grid.cell_m / math.sqrt(2) + abs(offset) * math.pi / grid.heading_bins
         out |= omap.disc_hits(x + offset * c, y + offset * s, footprint.radius - shrink - 1e-9)
     return out
+
+
+def rectangle_shrink(footprint: Footprint, grid: Grid) -> float:
+    """[m] the least delta >= cell_m / sqrt(2) + rho pi / heading_bins, rho the largest
+    distance from (X, Y) to a corner of `footprint`'s rectangle shrunk by delta on every side:
+    every pose of a `grid` cell holds that shrunk rectangle of the cell's centre pose.
+    Proof: from the centre pose to any pose of the cell a body point q moves by at most
+    cell_m / sqrt(2) + 2 |q| sin(pi / (2 heading_bins)) <= delta, and the points within delta
+    of the shrunk rectangle are in the rectangle."""
+    move, turn = grid.cell_m / math.sqrt(2), math.pi / grid.heading_bins
+    ahead, across = abs(footprint.centre) + footprint.length / 2, footprint.width / 2
+
+    def short(delta):   # the bound not yet met at delta (rho falls as delta grows)
+        return delta < move + turn * math.hypot(ahead - delta, across - delta)
+    lo, hi = move, move + turn * math.hypot(ahead, across)
+    for _ in range(60):
+        mid = (lo + hi) / 2
+        lo, hi = (mid, hi) if short(mid) else (lo, mid)
+    return hi
 
 
 def forward_reach(omap: OccupancyMap, footprint: Footprint, pose, radius,
@@ -110,7 +141,8 @@ def forward_reach(omap: OccupancyMap, footprint: Footprint, pose, radius,
     None if the growth reaches the window's edge (nothing proved), for forward paths of
     curvature <= 1/radius [1/m] from `pose` [X, Y, psi], on `grid`."""
     cell_m, bins, step_m, window_m = grid
-    if 2 * math.ceil(footprint.radius / omap.resolution) + 1 > EXACT_CELLS:
+    if (not rectangle_decides(omap, footprint)
+            and 2 * math.ceil(footprint.radius / omap.resolution) + 1 > EXACT_CELLS):
         return None  # disc_hits would answer from a lower bound: no proof from it
     if step_m / radius > math.pi / 2:
         return None  # the displacement bounds need a step's turn within a quarter turn

@@ -2,7 +2,9 @@
 
 Discs are tested against the map's distance field at every pose, and paths are densified so
 that no disc centre moves more than one disc radius between checked poses. Poses far from
-every obstacle are cleared by one distance read at their centre before any disc is placed.
+every obstacle are cleared by one distance read at their centre before any disc is placed;
+where a disc touches an obstacle, the rectangle itself decides (the discs stick out past its
+corners and ends).
 """
 
 from __future__ import annotations
@@ -12,17 +14,21 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from stepzoo.search.world.maps import SUBDIV, OccupancyMap
+from stepzoo.search.world.maps import EXACT_CELLS, SUBDIV, OccupancyMap
 
 
 @dataclass(frozen=True, eq=False)
 class Footprint:
-    """A length x width rectangle centred on (X, Y), aligned with psi, covered by discs."""
+    """A length x width rectangle, aligned with psi, covered by discs along its axis; centred
+    on (X, Y) unless seen from another point (`seen_from`). With `rectangle`, the discs
+    circumscribe equal slices of it (from_vehicle), and a pose some disc collides at collides
+    only if the rectangle does; without, the discs are the shape."""
 
     length: float  # [m] along the heading
     width: float  # [m] across the heading
     offsets: np.ndarray  # (n,) [m] disc centres along the heading axis from (X, Y)
     radius: float  # [m] every disc's radius
+    rectangle: bool = False  # whether the rectangle decides where the discs collide
     reach: float = field(init=False)  # [m] the largest |offset|: no disc centre is farther
 
     def __post_init__(self):
@@ -38,11 +44,12 @@ class Footprint:
         object.__setattr__(self, "reach", float(np.abs(offsets).max()))
 
     @classmethod
-    def from_vehicle(cls, length, width, n_discs=None) -> "Footprint":
+    def from_vehicle(cls, length, width, n_discs=None, rectangle=True) -> "Footprint":
         """Cover the rectangle with n equal discs, each circumscribing an equal slice of it.
 
         By default n = ceil(length / width): near-square slices keep the discs' overhang past
-        the sides small without a long list of discs.
+        the sides small without a long list of discs. `rectangle`: whether the rectangle
+        decides where the discs collide (else the discs are the shape).
         """
         length, width = float(length), float(width)
         if not (math.isfinite(length) and math.isfinite(width) and length > 0 and width > 0):
@@ -55,17 +62,32 @@ class Footprint:
         n_discs = int(n_discs)
         piece = length / n_discs
         offsets = -length / 2 + piece * (np.arange(n_discs) + 0.5)
-        return cls(length, width, offsets, math.hypot(piece / 2, width / 2))
+        return cls(length, width, offsets, math.hypot(piece / 2, width / 2), rectangle)
+
+    @property
+    def centre(self) -> float:
+        """[m] the rectangle's centre along the heading from (X, Y): midway between the end
+        discs."""
+        return float(self.offsets.min() + self.offsets.max()) / 2
+
+    def inscribed(self) -> "Footprint":
+        """As many discs inside the rectangle, of radius half its shorter side, end to end:
+        a shape every pose of the car covers, for proofs that every path collides."""
+        radius = min(self.length, self.width) / 2
+        ends = self.length / 2 - radius
+        return Footprint(self.length, self.width,
+                         self.centre + np.linspace(-ends, ends, len(self.offsets)), radius)
 
     def seen_from(self, length: float) -> "Footprint":
         """The same discs with their offsets measured from the point `length` [m] behind
         (X, Y) along the heading (ahead for length < 0): the rigid car's from its rear axle,
         Lr behind its centre of gravity."""
-        return Footprint(self.length, self.width, self.offsets + length, self.radius)
+        return Footprint(self.length, self.width, self.offsets + length, self.radius,
+                         self.rectangle)
 
     def turned(self) -> "Footprint":
         """The same discs seen facing the other way (offsets negated)."""
-        return Footprint(self.length, self.width, -self.offsets, self.radius)
+        return Footprint(self.length, self.width, -self.offsets, self.radius, self.rectangle)
 
     def disc_centres(self, poses) -> np.ndarray:
         """(..., 3+) [X, Y, psi] (extra columns ignored) -> (..., n, 2) [m]."""
@@ -78,7 +100,8 @@ class Footprint:
 
 
 def poses_collide(omap: OccupancyMap, footprint: Footprint, poses) -> np.ndarray:
-    """(..., 3+) [X, Y, psi] -> bool (...): any disc touches an obstacle or leaves the map.
+    """(..., 3+) [X, Y, psi] -> bool (...): any disc touches an obstacle or leaves the map,
+    and where the rectangle decides (rectangle_decides), so does the rectangle.
 
     Non-finite poses (a blown-up integration) collide.
     """
@@ -88,11 +111,62 @@ def poses_collide(omap: OccupancyMap, footprint: Footprint, poses) -> np.ndarray
 
 def _collide(omap, footprint, x, y, psi) -> np.ndarray:
     """poses_collide of poses given as arrays (...) [m, m, rad]: the answer of discs_collide,
-    paid for only by the poses that roomy cannot clear."""
+    paid for only by the poses that roomy cannot clear, and where the rectangle decides, of
+    the rectangle at the poses where a disc collides (the discs cover it)."""
     hit = np.asarray(~roomy(omap, footprint, x, y, psi))  # an array even for one pose
     if hit.any():
         hit[hit] = discs_collide(omap, footprint, x[hit], y[hit], psi[hit])
+    if hit.any() and rectangle_decides(omap, footprint):
+        x, y, psi = x[hit], y[hit], psi[hit]
+        with np.errstate(invalid="ignore"):  # an infinite heading: rectangle_hits says hit
+            ahead = footprint.centre
+            hit[hit] = omap.rectangle_hits(x + ahead * np.cos(psi), y + ahead * np.sin(psi),
+                                           psi, footprint.length, footprint.width)
     return hit
+
+
+def rectangle_decides(omap: OccupancyMap, footprint: Footprint) -> bool:
+    """Whether poses_collide decides by `footprint`'s rectangle on `omap` (where a disc
+    collides): a rectangle footprint on cells coarse enough that its bounding box spans at
+    most EXACT_CELLS a side. Else the discs decide, and they are the car's shape."""
+    return footprint.rectangle and (
+        math.hypot(footprint.length, footprint.width) / omap.resolution + 1 <= EXACT_CELLS)
+
+
+def rectangle_clearance(omap: OccupancyMap, footprint: Footprint, poses, discs,
+                        tol: float = 1e-3) -> float:
+    """[m] the least clearance of `footprint`'s rectangle at `poses` (M, 3+) [X, Y, psi] on
+    `omap`, given `discs` (M,) [m], its disc cover's clearance at each pose: the largest g,
+    to within `tol`, at which the rectangle grown by g on every side (shrunk for g < 0)
+    clears every obstacle at every pose, or the least of `discs` if larger. Both are lower
+    bounds of the rectangle's distance E: the grown rectangle holds every point within g of
+    the rectangle (and none farther than g sqrt(2): at a corner, E may reach g sqrt(2)), and
+    the discs hold the rectangle. The discs stick out of the rectangle by at most `over` on
+    any side, so no pose clears by more than its discs plus that, nor by less than its discs
+    over sqrt(2)."""
+    poses, discs = np.asarray(poses, float), np.asarray(discs, float)
+    over = max(footprint.reach + footprint.radius - footprint.length / 2,
+               footprint.radius - footprint.width / 2)
+    least = float(discs.min())
+    floor = tol - min(footprint.length, footprint.width) / 2   # shrunk to nothing
+    hi = least + over + tol
+    near = discs < hi * math.sqrt(2)
+    ahead = footprint.centre
+    x = poses[near, 0] + ahead * np.cos(poses[near, 2])
+    y = poses[near, 1] + ahead * np.sin(poses[near, 2])
+
+    def clears(g):
+        return not omap.rectangle_hits(x, y, poses[near, 2], footprint.length + 2 * g,
+                                       footprint.width + 2 * g).any()
+    lo = max(least / math.sqrt(2) if least > 0 else least, floor)
+    while not clears(lo):   # only where the discs touch: shrink until the rectangle clears
+        if lo <= floor:
+            return floor
+        hi, lo = lo, max(lo - over - tol, floor)
+    while hi - lo > tol:
+        mid = (lo + hi) / 2
+        lo, hi = (mid, hi) if clears(mid) else (lo, mid)
+    return max(lo, least)
 
 
 def discs_collide(omap: OccupancyMap, footprint: Footprint, x, y, psi) -> np.ndarray:

@@ -156,6 +156,42 @@ class OccupancyMap:
                 hit |= (gap_u + gap_v <= reach2) & framed.take(base + (dr * width + dc))
         return hit
 
+    def rectangle_hits(self, x, y, psi, length, width) -> np.ndarray:
+        """Poses as three arrays (...) [m, m, rad] -> bool (...): an obstacle cell overlaps (or
+        touches) the `length` x `width` [m] rectangle centred on (x, y) along psi, or the
+        rectangle leaves the grid; decided exactly by separating axes against each cell of
+        its bounding box. Non-finite poses hit."""
+        x, y, psi = np.broadcast_arrays(*(np.asarray(a, dtype=float) for a in (x, y, psi)))
+        with np.errstate(invalid="ignore"):
+            c, s = np.cos(psi), np.sin(psi)
+        a, b = length / 2 / self.resolution, width / 2 / self.resolution  # [cells]
+        u, v = (x - self.origin[0]) / self.resolution, (y - self.origin[1]) / self.resolution
+        ex, ey = a * np.abs(c) + b * np.abs(s), a * np.abs(s) + b * np.abs(c)
+        rows, cols = self.occupied.shape
+        # The bounding box inside the open grid holds every corner there; NaN fails it.
+        hit = ~((u - ex > 0) & (u + ex < cols) & (v - ey > 0) & (v + ey < rows))
+        u, v, c, s = (np.where(hit, 0.5, w) for w in (u, v, c, s))
+        ex, ey = np.where(hit, 0.0, ex), np.where(hit, 0.0, ey)
+        col0, row0 = np.floor(u - ex).astype(np.intp), np.floor(v - ey).astype(np.intp)
+        col1, row1 = np.floor(u + ex).astype(np.intp), np.floor(v + ey).astype(np.intp)
+        # A cell's half extent along the rectangle's axes: 0.5 (|cos| + |sin|).
+        half = 0.5 * (np.abs(c) + np.abs(s))
+        flat = self.occupied.ravel()
+        span_c = int((col1 - col0).max(initial=0)) + 1
+        span_r = int((row1 - row0).max(initial=0)) + 1
+        for dc in range(span_c):
+            col = col0 + dc
+            dx = col + 0.5 - u
+            for dr in range(span_r):
+                row = row0 + dr
+                dy = row + 0.5 - v
+                inside = (col <= col1) & (row <= row1)
+                occupied = flat.take(np.where(inside, row * cols + col, 0)) & inside
+                apart = ((np.abs(dx * c + dy * s) > a + half)
+                         | (np.abs(dy * c - dx * s) > b + half))
+                hit |= occupied & ~apart
+        return hit
+
     def is_free(self, xy) -> np.ndarray:
         """(..., 2) [m] -> bool (...): clearance > 0."""
         return self.clearance(xy) > 0.0

@@ -113,7 +113,9 @@ def random_queries(map_path, cell_size, n, seed, *, vehicle=None, margin=0.1, ne
     omap = open_map(Path(map_path), cell_size)
     spec = dynamics.vehicle(vehicle)
     length, width = spec["length"] + 2 * margin, spec["width"] + 2 * margin
-    footprint = Footprint.from_vehicle(length, width, 2 * math.ceil(length / width))
+    # The shipped query sets were drawn with the discs deciding collisions: so they still are.
+    footprint = Footprint.from_vehicle(length, width, 2 * math.ceil(length / width),
+                                       rectangle=False)
     radius = (spec["Lf"] + spec["Lr"]) / math.tan(PlannerParams().delta_max)
     rng = np.random.default_rng(seed)
     points, region = _roomy_points(omap, room, spec["width"] / 2 + margin)
