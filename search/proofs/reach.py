@@ -102,12 +102,10 @@ def _blocked(omap: OccupancyMap, footprint: Footprint, x, y, heading,
     rectangle, the rectangle at the cell's centre, shrunk on every side by
     `rectangle_shrink`, still overlaps an obstacle; else some disc, shrunk by how far the
     cell lets its centre move, still covers one."""
-    c, s = np.cos(heading), np.sin(heading)
     if rectangle_decides(omap, footprint):
-        delta = rectangle_shrink(footprint, grid) + 1e-9
-        ahead = footprint.centre
-        return omap.rectangle_hits(x + ahead * c, y + ahead * s, heading,
-                                   footprint.length - 2 * delta, footprint.width - 2 * delta)
+        return footprint.rectangle_hits(omap, x, y, heading,
+                                        -(rectangle_shrink(footprint, grid) + 1e-9))
+    c, s = np.cos(heading), np.sin(heading)
     out = np.zeros(len(x), bool)
     for offset in footprint.offsets:
         # The centre moves at most half the cell's diagonal and |offset| * half a bin.

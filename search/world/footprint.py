@@ -70,6 +70,14 @@ class Footprint:
         discs."""
         return float(self.offsets.min() + self.offsets.max()) / 2
 
+    def rectangle_hits(self, omap: OccupancyMap, x, y, psi, grow: float = 0.0) -> np.ndarray:
+        """Poses as arrays (...) [m, m, rad] of (X, Y) -> bool (...): the rectangle, grown by
+        `grow` [m] on every side (shrunk for grow < 0), overlaps an obstacle cell or leaves
+        the grid (OccupancyMap.rectangle_hits at its centre)."""
+        ahead = self.centre
+        return omap.rectangle_hits(x + ahead * np.cos(psi), y + ahead * np.sin(psi), psi,
+                                   self.length + 2 * grow, self.width + 2 * grow)
+
     def inscribed(self) -> "Footprint":
         """As many discs inside the rectangle, of radius half its shorter side, end to end:
         a shape every pose of the car covers, for proofs that every path collides."""
@@ -119,9 +127,7 @@ def _collide(omap, footprint, x, y, psi) -> np.ndarray:
     if hit.any() and rectangle_decides(omap, footprint):
         x, y, psi = x[hit], y[hit], psi[hit]
         with np.errstate(invalid="ignore"):  # an infinite heading: rectangle_hits says hit
-            ahead = footprint.centre
-            hit[hit] = omap.rectangle_hits(x + ahead * np.cos(psi), y + ahead * np.sin(psi),
-                                           psi, footprint.length, footprint.width)
+            hit[hit] = footprint.rectangle_hits(omap, x, y, psi)
     return hit
 
 
@@ -150,14 +156,10 @@ def rectangle_clearance(omap: OccupancyMap, footprint: Footprint, poses, discs,
     least = float(discs.min())
     floor = tol - min(footprint.length, footprint.width) / 2   # shrunk to nothing
     hi = least + over + tol
-    near = discs < hi * math.sqrt(2)
-    ahead = footprint.centre
-    x = poses[near, 0] + ahead * np.cos(poses[near, 2])
-    y = poses[near, 1] + ahead * np.sin(poses[near, 2])
+    x, y, psi = poses[discs < hi * math.sqrt(2), :3].T
 
     def clears(g):
-        return not omap.rectangle_hits(x, y, poses[near, 2], footprint.length + 2 * g,
-                                       footprint.width + 2 * g).any()
+        return not footprint.rectangle_hits(omap, x, y, psi, g).any()
     lo = max(least / math.sqrt(2) if least > 0 else least, floor)
     while not clears(lo):   # only where the discs touch: shrink until the rectangle clears
         if lo <= floor:
